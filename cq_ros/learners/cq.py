@@ -1,0 +1,115 @@
+"""CQ-learning (De Hauwere, Vrancx & Nowé 2011, the paper's Algorithm 2).
+
+Each agent learns Q_k over its own cell. For every (cell, action) it keeps the reward windows W1 (the
+first N rewards) and W2 (the last N after those). When W2's mean falls significantly below W1's and
+the last reward is not significantly above W2's mean, the rewards of that cell have turned worse than
+when the agent was effectively alone: it marks the joint states (cell, peer, peer's cell) for every
+peer, seen at that moment, each with Q^j copied from Q_k and a confidence value.
+
+In a cell with marked joint states the agent looks at the peers they name (and only those): if one is
+met, it acts on Q^j and that joint state gains confidence; those not met lose confidence and are
+dropped below a threshold. Everywhere else it acts on Q_k, seeing no one. Q^j bootstraps from Q_k of
+the next cell, since the agent cannot know it will need coordination at the next step.
+
+"At that moment" is when the conflict is detected, i.e. once the step's rewards are in: the agent sees
+its peers at the start of its next step, before acting. For a collision this is also the joint state
+the agent acted in, since colliding agents stay where they were.
+"""
+
+from ..stats import ConflictTest, RewardWindows
+from .base import Learner, N_MOVES, epsilon_greedy, q_update
+
+
+class CQLearner(Learner):
+    name = "cq"
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        st = self.settings
+        self.q_local = [[0.0] * N_MOVES for _ in range(self.n_cells)]  # Q_k
+        self.q_joint: dict[tuple, list[float]] = {}  # Q^j, keyed by joint state (cell, peer, peer_cell)
+        self.confidence: dict[tuple, float] = {}
+        self.marked: dict[int, list[tuple]] = {}  # cell -> its joint states
+        self.watch: dict[int, tuple[int, ...]] = {}  # cell -> the peers its joint states name
+        self.windows = [RewardWindows(st.window) for _ in range(self.n_cells * N_MOVES)]  # W1, W2 per (s, a)
+        self.test = ConflictTest(st.window, st.significance)
+        self.conflict_at = None  # a cell whose conflict is marked as soon as the peers are seen
+
+    def observe(self, cell):
+        self.s = cell
+        if self.conflict_at is not None:
+            return self.peers
+        return self.watch.get(cell, ())
+
+    def act(self, peer_cells):
+        if self.conflict_at is not None:
+            self._mark(self.conflict_at, peer_cells)
+            self.conflict_at = None
+        self.js = self._meet(self.s, peer_cells) if self.s in self.marked else None
+        row = self.q_local[self.s] if self.js is None else self.q_joint[self.js]
+        self.a = epsilon_greedy(row, self.epsilon, self.rng)
+        return self.a
+
+    def learn(self, reward, next_cell, done):
+        s, a = self.s, self.a
+        w = self.windows[s * N_MOVES + a]
+        if w.add(reward) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, reward):
+            self.conflict_at = None if done else s
+        target = reward if done else reward + self.gamma * max(self.q_local[next_cell])
+        q_update(self.q_local[s] if self.js is None else self.q_joint[self.js], a, target, self.alpha)
+
+    def end_episode(self):
+        self.conflict_at = None
+
+    def state_count(self):
+        return self.n_cells + len(self.q_joint)
+
+    def joint_states(self):
+        return [(s, j, c, self.confidence[(s, j, c)]) for (s, j, c) in self.q_joint]
+
+    # -- the joint states of a cell --------------------------------------------------------------------
+
+    def _mark(self, s, peer_cells):
+        st = self.settings
+        for j in self.peers:
+            js = (s, j, peer_cells[j])
+            if js in self.confidence:
+                self.confidence[js] = max(self.confidence[js], st.conf_init)
+                continue
+            self.q_joint[js] = list(self.q_local[s])
+            self.confidence[js] = st.conf_init
+            self.marked.setdefault(s, []).append(js)
+        self._rewatch(s)
+
+    def _meet(self, s, peer_cells):
+        """The joint state of cell s met now (the most confident, if several), or None."""
+        st = self.settings
+        met = None
+        for js in list(self.marked[s]):
+            _, j, c = js
+            if peer_cells[j] == c:
+                self.confidence[js] = min(st.conf_max, self.confidence[js] + st.conf_up)
+                if met is None or self.confidence[js] > self.confidence[met]:
+                    met = js
+            else:
+                self.confidence[js] -= st.conf_down
+                if self.confidence[js] < st.conf_drop:
+                    self._forget(js)
+        if met is not None:
+            self.joint_plays += 1
+        return met
+
+    def _forget(self, js):
+        s = js[0]
+        del self.q_joint[js], self.confidence[js]
+        self.marked[s].remove(js)
+        if not self.marked[s]:
+            del self.marked[s]
+        self._rewatch(s)
+
+    def _rewatch(self, s):
+        peers = sorted({j for _, j, _ in self.marked.get(s, ())})
+        if peers:
+            self.watch[s] = tuple(peers)
+        else:
+            self.watch.pop(s, None)

@@ -1,0 +1,104 @@
+"""Every tunable number of an experiment in one flat, typed record: the paper's settings where it gives
+them, our choices where it does not (README, "Defaults"), each written into every result manifest.
+
+`Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
+parameters reach it, so a bad key or value is reported the same way everywhere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+
+
+class SettingsError(ValueError):
+    """A setting that does not exist or a value of the wrong type or range."""
+
+
+@dataclass(frozen=True)
+class Settings:
+    # The paper's: learning rate, fixed epsilon-greedy exploration, CQ's window size.
+    alpha: float = 0.1
+    epsilon: float = 0.1
+    window: int = 60
+    # Not in the paper: discount, significance of both t-tests.
+    gamma: float = 0.9
+    significance: float = 0.05
+    # Rewards (not in the paper): each agent's own reward per step.
+    reward_step: float = 0.0
+    reward_wall: float = -1.0
+    reward_collision: float = -10.0
+    reward_goal: float = 10.0
+    # CQ's confidence in a marked joint state (not in the paper): starts at conf_init, rises by conf_up
+    # (at most conf_max) when the joint state is met, falls by conf_down when its local state is met
+    # without it, and the joint state is dropped when it falls below conf_drop.
+    conf_init: float = 1.0
+    conf_up: float = 0.5
+    conf_down: float = 0.02
+    conf_max: float = 10.0
+    conf_drop: float = 0.0
+    # LoC: active perception is TRUE when a peer is at most this many cells away (Manhattan), i.e.
+    # close enough to collide this step; choosing COORDINATE costs this much of the learner's reward.
+    loc_range: int = 2
+    loc_cost: float = 0.1
+    # Episodes end when all agents are at their goals or after this many steps (recorded as truncated).
+    step_cap: int = 5000
+    # Probability that a move is replaced by a uniformly random one (0: deterministic, as in the paper).
+    slip: float = 0.0
+
+    def __post_init__(self):
+        _check(0.0 < self.alpha <= 1.0, "alpha", self.alpha, "in (0, 1]")
+        _check(0.0 <= self.epsilon <= 1.0, "epsilon", self.epsilon, "in [0, 1]")
+        _check(self.window >= 2, "window", self.window, "at least 2")
+        _check(0.0 <= self.gamma < 1.0, "gamma", self.gamma, "in [0, 1)")
+        _check(0.0 < self.significance < 0.5, "significance", self.significance, "in (0, 0.5)")
+        _check(self.conf_up >= 0 and self.conf_down >= 0, "conf_up/conf_down", (self.conf_up, self.conf_down),
+               "not negative")
+        _check(self.conf_drop < self.conf_init <= self.conf_max, "conf_drop < conf_init <= conf_max",
+               (self.conf_drop, self.conf_init, self.conf_max), "ordered")
+        _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
+        _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
+        _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            _check(math.isfinite(value), f.name, value, "a finite number")
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def with_overrides(self, pairs: list[str] | dict) -> "Settings":
+        """A copy with `key=value` strings (or a dict) applied; SettingsError names a bad key or value."""
+        items = pairs.items() if isinstance(pairs, dict) else (_split(p) for p in pairs)
+        types = {f.name: f.type for f in fields(self)}
+        changes = {}
+        for key, value in items:
+            if key not in types:
+                raise SettingsError(f"unknown setting {key!r}; settings are: {', '.join(sorted(types))}")
+            changes[key] = _coerce(key, value, int if types[key] in ("int", int) else float)
+        return dataclasses.replace(self, **changes)
+
+
+def _split(pair: str) -> tuple[str, str]:
+    key, sep, value = pair.partition("=")
+    if not sep or not key.strip():
+        raise SettingsError(f"expected key=value, got {pair!r}")
+    return key.strip(), value.strip()
+
+
+def _coerce(key: str, value, kind: type):
+    if isinstance(value, bool):
+        raise SettingsError(f"setting {key} takes a number, got {value!r}")
+    try:
+        if kind is int:
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value) if not isinstance(value, str) else int(value, 10)
+        return float(value)
+    except (TypeError, ValueError):
+        raise SettingsError(f"setting {key} takes {'an integer' if kind is int else 'a number'}, got {value!r}") from None
+
+
+def _check(ok: bool, name: str, value, what: str) -> None:
+    if not ok:
+        raise SettingsError(f"setting {name} must be {what}, got {value}")

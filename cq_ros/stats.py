@@ -1,0 +1,120 @@
+"""CQ-learning's statistics: the reward windows W1 and W2 of one (state, action) pair and the two
+Student t-tests the paper runs on them every step, with O(1) work per step.
+
+W1 keeps the first N rewards for ever; W2 slides over the last N after those (the paper's Figure 1).
+Both keep running sums, so a test costs a few float operations; the critical values of the fixed
+degrees of freedom are looked up once with scipy and cached. Decisions agree with
+`scipy.stats.ttest_ind(w2, w1, equal_var=True, alternative="less")` and
+`scipy.stats.ttest_1samp(w2, r, alternative="less")` (see tests/test_stats.py).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+from scipy import stats as _scipy_stats
+
+# A sum of squared deviations this small relative to the sum of squares is rounding noise of the
+# running sums, not spread: treat it as zero variance, where scipy's two-pass formula gives (almost) 0.
+_ZERO_SPREAD = 1e-12
+
+
+@lru_cache(maxsize=None)
+def critical_t(significance: float, df: int) -> float:
+    """The one-sided critical value: reject "mean not lower" when t < -critical_t(significance, df)."""
+    if not 0.0 < significance < 1.0:
+        raise ValueError(f"significance must lie in (0, 1), got {significance}")
+    if df < 1:
+        raise ValueError(f"degrees of freedom must be at least 1, got {df}")
+    return float(-_scipy_stats.t.ppf(significance, df))
+
+
+def _spread(total: float, squares: float, n: int) -> float:
+    """Sum of squared deviations from the mean, from running sums; 0 where it is rounding noise."""
+    ss = squares - total * total / n
+    return 0.0 if ss <= _ZERO_SPREAD * squares else ss
+
+
+def _t_or_inf(diff: float, se2: float) -> float:
+    """diff / sqrt(se2), with scipy's conventions at zero spread (+-inf, or nan for 0/0)."""
+    if se2 > 0.0:
+        return diff / math.sqrt(se2)
+    if diff == 0.0:
+        return math.nan
+    return math.copysign(math.inf, diff)
+
+
+class RewardWindows:
+    """W1 and W2 of one (state, action) pair, as running sums, plus the ring buffer W2 slides over."""
+
+    __slots__ = ("size", "n1", "sum1", "sq1", "w2", "head", "sum2", "sq2")
+
+    def __init__(self, size: int):
+        if size < 2:
+            raise ValueError(f"a window needs at least 2 samples for a t-test, got {size}")
+        self.size = size
+        self.n1 = 0
+        self.sum1 = 0.0
+        self.sq1 = 0.0
+        self.w2: list[float] = []
+        self.head = 0  # the oldest sample of a full W2, replaced next
+        self.sum2 = 0.0
+        self.sq2 = 0.0
+
+    def add(self, reward: float) -> bool:
+        """Store a reward; True once both windows are full, so the tests below may run."""
+        if self.n1 < self.size:
+            self.n1 += 1
+            self.sum1 += reward
+            self.sq1 += reward * reward
+            return False
+        w2 = self.w2
+        if len(w2) < self.size:
+            w2.append(reward)
+            self.sum2 += reward
+            self.sq2 += reward * reward
+            return len(w2) == self.size
+        old = w2[self.head]
+        w2[self.head] = reward
+        self.head += 1
+        if self.head == self.size:
+            # Re-add W2 exactly once per full slide, so the running sums cannot drift.
+            self.head = 0
+            self.sum2 = math.fsum(w2)
+            self.sq2 = math.fsum(r * r for r in w2)
+        else:
+            self.sum2 += reward - old
+            self.sq2 += reward * reward - old * old
+        return True
+
+    def drop_t(self) -> float:
+        """Pooled two-sample t statistic of W2 against W1 (negative: rewards have dropped)."""
+        n = self.size
+        ss = _spread(self.sum1, self.sq1, n) + _spread(self.sum2, self.sq2, n)
+        # Pooled variance (ss / (2n - 2)) times (1/n + 1/n).
+        return _t_or_inf((self.sum2 - self.sum1) / n, ss / (n - 1) / n)
+
+    def above_t(self, reward: float) -> float:
+        """One-sample t statistic of W2 against `reward` (negative: the reward lies above W2's mean)."""
+        n = self.size
+        ss = _spread(self.sum2, self.sq2, n)
+        return _t_or_inf(self.sum2 / n - reward, ss / (n - 1) / n)
+
+
+class ConflictTest:
+    """The paper's two tests at one significance level, for windows of one size."""
+
+    __slots__ = ("t_two", "t_one")
+
+    def __init__(self, window: int, significance: float):
+        self.t_two = critical_t(significance, 2 * window - 2)
+        self.t_one = critical_t(significance, window - 1)
+
+    def rewards_dropped(self, w: RewardWindows) -> bool:
+        """Is W2's mean significantly below W1's?"""
+        return w.drop_t() < -self.t_two
+
+    def reward_above_recent(self, w: RewardWindows, reward: float) -> bool:
+        """Is `reward` significantly above W2's mean?"""
+        return w.above_t(reward) < -self.t_one

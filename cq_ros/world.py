@@ -1,0 +1,173 @@
+"""The gridworld's joint-step dynamics: simultaneous moves, wall bumps, collisions and absorbing goals.
+
+`GridWorld` has a PettingZoo-style parallel API (`reset()`, `step({agent: action})` returning per-agent
+observations, rewards, terminations, truncations and infos) and underneath it `step_joint(actions)`,
+the list-based step the offline engine and the world node call. Rules (DESIGN.md, "Worlds"):
+
+- A move through a wall, off the grid or into a '#' cell is a wall bump: the agent stays.
+- A collision: two agents would end in one cell that is not a goal of both, or two agents swap cells.
+  Colliding agents stay where they were; this can make another agent's move end in a cell whose owner
+  now stays, which is a collision too, so collisions are resolved until nothing changes.
+- An agent that reaches its goal stays there for good and stops acting. The paper pays the goal reward
+  "only when all agents reached their goal"; with tabular learners and an absorbing goal, paying each
+  agent its goal reward on its own arrival step is the same learning problem and keeps the per-agent
+  learners independent of each other's progress, so that is what we do. JSA learns from the sum.
+- The episode ends when every agent is at its goal, or is truncated after `step_cap` steps.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+from .gridmap import GridMap
+from .settings import Settings
+
+N_ACTIONS = 4
+
+
+@dataclass(frozen=True)
+class Rewards:
+    step: float = 0.0
+    wall: float = -1.0
+    collision: float = -10.0
+    goal: float = 10.0
+
+    @classmethod
+    def from_settings(cls, s: Settings) -> "Rewards":
+        return cls(s.reward_step, s.reward_wall, s.reward_collision, s.reward_goal)
+
+
+def resolve_moves(cells: list[int], targets: list[int], goals: tuple[int, ...]) -> tuple[list[int], set]:
+    """Where every agent ends, and the colliding pairs (i, j), i < j.
+
+    `targets` is where each agent would go (its own cell if it stays). Agents in a colliding pair go
+    back to their cells; since no two agents ever share a cell other than a goal of both, going back
+    cannot create a new conflict among those who stayed, so the loop ends.
+    """
+    final = list(targets)
+    pairs: set[tuple[int, int]] = set()
+    n = len(cells)
+    while True:
+        clash = set()
+        for i in range(n):
+            for j in range(i + 1, n):
+                same_cell = final[i] == final[j] and not (goals[i] == goals[j] == final[i])
+                swap = final[i] == cells[j] and final[j] == cells[i] and cells[i] != cells[j]
+                if same_cell or swap:
+                    pairs.add((i, j))
+                    clash.update((i, j))
+        moved_back = [i for i in clash if final[i] != cells[i]]
+        if not moved_back:
+            return final, pairs
+        for i in moved_back:
+            final[i] = cells[i]
+
+
+class GridWorld:
+    """A GridMap with agents on it, stepped jointly; agents are indexed 0..n-1 (named agv1..agvN)."""
+
+    def __init__(self, gridmap: GridMap, settings: Settings = Settings(), seed: int | None = None):
+        self.map = gridmap
+        self.rewards = Rewards.from_settings(settings)
+        self.step_cap = settings.step_cap
+        self.slip = settings.slip
+        self.n = gridmap.n_agents
+        self.agents = [f"agv{i + 1}" for i in range(self.n)]
+        self._rng = random.Random(seed)
+        self.cells: list[int] = []
+        self.done: list[bool] = []
+        self.t = 0
+        self.last_collisions = 0
+        self.last_bumps = 0
+        self.reset()
+
+    # -- the fast, list-based step -------------------------------------------------------------------
+
+    def reset_joint(self) -> list[int]:
+        self.cells = list(self.map.starts)
+        self.done = [c == g for c, g in zip(self.cells, self.map.goals)]
+        self.t = 0
+        self.last_collisions = 0
+        self.last_bumps = 0
+        return self.cells
+
+    def step_joint(self, actions: list[int | None]) -> list[float]:
+        """Apply one joint action (None for agents at their goals); return each agent's reward.
+
+        Afterwards `cells`, `done`, `t`, `last_collisions` (colliding pairs) and `last_bumps` describe
+        the new state; an agent already at its goal gets reward 0.
+        """
+        cells, done, nbr, r = self.cells, self.done, self.map.neighbours, self.rewards
+        targets = list(cells)
+        bumped = [False] * self.n
+        for i, a in enumerate(actions):
+            if done[i]:
+                continue
+            if self.slip and self._rng.random() < self.slip:
+                a = self._rng.randrange(N_ACTIONS)
+            targets[i] = nbr[cells[i]][a]
+            bumped[i] = targets[i] == cells[i]
+        final, pairs = resolve_moves(cells, targets, self.map.goals)
+        collided = [False] * self.n
+        for i, j in pairs:
+            collided[i] = collided[j] = True
+        rewards = [0.0] * self.n
+        for i in range(self.n):
+            if done[i]:
+                continue
+            if collided[i]:
+                rewards[i] = r.collision
+            elif bumped[i]:
+                rewards[i] = r.wall
+            elif final[i] == self.map.goals[i]:
+                rewards[i] = r.goal
+                done[i] = True
+            else:
+                rewards[i] = r.step
+        self.cells = final
+        self.t += 1
+        self.last_collisions = len(pairs)
+        self.last_bumps = sum(bumped[i] and not collided[i] for i in range(self.n))
+        return rewards
+
+    @property
+    def finished(self) -> bool:
+        return all(self.done)
+
+    @property
+    def truncated(self) -> bool:
+        return self.t >= self.step_cap and not self.finished
+
+    # -- the PettingZoo-style parallel API -----------------------------------------------------------
+
+    def reset(self, seed: int | None = None) -> tuple[dict, dict]:
+        """Observations (each agent's own cell index) and infos, for the agents still acting."""
+        if seed is not None:
+            self._rng.seed(seed)
+        self.reset_joint()
+        live = self.live_agents()
+        return {a: self.cells[i] for a, i in live}, {a: {} for a, _ in live}
+
+    def live_agents(self) -> list[tuple[str, int]]:
+        return [(name, i) for i, name in enumerate(self.agents) if not self.done[i]]
+
+    def step(self, actions: dict[str, int]):
+        """One joint step from {agent: action}; returns (obs, rewards, terminations, truncations, infos)
+        for the agents that were acting, as PettingZoo's ParallelEnv does."""
+        live = self.live_agents()
+        for name in actions:
+            if name not in self.agents:
+                raise KeyError(f"unknown agent {name!r}; agents are {self.agents}")
+        missing = [name for name, _ in live if name not in actions]
+        if missing:
+            raise KeyError(f"no action for acting agent(s) {missing}")
+        joint = [actions.get(name) if not self.done[i] else None for i, name in enumerate(self.agents)]
+        rewards = self.step_joint(joint)
+        truncated = self.truncated
+        obs = {a: self.cells[i] for a, i in live}
+        rew = {a: rewards[i] for a, i in live}
+        term = {a: self.done[i] for a, i in live}
+        trunc = {a: truncated and not self.done[i] for a, i in live}
+        infos = {a: {"collisions": self.last_collisions} for a, _ in live}
+        return obs, rew, term, trunc, infos
