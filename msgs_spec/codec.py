@@ -1,0 +1,604 @@
+"""encode(payload) -> standard ROS message; decode(message, what the receiver expects) -> payload.
+
+Every decoder validates and raises only `WireError` for any input (whatever the message holds), with the
+first failing check in this order: type, layout, length, numbers (finite, integer, int32 range), agent id,
+action / cell range, episode, step. Encoders refuse what no decoder would accept (bad values, not context),
+so a sender's bug shows at the sender.
+
+Array layouts (one dimension; its label lists the fields in order, so `ros2 topic echo` is self-describing):
+
+    Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated"
+    Position  std_msgs/Int32MultiArray    label "agent,episode,step,row,col"
+    Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
+
+Statistics: diagnostic_msgs/DiagnosticArray holding one DiagnosticStatus whose `values` are KeyValue pairs.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+import re
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
+
+from .errors import WireError
+from .payloads import (
+    INT32_MAX, Action, AgentStats, Bounds, Feedback, MarkedJointState, Position, WorldStats,
+)
+
+__all__ = [
+    "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "ARRAY_LAYOUTS",
+    "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
+    "encode_feedback", "decode_feedback", "encode_position", "decode_position",
+    "encode_action", "decode_action", "encode_world_stats", "decode_world_stats",
+    "encode_agent_stats", "decode_agent_stats", "encode", "decode",
+]
+
+
+# --------------------------------------------------------------------------------------------------------
+# Array layouts
+
+
+@dataclass(frozen=True)
+class ArrayLayout:
+    """A 1-D MultiArray layout: which ROS type, which fields in which order, and what each field holds."""
+
+    payload: type
+    ros_type: type
+    fields: tuple[str, ...]
+    field_kinds: tuple[str, ...]  # "int" | "float" | "flag" per field
+    meanings: tuple[str, ...]
+
+    @property
+    def label(self) -> str:
+        return ",".join(self.fields)
+
+    @property
+    def size(self) -> int:
+        return len(self.fields)
+
+
+FEEDBACK_LAYOUT = ArrayLayout(
+    Feedback, Float64MultiArray,
+    ("agent", "episode", "step", "row", "col", "reward", "done", "truncated"),
+    ("int", "int", "int", "int", "int", "float", "flag", "flag"),
+    ("agent id, 1..N (the topic's own agent)",
+     "episode index, from 0",
+     "step index within the episode, from 0 (0 = start observation)",
+     "the agent's row at this step, 0..H-1 (0 = top)",
+     "the agent's column at this step, 0..W-1",
+     "reward of the transition into this step (0.0 at step 0); finite",
+     "1.0 when the agent is at its goal (it sends no more actions this episode), else 0.0",
+     "1.0 when the episode hit the step cap at this step (never with done), else 0.0"),
+)
+POSITION_LAYOUT = ArrayLayout(
+    Position, Int32MultiArray,
+    ("agent", "episode", "step", "row", "col"),
+    ("int",) * 5,
+    ("agent id, 1..N (the topic's own agent)",
+     "episode index, from 0",
+     "step index within the episode, from 0",
+     "row, 0..H-1 (0 = top)",
+     "column, 0..W-1"),
+)
+ACTION_LAYOUT = ArrayLayout(
+    Action, Int32MultiArray,
+    ("agent", "episode", "step", "action"),
+    ("int",) * 4,
+    ("agent id, 1..N (the topic's own agent)",
+     "episode of the feedback this action answers",
+     "step of the feedback this action answers",
+     "0 NORTH (row-1), 1 EAST (col+1), 2 SOUTH (row+1), 3 WEST (col-1)"),
+)
+ARRAY_LAYOUTS: tuple[ArrayLayout, ...] = (FEEDBACK_LAYOUT, POSITION_LAYOUT, ACTION_LAYOUT)
+_LAYOUT_BY_PAYLOAD = {lay.payload: lay for lay in ARRAY_LAYOUTS}
+_LAYOUT_BY_WIRE = {(lay.ros_type, lay.label): lay for lay in ARRAY_LAYOUTS}
+
+
+# --------------------------------------------------------------------------------------------------------
+# Value checks shared by encoders and decoders
+
+
+def _as_int(name: str, v: Any) -> int:
+    """An exact integer from an int-like or an integral finite float; else WireError."""
+    if isinstance(v, bool):
+        return int(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise WireError("not_finite", f"{name} = {v!r}")
+        if v != int(v):
+            raise WireError("not_integer", f"{name} = {v!r}")
+        v = int(v)
+    else:
+        try:
+            v = operator.index(v)
+        except TypeError:
+            raise WireError("not_integer", f"{name} = {v!r} ({type(v).__name__})") from None
+    if not -INT32_MAX - 1 <= v <= INT32_MAX:
+        raise WireError("out_of_range", f"{name} = {v} does not fit int32")
+    return v
+
+
+def _as_float(name: str, v: Any) -> float:
+    if isinstance(v, (str, bytes)):
+        raise WireError("malformed", f"{name} = {v!r} is not a number")
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        raise WireError("malformed", f"{name} = {v!r} is not a number") from None
+    if not math.isfinite(f):
+        raise WireError("not_finite", f"{name} = {f!r}")
+    return f
+
+
+def _as_flag(name: str, v: Any) -> bool:
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, float) and not math.isfinite(v):
+        raise WireError("not_finite", f"{name} = {v!r}")
+    if v == 0 or v == 1:
+        return bool(v)
+    raise WireError("malformed", f"flag {name} = {v!r}, must be 0 or 1")
+
+
+_CONVERT: dict[str, Callable[[str, Any], Any]] = {"int": _as_int, "float": _as_float, "flag": _as_flag}
+
+
+def _check_nonneg(name: str, v: int) -> None:
+    if v < 0:
+        raise WireError("out_of_range", f"{name} = {v} is negative")
+
+
+def _check_agent(v: int, bounds: Bounds | None, agent: int | None, what: str = "agent") -> None:
+    if v < 1 or (bounds is not None and v > bounds.n_agents):
+        known = f"1..{bounds.n_agents}" if bounds is not None else ">= 1"
+        raise WireError("unknown_agent", f"{what} {v}, known agents {known}")
+    if agent is not None and v != agent:
+        raise WireError("wrong_agent", f"{what} {v} on the topic of agent {agent}")
+
+
+def _check_cell(row: int, col: int, bounds: Bounds | None, what: str = "cell") -> None:
+    if row < 0 or col < 0 or (bounds is not None and (row >= bounds.rows or col >= bounds.cols)):
+        grid = f"{bounds.rows}x{bounds.cols}" if bounds is not None else "grid"
+        raise WireError("cell_out_of_range", f"{what} ({row}, {col}) outside the {grid} grid")
+
+
+def _check_sequence(ep: int, st: int | None, episode: int | None, step: int | None) -> None:
+    if episode is not None:
+        if ep < episode:
+            raise WireError("stale_episode", f"episode {ep}, expected {episode}")
+        if ep > episode:
+            raise WireError("future_episode", f"episode {ep}, expected {episode}")
+    if step is not None and st is not None:
+        if st < step:
+            raise WireError("stale_step", f"episode {ep} step {st}, expected step {step}")
+        if st > step:
+            raise WireError("future_step", f"episode {ep} step {st}, expected step {step}")
+
+
+def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
+              episode: int | None, step: int | None) -> None:
+    """Semantic checks shared by the three array payloads (values already typed)."""
+    _check_nonneg("episode", payload.episode)
+    _check_nonneg("step", payload.step)
+    _check_agent(payload.agent, bounds, agent)
+    if isinstance(payload, Action):
+        if not 0 <= payload.action <= 3:
+            raise WireError("action_out_of_range", f"action {payload.action}, must be 0..3")
+    else:
+        _check_cell(payload.row, payload.col, bounds)
+    if isinstance(payload, Feedback) and payload.done and payload.truncated:
+        raise WireError("malformed", "done and truncated both set")
+    _check_sequence(payload.episode, payload.step, episode, step)
+
+
+# --------------------------------------------------------------------------------------------------------
+# Array payloads
+
+
+def _typed(layout: ArrayLayout, values) -> Any:
+    return layout.payload(*(_CONVERT[k](n, v) for n, k, v in zip(layout.fields, layout.field_kinds, values)))
+
+
+def _encode_array(layout: ArrayLayout, payload: Any) -> Any:
+    if type(payload) is not layout.payload:
+        raise WireError("wrong_type", f"expected {layout.payload.__name__}, got {type(payload).__name__}")
+    typed = _typed(layout, (getattr(payload, f) for f in layout.fields))
+    _validate(typed, None, None, None, None)
+    msg = layout.ros_type()
+    msg.layout.dim = [MultiArrayDimension(label=layout.label, size=layout.size, stride=layout.size)]
+    msg.layout.data_offset = 0
+    if layout.ros_type is Float64MultiArray:
+        msg.data = [float(getattr(typed, f)) for f in layout.fields]
+    else:
+        msg.data = [int(getattr(typed, f)) for f in layout.fields]
+    return msg
+
+
+def _decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: int | None,
+                  episode: int | None, step: int | None) -> Any:
+    if type(msg) is not layout.ros_type:
+        raise WireError("wrong_type", f"expected {layout.ros_type.__name__}, got {type(msg).__name__}")
+    try:
+        dims = list(msg.layout.dim)
+        data = list(msg.data)
+        offset = msg.layout.data_offset
+    except (AttributeError, TypeError) as e:  # a hand-built message object with broken fields
+        raise WireError("malformed", f"unreadable message: {e}") from None
+    if len(dims) != 1:
+        raise WireError("wrong_layout", f"{len(dims)} dims, expected 1 labelled {layout.label!r}")
+    d = dims[0]
+    if d.label != layout.label:
+        raise WireError("wrong_layout", f"label {d.label!r}, expected {layout.label!r}")
+    if d.size != layout.size or d.stride != layout.size or offset != 0:
+        raise WireError("wrong_layout", f"size {d.size} stride {d.stride} data_offset {offset}, "
+                                        f"expected {layout.size} {layout.size} 0")
+    if len(data) != layout.size:
+        raise WireError("wrong_length", f"{len(data)} values, expected {layout.size} ({layout.label})")
+    payload = _typed(layout, data)
+    _validate(payload, bounds, agent, episode, step)
+    return payload
+
+
+def encode_feedback(fb: Feedback) -> Float64MultiArray:
+    return _encode_array(FEEDBACK_LAYOUT, fb)
+
+
+def decode_feedback(msg: Float64MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
+                    episode: int | None = None, step: int | None = None) -> Feedback:
+    """Feedback from `msg`. `agent`: the topic's agent; `episode`/`step`: what the receiver waits for
+    (None skips that check)."""
+    return _decode_array(FEEDBACK_LAYOUT, msg, bounds, agent, episode, step)
+
+
+def encode_position(pos: Position) -> Int32MultiArray:
+    return _encode_array(POSITION_LAYOUT, pos)
+
+
+def decode_position(msg: Int32MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
+                    episode: int | None = None, step: int | None = None) -> Position:
+    """Position from `msg`. `agent`: the peer whose topic this is; `episode`/`step`: the step waited for."""
+    return _decode_array(POSITION_LAYOUT, msg, bounds, agent, episode, step)
+
+
+def encode_action(act: Action) -> Int32MultiArray:
+    return _encode_array(ACTION_LAYOUT, act)
+
+
+def decode_action(msg: Int32MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
+                  episode: int | None = None, step: int | None = None) -> Action:
+    """Action from `msg`. `agent`: the topic's agent; `episode`/`step`: the step the world is collecting."""
+    return _decode_array(ACTION_LAYOUT, msg, bounds, agent, episode, step)
+
+
+# --------------------------------------------------------------------------------------------------------
+# Statistics: DiagnosticArray with one DiagnosticStatus of KeyValue pairs
+
+WORLD_STATS_NAME = "world/stats"
+
+
+def agent_stats_name(agent: int) -> str:
+    return f"agv{agent}/stats"
+
+
+# key -> (kind, meaning). Per-agent and open-ended keys are described by pattern.
+WORLD_STATS_KEYS: Mapping[str, tuple[str, str]] = {
+    "episode": ("int", "episode index, from 0"),
+    "steps": ("int", "joint steps taken in the episode"),
+    "truncated": ("bool", "true when the step cap ended the episode"),
+    "collisions": ("int", "collisions in the episode"),
+    "missed_actions": ("int", "actions that missed the step timeout (the agent stayed)"),
+    "duration_s": ("float", "wall-clock length of the episode, seconds"),
+    "return.agv<k>": ("float", "undiscounted return of agent k, one key per agent 1..N"),
+    "count.<name>": ("int", "further monotonic counters, e.g. count.dropped.stale_step"),
+}
+AGENT_STATS_KEYS: Mapping[str, tuple[str, str]] = {
+    "agent": ("int", "agent id, 1..N"),
+    "episode": ("int", "episode that just ended for this agent"),
+    "algorithm": ("str", "learner name, e.g. cq, indep, js, loc"),
+    "joint_plays": ("int", "times this episode the agent used global information / chose COORDINATE"),
+    "local_states": ("int", "local states in use"),
+    "joint_states": ("int", "joint states in use"),
+    "subscriptions_created": ("int", "peer position subscriptions created since start"),
+    "subscriptions_active": ("int", "peer position subscriptions alive now"),
+    "peer_messages": ("int", "peer position messages received since start"),
+    "marked.<i>": ("str", "marked joint state i (0..M-1): "
+                          "'cell=R,C peer=agvJ peer_cell=R,C confidence=X'"),
+    "count.<name>": ("int", "further monotonic counters, e.g. count.dropped.stale_step"),
+}
+
+_INT_RE = re.compile(r"-?[0-9]+")
+_NAME_RE = re.compile(r"[a-z0-9_][a-z0-9_.]*")
+_ALGO_RE = re.compile(r"[a-z][a-z0-9_]*")
+_RETURN_RE = re.compile(r"return\.agv([1-9][0-9]*)")
+_MARKED_KEY_RE = re.compile(r"marked\.(0|[1-9][0-9]*)")
+_MARKED_RE = re.compile(
+    r"cell=([0-9]+),([0-9]+) peer=agv([0-9]+) peer_cell=([0-9]+),([0-9]+) confidence=(\S+)")
+
+
+def _fmt_float(v: float) -> str:
+    return repr(float(v))  # shortest string that reads back to the same double
+
+
+def _parse_int(key: str, s: str) -> int:
+    if not _INT_RE.fullmatch(s):
+        try:  # tell a fraction or NaN apart from garbage
+            f = float(s)
+        except ValueError:
+            raise WireError("malformed", f"{key} = {s!r} is not an integer") from None
+        if not math.isfinite(f):
+            raise WireError("not_finite", f"{key} = {s!r}")
+        raise WireError("not_integer", f"{key} = {s!r}")
+    return _as_int(key, int(s))
+
+
+def _parse_float(key: str, s: str) -> float:
+    try:
+        f = float(s)
+    except ValueError:
+        raise WireError("malformed", f"{key} = {s!r} is not a number") from None
+    if not math.isfinite(f):
+        raise WireError("not_finite", f"{key} = {s!r}")
+    return f
+
+
+def _parse_bool(key: str, s: str) -> bool:
+    if s == "true":
+        return True
+    if s == "false":
+        return False
+    raise WireError("malformed", f"{key} = {s!r}, must be true or false")
+
+
+def _counter_pairs(counters: Mapping[str, int]) -> list[tuple[str, str]]:
+    out = []
+    for name in sorted(counters):
+        if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+            raise WireError("malformed", f"counter name {name!r} must match {_NAME_RE.pattern}")
+        v = _as_int(f"count.{name}", counters[name])
+        _check_nonneg(f"count.{name}", v)
+        out.append((f"count.{name}", str(v)))
+    return out
+
+
+def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str, str]],
+               stamp: Time | None) -> DiagnosticArray:
+    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=summary, hardware_id=hardware_id,
+                              values=[KeyValue(key=k, value=v) for k, v in pairs])
+    arr = DiagnosticArray(status=[status])
+    if stamp is not None:
+        arr.header.stamp = stamp
+    return arr
+
+
+def _stats_values(msg: Any) -> tuple[str, str, dict[str, str]]:
+    """(status name, hardware_id, key -> value) of a one-status DiagnosticArray; rejects repeated keys."""
+    if type(msg) is not DiagnosticArray:
+        raise WireError("wrong_type", f"expected DiagnosticArray, got {type(msg).__name__}")
+    try:
+        statuses = list(msg.status)
+        if len(statuses) != 1:
+            raise WireError("wrong_layout", f"{len(statuses)} statuses, expected exactly 1")
+        st = statuses[0]
+        values: dict[str, str] = {}
+        for kv in st.values:
+            if kv.key in values:
+                raise WireError("malformed", f"key {kv.key!r} repeated")
+            values[kv.key] = kv.value
+        return st.name, st.hardware_id, values
+    except (AttributeError, TypeError) as e:
+        raise WireError("malformed", f"unreadable message: {e}") from None
+
+
+def _take(values: dict[str, str], key: str) -> str:
+    try:
+        return values.pop(key)
+    except KeyError:
+        raise WireError("malformed", f"key {key!r} missing") from None
+
+
+def _take_counters(values: dict[str, str]) -> dict[str, int]:
+    counters = {}
+    for key in [k for k in values if k.startswith("count.")]:
+        name = key[len("count."):]
+        if not _NAME_RE.fullmatch(name):
+            raise WireError("malformed", f"counter key {key!r}")
+        v = _parse_int(key, values.pop(key))
+        _check_nonneg(key, v)
+        counters[name] = v
+    return counters
+
+
+def _no_leftovers(values: dict[str, str]) -> None:
+    if values:
+        raise WireError("malformed", f"unknown keys {sorted(values)}")
+
+
+def encode_world_stats(s: WorldStats, *, stamp: Time | None = None) -> DiagnosticArray:
+    """`stamp`: header time (wall clock, e.g. node.get_clock().now().to_msg()); zero if None."""
+    if type(s) is not WorldStats:
+        raise WireError("wrong_type", f"expected WorldStats, got {type(s).__name__}")
+    ints = {k: _as_int(k, getattr(s, k)) for k in ("episode", "steps", "collisions", "missed_actions")}
+    for k, v in ints.items():
+        _check_nonneg(k, v)
+    truncated = _as_flag("truncated", s.truncated)
+    returns = [_as_float(f"return.agv{i + 1}", r) for i, r in enumerate(s.returns)]
+    if not returns:
+        raise WireError("malformed", "returns is empty (one per agent)")
+    duration = _as_float("duration_s", s.duration_s)
+    if duration < 0:
+        raise WireError("out_of_range", f"duration_s = {duration}")
+    pairs = [("episode", str(ints["episode"])), ("steps", str(ints["steps"])),
+             ("truncated", "true" if truncated else "false"), ("collisions", str(ints["collisions"])),
+             ("missed_actions", str(ints["missed_actions"])), ("duration_s", _fmt_float(duration))]
+    pairs += [(f"return.agv{i + 1}", _fmt_float(r)) for i, r in enumerate(returns)]
+    pairs += _counter_pairs(s.counters)
+    end = "truncated at the step cap" if truncated else "all agents at their goals"
+    summary = (f"episode {ints['episode']}: {ints['steps']} steps, {ints['collisions']} collisions, "
+               f"{ints['missed_actions']} missed actions, {end}")
+    return _stats_msg(WORLD_STATS_NAME, "world", summary, pairs, stamp)
+
+
+def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
+                       episode: int | None = None) -> WorldStats:
+    name, hw, values = _stats_values(msg)
+    if name != WORLD_STATS_NAME or hw != "world":
+        raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "
+                                        f"expected {WORLD_STATS_NAME!r} 'world'")
+    ints = {}
+    for k in ("episode", "steps", "collisions", "missed_actions"):
+        ints[k] = _parse_int(k, _take(values, k))
+        _check_nonneg(k, ints[k])
+    truncated = _parse_bool("truncated", _take(values, "truncated"))
+    duration = _parse_float("duration_s", _take(values, "duration_s"))
+    if duration < 0:
+        raise WireError("out_of_range", f"duration_s = {duration}")
+    found = {}
+    for key in [k for k in values if k.startswith("return.")]:
+        m = _RETURN_RE.fullmatch(key)
+        if not m:
+            raise WireError("malformed", f"key {key!r}, expected return.agv<k>")
+        found[int(m.group(1))] = _parse_float(key, values.pop(key))
+    n = len(found)
+    if n == 0 or set(found) != set(range(1, n + 1)):
+        raise WireError("malformed", f"return keys for agents {sorted(found)}, expected 1..{n or 'N'}")
+    if bounds is not None and n != bounds.n_agents:
+        raise WireError("unknown_agent" if n > bounds.n_agents else "malformed",
+                        f"returns for {n} agents, the world has {bounds.n_agents}")
+    counters = _take_counters(values)
+    _no_leftovers(values)
+    _check_sequence(ints["episode"], None, episode, None)
+    return WorldStats(episode=ints["episode"], steps=ints["steps"], truncated=truncated,
+                      collisions=ints["collisions"], missed_actions=ints["missed_actions"],
+                      returns=tuple(found[k] for k in range(1, n + 1)), duration_s=duration,
+                      counters=counters)
+
+
+_AGENT_INT_KEYS = ("agent", "episode", "joint_plays", "local_states", "joint_states",
+                   "subscriptions_created", "subscriptions_active", "peer_messages")
+
+
+def _check_marked(m: MarkedJointState, agent: int, bounds: Bounds | None, where: str) -> MarkedJointState:
+    if type(m) is not MarkedJointState:
+        raise WireError("wrong_type", f"{where}: expected MarkedJointState, got {type(m).__name__}")
+    row, col, peer, prow, pcol = (_as_int(f"{where}.{f}", getattr(m, f))
+                                  for f in ("row", "col", "peer", "peer_row", "peer_col"))
+    conf = _as_float(f"{where}.confidence", m.confidence)
+    _check_cell(row, col, bounds, f"{where} cell")
+    _check_agent(peer, bounds, None, f"{where} peer")
+    if peer == agent:
+        raise WireError("malformed", f"{where}: peer {peer} is the agent itself")
+    _check_cell(prow, pcol, bounds, f"{where} peer cell")
+    return MarkedJointState(row, col, peer, prow, pcol, conf)
+
+
+def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None) -> DiagnosticArray:
+    if type(s) is not AgentStats:
+        raise WireError("wrong_type", f"expected AgentStats, got {type(s).__name__}")
+    ints = {k: _as_int(k, getattr(s, k)) for k in _AGENT_INT_KEYS}
+    _check_agent(ints["agent"], None, None)
+    for k in _AGENT_INT_KEYS[1:]:
+        _check_nonneg(k, ints[k])
+    if not isinstance(s.algorithm, str) or not _ALGO_RE.fullmatch(s.algorithm):
+        raise WireError("malformed", f"algorithm {s.algorithm!r} must match {_ALGO_RE.pattern}")
+    marked = [_check_marked(m, ints["agent"], None, f"marked.{i}") for i, m in enumerate(s.marked)]
+    pairs = [(k, str(ints[k])) for k in _AGENT_INT_KEYS[:2]] + [("algorithm", s.algorithm)]
+    pairs += [(k, str(ints[k])) for k in _AGENT_INT_KEYS[2:]]
+    pairs += [(f"marked.{i}", f"cell={m.row},{m.col} peer=agv{m.peer} peer_cell={m.peer_row},{m.peer_col} "
+                              f"confidence={_fmt_float(m.confidence)}") for i, m in enumerate(marked)]
+    pairs += _counter_pairs(s.counters)
+    summary = (f"agv{ints['agent']} ({s.algorithm}) episode {ints['episode']}: {ints['joint_plays']} joint "
+               f"plays, {len(marked)} marked joint states, {ints['subscriptions_active']} live subscriptions")
+    return _stats_msg(agent_stats_name(ints["agent"]), f"agv{ints['agent']}", summary, pairs, stamp)
+
+
+def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, agent: int | None = None,
+                       episode: int | None = None) -> AgentStats:
+    name, hw, values = _stats_values(msg)
+    m = re.fullmatch(r"agv([0-9]+)/stats", name)
+    if not m or hw != f"agv{m.group(1)}":
+        raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "
+                                        "expected 'agv<k>/stats' 'agv<k>'")
+    ints = {}
+    for k in _AGENT_INT_KEYS:
+        ints[k] = _parse_int(k, _take(values, k))
+    _check_agent(ints["agent"], bounds, agent)
+    if int(m.group(1)) != ints["agent"]:
+        raise WireError("wrong_agent", f"status {name!r} carries agent {ints['agent']}")
+    for k in _AGENT_INT_KEYS[1:]:
+        _check_nonneg(k, ints[k])
+    algorithm = _take(values, "algorithm")
+    if not _ALGO_RE.fullmatch(algorithm):
+        raise WireError("malformed", f"algorithm {algorithm!r}")
+    found = {}
+    for key in [k for k in values if k.startswith("marked.")]:
+        km = _MARKED_KEY_RE.fullmatch(key)
+        if not km:
+            raise WireError("malformed", f"key {key!r}, expected marked.<i>")
+        text = values.pop(key)
+        vm = _MARKED_RE.fullmatch(text)
+        if not vm:
+            raise WireError("malformed", f"{key} = {text!r}")
+        r, c, p, pr, pc = (_as_int(key, int(g)) for g in vm.groups()[:5])
+        conf = _parse_float(f"{key}.confidence", vm.group(6))
+        found[int(km.group(1))] = _check_marked(MarkedJointState(r, c, p, pr, pc, conf), ints["agent"],
+                                                bounds, key)
+    if set(found) != set(range(len(found))):
+        raise WireError("malformed", f"marked indices {sorted(found)}, expected 0..{len(found) - 1}")
+    counters = _take_counters(values)
+    _no_leftovers(values)
+    _check_sequence(ints["episode"], None, episode, None)
+    return AgentStats(agent=ints["agent"], episode=ints["episode"], algorithm=algorithm,
+                      joint_plays=ints["joint_plays"], local_states=ints["local_states"],
+                      joint_states=ints["joint_states"], subscriptions_created=ints["subscriptions_created"],
+                      subscriptions_active=ints["subscriptions_active"], peer_messages=ints["peer_messages"],
+                      marked=tuple(found[i] for i in range(len(found))), counters=counters)
+
+
+# --------------------------------------------------------------------------------------------------------
+# Generic entry points
+
+_ENCODERS: dict[type, Callable[..., Any]] = {
+    Feedback: encode_feedback, Position: encode_position, Action: encode_action,
+    WorldStats: encode_world_stats, AgentStats: encode_agent_stats,
+}
+
+
+def encode(payload: Any, **kwargs: Any) -> Any:
+    """The ROS message for any payload (kwargs: `stamp=` for statistics)."""
+    try:
+        enc = _ENCODERS[type(payload)]
+    except KeyError:
+        raise WireError("wrong_type", f"no wire encoding for {type(payload).__name__}") from None
+    return enc(payload, **kwargs)
+
+
+def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
+           episode: int | None = None, step: int | None = None) -> Any:
+    """Decode any project message, recognising the payload from the ROS type and the layout label or status
+    name (messages are self-describing). Expectations that do not apply to the payload are ignored
+    (`step` for statistics, `agent` for world statistics)."""
+    t = type(msg)
+    if t is DiagnosticArray:
+        try:
+            name = msg.status[0].name if len(msg.status) == 1 else ""
+        except (AttributeError, TypeError, IndexError):
+            name = ""
+        if name == WORLD_STATS_NAME:
+            return decode_world_stats(msg, bounds=bounds, episode=episode)
+        return decode_agent_stats(msg, bounds=bounds, agent=agent, episode=episode)
+    if t in (Float64MultiArray, Int32MultiArray):
+        try:
+            label = msg.layout.dim[0].label if len(msg.layout.dim) == 1 else None
+        except (AttributeError, TypeError, IndexError):
+            label = None
+        layout = _LAYOUT_BY_WIRE.get((t, label))
+        if layout is None:
+            raise WireError("wrong_layout", f"{t.__name__} with label {label!r} is no project payload")
+        return _decode_array(layout, msg, bounds, agent, episode, step)
+    raise WireError("wrong_type", f"{t.__module__}.{t.__name__} is no project message type")

@@ -1,0 +1,110 @@
+"""The one exception of the wire contract, and the counter nodes use to log, count and drop bad messages."""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Mapping, TypeVar
+
+__all__ = ["KINDS", "WireError", "DropCounter"]
+
+# Every reason a message can be refused, with what it means. A `WireError.kind` is always one of these keys,
+# so nodes can use it as a counter name ("dropped.<kind>" in their statistics).
+KINDS: Mapping[str, str] = {
+    "wrong_type": "the ROS message is not of the type the topic carries",
+    "wrong_layout": "MultiArray layout is not the documented one (dims, label, size, stride, data_offset), "
+    "or a statistics status has the wrong name",
+    "wrong_length": "the data array does not hold exactly the documented number of values",
+    "not_finite": "a number is NaN or infinite",
+    "not_integer": "a field that must hold an integer holds a fraction",
+    "out_of_range": "an integer is negative where it must not be, or does not fit the wire type (int32)",
+    "malformed": "anything else the layout forbids: a flag that is not 0/1, done and truncated both set, "
+    "a statistics key missing, repeated, unknown or unparsable",
+    "unknown_agent": "an agent id outside 1..N",
+    "wrong_agent": "a valid agent id, but not the agent whose topic the message came on",
+    "action_out_of_range": "an action outside 0..3 (NORTH, EAST, SOUTH, WEST)",
+    "cell_out_of_range": "a row or column outside the H x W grid",
+    "stale_episode": "episode index lower than the one the receiver expects",
+    "future_episode": "episode index higher than the one the receiver expects",
+    "stale_step": "right episode, step index lower than the one the receiver expects",
+    "future_step": "right episode, step index higher than the one the receiver expects",
+}
+
+
+class WireError(ValueError):
+    """A message that breaks the wire contract. `kind` is a key of `KINDS`; `detail` says what was seen."""
+
+    def __init__(self, kind: str, detail: str = "") -> None:
+        if kind not in KINDS:
+            raise ValueError(f"unknown WireError kind {kind!r}; known kinds: {', '.join(KINDS)}")
+        self.kind = kind
+        self.detail = detail
+        super().__init__(f"{kind}: {detail}" if detail else kind)
+
+    def __reduce__(self):  # picklable (multiprocessing, logging handlers)
+        return (type(self), (self.kind, self.detail))
+
+
+T = TypeVar("T")
+
+
+class DropCounter:
+    """Count refused messages by kind; log the first of each kind and then every `every`-th.
+
+    A node keeps one per process (or per topic) and routes every decode through it::
+
+        drops = DropCounter(self.get_logger().warning, every=100)
+        ...
+        def on_action(self, msg):
+            action = drops.guard(decode_action, msg, bounds=self.bounds, agent=k,
+                                 episode=self.episode, step=self.step, source=action_topic(k))
+            if action is None:
+                return          # logged (maybe), counted, dropped
+            ...
+
+    Not thread-safe by itself: use it from one executor thread (the project uses SingleThreadedExecutor).
+    """
+
+    def __init__(self, log: Callable[[str], Any] | None = None, every: int = 100) -> None:
+        if int(every) < 1:
+            raise ValueError("every must be >= 1")
+        self._log = log
+        self.every = int(every)
+        self._counts: dict[str, int] = {}
+
+    def record(self, error: WireError, source: str = "") -> int:
+        """Count `error`; log it if it is the first of its kind or an every-th one. Returns the kind's count."""
+        n = self._counts.get(error.kind, 0) + 1
+        self._counts[error.kind] = n
+        if self._log is not None and (n == 1 or n % self.every == 0):
+            where = f" on {source}" if source else ""
+            seen = "first of this kind" if n == 1 else f"{n} of this kind so far"
+            self._log(f"dropped message{where}: {error.kind}: {error.detail} "
+                      f"({seen}; logging the first and every {self.every}-th)")
+        return n
+
+    def guard(self, fn: Callable[..., T], *args: Any, source: str = "", **kwargs: Any) -> T | None:
+        """Call `fn(*args, **kwargs)`; on WireError record it and return None. Other exceptions propagate
+        (they are bugs, not bad input: the decoders raise only WireError for any message)."""
+        try:
+            return fn(*args, **kwargs)
+        except WireError as e:
+            self.record(e, source)
+            return None
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """A copy of the counts by kind (kinds never seen are absent)."""
+        return dict(self._counts)
+
+    @property
+    def total(self) -> int:
+        return sum(self._counts.values())
+
+    def __getitem__(self, kind: str) -> int:
+        return self._counts.get(kind, 0)
+
+    def as_counters(self, prefix: str = "dropped.") -> dict[str, int]:
+        """The counts keyed as statistics counters, e.g. {"dropped.stale_step": 3}."""
+        return {prefix + k: v for k, v in sorted(self._counts.items())}
+
+    def __repr__(self) -> str:
+        return f"DropCounter({self._counts!r}, every={self.every})"

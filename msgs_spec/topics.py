@@ -1,0 +1,198 @@
+"""The one place naming every topic: name, ROS type, QoS, payload, publisher and subscribers.
+
+Names are relative ("agv1/position"), so a node started with `-r __ns:=/run7` puts the whole system under
+/run7/ and parallel systems never mix. Agent k's topics live under `agv<k>/`.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64MultiArray, Int32MultiArray
+
+from . import codec
+from .errors import WireError
+from .payloads import Action, AgentStats, Feedback, Position, WorldStats
+
+__all__ = [
+    "AGENT_PREFIX", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
+    "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "AGENT_STATS", "WORLD_STATS", "TOPICS",
+    "WORLD_STATS_TOPIC", "agent_namespace", "feedback_topic", "position_topic", "action_topic",
+    "agent_stats_topic", "agent_topics", "parse_topic", "qos_summary", "type_name",
+]
+
+AGENT_PREFIX = "agv"
+
+# Lockstep sends at most a couple of messages per topic between two waits (at an episode boundary the world
+# sends the last feedback and the next episode's step-0 feedback back to back), so depth 10 is headroom; a
+# reliable reader that fell 10 behind would be a bug elsewhere.
+QOS_FEEDBACK = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                          history=HistoryPolicy.KEEP_LAST, depth=10)
+QOS_ACTION = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                        history=HistoryPolicy.KEEP_LAST, depth=10)
+# Latched: publisher AND subscriber must both use this profile (a volatile subscriber gets no history; a
+# transient-local subscriber to a volatile publisher gets nothing).
+QOS_POSITION = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                          history=HistoryPolicy.KEEP_LAST, depth=1)
+QOS_STATS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                       history=HistoryPolicy.KEEP_LAST, depth=100)
+
+
+def type_name(msg_type: type) -> str:
+    """'std_msgs/msg/Int32MultiArray', the name `ros2 topic list -t` and rosbag2 use."""
+    pkg = msg_type.__module__.split(".")[0]
+    return f"{pkg}/msg/{msg_type.__name__}"
+
+
+def qos_summary(qos: QoSProfile) -> str:
+    """'reliable, transient local, keep last 1'."""
+    rel = {ReliabilityPolicy.RELIABLE: "reliable", ReliabilityPolicy.BEST_EFFORT: "best effort"}.get(
+        qos.reliability, qos.reliability.name.lower())
+    dur = {DurabilityPolicy.VOLATILE: "volatile", DurabilityPolicy.TRANSIENT_LOCAL: "transient local"}.get(
+        qos.durability, qos.durability.name.lower())
+    hist = f"keep last {qos.depth}" if qos.history == HistoryPolicy.KEEP_LAST else qos.history.name.lower()
+    return f"{rel}, {dur}, {hist}"
+
+
+@dataclass(frozen=True, eq=False)
+class TopicSpec:
+    """One topic of the system. `pattern` holds '{agent}' for per-agent topics. Treat `qos` as read-only."""
+
+    key: str
+    pattern: str
+    msg_type: type
+    qos: QoSProfile
+    payload: type
+    publisher: str
+    subscribers: str
+    fields: str  # the field mapping, one line (the README gives the details)
+
+    @property
+    def per_agent(self) -> bool:
+        return "{agent}" in self.pattern
+
+    @property
+    def type_name(self) -> str:
+        return type_name(self.msg_type)
+
+    def name(self, agent: int | None = None) -> str:
+        """The relative topic name (for agent `agent` if the topic is per agent)."""
+        if not self.per_agent:
+            if agent is not None:
+                raise ValueError(f"{self.pattern} is not a per-agent topic")
+            return self.pattern
+        return self.pattern.format(agent=_agent_id(agent))
+
+    def encode(self, payload: Any, **kwargs: Any) -> Any:
+        if type(payload) is not self.payload:
+            raise WireError("wrong_type", f"{self.pattern} carries {self.payload.__name__}, "
+                                          f"got {type(payload).__name__}")
+        return codec.encode(payload, **kwargs)
+
+    def decode(self, msg: Any, *, bounds: Any = None, agent: int | None = None, episode: int | None = None,
+               step: int | None = None) -> Any:
+        """Decode a message received on this topic (the payload must be this topic's). Expectations that do
+        not apply to the payload are ignored (`step` for statistics, `agent` for world statistics)."""
+        if type(msg) is not self.msg_type:
+            raise WireError("wrong_type", f"{self.pattern} carries {self.type_name}, got {type(msg).__name__}")
+        return _DECODERS[self.key](msg, bounds=bounds, agent=agent, episode=episode, step=step)
+
+
+def _agent_id(agent: Any) -> int:
+    if isinstance(agent, bool) or not isinstance(agent, int) or agent < 1:
+        raise WireError("unknown_agent", f"agent id {agent!r}, must be an int >= 1")
+    return agent
+
+
+_NS = AGENT_PREFIX + "{agent}/"
+
+FEEDBACK = TopicSpec(
+    "feedback", _NS + "feedback", Float64MultiArray, QOS_FEEDBACK, Feedback,
+    "world", "agent k (the JSA central node: every agent's)",
+    "data = [agent, episode, step, row, col, reward, done, truncated] (float64; flags 0/1)",
+)
+POSITION = TopicSpec(
+    "position", _NS + "position", Int32MultiArray, QOS_POSITION, Position,
+    "world (every agent, every step, before any feedback of that step)",
+    "peers of k while they need k (CQ: in a conflict state; JS: always; LoC: on COORDINATE); tools",
+    "data = [agent, episode, step, row, col] (int32)",
+)
+ACTION = TopicSpec(
+    "action", _NS + "action", Int32MultiArray, QOS_ACTION, Action,
+    "agent k (the JSA central node: every agent's)", "world",
+    "data = [agent, episode, step, action] (int32; action 0..3 = N, E, S, W)",
+)
+AGENT_STATS = TopicSpec(
+    "agent_stats", _NS + "stats", DiagnosticArray, QOS_STATS, AgentStats,
+    "agent k, once per episode (the JSA central node: every agent's)", "tools (echo, record, launcher)",
+    "one DiagnosticStatus, name 'agv<k>/stats', values: KeyValue pairs (see below)",
+)
+WORLD_STATS = TopicSpec(
+    "world_stats", "world/stats", DiagnosticArray, QOS_STATS, WorldStats,
+    "world, once per episode", "tools (echo, record, launcher)",
+    "one DiagnosticStatus, name 'world/stats', values: KeyValue pairs (see below)",
+)
+
+TOPICS: tuple[TopicSpec, ...] = (FEEDBACK, POSITION, ACTION, AGENT_STATS, WORLD_STATS)
+WORLD_STATS_TOPIC = WORLD_STATS.pattern
+
+# Every decoder takes the same expectations here; those that do not apply to a payload are ignored
+# (statistics have no step; world statistics belong to no agent), as in codec.decode().
+_DECODERS = {
+    "feedback": codec.decode_feedback, "position": codec.decode_position, "action": codec.decode_action,
+    "agent_stats": lambda m, bounds=None, agent=None, episode=None, step=None:
+        codec.decode_agent_stats(m, bounds=bounds, agent=agent, episode=episode),
+    "world_stats": lambda m, bounds=None, agent=None, episode=None, step=None:
+        codec.decode_world_stats(m, bounds=bounds, episode=episode),
+}
+
+
+def agent_namespace(agent: int) -> str:
+    """'agv<k>': the relative namespace of agent k's topics (and a good node name for agent k)."""
+    return f"{AGENT_PREFIX}{_agent_id(agent)}"
+
+
+def feedback_topic(agent: int) -> str:
+    return FEEDBACK.name(agent)
+
+
+def position_topic(agent: int) -> str:
+    return POSITION.name(agent)
+
+
+def action_topic(agent: int) -> str:
+    return ACTION.name(agent)
+
+
+def agent_stats_topic(agent: int) -> str:
+    return AGENT_STATS.name(agent)
+
+
+def agent_topics(n_agents: int) -> list[tuple[str, TopicSpec, int | None]]:
+    """Every topic of a system of `n_agents` agents, as (relative name, spec, agent or None)."""
+    out: list[tuple[str, TopicSpec, int | None]] = []
+    for spec in TOPICS:
+        if spec.per_agent:
+            out += [(spec.name(k), spec, k) for k in range(1, n_agents + 1)]
+        else:
+            out.append((spec.name(), spec, None))
+    return out
+
+
+_TOPIC_RE = re.compile(rf"(?:^|/)(?:{AGENT_PREFIX}([1-9][0-9]*)/(feedback|position|action|stats)|world/stats)$")
+_BY_SUFFIX = {"feedback": FEEDBACK, "position": POSITION, "action": ACTION, "stats": AGENT_STATS}
+
+
+def parse_topic(name: str) -> tuple[TopicSpec, int | None]:
+    """(spec, agent) for a project topic name, relative or fully qualified under any namespace
+    ('/run7/agv2/position' -> (POSITION, 2)); ValueError for any other name."""
+    m = _TOPIC_RE.search(name)
+    if not m:
+        raise ValueError(f"{name!r} is not a cq_ros topic")
+    if m.group(1) is None:
+        return WORLD_STATS, None
+    return _BY_SUFFIX[m.group(2)], int(m.group(1))

@@ -1,0 +1,634 @@
+"""The wire contract: topics, types, QoS, README in sync, encode/decode round trips and every rejection."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import math
+import os
+import random
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import msgs_spec as ms
+from msgs_spec import doc
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension, String
+
+ROOT = Path(__file__).resolve().parents[1]
+B = ms.Bounds(n_agents=3, rows=5, cols=11)
+
+# --------------------------------------------------------------------------------------------------------
+# The spec itself
+
+
+def _common_interfaces_packages() -> set[str]:
+    """The ROS packages of common_interfaces, read from the installed meta-package's requirements."""
+    pkgs = {"std_msgs", "geometry_msgs", "sensor_msgs", "nav_msgs", "diagnostic_msgs", "shape_msgs",
+            "stereo_msgs", "trajectory_msgs", "visualization_msgs", "actionlib_msgs", "std_srvs"}
+    try:
+        reqs = importlib.metadata.requires("ros-common-interfaces") or []
+    except importlib.metadata.PackageNotFoundError:
+        return pkgs
+    found = {re.split(r"[ ~=<>!;\[]", r, maxsplit=1)[0] for r in reqs}
+    found = {r.removeprefix("ros-").replace("-", "_") for r in found}
+    return found - {"builtin_interfaces"} or pkgs
+
+
+def test_every_topic_type_is_a_common_interfaces_type():
+    allowed = _common_interfaces_packages()
+    assert {"std_msgs", "diagnostic_msgs"} <= allowed
+    for spec in ms.TOPICS:
+        pkg = spec.msg_type.__module__.split(".")[0]
+        assert pkg in allowed, f"{spec.pattern}: {spec.msg_type} is not from common_interfaces"
+        # importable under its public name, exactly as a ROS user would name it
+        assert getattr(importlib.import_module(f"{pkg}.msg"), spec.msg_type.__name__) is spec.msg_type
+        assert spec.type_name == f"{pkg}/msg/{spec.msg_type.__name__}"
+        # and the encoder really produces that type (payload -> the topic's type)
+        assert type(ms.encode(doc.EXAMPLES[spec.key])) is spec.msg_type
+    for lay in ms.ARRAY_LAYOUTS:
+        assert lay.ros_type.__module__.split(".")[0] in allowed
+
+
+def test_topics_cover_every_payload_and_names_are_unique_and_relative():
+    assert {t.payload for t in ms.TOPICS} == {ms.Feedback, ms.Position, ms.Action, ms.AgentStats,
+                                              ms.WorldStats}
+    names = [name for name, _, _ in ms.agent_topics(8)]
+    assert len(names) == len(set(names)) == 4 * 8 + 1
+    assert all(not n.startswith("/") and not n.startswith("~") for n in names)
+    assert ms.feedback_topic(1) == "agv1/feedback"
+    assert ms.position_topic(2) == "agv2/position"
+    assert ms.action_topic(3) == "agv3/action"
+    assert ms.agent_stats_topic(4) == "agv4/stats"
+    assert ms.WORLD_STATS_TOPIC == "world/stats" == ms.WORLD_STATS.name()
+    assert ms.agent_namespace(5) == "agv5"
+    for bad in (0, -1, 1.0, True, "1", None):
+        with pytest.raises(ms.WireError) as e:
+            ms.position_topic(bad)
+        assert e.value.kind == "unknown_agent"
+    with pytest.raises(ValueError):
+        ms.WORLD_STATS.name(1)
+
+
+def test_parse_topic_inverts_the_names_under_any_namespace():
+    for name, spec, agent in ms.agent_topics(12):
+        for full in (name, "/" + name, "/run7/" + name, "run7/sub/" + name):
+            assert ms.parse_topic(full) == (spec, agent)
+    for bad in ("agv0/position", "agv1/pose", "agv/position", "world/stat", "/rosout", "xagv1/position",
+                "agv01/action"):
+        with pytest.raises(ValueError):
+            ms.parse_topic(bad)
+
+
+def test_qos_profiles_are_explicit_and_as_documented():
+    for spec in ms.TOPICS:
+        q = spec.qos
+        assert q.reliability == ReliabilityPolicy.RELIABLE
+        assert q.history == HistoryPolicy.KEEP_LAST
+        assert q.depth >= 1
+    pos = ms.POSITION.qos
+    assert (pos.durability, pos.depth) == (DurabilityPolicy.TRANSIENT_LOCAL, 1)  # latched
+    for spec in (ms.FEEDBACK, ms.ACTION, ms.AGENT_STATS, ms.WORLD_STATS):
+        assert spec.qos.durability == DurabilityPolicy.VOLATILE
+        assert spec.qos.depth >= 2  # an episode boundary sends two feedbacks back to back
+    assert ms.qos_summary(pos) == "reliable, transient local, keep last 1"
+
+
+def test_readme_generated_block_matches_the_code():
+    text = (ROOT / "msgs_spec" / "README.md").read_text(encoding="utf-8")
+    assert doc.readme_generated_block(text) == doc.render_spec(), \
+        "msgs_spec/README.md is stale: run `python -m msgs_spec --write`"
+    assert subprocess.run([sys.executable, "-m", "msgs_spec", "--check"], cwd=ROOT,
+                          capture_output=True, timeout=60).returncode == 0
+
+
+def test_readme_topic_table_parsed_independently_matches_the_spec():
+    """Parse the README's topic table itself (not via render_spec), so a renderer bug cannot hide drift."""
+    text = (ROOT / "msgs_spec" / "README.md").read_text(encoding="utf-8")
+    block = text[text.index("### Topics"):]
+    rows = [line for line in block.splitlines()[2:] if line.startswith("| `")]
+    rows = rows[:len(ms.TOPICS) + 1]
+    parsed = {}
+    for line in rows:
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", line)[1:-1]]
+        if not cells[0].startswith("`") or "/" not in cells[0]:
+            break
+        parsed[cells[0].strip("`")] = cells
+    assert set(parsed) == {t.pattern.replace("{agent}", "<k>") for t in ms.TOPICS}
+    for t in ms.TOPICS:
+        name, typ, qos, pub, sub, payload, fields = parsed[t.pattern.replace("{agent}", "<k>")]
+        assert typ == f"`{t.type_name}`"
+        assert qos == ms.qos_summary(t.qos)
+        assert payload == f"`{t.payload.__name__}`"
+        assert pub and sub and fields
+    # every array field appears, in order, in the topic's mapping column
+    for lay, t in ((ms.FEEDBACK_LAYOUT, ms.FEEDBACK), (ms.POSITION_LAYOUT, ms.POSITION),
+                   (ms.ACTION_LAYOUT, ms.ACTION)):
+        assert f"[{', '.join(lay.fields)}]" in parsed[t.pattern.replace("{agent}", "<k>")][6]
+
+
+def test_msgs_spec_imports_no_project_science_or_node_code():
+    code = ("import sys, msgs_spec, msgs_spec.doc, msgs_spec.__main__\n"
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('cq_ros', 'world_node', 'agent_node'))\n"
+            "assert not bad, bad\n"
+            "assert 'rclpy.node' not in sys.modules\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    for path in (ROOT / "msgs_spec").glob("*.py"):
+        src = path.read_text(encoding="utf-8")
+        assert not re.search(r"^\s*(from|import)\s+(cq_ros|world_node|agent_node)\b", src, re.M), path
+
+
+# --------------------------------------------------------------------------------------------------------
+# Round trips (through the real CDR serialisation, as on the wire)
+
+int32s = st.integers(0, ms.INT32_MAX)
+agents = st.integers(1, B.n_agents)
+rows = st.integers(0, B.rows - 1)
+cols = st.integers(0, B.cols - 1)
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def feedbacks(draw):
+    done = draw(st.booleans())
+    truncated = False if done else draw(st.booleans())
+    return ms.Feedback(draw(agents), draw(int32s), draw(int32s), draw(rows), draw(cols), draw(finite),
+                       done, truncated)
+
+
+positions = st.builds(ms.Position, agents, int32s, int32s, rows, cols)
+actions_ = st.builds(ms.Action, agents, int32s, int32s, st.integers(0, 3))
+counter_names = st.from_regex(r"[a-z0-9_][a-z0-9_.]{0,20}", fullmatch=True)
+counters = st.dictionaries(counter_names, int32s, max_size=4)
+
+
+@st.composite
+def marked(draw, agent):
+    peer = draw(agents.filter(lambda p: p != agent))
+    return ms.MarkedJointState(draw(rows), draw(cols), peer, draw(rows), draw(cols), draw(finite))
+
+
+@st.composite
+def agent_stats(draw):
+    agent = draw(agents)
+    return ms.AgentStats(agent=agent, episode=draw(int32s), algorithm=draw(st.sampled_from(
+        ["cq", "indep", "js", "jsa", "loc", "fcq"])), joint_plays=draw(int32s), local_states=draw(int32s),
+        joint_states=draw(int32s), subscriptions_created=draw(int32s), subscriptions_active=draw(int32s),
+        peer_messages=draw(int32s), marked=tuple(draw(st.lists(marked(agent), max_size=5))),
+        counters=draw(counters))
+
+
+world_stats = st.builds(
+    ms.WorldStats, episode=int32s, steps=int32s, truncated=st.booleans(), collisions=int32s,
+    missed_actions=int32s, returns=st.lists(finite, min_size=B.n_agents, max_size=B.n_agents).map(tuple),
+    duration_s=st.floats(0, 1e9), counters=counters)
+
+
+def _wire(msg):
+    return deserialize_message(serialize_message(msg), type(msg))
+
+
+def _expect(p):
+    """Exactly what a receiver waiting for `p` would pass."""
+    kw = {"bounds": B, "episode": p.episode}
+    if hasattr(p, "agent"):
+        kw["agent"] = p.agent
+    if hasattr(p, "step"):
+        kw["step"] = p.step
+    return kw
+
+
+@pytest.mark.parametrize("strategy, spec", [
+    (feedbacks(), ms.FEEDBACK), (positions, ms.POSITION), (actions_, ms.ACTION),
+    (agent_stats(), ms.AGENT_STATS), (world_stats, ms.WORLD_STATS)],
+    ids=["feedback", "position", "action", "agent_stats", "world_stats"])
+def test_round_trip(strategy, spec):
+    @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(strategy)
+    def check(p):
+        msg = _wire(ms.encode(p))
+        assert type(msg) is spec.msg_type
+        typed = {ms.Feedback: ms.decode_feedback, ms.Position: ms.decode_position, ms.Action: ms.decode_action,
+                 ms.AgentStats: ms.decode_agent_stats, ms.WorldStats: ms.decode_world_stats}[type(p)]
+        assert typed(msg, **_expect(p)) == p
+        assert ms.decode(msg, **_expect(p)) == p  # the generic decoder recognises the payload
+        assert ms.decode(msg) == p  # no expectations: no context checks
+        assert spec.decode(msg, **_expect(p)) == p
+        assert spec.decode(msg, bounds=B, agent=getattr(p, "agent", None), episode=p.episode,
+                           step=getattr(p, "step", 0)) == p  # uniform call for every topic
+        assert type(spec.encode(p)) is spec.msg_type
+    check()
+
+
+def test_round_trip_keeps_the_exact_float_and_reads_like_echo():
+    fb = ms.Feedback(1, 2, 3, 4, 5, reward=0.1 + 0.2, done=True)
+    assert ms.decode_feedback(_wire(ms.encode(fb))).reward == 0.1 + 0.2
+    ws = ms.WorldStats(0, 1, False, 0, 0, returns=(1 / 3, -5e-324), duration_s=1e-9)
+    assert ms.decode_world_stats(_wire(ms.encode(ws))).returns == (1 / 3, -5e-324)
+    text = doc.to_yaml(ms.encode(ms.Position(2, 3, 7, 2, 5)))
+    assert "label: agent,episode,step,row,col" in text and text.rstrip().endswith("- 5")
+
+
+def test_stats_stamp_and_summary():
+    from builtin_interfaces.msg import Time
+    msg = ms.encode_world_stats(doc.EXAMPLES["world_stats"], stamp=Time(sec=12, nanosec=5))
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (12, 5)
+    assert msg.status[0].level == DiagnosticStatus.OK and "24 steps" in msg.status[0].message
+    a = ms.encode(doc.EXAMPLES["agent_stats"])
+    assert a.status[0].name == "agv1/stats" and a.status[0].hardware_id == "agv1"
+
+
+# --------------------------------------------------------------------------------------------------------
+# Rejections: every kind, on every decoder where it applies
+
+
+def _arr(layout, data, label=None, dims=1, size=None, stride=None, offset=0):
+    msg = layout.ros_type()
+    n = layout.size
+    msg.layout.dim = [MultiArrayDimension(label=layout.label if label is None else label,
+                                          size=n if size is None else size,
+                                          stride=n if stride is None else stride)] * dims
+    msg.layout.data_offset = offset
+    msg.data = data
+    return msg
+
+
+FB = ms.FEEDBACK_LAYOUT
+POS = ms.POSITION_LAYOUT
+ACT = ms.ACTION_LAYOUT
+GOOD_FB = [1.0, 2.0, 3.0, 4.0, 5.0, -1.0, 0.0, 0.0]
+GOOD_POS = [2, 2, 3, 4, 10]
+GOOD_ACT = [3, 2, 3, 1]
+
+
+def _fb(**changes):
+    d = list(GOOD_FB)
+    for k, v in changes.items():
+        d[FB.fields.index(k)] = v
+    return _arr(FB, d)
+
+
+def _pos(**changes):
+    d = list(GOOD_POS)
+    for k, v in changes.items():
+        d[POS.fields.index(k)] = v
+    return _arr(POS, d)
+
+
+def _act(**changes):
+    d = list(GOOD_ACT)
+    for k, v in changes.items():
+        d[ACT.fields.index(k)] = v
+    return _arr(ACT, d)
+
+
+def _stats(values, name="world/stats", hw="world", n_status=1):
+    st_ = DiagnosticStatus(name=name, hardware_id=hw, values=[KeyValue(key=k, value=v) for k, v in values])
+    return DiagnosticArray(status=[st_] * n_status)
+
+
+def _ws_values(**changes):
+    base = [(kv.key, kv.value) for kv in ms.encode(doc.EXAMPLES["world_stats"]).status[0].values]
+    out = [(k, changes.pop(k) if k in changes else v) for k, v in base]
+    return [(k, v) for k, v in out if v is not None] + list(changes.items())
+
+
+def _as_values(**changes):
+    base = [(kv.key, kv.value) for kv in ms.encode(doc.EXAMPLES["agent_stats"]).status[0].values]
+    out = [(k, changes.pop(k) if k in changes else v) for k, v in base]
+    return [(k, v) for k, v in out if v is not None] + list(changes.items())
+
+
+dfb = ms.decode_feedback
+dpos = ms.decode_position
+dact = ms.decode_action
+dws = ms.decode_world_stats
+das = ms.decode_agent_stats
+E = dict(bounds=B)  # context only
+FBX = dict(bounds=B, agent=1, episode=2, step=3)
+POSX = dict(bounds=B, agent=2, episode=2, step=3)
+ACTX = dict(bounds=B, agent=3, episode=2, step=3)
+
+REJECTIONS = [
+    # (id, thunk, kind)
+    ("fb-wrong-type", lambda: dfb(Int32MultiArray(), **E), "wrong_type"),
+    ("act-wrong-type", lambda: dact(Float64MultiArray(), **E), "wrong_type"),
+    ("generic-wrong-type", lambda: ms.decode(String(data="x")), "wrong_type"),
+    ("ws-wrong-type", lambda: dws(Int32MultiArray(), **E), "wrong_type"),
+    ("spec-wrong-type", lambda: ms.POSITION.decode(Float64MultiArray()), "wrong_type"),
+    ("encode-wrong-type", lambda: ms.encode(object()), "wrong_type"),
+    ("spec-encode-wrong-type", lambda: ms.ACTION.encode(ms.Position(1, 0, 0, 0, 0)), "wrong_type"),
+    ("fb-label", lambda: dfb(_arr(FB, GOOD_FB, label="agent,episode,step,row,col,reward,done"), **E),
+     "wrong_layout"),
+    ("pos-label-is-action", lambda: dpos(_arr(POS, GOOD_POS, label=ACT.label), **E), "wrong_layout"),
+    ("pos-two-dims", lambda: dpos(_arr(POS, GOOD_POS, dims=2), **E), "wrong_layout"),
+    ("pos-no-dims", lambda: dpos(_arr(POS, GOOD_POS, dims=0), **E), "wrong_layout"),
+    ("act-size", lambda: dact(_arr(ACT, GOOD_ACT, size=5), **E), "wrong_layout"),
+    ("act-stride", lambda: dact(_arr(ACT, GOOD_ACT, stride=1), **E), "wrong_layout"),
+    ("act-offset", lambda: dact(_arr(ACT, GOOD_ACT, offset=1), **E), "wrong_layout"),
+    ("generic-unknown-label", lambda: ms.decode(_arr(ACT, GOOD_ACT, label="x,y,z,w")), "wrong_layout"),
+    ("ws-two-statuses", lambda: dws(_stats(_ws_values(), n_status=2)), "wrong_layout"),
+    ("ws-no-status", lambda: dws(_stats(_ws_values(), n_status=0)), "wrong_layout"),
+    ("ws-name", lambda: dws(_stats(_ws_values(), name="world/stat")), "wrong_layout"),
+    ("ws-hardware-id", lambda: dws(_stats(_ws_values(), hw="agv1")), "wrong_layout"),
+    ("as-name", lambda: das(_stats(_as_values(), name="agent1/stats", hw="agv1")), "wrong_layout"),
+    ("fb-too-long", lambda: dfb(_arr(FB, GOOD_FB + [0.0]), **E), "wrong_length"),
+    ("pos-too-short", lambda: dpos(_arr(POS, GOOD_POS[:-1]), **E), "wrong_length"),
+    ("fb-nan-reward", lambda: dfb(_fb(reward=math.nan), **FBX), "not_finite"),
+    ("fb-inf-reward", lambda: dfb(_fb(reward=-math.inf), **FBX), "not_finite"),
+    ("fb-nan-step", lambda: dfb(_fb(step=math.nan), **FBX), "not_finite"),
+    ("fb-nan-done", lambda: dfb(_fb(done=math.nan), **FBX), "not_finite"),
+    ("ws-nan-return", lambda: dws(_stats(_ws_values(**{"return.agv1": "nan"}))), "not_finite"),
+    ("ws-inf-duration", lambda: dws(_stats(_ws_values(duration_s="inf"))), "not_finite"),
+    ("as-nan-confidence", lambda: das(_stats(_as_values(**{
+        "marked.0": "cell=2,3 peer=agv2 peer_cell=2,4 confidence=nan"}), "agv1/stats", "agv1")),
+     "not_finite"),
+    ("encode-nan-reward", lambda: ms.encode(ms.Feedback(1, 0, 0, 0, 0, math.nan)), "not_finite"),
+    ("fb-fraction-step", lambda: dfb(_fb(step=2.5), **FBX), "not_integer"),
+    ("fb-fraction-agent", lambda: dfb(_fb(agent=1.0000001), **FBX), "not_integer"),
+    ("ws-fraction-steps", lambda: dws(_stats(_ws_values(steps="3.5"))), "not_integer"),
+    ("encode-float-action", lambda: ms.encode(ms.Action(1, 0, 0, 1.5)), "not_integer"),
+    ("encode-str-action", lambda: ms.encode(ms.Action(1, 0, 0, "1")), "not_integer"),
+    ("fb-huge-step", lambda: dfb(_fb(step=1e12), **E), "out_of_range"),
+    ("pos-negative-episode", lambda: dpos(_pos(episode=-1), **E), "out_of_range"),
+    ("act-negative-step", lambda: dact(_act(step=-3), **E), "out_of_range"),
+    ("ws-negative-count", lambda: dws(_stats(_ws_values(**{"count.x": "-1"}))), "out_of_range"),
+    ("ws-negative-duration", lambda: dws(_stats(_ws_values(duration_s="-1.0"))), "out_of_range"),
+    ("encode-huge-episode", lambda: ms.encode(ms.Position(1, 2**31, 0, 0, 0)), "out_of_range"),
+    ("fb-flag-half", lambda: dfb(_fb(done=0.5), **FBX), "malformed"),
+    ("fb-flag-two", lambda: dfb(_fb(truncated=2.0), **FBX), "malformed"),
+    ("fb-done-and-truncated", lambda: dfb(_fb(done=1.0, truncated=1.0), **FBX), "malformed"),
+    ("ws-missing-key", lambda: dws(_stats(_ws_values(steps=None))), "malformed"),
+    ("ws-repeated-key", lambda: dws(_stats(_ws_values() + [("steps", "1")])), "malformed"),
+    ("ws-unknown-key", lambda: dws(_stats(_ws_values(colisions="1"))), "malformed"),
+    ("ws-bad-bool", lambda: dws(_stats(_ws_values(truncated="True"))), "malformed"),
+    ("ws-garbage-int", lambda: dws(_stats(_ws_values(steps="twelve"))), "malformed"),
+    ("ws-returns-gap", lambda: dws(_stats(_ws_values(**{"return.agv4": "1.0"}))), "malformed"),
+    ("ws-returns-too-few", lambda: dws(_stats(_ws_values()), bounds=B), "malformed"),
+    ("as-marked-format", lambda: das(_stats(_as_values(**{"marked.0": "2,3 with agv2 at 2,4"}),
+                                            "agv1/stats", "agv1")), "malformed"),
+    ("as-marked-gap", lambda: das(_stats(_as_values(**{"marked.2": "cell=0,0 peer=agv2 peer_cell=0,1 "
+                                                                   "confidence=1.0"}), "agv1/stats", "agv1")),
+     "malformed"),
+    ("as-marked-self", lambda: das(_stats(_as_values(**{
+        "marked.0": "cell=2,3 peer=agv1 peer_cell=2,4 confidence=0.5"}), "agv1/stats", "agv1")), "malformed"),
+    ("as-bad-algorithm", lambda: das(_stats(_as_values(algorithm="C Q"), "agv1/stats", "agv1")), "malformed"),
+    ("encode-done-and-truncated", lambda: ms.encode(ms.Feedback(1, 0, 0, 0, 0, 0.0, True, True)), "malformed"),
+    ("encode-bad-counter-name", lambda: ms.encode(ms.WorldStats(0, 0, False, 0, 0, (0.0,),
+                                                                counters={"Bad Name": 1})), "malformed"),
+    ("encode-no-returns", lambda: ms.encode(ms.WorldStats(0, 0, False, 0, 0, ())), "malformed"),
+    ("fb-agent-zero", lambda: dfb(_fb(agent=0.0), **E), "unknown_agent"),
+    ("pos-agent-too-big", lambda: dpos(_pos(agent=4), **E), "unknown_agent"),
+    ("act-agent-negative", lambda: dact(_act(agent=-1), **E), "unknown_agent"),
+    ("act-agent-negative-no-bounds", lambda: dact(_act(agent=-1)), "unknown_agent"),
+    ("ws-too-many-returns", lambda: dws(_stats(_ws_values(**{"return.agv3": "0.0", "return.agv4": "0.0"})),
+                                        bounds=B), "unknown_agent"),
+    ("as-agent-too-big", lambda: das(_stats(_as_values(agent="9"), "agv9/stats", "agv9"), bounds=B),
+     "unknown_agent"),
+    ("as-marked-peer-unknown", lambda: das(_stats(_as_values(**{
+        "marked.0": "cell=2,3 peer=agv7 peer_cell=2,4 confidence=0.5"}), "agv1/stats", "agv1"), bounds=B),
+     "unknown_agent"),
+    ("encode-agent-zero", lambda: ms.encode(ms.Action(0, 0, 0, 0)), "unknown_agent"),
+    ("fb-wrong-agent", lambda: dfb(_fb(agent=2.0), **FBX), "wrong_agent"),
+    ("pos-wrong-agent", lambda: dpos(_pos(), **{**POSX, "agent": 1}), "wrong_agent"),
+    ("act-wrong-agent", lambda: dact(_act(agent=1), **ACTX), "wrong_agent"),
+    ("as-wrong-agent", lambda: das(_stats(_as_values(), "agv1/stats", "agv1"), agent=2), "wrong_agent"),
+    ("as-name-agent-mismatch", lambda: das(_stats(_as_values(), "agv2/stats", "agv2")), "wrong_agent"),
+    ("act-4", lambda: dact(_act(action=4), **ACTX), "action_out_of_range"),
+    ("act-minus-1", lambda: dact(_act(action=-1), **ACTX), "action_out_of_range"),
+    ("act-huge", lambda: dact(_act(action=2**31 - 1), **ACTX), "action_out_of_range"),
+    ("encode-action-4", lambda: ms.encode(ms.Action(1, 0, 0, 4)), "action_out_of_range"),
+    ("fb-row-H", lambda: dfb(_fb(row=5.0), **FBX), "cell_out_of_range"),
+    ("pos-col-W", lambda: dpos(_pos(col=11), **POSX), "cell_out_of_range"),
+    ("pos-col-negative", lambda: dpos(_pos(col=-1)), "cell_out_of_range"),
+    ("as-marked-cell", lambda: das(_stats(_as_values(**{
+        "marked.0": "cell=5,3 peer=agv2 peer_cell=2,4 confidence=0.5"}), "agv1/stats", "agv1"), bounds=B),
+     "cell_out_of_range"),
+    ("encode-row-negative", lambda: ms.encode(ms.Position(1, 0, 0, -1, 0)), "cell_out_of_range"),
+    ("fb-stale-episode", lambda: dfb(_fb(), **{**FBX, "episode": 3}), "stale_episode"),
+    ("act-stale-episode", lambda: dact(_act(), **{**ACTX, "episode": 3, "step": 0}), "stale_episode"),
+    ("ws-stale-episode", lambda: dws(_stats(_ws_values()), episode=4), "stale_episode"),
+    ("pos-future-episode", lambda: dpos(_pos(), **{**POSX, "episode": 1, "step": 99}), "future_episode"),
+    ("as-future-episode", lambda: das(_stats(_as_values(), "agv1/stats", "agv1"), episode=2),
+     "future_episode"),
+    ("fb-stale-step", lambda: dfb(_fb(), **{**FBX, "step": 4}), "stale_step"),
+    ("act-stale-step", lambda: dact(_act(), **{**ACTX, "step": 4}), "stale_step"),
+    ("pos-stale-step", lambda: dpos(_pos(), **{**POSX, "step": 4}), "stale_step"),
+    ("fb-future-step", lambda: dfb(_fb(), **{**FBX, "step": 2}), "future_step"),
+    ("act-future-step", lambda: dact(_act(), **{**ACTX, "step": 0}), "future_step"),
+    ("pos-future-step-no-episode", lambda: dpos(_pos(), bounds=B, agent=2, step=0), "future_step"),
+]
+
+
+@pytest.mark.parametrize("thunk, kind", [r[1:] for r in REJECTIONS], ids=[r[0] for r in REJECTIONS])
+def test_rejection(thunk, kind):
+    with pytest.raises(ms.WireError) as e:
+        thunk()
+    assert e.value.kind == kind, str(e.value)
+    assert e.value.detail  # always says what was seen
+
+
+def test_every_kind_is_tested_and_the_good_messages_pass():
+    assert {k for _, _, k in REJECTIONS} == set(ms.KINDS)
+    assert dfb(_fb(), **FBX) == ms.Feedback(1, 2, 3, 4, 5, -1.0, False, False)
+    assert dpos(_pos(), **POSX) == ms.Position(2, 2, 3, 4, 10)
+    assert dact(_act(), **ACTX) == ms.Action(3, 2, 3, 1)
+    assert dws(_stats(_ws_values()), bounds=ms.Bounds(2, 5, 11), episode=3) == doc.EXAMPLES["world_stats"]
+    assert das(_stats(_as_values(), "agv1/stats", "agv1"), bounds=B, agent=1, episode=3) == \
+        doc.EXAMPLES["agent_stats"]
+    with pytest.raises(ValueError):
+        ms.WireError("no_such_kind")
+
+
+def test_check_order_first_failure_wins():
+    # unknown agent beats the action range and the step; the action range beats the step
+    with pytest.raises(ms.WireError, match="unknown_agent"):
+        dact(_act(agent=9, action=7, step=99), **ACTX)
+    with pytest.raises(ms.WireError, match="action_out_of_range"):
+        dact(_act(action=7, step=99), **ACTX)
+    with pytest.raises(ms.WireError, match="stale_episode"):  # episode before step
+        dact(_act(episode=1, step=99), **ACTX)
+    with pytest.raises(ms.WireError, match="not_finite"):  # numbers before agent
+        dfb(_fb(agent=7.0, reward=math.nan), **FBX)
+
+
+def test_wire_error_is_a_value_error_and_pickles():
+    import pickle
+    e = ms.WireError("stale_step", "episode 1 step 2, expected step 3")
+    assert isinstance(e, ValueError)
+    e2 = pickle.loads(pickle.dumps(e))
+    assert (e2.kind, e2.detail, str(e2)) == (e.kind, e.detail, str(e))
+
+
+# --------------------------------------------------------------------------------------------------------
+# Fuzz: any message of the right ROS type decodes to a valid payload or raises WireError, nothing else
+
+labels = st.sampled_from([FB.label, POS.label, ACT.label, "", "agent", "x,y"])
+any_float = st.floats(allow_nan=True, allow_infinity=True)
+int32_any = st.integers(-2**31, 2**31 - 1)
+
+
+@settings(max_examples=400, deadline=None)
+@given(float_msg=st.booleans(), label=labels, dims=st.integers(0, 2), size=st.integers(0, 9),
+       stride=st.integers(0, 9), offset=st.integers(0, 2), fdata=st.lists(any_float, max_size=10),
+       idata=st.lists(int32_any, max_size=10), episode=st.none() | int32s, step=st.none() | int32s,
+       agent=st.none() | agents)
+def test_fuzz_arrays_only_raise_wire_error(float_msg, label, dims, size, stride, offset, fdata, idata,
+                                           episode, step, agent):
+    msg = (Float64MultiArray if float_msg else Int32MultiArray)()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)] * dims
+    msg.layout.data_offset = offset
+    msg.data = fdata if float_msg else idata
+    for fn in (ms.decode, dfb, dpos, dact, dws, das):
+        kw = {"bounds": B, "agent": agent, "episode": episode, "step": step}
+        if fn in (dws,):
+            kw = {"bounds": B, "episode": episode}
+        if fn in (das,):
+            kw = {"bounds": B, "agent": agent, "episode": episode}
+        try:
+            p = fn(msg, **kw)
+        except ms.WireError as e:
+            assert e.kind in ms.KINDS
+            continue
+        assert ms.decode(_wire(ms.encode(p))) == p  # whatever passes is re-encodable
+
+
+keys = st.sampled_from(["episode", "steps", "truncated", "collisions", "missed_actions", "duration_s",
+                        "return.agv1", "return.agv2", "return.agv0", "return.x", "count.dropped.x", "count.",
+                        "agent", "algorithm", "joint_plays", "local_states", "joint_states",
+                        "subscriptions_created", "subscriptions_active", "peer_messages", "marked.0",
+                        "marked.1", "marked.x", "other"])
+vals = st.sampled_from(["0", "1", "2", "-1", "1.5", "nan", "inf", "true", "false", "cq", "",
+                        "cell=0,0 peer=agv2 peer_cell=0,1 confidence=1.0",
+                        "cell=0,0 peer=agv1 peer_cell=0,1 confidence=0.5", "99999999999"]) | st.text(max_size=8)
+
+
+@settings(max_examples=400, deadline=None)
+@given(pairs=st.lists(st.tuples(keys, vals), max_size=24), name=st.sampled_from(
+    ["world/stats", "agv1/stats", "agv2/stats", "x"]), hw=st.sampled_from(["world", "agv1", "agv2", ""]),
+    n_status=st.integers(0, 2))
+def test_fuzz_stats_only_raise_wire_error(pairs, name, hw, n_status):
+    msg = _stats(pairs, name, hw, n_status)
+    for fn in (ms.decode, dws, das):
+        try:
+            p = fn(msg, bounds=B)
+        except ms.WireError as e:
+            assert e.kind in ms.KINDS
+            continue
+        assert ms.decode(_wire(ms.encode(p))) == p
+
+
+# --------------------------------------------------------------------------------------------------------
+# DropCounter
+
+
+def test_drop_counter_logs_first_and_every_nth_and_counts():
+    logged = []
+    drops = ms.DropCounter(logged.append, every=3)
+    bad = _act(action=9)
+    for _ in range(7):
+        assert drops.guard(dact, bad, source="agv3/action", **ACTX) is None
+    assert drops.guard(dact, _act(step=1), source="agv3/action", **ACTX) is None  # stale
+    assert drops.guard(dact, _act(), **ACTX) == ms.Action(3, 2, 3, 1)  # good passes through
+    assert drops.counts == {"action_out_of_range": 7, "stale_step": 1}
+    assert drops["action_out_of_range"] == 7 and drops["never"] == 0 and drops.total == 8
+    assert drops.as_counters() == {"dropped.action_out_of_range": 7, "dropped.stale_step": 1}
+    # 1st, 3rd, 6th of action_out_of_range; 1st of stale_step
+    assert len(logged) == 4
+    assert "agv3/action" in logged[0] and "action_out_of_range" in logged[0] and "first" in logged[0]
+    assert "3 of this kind" in logged[1] and "6 of this kind" in logged[2] and "stale_step" in logged[3]
+    # counters feed the statistics as is
+    s = ms.AgentStats(agent=3, episode=0, algorithm="cq", counters=drops.as_counters())
+    assert ms.decode(_wire(ms.encode(s))).counters == drops.as_counters()
+
+
+def test_drop_counter_without_logger_and_bugs_propagate():
+    drops = ms.DropCounter(None, every=1)
+    assert drops.record(ms.WireError("malformed", "x")) == 1
+
+    def buggy(msg):
+        raise KeyError("a bug, not bad input")
+
+    with pytest.raises(KeyError):
+        drops.guard(buggy, None)
+    with pytest.raises(ValueError):
+        ms.DropCounter(every=0)
+
+
+def test_bounds_validates():
+    for bad in ((0, 1, 1), (1, 0, 1), (1, 1, -1), (1.0, 1, 1), (True, 1, 1)):
+        with pytest.raises(ValueError):
+            ms.Bounds(*bad)
+
+
+# --------------------------------------------------------------------------------------------------------
+# Over real DDS, in process: each topic's QoS delivers its payload; the position topic is latched
+
+
+@pytest.fixture
+def ros_context(tmp_path, monkeypatch):
+    rclpy = pytest.importorskip("rclpy")
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
+    domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_every_topic_delivers_over_dds_with_its_qos_and_position_is_latched(ros_context):
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    node = rclpy.create_node("msgs_spec_test", namespace="/t", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    try:
+        got: dict[str, list] = {}
+        pubs = {}
+        for spec in ms.TOPICS:
+            example = doc.EXAMPLES[spec.key]
+            name = spec.name(example.agent) if spec.per_agent else spec.name()
+            pubs[spec.key] = (node.create_publisher(spec.msg_type, name, spec.qos), name, example)
+        # latched: publish the position BEFORE anyone subscribes
+        pub, name, example = pubs["position"]
+        pub.publish(ms.encode(example))
+
+        def subscribe(spec, name):
+            got[spec.key] = []
+            node.create_subscription(spec.msg_type, name, lambda m, k=spec.key: got[k].append(m), spec.qos)
+
+        for spec in ms.TOPICS:
+            subscribe(spec, pubs[spec.key][1])
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and any(p.get_subscription_count() < 1 for p, _, _ in pubs.values()):
+            ex.spin_once(timeout_sec=0.05)
+        for key, (pub, _, example) in pubs.items():
+            if key != "position":
+                pub.publish(ms.encode(example))
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and not all(got.values()):
+            ex.spin_once(timeout_sec=0.05)
+        for spec in ms.TOPICS:
+            example = doc.EXAMPLES[spec.key]
+            assert got[spec.key], f"nothing on {spec.pattern}"
+            assert spec.decode(got[spec.key][0]) == example
+        assert len(got["position"]) == 1  # exactly the latched sample
+    finally:
+        ex.shutdown()
+        node.destroy_node()
