@@ -31,13 +31,17 @@ def world_seed(seed: int, run: int) -> int:
     return int(np.random.SeedSequence([seed, run, 2**31]).generate_state(1)[0])
 
 
-def make_learners(algo: str, gridmap: GridMap, settings: Settings, seed: int, run: int) -> list[Learner]:
-    """The learners of one run: one per agent, or the single central learner for JSA."""
+def make_learner(algo: str, gridmap: GridMap, settings: Settings, seed: int, run: int, agent: int) -> Learner:
+    """The learner of agent `agent` (0-based) in run `run`; for JSA, agent 0 is the central learner."""
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
-    cls = LEARNERS[algo]
-    agents = [0] if cls.central else range(gridmap.n_agents)
-    return [cls(i, gridmap, settings, learner_seed(seed, run, i)) for i in agents]
+    return LEARNERS[algo](agent, gridmap, settings, learner_seed(seed, run, agent))
+
+
+def make_learners(algo: str, gridmap: GridMap, settings: Settings, seed: int, run: int) -> list[Learner]:
+    """The learners of one run: one per agent, or the single central learner for JSA."""
+    agents = [0] if algo in LEARNERS and LEARNERS[algo].central else range(gridmap.n_agents)
+    return [make_learner(algo, gridmap, settings, seed, run, i) for i in agents]
 
 
 @dataclass

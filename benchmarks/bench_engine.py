@@ -1,0 +1,60 @@
+"""Offline engine speed: joint steps per second of every algorithm on tunnel_to_goal and tunnel_to_goal_3
+(one core, one run each), CQ's ratio to independent learners, and optionally the wall time of the whole
+reproduce grid on all cores.
+
+    python benchmarks/bench_engine.py [--episodes 3000] [--grid] [--grid-episodes 10000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from cq_ros.engine import run
+from cq_ros.gridmap import load_map
+from cq_ros.learners import ALGORITHMS
+from cq_ros.settings import Settings
+
+
+def steps_per_second(algo: str, map_name: str, episodes: int, seed: int = 0) -> tuple[float, int]:
+    gridmap = load_map(map_name)
+    started = time.perf_counter()
+    table = run(algo, gridmap, Settings(), seed, 0, episodes).episodes
+    seconds = time.perf_counter() - started
+    steps = int(table[:, 0].sum())
+    return steps / seconds, steps
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=3000)
+    parser.add_argument("--grid", action="store_true", help="also time the full reproduce grid (minutes)")
+    parser.add_argument("--grid-runs", type=int, default=10)
+    parser.add_argument("--grid-episodes", type=int, default=10_000)
+    args = parser.parse_args()
+
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    for map_name in ("tunnel_to_goal", "tunnel_to_goal_3"):
+        rates = {}
+        for algo in ALGORITHMS:
+            rates[algo], steps = steps_per_second(algo, map_name, args.episodes)
+            print(f"{map_name:<17} {algo:<6} {rates[algo]:>10,.0f} joint steps/s  ({steps:,} steps, {args.episodes} episodes)")
+        print(f"{map_name:<17} cq/indep speed ratio: {rates['cq'] / rates['indep']:.2f}")
+
+    if args.grid:
+        from cq_ros.reproduce import reproduce
+
+        with tempfile.TemporaryDirectory() as out:
+            started = time.perf_counter()
+            reproduce(Path(out) / "grid", args.grid_runs, args.grid_episodes, seed=0, settings=Settings(),
+                      sweep=False, figures=False)
+            print(f"reproduce grid ({args.grid_runs} runs x {args.grid_episodes} episodes, 4 maps x 5 algorithms, "
+                  f"no sweep, no figures): {time.perf_counter() - started:.0f} s wall on {os.cpu_count()} cores")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,160 @@
+"""Experiments: many (algorithm, run) pairs spread over the cores, written as result files.
+
+A result directory holds `episodes.csv` (one row per algorithm, run and episode), `observe.csv`
+(the joint states each CQ agent keeps at the end of each run, for Fig. 5b), `manifest.json` (every
+parameter, seed, package version and the wall time) and the figures. An existing result is never
+overwritten unless asked.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from importlib import metadata
+from pathlib import Path
+
+from tqdm import tqdm
+
+from . import __version__
+from .engine import RunResult, run
+from .gridmap import GridMap, load_map
+from .learners import ALGORITHMS
+from .settings import Settings
+
+EPISODE_COLUMNS = ("map", "algo", "run", "episode", "steps", "collisions", "joint_plays", "states", "return", "truncated")
+OBSERVE_COLUMNS = ("map", "algo", "run", "agent", "row", "col", "peer", "peer_row", "peer_col", "confidence")
+
+
+class ResultExists(FileExistsError):
+    """The output directory already holds a result (or is a file)."""
+
+
+@dataclass(frozen=True)
+class Job:
+    map_name: str
+    algo: str
+    run: int
+    episodes: int
+    seed: int
+    settings: Settings = field(default_factory=Settings)
+
+
+def _play(job: Job) -> tuple[Job, RunResult, float]:
+    started = time.perf_counter()
+    result = run(job.algo, load_map(job.map_name), job.settings, job.seed, job.run, job.episodes)
+    return job, result, time.perf_counter() - started
+
+
+def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs") -> dict[Job, RunResult]:
+    """Play every job, in parallel where there is more than one core; a progress bar on a terminal,
+    one plain line per finished run otherwise."""
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+    results: dict[Job, RunResult] = {}
+    on_terminal = sys.stderr.isatty()
+    bar = tqdm(total=len(jobs), desc=label, unit="run", disable=not on_terminal)
+
+    def finished(job, result, seconds):
+        results[job] = result
+        bar.update()
+        if not on_terminal:
+            print(f"{label}: {job.map_name} {job.algo} run {job.run} done in {seconds:.1f} s "
+                  f"({len(results)}/{len(jobs)})", file=sys.stderr, flush=True)
+
+    if workers == 1:
+        for job in jobs:
+            finished(*_play(job))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for future in as_completed([pool.submit(_play, job) for job in jobs]):
+                finished(*future.result())
+    bar.close()
+    return results
+
+
+def prepare_output(out: Path, force: bool) -> Path:
+    """An output directory that is ours to write: new, empty, or (with force) an old result."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ResultExists(f"output {out} is a file, not a directory")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise ResultExists(f"output directory {out} is not empty; choose another or pass --force to overwrite")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifest: dict) -> None:
+    """episodes.csv, observe.csv and manifest.json for one map."""
+    ordered = sorted(results, key=lambda r: (ALGORITHMS.index(r.algo), r.run))
+    with open(out / "episodes.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(EPISODE_COLUMNS)
+        for r in ordered:
+            for e, (steps, coll, plays, states, ret, trunc) in enumerate(r.episodes, start=1):
+                w.writerow((gridmap.name, r.algo, r.run, e, int(steps), int(coll), int(plays), int(states),
+                            f"{ret:g}", int(trunc)))
+    with open(out / "observe.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(OBSERVE_COLUMNS)
+        for r in ordered:
+            for agent, cell, peer, peer_cell, conf in r.joint_states:
+                w.writerow((gridmap.name, r.algo, r.run, agent + 1, *gridmap.cells[cell], peer + 1,
+                            *gridmap.cells[peer_cell], f"{conf:.6g}"))
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+
+
+def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, settings: Settings,
+                 wall_time: float, **extra) -> dict:
+    return {
+        "map": gridmap.name,
+        "map_source": str(gridmap.source),
+        "n_agents": gridmap.n_agents,
+        "n_cells": gridmap.n_cells,
+        "algos": list(algos),
+        "runs": runs,
+        "episodes": episodes,
+        "seed": seed,
+        "seeds": "learner of agent i in run r: SeedSequence([seed, r, i]); world: SeedSequence([seed, r, 2**31])",
+        "settings": settings.as_dict(),
+        "versions": versions(),
+        "command": sys.argv,
+        "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "wall_time_s": round(wall_time, 2),
+        **extra,
+    }
+
+
+def versions() -> dict:
+    found = {"cq_ros": __version__, "python": platform.python_version(), "machine": platform.machine(),
+             "cores": os.cpu_count()}
+    for package in ("numpy", "scipy", "matplotlib"):
+        try:
+            found[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            pass
+    return found
+
+
+def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: int, out: Path,
+               settings: Settings = Settings(), workers: int | None = None, force: bool = False,
+               figures: bool = True) -> Path:
+    """Run every algorithm on one map and write the result directory; returns it."""
+    gridmap = load_map(map_name)
+    out = prepare_output(out, force)
+    started = time.perf_counter()
+    jobs = [Job(str(map_name), a, r, episodes, seed, settings) for a in algos for r in range(runs)]
+    results = run_jobs(jobs, workers, label=gridmap.name)
+    wall = time.perf_counter() - started
+    write_results(out, gridmap, list(results.values()),
+                  manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, workers=workers))
+    if figures:
+        from .plots import write_figures  # matplotlib only where figures are wanted
+
+        write_figures(out)
+    return out
