@@ -1,0 +1,68 @@
+"""The gridworld as a PettingZoo `ParallelEnv`, so any PettingZoo-based MARL library can train on our maps.
+
+    env = GridWorldEnv("tunnel_to_goal_3")            # observations: each agent's own cell
+    env = GridWorldEnv("isr", observation="joint")    # or every agent's cell
+    obs, infos = env.reset(seed=0)
+    obs, rewards, terminations, truncations, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
+
+The dynamics are cq_ros.world.GridWorld's; this class only adds spaces and PettingZoo's bookkeeping.
+"""
+
+from __future__ import annotations
+
+import functools
+
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from .gridmap import GridMap, load_map
+from .settings import Settings
+from .world import N_ACTIONS, GridWorld
+
+
+class GridWorldEnv(ParallelEnv):
+    metadata = {"name": "cq_ros_gridworld_v0", "render_modes": ["ansi"]}
+
+    def __init__(self, gridmap: GridMap | str, settings: Settings = Settings(), observation: str = "local",
+                 render_mode: str | None = None):
+        if observation not in ("local", "joint"):
+            raise ValueError(f"observation must be 'local' or 'joint', got {observation!r}")
+        self.world = GridWorld(load_map(gridmap) if isinstance(gridmap, str) else gridmap, settings)
+        self.observation = observation
+        self.render_mode = render_mode
+        self.possible_agents = list(self.world.agents)
+        self.agents: list[str] = []
+
+    @functools.lru_cache(maxsize=None)
+    def observation_space(self, agent: str) -> spaces.Space:
+        n_cells = self.world.map.n_cells
+        if self.observation == "joint":
+            return spaces.MultiDiscrete([n_cells] * self.world.n)
+        return spaces.Discrete(n_cells)
+
+    @functools.lru_cache(maxsize=None)
+    def action_space(self, agent: str) -> spaces.Space:
+        return spaces.Discrete(N_ACTIONS)
+
+    def _observe(self, own: dict) -> dict:
+        if self.observation == "local":
+            return own
+        joint = self.world.cells
+        return {a: joint[:] for a in own}
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        obs, infos = self.world.reset(seed=seed)
+        self.agents = list(obs)
+        return self._observe(obs), infos
+
+    def step(self, actions: dict):
+        for agent, action in actions.items():
+            if not self.action_space(agent).contains(action):
+                raise ValueError(f"action {action!r} of {agent} is not in {self.action_space(agent)}")
+        obs, rewards, terminations, truncations, infos = self.world.step({a: int(x) for a, x in actions.items()})
+        self.agents = [a for a in obs if not (terminations[a] or truncations[a])]
+        return self._observe(obs), rewards, terminations, truncations, infos
+
+    def render(self):
+        marks = {cell: str(i + 1) for i, cell in enumerate(self.world.cells)}
+        return self.world.map.draw(marks)
