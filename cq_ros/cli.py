@@ -14,6 +14,13 @@ from .learners import ALGORITHMS
 from .settings import Settings, SettingsError
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (with where to find help), not the whole usage."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _positive(text: str) -> int:
     try:
         value = int(text)
@@ -28,7 +35,8 @@ def _algos(text: str) -> list[str]:
     algos = [a.strip() for a in text.split(",") if a.strip()]
     unknown = [a for a in algos if a not in ALGORITHMS]
     if unknown or not algos:
-        raise argparse.ArgumentTypeError(f"unknown algorithm {', '.join(unknown) or text!r}; choose from {','.join(ALGORITHMS)}")
+        what = ", ".join(unknown) if unknown else repr(text)
+        raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(ALGORITHMS)}")
     return algos
 
 
@@ -43,8 +51,8 @@ def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> No
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cq-ros", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    parser = _Parser(prog="cq-ros", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
 
     sub.add_parser("maps", help="list the shipped maps with their cells and agents")
     p = sub.add_parser("show", help="draw a map in the terminal")

@@ -1,0 +1,98 @@
+"""The `cq-ros` command: listing and drawing maps, experiments and reproduce on small budgets, and one
+clear line with exit code 2 for every kind of bad argument."""
+
+import csv
+import json
+import re
+import subprocess
+import sys
+
+import pytest
+
+from cq_ros.cli import main
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "cq_ros.cli", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_maps_lists_every_shipped_map(capsys):
+    assert main(["maps"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^tunnel_to_goal_3 +55 +2$", out, re.M)
+    assert "warehouse_8" in out
+
+
+def test_show_draws_the_map(capsys):
+    assert main(["show", "grid_game_2"]) == 0
+    out = capsys.readouterr().out
+    assert "9 cells, 2 agents" in out and "+-+-+-+" in out
+
+
+@pytest.mark.parametrize(
+    "args, phrase",
+    [
+        (["experiment", "--map", "nowhere", "--out", "X"], "no such map"),
+        (["experiment", "--map", "grid_game_2", "--algo", "cq,sarsa", "--out", "X"], "unknown algorithm sarsa"),
+        (["experiment", "--map", "grid_game_2", "--episodes", "0", "--out", "X"], "must be at least 1"),
+        (["experiment", "--map", "grid_game_2", "--set", "alhpa=0.2", "--out", "X"], "unknown setting 'alhpa'"),
+        (["experiment", "--map", "grid_game_2", "--set", "window=2.5", "--out", "X"], "window takes an integer"),
+        (["experiment", "--map", "grid_game_2", "--set", "alpha=abc", "--out", "X"], "alpha takes a number"),
+        (["experiment", "--map", "grid_game_2", "--set", "gamma=1.5", "--out", "X"], "gamma must be in [0, 1)"),
+    ],
+)
+def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
+    args = [str(tmp_path / a) if a == "X" else a for a in args]
+    result = run_cli(*args)
+    assert result.returncode == 2
+    assert phrase in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "X").exists()
+
+
+def test_output_that_is_a_file_or_a_result_is_never_overwritten(tmp_path):
+    a_file = tmp_path / "file"
+    a_file.write_text("mine")
+    result = run_cli("experiment", "--map", "grid_game_2", "--runs", "1", "--episodes", "5", "--out", str(a_file))
+    assert result.returncode == 2 and "is a file" in result.stderr
+    assert a_file.read_text() == "mine"
+
+    out = tmp_path / "res"
+    assert run_cli("experiment", "--map", "grid_game_2", "--runs", "1", "--episodes", "5", "--no-figures",
+                   "--out", str(out)).returncode == 0
+    before = (out / "episodes.csv").read_text()
+    again = run_cli("experiment", "--map", "grid_game_2", "--runs", "1", "--episodes", "5", "--seed", "9",
+                    "--no-figures", "--out", str(out))
+    assert again.returncode == 2 and "--force" in again.stderr
+    assert (out / "episodes.csv").read_text() == before
+
+
+def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_the_same_file(tmp_path):
+    args = ["experiment", "--map", "tunnel_to_goal", "--algo", "cq,indep,loc", "--runs", "2", "--episodes", "60",
+            "--seed", "5", "--set", "window=10"]
+    first, second = tmp_path / "a", tmp_path / "b"
+    assert main([*args, "--out", str(first)]) == 0
+    assert main([*args, "--out", str(second), "--jobs", "1", "--no-figures"]) == 0
+    assert (first / "episodes.csv").read_bytes() == (second / "episodes.csv").read_bytes()
+    assert (first / "observe.csv").read_bytes() == (second / "observe.csv").read_bytes()
+
+    rows = list(csv.DictReader(open(first / "episodes.csv")))
+    assert len(rows) == 3 * 2 * 60
+    assert {r["algo"] for r in rows} == {"cq", "indep", "loc"}
+    manifest = json.loads((first / "manifest.json").read_text())
+    assert manifest["settings"]["window"] == 10 and manifest["seed"] == 5
+    assert manifest["settings"]["reward_collision"] == -10.0
+    assert {"numpy", "scipy", "cq_ros"} <= set(manifest["versions"])
+    for png in ("collisions.png", "joint_plays.png", "state_space.png", "observe_map.png"):
+        assert (first / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_reproduce_small_grid_writes_a_report_with_every_claim(tmp_path):
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "30", "--no-sweep"]) == 0
+    report = (tmp_path / "r" / "REPORT.md").read_text()
+    for n in range(1, 8):
+        assert f"\n{n}. *" in report
+    assert "holds" in report
+    for m in ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr"):
+        assert (tmp_path / "r" / m / "episodes.csv").exists()
