@@ -58,11 +58,7 @@ def plot_collisions(
     """Fig. 3: collisions per episode, one line per algorithm."""
     name, by_algo = _one_map(data, map_name)
     values = {algo: runs["collisions"] for algo, runs in by_algo.items()}
-    fig, ax = _figure()
-    _curves(ax, values, smooth)
-    _count_axis(ax)
-    _finish(ax, f"{name}: collisions per episode", _y_label("collisions per episode", smooth), values)
-    return _save(fig, out_png)
+    return _count_figure(name, "collisions", values, smooth, out_png)
 
 
 def plot_joint_plays(
@@ -74,10 +70,15 @@ def plot_joint_plays(
     values = {algo: runs["joint_plays"] for algo, runs in by_algo.items() if algo in JOINT_PLAY_ALGOS}
     if not values:
         raise ValueError(f"{name}: no algorithm of {', '.join(JOINT_PLAY_ALGOS)} to draw joint plays for")
+    return _count_figure(name, "joint plays", values, smooth, out_png)
+
+
+def _count_figure(name: str, what: str, values: dict[str, np.ndarray], smooth: int, out_png) -> Path:
+    """A count per episode, one curve per algorithm, on the linear-then-log count axis."""
     fig, ax = _figure()
     _curves(ax, values, smooth)
     _count_axis(ax)
-    _finish(ax, f"{name}: joint plays per episode", _y_label("joint plays per episode", smooth), values)
+    _finish(ax, f"{name}: {what} per episode", _y_label(f"{what} per episode", smooth), values)
     return _save(fig, out_png)
 
 
