@@ -15,9 +15,11 @@ from functools import lru_cache
 
 from scipy import stats as _scipy_stats
 
-# A sum of squared deviations this small relative to the sum of squares is rounding noise of the
-# running sums, not spread: treat it as zero variance, where scipy's two-pass formula gives (almost) 0.
-_ZERO_SPREAD = 1e-12
+# Running sums carry rounding noise: a sum of squared deviations this small relative to the sum of
+# squares is no spread, and at zero spread two means this close relative to their size are equal (W1 of
+# sixty -0.1 rewards and W2 of sixty -0.1 rewards, summed in another order, must not differ). Otherwise a
+# constant but non-representable reward would look like a significant drop.
+_ROUNDING = 1e-12
 
 
 @lru_cache(maxsize=None)
@@ -33,16 +35,16 @@ def critical_t(significance: float, df: int) -> float:
 def _spread(total: float, squares: float, n: int) -> float:
     """Sum of squared deviations from the mean, from running sums; 0 where it is rounding noise."""
     ss = squares - total * total / n
-    return 0.0 if ss <= _ZERO_SPREAD * squares else ss
+    return 0.0 if ss <= _ROUNDING * squares else ss
 
 
-def _t_or_inf(diff: float, se2: float) -> float:
-    """diff / sqrt(se2), with scipy's conventions at zero spread (+-inf, or nan for 0/0)."""
+def _t_or_inf(a: float, b: float, se2: float) -> float:
+    """(a - b) / sqrt(se2), with scipy's conventions at zero spread (+-inf, or nan for 0/0)."""
     if se2 > 0.0:
-        return diff / math.sqrt(se2)
-    if diff == 0.0:
+        return (a - b) / math.sqrt(se2)
+    if abs(a - b) <= _ROUNDING * (abs(a) + abs(b)):
         return math.nan
-    return math.copysign(math.inf, diff)
+    return math.copysign(math.inf, a - b)
 
 
 class RewardWindows:
@@ -93,13 +95,13 @@ class RewardWindows:
         n = self.size
         ss = _spread(self.sum1, self.sq1, n) + _spread(self.sum2, self.sq2, n)
         # Pooled variance (ss / (2n - 2)) times (1/n + 1/n).
-        return _t_or_inf((self.sum2 - self.sum1) / n, ss / (n - 1) / n)
+        return _t_or_inf(self.sum2 / n, self.sum1 / n, ss / (n - 1) / n)
 
     def above_t(self, reward: float) -> float:
         """One-sample t statistic of W2 against `reward` (negative: the reward lies above W2's mean)."""
         n = self.size
         ss = _spread(self.sum2, self.sq2, n)
-        return _t_or_inf(self.sum2 / n - reward, ss / (n - 1) / n)
+        return _t_or_inf(self.sum2 / n, reward, ss / (n - 1) / n)
 
 
 class ConflictTest:
