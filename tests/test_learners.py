@@ -1,0 +1,653 @@
+"""Tests of cq_ros.learners (one test per rule, hand-fed observe/act/learn on tiny maps) and of the
+offline engine's determinism (cq_ros.engine).
+
+A step, as the engine drives it: `need = observe(cell)`, `act({j: cell_j for j in need})`,
+`learn(reward, next_cell, done)`. With epsilon = 0 a learner is greedy; ties are broken by its rng, so the
+tests make the preferred action strictly best where they need to know it.
+"""
+
+import math
+import pickle
+import random
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from cq_ros import engine
+from cq_ros.engine import Team, make_learner, make_learners
+from cq_ros.gridmap import load_map, parse_map
+from cq_ros.learners import ALGORITHMS, LEARNERS, decode_joint_action
+from cq_ros.learners.base import N_MOVES
+from cq_ros.learners.cq import CQLearner
+from cq_ros.learners.indep import IndependentQ
+from cq_ros.learners.js import JointStateQ
+from cq_ros.learners.jsa import MAX_AGENTS, JointStateActionQ
+from cq_ros.learners.loc import COORDINATE, LearningOfCoordination
+from cq_ros.settings import Settings
+from cq_ros.world import GridWorld
+
+NORTH, EAST, SOUTH, WEST = range(4)
+GREEDY = dict(epsilon=0.0)
+
+
+def make_map(width, *agents, height=1):
+    """An open height x width grid; agents are ((row, col), (row, col)) start/goal pairs."""
+    lines = [f"agent {k}: start {s[0]},{s[1]}  goal {g[0]},{g[1]}" for k, (s, g) in enumerate(agents, start=1)]
+    drawing = ["+" + "-+" * width]
+    for r in range(height):
+        drawing.append("|" + " ".join("." * width) + "|")
+        drawing.append("+" + ("-+" * width if r == height - 1 else " +" * width))
+    return parse_map("\n".join(lines) + "\n\n" + "\n".join(drawing))
+
+
+# Three agents in one row of six cells: cell index == column.
+ROW3 = make_map(6, ((0, 0), (0, 5)), ((0, 3), (0, 0)), ((0, 5), (0, 1)))
+# Two agents in one row of six cells.
+ROW2 = make_map(6, ((0, 0), (0, 5)), ((0, 5), (0, 0)))
+
+
+def cq(gridmap=ROW3, **overrides):
+    learner = CQLearner(0, gridmap, Settings(**{**GREEDY, "window": 5, **overrides}), seed=1)
+    learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]  # at cell 0 the greedy move is EAST
+    return learner
+
+
+def step(learner, cell, peer_cells, reward, next_cell, done=False):
+    """One observe/act/learn; `peer_cells` holds every peer's cell, the learner is shown what it asks for."""
+    need = learner.observe(cell)
+    action = learner.act({j: peer_cells[j] for j in need})
+    learner.learn(reward, next_cell, done)
+    return need, action
+
+
+ELSEWHERE = {1: 4, 2: 5}  # the peers' cells whenever they do not matter
+
+
+def conflict_rewards(last_high=False):
+    """W1 = five 0s; W2 = 0, -10, -10, -10 and a last reward of -10 (low) or 0 (high): always a drop."""
+    w2 = [-10.0, -10.0, -10.0, -10.0, 0.0] if last_high else [0.0, -10.0, -10.0, -10.0, -10.0]
+    rewards = [0.0] * 5 + w2
+    # guard the premise with scipy: W2 dropped, and the last reward is (not) significantly above W2
+    assert scipy.stats.ttest_ind(w2, rewards[:5], alternative="less").pvalue < 0.05
+    above = scipy.stats.ttest_1samp(w2, rewards[-1], alternative="less").pvalue < 0.05
+    assert above == last_high
+    return rewards
+
+
+def cq_with_conflict(**overrides):
+    """A CQ learner that has just detected a conflict at cell 0 (marked at its next act)."""
+    learner = cq(**overrides)
+    for r in conflict_rewards():
+        need, action = step(learner, 0, ELSEWHERE, r, 0)
+        assert need == () and action == EAST
+    assert learner.conflict_at == 0 and not learner.q_joint
+    return learner
+
+
+# --- CQ ----------------------------------------------------------------------------------------------
+
+
+def test_cq_w1_fills_first_then_w2_slides():
+    learner = cq()
+    rewards = [float(-k) for k in range(13)]
+    for k, r in enumerate(rewards, start=1):
+        step(learner, 0, ELSEWHERE, r, 1)
+        w = learner.windows[0 * N_MOVES + EAST]
+        assert w.n1 == min(k, 5)
+        assert math.isclose(w.sum1, sum(rewards[: min(k, 5)]))
+        assert sorted(w.w2) == sorted(rewards[5:k][-5:])
+    # no other (state, action) pair saw a reward
+    assert all(w.n1 == 0 for i, w in enumerate(learner.windows) if i != EAST)
+
+
+def test_cq_drop_and_low_reward_marks_a_joint_state_per_peer_where_the_peers_are_then():
+    learner = cq()
+    rewards = conflict_rewards()
+    for k, r in enumerate(rewards, start=1):
+        step(learner, 0, ELSEWHERE, r, 0)
+        assert (learner.conflict_at is not None) == (k == 10)  # tests run only once W2 is full
+    assert learner.q_joint == {} and learner.watch == {}
+    # Detected: at its next step the agent looks at every peer, and marks where they are now.
+    now = {1: 1, 2: 3}
+    assert learner.observe(2) == (1, 2)
+    learner.act(now)
+    assert set(learner.q_joint) == {(0, 1, 1), (0, 2, 3)}
+    assert learner.marked == {0: [(0, 1, 1), (0, 2, 3)]}
+    assert learner.watch == {0: (1, 2)}
+    assert learner.confidence == {(0, 1, 1): 1.0, (0, 2, 3): 1.0}
+    assert learner.conflict_at is None
+    assert learner.js is None  # cell 2 has no joint state: it acted on Q_k
+    assert learner.state_count() == ROW3.n_cells + 2
+    assert sorted(learner.joint_states()) == [(0, 1, 1, 1.0), (0, 2, 3, 1.0)]
+
+
+def test_cq_drop_with_a_high_last_reward_marks_nothing():
+    learner = cq()
+    for r in conflict_rewards(last_high=True):
+        step(learner, 0, ELSEWHERE, r, 0)
+    assert learner.conflict_at is None
+    for cell in range(ROW3.n_cells):
+        assert learner.observe(cell) == ()
+        learner.act({})
+    assert learner.q_joint == {} and learner.marked == {} and learner.watch == {}
+
+
+def test_cq_no_conflict_when_the_step_ends_the_episode():
+    learner = cq()
+    rewards = conflict_rewards()
+    for r in rewards[:-1]:
+        step(learner, 0, ELSEWHERE, r, 0)
+    step(learner, 0, ELSEWHERE, rewards[-1], 1, done=True)
+    assert learner.conflict_at is None
+
+
+def test_cq_new_joint_state_starts_as_a_copy_of_q_local():
+    learner = cq_with_conflict()
+    q0 = list(learner.q_local[0])
+    learner.observe(0)
+    learner.act({1: 1, 2: 3})  # cell 0 again: the joint states are met at once
+    for js in ((0, 1, 1), (0, 2, 3)):
+        assert learner.q_joint[js] == q0
+        assert learner.q_joint[js] is not learner.q_local[0]
+    assert learner.q_joint[(0, 1, 1)] is not learner.q_joint[(0, 2, 3)]
+    learner.learn(-1.0, 1, False)
+    assert learner.q_local[0] == q0  # the update went to Q^j, not Q_k
+    assert learner.q_joint[learner.js] != q0
+
+
+def test_cq_marking_an_existing_joint_state_keeps_its_table():
+    learner = cq_with_conflict()
+    step(learner, 0, {1: 1, 2: 3}, -1.0, 1)
+    js = learner.js
+    table = list(learner.q_joint[js])
+    learner.conflict_at = 0
+    learner.observe(3)
+    learner.act({1: 1, 2: 3})
+    assert learner.q_joint[js] == table
+    assert learner.confidence[js] >= Settings().conf_init
+    assert len(learner.marked[0]) == 2
+
+
+def test_cq_joint_update_bootstraps_from_q_local_of_the_next_cell():
+    s = Settings(**GREEDY, window=5)
+    learner = cq_with_conflict()
+    learner.observe(1)
+    learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3)
+    learner.learn(0.0, 0, False)
+    learner._mark(1, {1: 2, 2: 4})  # a joint state at the next cell too, with a large Q^j
+    for js in learner.marked[1]:
+        learner.q_joint[js] = [100.0] * 4
+    learner.q_local[1] = [1.0, 2.0, 3.0, 4.0]
+    need = learner.observe(0)
+    assert need == (1, 2)
+    action = learner.act({1: 1, 2: 3})
+    js = learner.js
+    assert js is not None and js[0] == 0 and action == EAST
+    old = learner.q_joint[js][EAST]
+    q_local_0 = list(learner.q_local[0])
+    learner.learn(-1.0, 1, False)
+    assert learner.q_joint[js][EAST] == pytest.approx(old + s.alpha * (-1.0 + s.gamma * 4.0 - old))
+    assert learner.q_local[0] == q_local_0
+    # and at the episode's end, no bootstrap at all
+    learner.observe(0)
+    learner.act({1: 1, 2: 3})
+    js, old = learner.js, learner.q_joint[learner.js][EAST]
+    learner.learn(10.0, 1, True)
+    assert learner.q_joint[js][EAST] == pytest.approx(old + s.alpha * (10.0 - old))
+
+
+def test_cq_local_update_is_equation_3():
+    s = Settings(**GREEDY, window=5)
+    learner = cq()
+    learner.q_local[1] = [0.0, 7.0, -1.0, 2.0]
+    step(learner, 0, ELSEWHERE, -1.0, 1)
+    assert learner.q_local[0][EAST] == pytest.approx(5.0 + s.alpha * (-1.0 + s.gamma * 7.0 - 5.0))
+
+
+def test_cq_confidence_rises_on_a_match_up_to_conf_max():
+    s = Settings()
+    learner = cq_with_conflict()
+    learner.observe(1)
+    learner.act({1: 1, 2: 3})
+    learner.learn(0.0, 0, False)
+    js = (0, 1, 1)
+    seen = [learner.confidence[js]]
+    for _ in range(30):
+        step(learner, 0, {1: 1, 2: 4}, 0.0, 1)  # peer 1 where marked; peer 2 elsewhere
+        seen.append(learner.confidence[js])
+    assert seen[1] == pytest.approx(s.conf_init + s.conf_up)
+    assert all(b >= a for a, b in zip(seen, seen[1:]))
+    assert max(seen) == s.conf_max and seen[-1] == s.conf_max
+    # peer 2's joint state lost confidence on each of those visits
+    assert learner.confidence[(0, 2, 3)] == pytest.approx(s.conf_init - 30 * s.conf_down)
+
+
+def test_cq_confidence_falls_and_the_joint_state_is_dropped():
+    learner = cq_with_conflict(conf_down=0.4)
+    learner.observe(1)
+    learner.act({1: 1, 2: 3})
+    learner.learn(0.0, 0, False)
+    assert learner.observe(0) == (1, 2)
+    learner.act({1: 2, 2: 3})  # peer 2 matches, peer 1 does not
+    learner.learn(0.0, 1, False)
+    assert learner.confidence[(0, 1, 1)] == pytest.approx(0.6)
+    for _ in range(2):
+        step(learner, 0, {1: 2, 2: 3}, 0.0, 1)
+    # 1.0 - 3 * 0.4 < conf_drop = 0: peer 1's joint state is gone; peer 2 is still watched
+    assert (0, 1, 1) not in learner.q_joint and (0, 1, 1) not in learner.confidence
+    assert learner.marked == {0: [(0, 2, 3)]}
+    assert learner.confidence[(0, 2, 3)] == pytest.approx(2.5)  # three matches
+    for miss in range(1, 8):  # peer 2 elsewhere now: 2.5 - 7 * 0.4 < 0
+        assert (0, 2, 3) in learner.q_joint
+        assert learner.observe(0) == (2,)
+        learner.act({2: 0})
+        learner.learn(0.0, 1, False)
+        assert (miss < 7) == ((0, 2, 3) in learner.q_joint)
+    assert learner.q_joint == {} and learner.marked == {} and learner.watch == {}
+    assert learner.observe(0) == ()  # nobody is watched any more
+    assert learner.state_count() == ROW3.n_cells
+
+
+def test_cq_joint_plays_counts_acting_from_q_joint():
+    learner = cq_with_conflict()
+    learner.observe(1)
+    learner.act({1: 1, 2: 3})
+    learner.learn(0.0, 0, False)
+    plays = []
+    for peers in [{1: 1, 2: 4}, {1: 2, 2: 4}, {1: 2, 2: 3}, {1: 1, 2: 3}, {1: 0, 2: 2}]:
+        before = learner.joint_plays
+        step(learner, 0, peers, 0.0, 1)
+        plays.append(learner.joint_plays - before)
+        assert plays[-1] == (learner.js is not None)
+    assert plays == [1, 0, 1, 1, 0]
+    before = learner.joint_plays
+    step(learner, 2, ELSEWHERE, 0.0, 3)  # a cell without joint states
+    assert learner.joint_plays == before
+
+
+def test_cq_end_episode_clears_a_pending_conflict():
+    learner = cq_with_conflict()
+    learner.end_episode()
+    assert learner.conflict_at is None
+    assert learner.observe(0) == ()
+    learner.act({})
+    assert learner.q_joint == {} and learner.marked == {}
+
+
+def test_cq_constant_non_integer_reward_never_marks():
+    """A step cost of -0.1 on every step of one (state, action): its rewards never change, so no conflict."""
+    learner = cq(window=60)
+    for _ in range(1000):
+        step(learner, 0, ELSEWHERE, -0.1, 1)
+        assert learner.conflict_at is None
+    assert learner.q_joint == {}
+
+
+def test_cq_never_asks_for_peers_before_its_first_conflict():
+    gm = load_map("tunnel_to_goal")
+    settings = Settings(window=10, step_cap=400)
+    learners = make_learners("cq", gm, settings, seed=3, run=0)
+    calls = []  # (episode, had a joint state or a pending conflict, what observe returned)
+    episode = 0
+
+    def spy(learner):
+        inner = learner.observe
+
+        def observe(cell):
+            informed = bool(learner.marked) or learner.conflict_at is not None
+            need = inner(cell)
+            calls.append((episode, informed, need))
+            return need
+
+        learner.observe = observe
+
+    for learner in learners:
+        spy(learner)
+    team = Team(GridWorld(gm, settings), learners)
+    for episode in range(60):
+        team.episode()
+    # an agent with nothing marked (and no conflict pending) asks for no one
+    assert all(need == () for _, informed, need in calls if not informed)
+    # whole episodes went by before the first conflict, with no peer seen at all
+    first = min(e for e, informed, _ in calls if informed)
+    assert first >= 1
+    assert all(need == () for e, _, need in calls if e < first)
+    # the run did find conflicts, and then the agents did look at each other
+    assert any(learner.q_joint for learner in learners)
+    assert any(need for _, _, need in calls)
+
+
+# --- Indep -----------------------------------------------------------------------------------------
+
+
+def test_indep_update_is_equation_3():
+    s = Settings(**GREEDY)
+    learner = IndependentQ(0, ROW2, s, seed=0)
+    learner.q_local[2] = [1.0, 2.0, 0.0, 0.0]
+    learner.q_local[3] = [0.5, 3.0, -1.0, 0.0]
+    assert learner.observe(2) == ()
+    assert learner.act({}) == EAST
+    learner.learn(-1.0, 3, False)
+    # Q(s,a) <- Q(s,a) + alpha [r + gamma max_a' Q(s',a') - Q(s,a)]
+    assert learner.q_local[2][EAST] == pytest.approx(2.0 + 0.1 * (-1.0 + 0.9 * 3.0 - 2.0))
+    assert learner.q_local[2][NORTH] == 1.0 and learner.q_local[3] == [0.5, 3.0, -1.0, 0.0]
+
+
+def test_indep_terminal_step_does_not_bootstrap():
+    learner = IndependentQ(0, ROW2, Settings(**GREEDY), seed=0)
+    learner.q_local[4] = [0.0, 2.0, 0.0, 0.0]
+    learner.q_local[5] = [50.0] * 4
+    learner.observe(4)
+    learner.act({})
+    learner.learn(10.0, 5, True)
+    assert learner.q_local[4][EAST] == pytest.approx(2.0 + 0.1 * (10.0 - 2.0))
+    assert learner.state_count() == ROW2.n_cells and learner.joint_plays == 0
+
+
+# --- JS --------------------------------------------------------------------------------------------
+
+
+def test_js_observes_all_peers_every_step():
+    learners = make_learners("js", ROW3, Settings(step_cap=50), seed=1, run=0)
+    seen = []
+
+    def spy(learner):
+        inner = learner.observe
+
+        def observe(cell):
+            need = inner(cell)
+            seen.append((learner.peers, need))
+            return need
+
+        learner.observe = observe
+
+    for learner in learners:
+        spy(learner)
+    Team(GridWorld(ROW3, Settings(step_cap=50)), learners).episode()
+    assert len(seen) > 10
+    assert all(peers == need and len(need) == 2 for peers, need in seen)
+
+
+def test_js_update_is_deferred_to_the_next_joint_state():
+    s = Settings(**GREEDY)
+    learner = JointStateQ(0, ROW2, s, seed=0)
+    assert learner.observe(0) == (1,)
+    a = learner.act({1: 5})
+    assert learner.joint_plays == 1
+    learner.learn(-1.0, 1, False)
+    assert learner.q_joint[(0, 5)] == [0.0] * 4  # nothing learned yet: the next joint state is unknown
+    learner.q_joint[(1, 4)] = [0.0, 5.0, 0.0, 0.0]
+    learner.q_joint[(1, 5)] = [0.0, 99.0, 0.0, 0.0]  # not where the peer turns out to be
+    learner.observe(1)
+    learner.act({1: 4})
+    assert learner.q_joint[(0, 5)][a] == pytest.approx(0.1 * (-1.0 + 0.9 * 5.0))
+    assert sum(learner.q_joint[(0, 5)]) == pytest.approx(0.1 * (-1.0 + 0.9 * 5.0))
+
+
+def test_js_done_does_not_bootstrap_and_is_applied_at_once():
+    learner = JointStateQ(0, ROW2, Settings(**GREEDY), seed=0)
+    learner.q_joint[(4, 0)] = [0.0, 3.0, 0.0, 0.0]
+    learner.observe(4)
+    assert learner.act({1: 0}) == EAST
+    learner.learn(10.0, 5, True)
+    assert learner.q_joint[(4, 0)][EAST] == pytest.approx(3.0 + 0.1 * (10.0 - 3.0))
+    assert learner.pending is None
+
+
+def test_js_end_episode_drops_a_pending_update():
+    learner = JointStateQ(0, ROW2, Settings(**GREEDY), seed=0)
+    learner.q_joint[(2, 5)] = [0.0, 1.0, 0.0, 0.0]
+    learner.observe(2)
+    learner.act({1: 5})
+    learner.learn(-10.0, 3, False)
+    assert learner.pending is not None
+    learner.end_episode()
+    assert learner.pending is None
+    learner.observe(0)  # the next episode starts elsewhere
+    learner.act({1: 5})
+    assert learner.q_joint[(2, 5)] == [0.0, 1.0, 0.0, 0.0]
+
+
+# --- JSA -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5])
+def test_jsa_decode_joint_action_round_trip(n):
+    seen = set()
+    for action in range(N_MOVES ** n):
+        moves = decode_joint_action(action, n)
+        assert len(moves) == n and all(0 <= m < N_MOVES for m in moves)
+        assert sum(m * N_MOVES ** i for i, m in enumerate(moves)) == action
+        seen.add(tuple(moves))
+    assert len(seen) == N_MOVES ** n
+    assert decode_joint_action(EAST + N_MOVES * WEST, 2) == [EAST, WEST]
+
+
+def test_jsa_learns_from_the_sum_of_rewards():
+    gm = load_map("grid_game_2")
+    settings = Settings(step_cap=200)
+    (learner,) = make_learners("jsa", gm, settings, seed=2, run=0)
+    assert isinstance(learner, JointStateActionQ) and learner.central
+    world = GridWorld(gm, settings)
+    team = Team(world, [learner])
+    fed, stepped = [], []
+    inner_learn, inner_step = learner.learn, world.step_joint
+
+    def learn(reward, cells, done):
+        fed.append((reward, cells, done))
+        inner_learn(reward, cells, done)
+
+    def step_joint(actions):
+        stepped.append(inner_step(actions))
+        return stepped[-1]
+
+    learner.learn, world.step_joint = learn, step_joint
+    for _ in range(5):
+        team.episode()
+    assert len(fed) == len(stepped) > 0
+    for (reward, cells, done), rewards in zip(fed, stepped):
+        assert reward == sum(rewards)
+        assert isinstance(cells, tuple) and len(cells) == 2
+    assert any(reward != rewards[0] for (reward, _, _), rewards in zip(fed, stepped))
+
+
+def test_jsa_update_by_hand():
+    s = Settings(**GREEDY)
+    learner = JointStateActionQ(0, ROW2, s, seed=0)
+    assert learner.n_joint == 16
+    learner.q_joint[(0, 5)] = [0.0] * 16
+    learner.q_joint[(0, 5)][EAST + 4 * WEST] = 1.0
+    learner.q_joint[(1, 4)] = [0.0] * 16
+    learner.q_joint[(1, 4)][3] = 6.0
+    assert learner.observe((0, 5)) == ()
+    a = learner.act({})
+    assert decode_joint_action(a, 2) == [EAST, WEST]
+    learner.learn(-2.0, (1, 4), False)
+    assert learner.q_joint[(0, 5)][a] == pytest.approx(1.0 + 0.1 * (-2.0 + 0.9 * 6.0 - 1.0))
+    learner.observe((1, 4))
+    a = learner.act({})
+    learner.learn(20.0, (5, 0), True)
+    assert learner.q_joint[(1, 4)][a] == pytest.approx(6.0 + 0.1 * (20.0 - 6.0))
+
+
+def test_jsa_refuses_too_many_agents():
+    agents = [((0, c), (1, c)) for c in range(MAX_AGENTS + 1)]
+    gm = make_map(MAX_AGENTS + 1, *agents, height=2)
+    with pytest.raises(ValueError, match=rf"at most {MAX_AGENTS} agents.*{MAX_AGENTS + 1}"):
+        make_learners("jsa", gm, Settings(), seed=0, run=0)
+    ok = make_map(MAX_AGENTS, *agents[:MAX_AGENTS], height=2)
+    assert make_learners("jsa", ok, Settings(), seed=0, run=0)[0].n_joint == 4 ** MAX_AGENTS
+
+
+# --- LoC -------------------------------------------------------------------------------------------
+
+
+def loc(**overrides):
+    s = Settings(**{**GREEDY, **overrides})
+    learner = LearningOfCoordination(0, ROW3, s, seed=0)
+    return learner, s
+
+
+def test_loc_coordinate_asks_for_all_peers_and_acts_on_q_c_when_a_peer_is_near():
+    learner, s = loc()
+    learner.q_local[1] = [0.0, 1.0, 0.0, -1.0, 5.0]  # COORDINATE best; Q*'s best move EAST
+    learner.q_local[2] = [0.0, 0.0, 3.0, 0.0, 4.0]
+    assert learner.observe(1) == (1, 2)
+    move = learner.act({1: 3, 2: 5})  # peer 1 two cells away (within loc_range 2); peer 2 four
+    assert move == EAST and learner.joint_plays == 1
+    x = (1, ((1, 3),))
+    assert learner.x == x
+    assert learner.q_coord[x] == [0.0, 1.0, 0.0, -1.0]  # a copy of Q*'s moves
+    assert learner.q_coord[x] is not learner.q_local[1]
+    learner.learn(-1.0, 2, False)
+    future = s.gamma * 4.0  # bootstrap from Q* of the next cell (max over all its actions)
+    assert learner.q_coord[x][EAST] == pytest.approx(1.0 + s.alpha * (-1.0 + future - 1.0))
+    assert learner.q_local[1][EAST] == pytest.approx(1.0 + s.alpha * (-1.0 + future - 1.0))
+    assert learner.q_local[1][COORDINATE] == pytest.approx(5.0 + s.alpha * (-1.0 - s.loc_cost + future - 5.0))
+    # next time in the same perceived joint state it follows Q^C, not Q*
+    learner.q_coord[x] = [0.0, 0.0, 0.0, 9.0]
+    learner.observe(1)
+    assert learner.act({1: 3, 2: 5}) == WEST
+    assert learner.joint_plays == 2
+
+
+def test_loc_coordinate_out_of_range_acts_on_q_star():
+    learner, s = loc()
+    learner.q_local[0] = [0.0, 0.0, 2.0, 0.0, 5.0]
+    assert learner.observe(0) == (1, 2)
+    move = learner.act({1: 3, 2: 5})  # nobody within 2 cells
+    assert move == SOUTH and learner.x is None and learner.joint_plays == 1
+    learner.learn(-1.0, 0, False)
+    assert learner.q_coord == {}
+    future = s.gamma * 5.0
+    assert learner.q_local[0][SOUTH] == pytest.approx(2.0 + s.alpha * (-1.0 + future - 2.0))
+    assert learner.q_local[0][COORDINATE] == pytest.approx(5.0 + s.alpha * (-1.0 - s.loc_cost + future - 5.0))
+
+
+def test_loc_plain_move_sees_no_one_and_learns_only_that_move():
+    learner, s = loc()
+    learner.q_local[2] = [0.0, 0.0, 0.0, 3.0, 1.0]
+    learner.q_local[1] = [2.0, 0.0, 0.0, 0.0, 0.0]
+    assert learner.observe(2) == ()
+    assert learner.act({}) == WEST and learner.joint_plays == 0
+    learner.learn(-1.0, 1, False)
+    assert learner.q_local[2] == pytest.approx([0.0, 0.0, 0.0, 3.0 + s.alpha * (-1.0 + s.gamma * 2.0 - 3.0), 1.0])
+    assert learner.q_coord == {}
+
+
+def test_loc_terminal_step_does_not_bootstrap():
+    learner, s = loc()
+    learner.q_local[4] = [0.0, 0.0, 0.0, 0.0, 1.0]
+    learner.q_local[5] = [50.0] * 5
+    learner.observe(4)
+    learner.act({1: 3, 2: 5})  # peer 1 adjacent
+    learner.learn(10.0, 5, True)
+    x = learner.x
+    assert x is not None
+    assert learner.q_coord[x][learner.move] == pytest.approx(s.alpha * 10.0)
+    assert learner.q_local[4][COORDINATE] == pytest.approx(1.0 + s.alpha * (10.0 - s.loc_cost - 1.0))
+
+
+# --- all learners ----------------------------------------------------------------------------------
+
+
+def play(learners, gridmap, settings, episodes):
+    """Run a team; return every joint action chosen and the per-episode records."""
+    world = GridWorld(gridmap, settings)
+    team = Team(world, learners)
+    actions = []
+    inner = team.choose
+
+    def choose():
+        chosen = inner()
+        actions.append(tuple(chosen))
+        return chosen
+
+    team.choose = choose
+    records = [team.episode() for _ in range(episodes)]
+    return actions, records
+
+
+SMALL = Settings(window=10, step_cap=300)
+
+
+@pytest.mark.parametrize("algo", ALGORITHMS)
+def test_same_seed_same_actions(algo):
+    gm = load_map("grid_game_2")
+    a, ra = play(make_learners(algo, gm, SMALL, seed=7, run=1), gm, SMALL, 15)
+    b, rb = play(make_learners(algo, gm, SMALL, seed=7, run=1), gm, SMALL, 15)
+    c, _ = play(make_learners(algo, gm, SMALL, seed=8, run=1), gm, SMALL, 15)
+    d, _ = play(make_learners(algo, gm, SMALL, seed=7, run=2), gm, SMALL, 15)
+    assert a == b and ra == rb
+    assert a != c and a != d
+
+
+@pytest.mark.parametrize("algo", ALGORITHMS)
+def test_pickle_round_trip_preserves_behaviour(algo):
+    gm = load_map("tunnel_to_goal")
+    learners = make_learners(algo, gm, SMALL, seed=4, run=0)
+    play(learners, gm, SMALL, 10)
+    copies = pickle.loads(pickle.dumps(learners))
+    assert [type(c) for c in copies] == [type(l) for l in learners]
+    a, ra = play(learners, gm, SMALL, 10)
+    b, rb = play(copies, gm, SMALL, 10)
+    assert a == b and ra == rb
+    assert pickle.dumps(learners) == pickle.dumps(copies)  # same tables, same rng state afterwards
+
+
+def test_pickled_cq_keeps_its_joint_states():
+    learner = cq_with_conflict()
+    learner.observe(0)
+    learner.act({1: 1, 2: 3})
+    learner.learn(-1.0, 1, False)
+    copy = pickle.loads(pickle.dumps(learner))
+    assert copy.q_joint == learner.q_joint and copy.confidence == learner.confidence
+    assert copy.marked == learner.marked and copy.watch == learner.watch
+    assert copy.observe(0) == learner.observe(0) == (1, 2)
+    assert copy.act({1: 1, 2: 3}) == learner.act({1: 1, 2: 3})
+    assert copy.js == learner.js
+
+
+def test_learners_draw_only_from_their_own_rng():
+    gm = load_map("grid_game_2")
+    a, _ = play(make_learners("cq", gm, SMALL, seed=1, run=0), gm, SMALL, 5)
+    random.seed(12345)
+    np.random.seed(6789)
+    b, _ = play(make_learners("cq", gm, SMALL, seed=1, run=0), gm, SMALL, 5)
+    assert a == b
+
+
+# --- engine ----------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("algo", ALGORITHMS)
+def test_engine_run_is_reproducible(algo):
+    gm = load_map("grid_game_2")
+    first = engine.run(algo, gm, SMALL, seed=3, run_index=0, episodes=20)
+    again = engine.run(algo, gm, SMALL, seed=3, run_index=0, episodes=20)
+    other = engine.run(algo, gm, SMALL, seed=4, run_index=0, episodes=20)
+    assert first.episodes.shape == (20, 6)
+    assert np.array_equal(first.episodes, again.episodes)
+    assert first.joint_states == again.joint_states
+    assert not np.array_equal(first.episodes, other.episodes)
+
+
+def test_make_learners_unknown_algorithm_names_the_algorithms():
+    with pytest.raises(ValueError) as info:
+        make_learners("dqn", load_map("grid_game_2"), Settings(), seed=0, run=0)
+    msg = str(info.value)
+    assert "dqn" in msg
+    for name in ("indep", "js", "jsa", "loc", "cq"):
+        assert name in msg
+    with pytest.raises(ValueError, match="cq"):
+        make_learner("nope", load_map("grid_game_2"), Settings(), seed=0, run=0, agent=0)
+
+
+def test_make_learners_one_per_agent_or_one_central():
+    gm = load_map("tunnel_to_goal")
+    assert set(ALGORITHMS) == {"indep", "js", "jsa", "loc", "cq"}
+    for algo in ALGORITHMS:
+        learners = make_learners(algo, gm, Settings(), seed=0, run=0)
+        assert all(isinstance(l, LEARNERS[algo]) for l in learners)
+        assert [l.agent for l in learners] == ([0] if algo == "jsa" else [0, 1])

@@ -1,0 +1,137 @@
+"""Tests of cq_ros.settings: defaults, and `with_overrides` as the CLI's `--set key=value` reaches it."""
+
+import dataclasses
+import math
+
+import pytest
+
+from cq_ros.settings import Settings, SettingsError
+
+FIELDS = [f.name for f in dataclasses.fields(Settings)]
+INT_FIELDS = [f.name for f in dataclasses.fields(Settings) if f.type in ("int", int)]
+
+
+def test_defaults_are_valid_and_the_papers():
+    s = Settings()
+    assert (s.alpha, s.epsilon, s.window) == (0.1, 0.1, 60)  # the paper's settings
+    assert 0.0 <= s.gamma < 1.0 and 0.0 < s.significance < 0.5
+    assert s.conf_drop < s.conf_init <= s.conf_max
+    assert s.slip == 0.0  # deterministic transitions, as in the paper
+    d = s.as_dict()
+    assert sorted(d) == sorted(FIELDS)
+    assert all(math.isfinite(v) for v in d.values())
+    assert Settings(**d) == s  # the manifest round-trips
+    assert {"window", "loc_range", "step_cap"} <= set(INT_FIELDS)
+    assert all(type(d[name]) is int for name in INT_FIELDS)
+
+
+def test_overrides_parse_ints_and_floats():
+    s = Settings().with_overrides(["alpha=0.25", "window=7", "gamma = 0.5", "step_cap=100", "reward_step=-1"])
+    assert s.alpha == 0.25 and isinstance(s.alpha, float)
+    assert s.window == 7 and type(s.window) is int
+    assert s.gamma == 0.5
+    assert s.step_cap == 100 and type(s.step_cap) is int
+    assert s.reward_step == -1.0 and isinstance(s.reward_step, float)
+    # everything else untouched, and the original is not modified (frozen)
+    assert s.epsilon == Settings().epsilon and Settings().alpha == 0.1
+
+
+def test_overrides_from_a_dict():
+    s = Settings().with_overrides({"alpha": "0.3", "window": 9, "loc_range": 3.0})
+    assert (s.alpha, s.window, s.loc_range) == (0.3, 9, 3)
+    assert type(s.loc_range) is int
+    assert Settings().with_overrides({}) == Settings()
+    assert Settings().with_overrides([]) == Settings()
+
+
+def test_unknown_key_lists_the_settings():
+    with pytest.raises(SettingsError) as info:
+        Settings().with_overrides(["alpah=0.2"])
+    msg = str(info.value)
+    assert "alpah" in msg
+    for name in FIELDS:
+        assert name in msg
+
+
+@pytest.mark.parametrize(
+    "pair, key",
+    [
+        ("alpha=abc", "alpha"),
+        ("alpha=", "alpha"),
+        ("window=2.5", "window"),
+        ("window=abc", "window"),
+        ("step_cap=1e3", "step_cap"),
+        ("step_cap=inf", "step_cap"),
+        ("gamma=0,5", "gamma"),
+    ],
+)
+def test_wrong_types_are_refused(pair, key):
+    with pytest.raises(SettingsError, match=key):
+        Settings().with_overrides([pair])
+
+
+@pytest.mark.parametrize("value", [True, 2.5, "2.5", None, [3]])
+def test_wrong_types_from_a_dict(value):
+    with pytest.raises(SettingsError, match="window"):
+        Settings().with_overrides({"window": value})
+
+
+@pytest.mark.parametrize(
+    "pair",
+    [
+        "alpha=0",
+        "alpha=1.5",
+        "alpha=-0.1",
+        "alpha=nan",
+        "epsilon=1.01",
+        "epsilon=-0.5",
+        "window=1",
+        "window=0",
+        "gamma=1",
+        "gamma=-0.1",
+        "significance=0",
+        "significance=0.5",
+        "conf_up=-1",
+        "conf_down=-0.1",
+        "conf_init=20",  # above conf_max
+        "conf_drop=1",  # not below conf_init
+        "loc_range=0",
+        "step_cap=0",
+        "slip=1.5",
+        "slip=-0.1",
+        "reward_goal=inf",
+        "reward_step=nan",
+        "loc_cost=-inf",
+    ],
+)
+def test_out_of_range_values_are_refused(pair):
+    key = pair.partition("=")[0]
+    with pytest.raises(SettingsError) as info:
+        Settings().with_overrides([pair])
+    assert key in str(info.value)
+
+
+def test_settings_error_is_a_value_error():
+    assert issubclass(SettingsError, ValueError)
+    with pytest.raises(ValueError):
+        Settings(alpha=0.0)
+
+
+@pytest.mark.parametrize("pair", ["noequals", "=0.2", "  =1", ""])
+def test_malformed_pairs_are_refused(pair):
+    with pytest.raises(SettingsError, match="key=value"):
+        Settings().with_overrides([pair])
+
+
+def test_a_bad_pair_loses_nothing_and_changes_nothing():
+    base = Settings()
+    with pytest.raises(SettingsError):
+        base.with_overrides(["alpha=0.2", "window=2.5"])
+    assert base == Settings()
+
+
+def test_boundary_values_are_accepted():
+    s = Settings().with_overrides(
+        ["alpha=1", "epsilon=0", "window=2", "gamma=0", "slip=1", "loc_range=1", "step_cap=1", "epsilon=1"]
+    )
+    assert (s.alpha, s.epsilon, s.window, s.gamma, s.slip, s.loc_range, s.step_cap) == (1.0, 1.0, 2, 0.0, 1.0, 1, 1)
