@@ -11,6 +11,7 @@ with slip > 0) from `world_seed(seed, r)`: the same seed gives the same run, off
 
 from __future__ import annotations
 
+import copy
 from dataclasses import astuple, dataclass
 
 import numpy as np
@@ -109,12 +110,22 @@ class Team:
         )
 
 
+def greedy_episodes(team: Team, episodes: int) -> np.ndarray:
+    """What the learnt policy does without exploration: `episodes` episodes at epsilon 0, played by a
+    copy of the team, so the run itself is left exactly as it was."""
+    greedy = copy.deepcopy(team)
+    for learner in greedy.learners:
+        learner.epsilon = 0.0
+    return np.array([astuple(greedy.episode()) for _ in range(episodes)], dtype=float).reshape(episodes, 6)
+
+
 @dataclass
 class RunResult:
     algo: str
     run: int
     episodes: np.ndarray  # (n_episodes, 6): steps, collisions, joint_plays, states, return, truncated
     joint_states: list[tuple[int, int, int, int, float]]  # (agent, cell, peer, peer_cell, confidence)
+    greedy: np.ndarray  # (eval_episodes, 6): the same columns for the greedy policy at the end
 
 
 def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int) -> RunResult:
@@ -123,4 +134,4 @@ def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: i
     team = Team(world, make_learners(algo, gridmap, settings, seed, run_index))
     table = np.array([astuple(team.episode()) for _ in range(episodes)], dtype=float)
     kept = [(learner.agent, *js) for learner in team.learners for js in learner.joint_states()]
-    return RunResult(algo, run_index, table, kept)
+    return RunResult(algo, run_index, table, kept, greedy_episodes(team, settings.eval_episodes))

@@ -1,7 +1,8 @@
 """Experiments: many (algorithm, run) pairs spread over the cores, written as result files.
 
 A result directory holds `episodes.csv` (one row per algorithm, run and episode), `observe.csv`
-(the joint states each CQ agent keeps at the end of each run, for Fig. 5b), `manifest.json` (every
+(the joint states each CQ agent keeps at the end of each run, for Fig. 5b), `greedy.csv` (per run,
+collisions and steps per episode of the final greedy policy), `manifest.json` (every
 parameter, seed, package version and the wall time) and the figures. An existing result is never
 overwritten unless asked.
 """
@@ -29,6 +30,7 @@ from .learners import ALGORITHMS
 from .settings import Settings
 
 EPISODE_COLUMNS = ("map", "algo", "run", "episode", "steps", "collisions", "joint_plays", "states", "return", "truncated")
+GREEDY_COLUMNS = ("map", "algo", "run", "episodes", "collisions", "steps", "truncated")
 OBSERVE_COLUMNS = ("map", "algo", "run", "agent", "row", "col", "peer", "peer_row", "peer_col", "confidence")
 
 
@@ -90,7 +92,7 @@ def prepare_output(out: Path, force: bool) -> Path:
 
 
 def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifest: dict) -> None:
-    """episodes.csv, observe.csv and manifest.json for one map."""
+    """episodes.csv, observe.csv, greedy.csv and manifest.json for one map."""
     ordered = sorted(results, key=lambda r: (ALGORITHMS.index(r.algo), r.run))
     with open(out / "episodes.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -106,6 +108,13 @@ def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifes
             for agent, cell, peer, peer_cell, conf in r.joint_states:
                 w.writerow((gridmap.name, r.algo, r.run, agent + 1, *gridmap.cells[cell], peer + 1,
                             *gridmap.cells[peer_cell], f"{conf:.6g}"))
+    with open(out / "greedy.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(GREEDY_COLUMNS)
+        for r in ordered:
+            g = r.greedy
+            w.writerow((gridmap.name, r.algo, r.run, len(g), f"{g[:, 1].mean():g}" if len(g) else "",
+                        f"{g[:, 0].mean():g}" if len(g) else "", int(g[:, 5].sum())))
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
 
 

@@ -6,6 +6,7 @@ The verdicts are computed, not written: a claim that does not reproduce says so,
 
 from __future__ import annotations
 
+import csv
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -137,9 +138,19 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics]) -> list[st
     cq = {m: metrics[(m, "cq")] for m in PAPER_MAPS}
 
     ok = all(x.settled_episode is not None for x in cq.values())
-    lines.append(f"1. *CQ-learning ends collision-free on all four maps*: {_verdict(ok)}. Last 10% of episodes: "
+    lines.append(f"1. *CQ-learning ends collision-free on all four maps*, while exploring: {_verdict(ok)}. "
+                 "Last 10% of episodes: "
                  + "; ".join(f"{m} {x.collisions_tail:.3f} collisions/episode ({_settled(x)})" for m, x in cq.items())
                  + ".")
+    greedy = {m: _greedy(out / m) for m in PAPER_MAPS}
+    if all("cq" in g for g in greedy.values()):
+        ok = all(g["cq"][0] == 0 and g["cq"][2] == 0 for g in greedy.values())
+        lines.append(f"   - The policy CQ has learnt, played greedily (epsilon 0) at the end, collision-free and reaching "
+                     f"the goals: {_verdict(ok)}. Collisions/episode (steps/episode, runs stuck until the step cap), "
+                     "mean over runs: " + "; ".join(f"{m} {_g(g['cq'])}" for m, g in greedy.items())
+                     + ". The other algorithms, greedy: "
+                     + "; ".join(f"{m}: " + ", ".join(f"{a} {_g(v)}" for a, v in g.items() if a != "cq")
+                                 for m, g in greedy.items()) + ".")
 
     rows = []
     ok = True
@@ -176,6 +187,23 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics]) -> list[st
                  f"episode in the last 10% ({isr.joint_plays_all:.2f} over all episodes), against "
                  + "; ".join(f"{m} {cq[m].joint_plays_tail:.2f}" for m in PAPER_MAPS if m != "isr") + ".")
     return lines
+
+
+def _greedy(result_dir: Path) -> dict[str, tuple[float, float, int]]:
+    """{algo: (collisions and steps per episode, mean over runs; runs with a truncated episode)} of the
+    final greedy policies, from greedy.csv."""
+    per_algo: dict[str, list[tuple[float, float, int]]] = {}
+    with open(result_dir / "greedy.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            if row["collisions"]:
+                per_algo.setdefault(row["algo"], []).append(
+                    (float(row["collisions"]), float(row["steps"]), int(row["truncated"]) > 0))
+    return {a: (sum(v[0] for v in runs) / len(runs), sum(v[1] for v in runs) / len(runs), sum(v[2] for v in runs))
+            for a, runs in per_algo.items()}
+
+
+def _g(v: tuple[float, float, int]) -> str:
+    return f"{v[0]:.3f} ({v[1]:.1f}{f', {v[2]} stuck' if v[2] else ''})"
 
 
 def _claim_joint_learners_slow(data) -> str:

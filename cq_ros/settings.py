@@ -44,6 +44,9 @@ class Settings:
     loc_cost: float = 0.1
     # Episodes end when all agents are at their goals or after this many steps (recorded as truncated).
     step_cap: int = 5000
+    # After the last episode, this many episodes of the greedy policy (epsilon 0) on a copy of the
+    # learners: what was learnt, without the collisions that exploration causes.
+    eval_episodes: int = 20
     # Probability that a move is replaced by a uniformly random one (0: deterministic, as in the paper).
     slip: float = 0.0
 
@@ -60,6 +63,7 @@ class Settings:
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
         _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
+        _check(self.eval_episodes >= 0, "eval_episodes", self.eval_episodes, "at least 0")
         for f in fields(self):
             value = getattr(self, f.name)
             _check(math.isfinite(value), f.name, value, "a finite number")

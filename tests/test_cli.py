@@ -76,6 +76,8 @@ def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_t
     assert main([*args, "--out", str(second), "--jobs", "1", "--no-figures"]) == 0
     assert (first / "episodes.csv").read_bytes() == (second / "episodes.csv").read_bytes()
     assert (first / "observe.csv").read_bytes() == (second / "observe.csv").read_bytes()
+    greedy = list(csv.DictReader(open(first / "greedy.csv")))
+    assert len(greedy) == 3 * 2 and all(int(r["episodes"]) == 20 for r in greedy)
 
     rows = list(csv.DictReader(open(first / "episodes.csv")))
     assert len(rows) == 3 * 2 * 60
