@@ -1,5 +1,5 @@
 """Offline engine speed: joint steps per second of every algorithm on tunnel_to_goal and tunnel_to_goal_3
-(one core, one run each), CQ's ratio to independent learners, and optionally the wall time of the whole
+(one core, one run each, learning only: no greedy evaluation), CQ's ratio to independent learners, and optionally the wall time of the whole
 reproduce grid on all cores.
 
     python benchmarks/bench_engine.py [--episodes 3000] [--grid] [--grid-episodes 10000]
@@ -23,7 +23,7 @@ from cq_ros.settings import Settings
 def steps_per_second(algo: str, map_name: str, episodes: int, seed: int = 0) -> tuple[float, int]:
     gridmap = load_map(map_name)
     started = time.perf_counter()
-    table = run(algo, gridmap, Settings(), seed, 0, episodes).episodes
+    table = run(algo, gridmap, Settings(eval_episodes=0), seed, 0, episodes).episodes
     seconds = time.perf_counter() - started
     steps = int(table[:, 0].sum())
     return steps / seconds, steps
