@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from .gridmap import MapError, available_maps, load_map
-from .learners import ALGORITHMS
+from .learners import ALGORITHMS, LEARNERS
 from .settings import Settings, SettingsError
 
 
@@ -33,10 +33,10 @@ def _positive(text: str) -> int:
 
 def _algos(text: str) -> list[str]:
     algos = [a.strip() for a in text.split(",") if a.strip()]
-    unknown = [a for a in algos if a not in ALGORITHMS]
+    unknown = [a for a in algos if a not in LEARNERS]
     if unknown or not algos:
         what = ", ".join(unknown) if unknown else repr(text)
-        raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(ALGORITHMS)}")
+        raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(LEARNERS)}")
     return algos
 
 
@@ -61,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("experiment", help="run algorithms on one map offline and write results and figures")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--algo", type=_algos, default=list(ALGORITHMS), help=f"comma-separated, from {','.join(ALGORITHMS)}")
+    p.add_argument("--algo", type=_algos, default=list(ALGORITHMS),
+                   help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five; fcq is experimental)")
     p.add_argument("--out", type=Path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_run_options(p, runs=10, episodes=10_000)

@@ -26,7 +26,7 @@ from tqdm import tqdm
 from . import __version__
 from .engine import RunResult, run
 from .gridmap import GridMap, load_map
-from .learners import ALGORITHMS
+from .learners import LEARNERS
 from .settings import Settings
 
 EPISODE_COLUMNS = ("map", "algo", "run", "episode", "steps", "collisions", "joint_plays", "states", "return", "truncated")
@@ -93,7 +93,7 @@ def prepare_output(out: Path, force: bool) -> Path:
 
 def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifest: dict) -> None:
     """episodes.csv, observe.csv, greedy.csv and manifest.json for one map."""
-    ordered = sorted(results, key=lambda r: (ALGORITHMS.index(r.algo), r.run))
+    ordered = sorted(results, key=lambda r: (list(LEARNERS).index(r.algo), r.run))
     with open(out / "episodes.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(EPISODE_COLUMNS)

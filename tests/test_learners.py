@@ -651,3 +651,18 @@ def test_make_learners_one_per_agent_or_one_central():
         learners = make_learners(algo, gm, Settings(), seed=0, run=0)
         assert all(isinstance(l, LEARNERS[algo]) for l in learners)
         assert [l.agent for l in learners] == ([0] if algo == "jsa" else [0, 1])
+
+
+def test_fcq_windows_keep_sampled_q_values_where_cq_keeps_rewards():
+    from cq_ros.learners.fcq import FutureCQLearner
+
+    settings = Settings(**{**GREEDY, "window": 5})
+    learners = {cls: cls(0, ROW2, settings, seed=1) for cls in (CQLearner, FutureCQLearner)}
+    for learner in learners.values():
+        learner.q_local[1] = [0.0, 4.0, 0.0, 0.0]  # max Q_k of the next cell: 4
+        learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]
+        step(learner, 0, {1: 5}, -1.0, 1)
+        step(learner, 0, {1: 5}, 2.0, 0, done=True)
+    gamma = settings.gamma
+    assert learners[CQLearner].windows[0 * N_MOVES + EAST].w1 == [-1.0, 2.0]
+    assert learners[FutureCQLearner].windows[0 * N_MOVES + EAST].w1 == [-1.0 + gamma * 4.0, 2.0]

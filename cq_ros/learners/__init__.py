@@ -2,14 +2,17 @@
 
 from .base import Learner
 from .cq import CQLearner
+from .fcq import FutureCQLearner
 from .indep import IndependentQ
 from .js import JointStateQ
 from .jsa import JointStateActionQ, decode_joint_action
 from .loc import LearningOfCoordination
 
+# The paper's five, in its order; then what goes beyond it.
+ALGORITHMS = ("indep", "js", "jsa", "loc", "cq")
 LEARNERS: dict[str, type[Learner]] = {
-    cls.name: cls for cls in (IndependentQ, JointStateQ, JointStateActionQ, LearningOfCoordination, CQLearner)
+    cls.name: cls
+    for cls in (IndependentQ, JointStateQ, JointStateActionQ, LearningOfCoordination, CQLearner, FutureCQLearner)
 }
-ALGORITHMS = tuple(LEARNERS)
 
 __all__ = ["ALGORITHMS", "LEARNERS", "Learner", "decode_joint_action"]

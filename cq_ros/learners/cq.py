@@ -52,11 +52,17 @@ class CQLearner(Learner):
 
     def learn(self, reward, next_cell, done):
         s, a = self.s, self.a
-        w = self.windows[s * N_MOVES + a]
-        if w.add(reward) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, reward):
-            self.conflict_at = None if done else s
         target = reward if done else reward + self.gamma * max(self.q_local[next_cell])
+        sample = self.sample(reward, target)
+        w = self.windows[s * N_MOVES + a]
+        if w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample):
+            self.conflict_at = None if done else s
         q_update(self.q_local[s] if self.js is None else self.q_joint[self.js], a, target, self.alpha)
+
+    @staticmethod
+    def sample(reward, target):
+        """What the windows keep: CQ tests the immediate rewards."""
+        return reward
 
     def end_episode(self):
         self.conflict_at = None
