@@ -48,6 +48,7 @@ class Learner:
 
     name = "base"
     central = False  # True: one learner moves every agent (its cell is the tuple of all cells)
+    joint_state = False  # True: every state is a joint state (no local table; sees every peer every step)
 
     def __init__(self, agent: int, gridmap: GridMap, settings: Settings, seed: int):
         self.agent = agent

@@ -10,6 +10,7 @@ from .base import Learner, N_MOVES, epsilon_greedy, q_update
 
 class JointStateQ(Learner):
     name = "js"
+    joint_state = True
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)

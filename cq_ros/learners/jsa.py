@@ -15,6 +15,7 @@ def decode_joint_action(action: int, n_agents: int) -> list[int]:
 
 class JointStateActionQ(Learner):
     name = "jsa"
+    joint_state = True
     central = True
 
     def __init__(self, *args, **kwargs):

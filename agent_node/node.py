@@ -1,0 +1,122 @@
+"""The agent node: one cq_ros learner (or, for jsa, the central learner of every AGV) on the msgs_spec topics.
+
+Thin on purpose, like the ros2/examples minimal nodes: it declares its parameters, creates the publishers
+and subscriptions msgs_spec names with msgs_spec's QoS, and hands every message to the driver of
+`agent_node.driver`, carrying out the effects it returns: publish, subscribe to or drop a peer's position
+topic (always from inside an executor callback, as DESIGN.md's field notes require), save a checkpoint,
+finish. Constructible in-process (`AgentNode(context=ctx, parameter_overrides=[...])`); `done` is a Future
+holding the exit code.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+from typing import Any
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from rclpy.task import Future
+
+from cq_ros.settings import SettingsError
+from msgs_spec import (
+    ACTION, AGENT_STATS, FEEDBACK, POSITION, Action, action_topic, agent_namespace, agent_stats_topic, encode,
+    feedback_topic, position_topic,
+)
+
+from .driver import (
+    PARAMETERS, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
+    save_checkpoint,
+)
+
+__all__ = ["AgentNode"]
+
+FLUSH_TIMEOUT_S = 2.0  # at the end, how long to wait for subscribers to acknowledge the last statistics
+
+
+class AgentNode(Node):
+    """Parameters: see agent_node.driver.PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
+    rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter).
+
+    The node is named `agent` unless given another name; a launcher starting several gives each its own
+    (`-r __node:=agv1`), since the name is fixed before the agent_id parameter can be read.
+    """
+
+    def __init__(self, node_name: str = "agent", **kwargs: Any):
+        super().__init__(node_name, **kwargs)
+        try:
+            for name, (default, description) in PARAMETERS.items():
+                self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
+            self.config = cfg = agent_config({name: self.get_parameter(name).value for name in PARAMETERS})
+            self.driver = make_driver(cfg, log=self.get_logger().warning)
+        except (SettingsError, ParameterException):
+            self.destroy_node()
+            raise
+        agents = self.driver.agents
+        self._actions = {k: self.create_publisher(
+            ACTION.msg_type, action_topic(k), ACTION.qos,
+            event_callbacks=PublisherEventCallbacks(matched=partial(self._on_matched, k))) for k in agents}
+        self._stats = {k: self.create_publisher(AGENT_STATS.msg_type, agent_stats_topic(k), AGENT_STATS.qos)
+                       for k in agents}
+        self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
+                                                   partial(self._on_feedback, k), FEEDBACK.qos) for k in agents]
+        self._positions = {}  # peer -> its position subscription, while the driver wants it
+        self._unsent: dict[int, Action] = {}  # agent -> action held until its publisher matches the world
+        self.done = Future()  # result: the exit code (0 last episode played, 1 the world went silent)
+        self._last_feedback = time.monotonic()
+        self._watchdog = self.create_timer(cfg.feedback_timeout / 4, self._check_world)
+        self.get_logger().info(f"{cfg.algo} learner for {', '.join(map(agent_namespace, agents))} on map "
+                               f"{cfg.gridmap.name}, {cfg.episodes} episodes")
+
+    def _on_feedback(self, agent: int, msg: Any) -> None:
+        self._last_feedback = time.monotonic()
+        self._apply(self.driver.on_feedback(agent, msg))
+
+    def _on_position(self, peer: int, msg: Any) -> None:
+        self._apply(self.driver.on_position(peer, msg))
+
+    def _apply(self, effects: list) -> None:
+        for effect in effects:
+            match effect:
+                case Send(payload=Action() as action):
+                    self._send_action(action)
+                case Send(payload=stats):
+                    self._stats[stats.agent].publish(encode(stats))
+                case Subscribe(peer=peer):
+                    self._positions[peer] = self.create_subscription(
+                        POSITION.msg_type, position_topic(peer), partial(self._on_position, peer), POSITION.qos)
+                case Unsubscribe(peer=peer):
+                    self.destroy_subscription(self._positions.pop(peer))
+                case SaveCheckpoint(episode=episode):
+                    save_checkpoint(self.config.checkpoint, self.driver.learner, episode)
+                case Finish():
+                    self._finish(0)
+
+    def _send_action(self, action: Action) -> None:
+        # Feedback came, so the world's action reader exists; but our writer may match it a moment after the
+        # world saw the match from its side, and a volatile message sent before the match is lost.
+        if self._actions[action.agent].get_subscription_count() == 0:
+            self._unsent[action.agent] = action
+        else:
+            self._actions[action.agent].publish(encode(action))
+
+    def _on_matched(self, agent: int, _status: Any) -> None:
+        if agent in self._unsent and self._actions[agent].get_subscription_count() > 0:
+            self._actions[agent].publish(encode(self._unsent.pop(agent)))
+
+    def _check_world(self) -> None:
+        silent = time.monotonic() - self._last_feedback
+        if silent > self.config.feedback_timeout and not self.done.done():
+            self.get_logger().error(f"no feedback from the world for {silent:.1f} s "
+                                    f"(feedback_timeout={self.config.feedback_timeout}): giving up")
+            self._finish(1)
+
+    def _finish(self, code: int) -> None:
+        self._watchdog.cancel()
+        end = time.monotonic() + FLUSH_TIMEOUT_S
+        for pub in self._stats.values():
+            pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
+        self.done.set_result(code)

@@ -1,0 +1,397 @@
+"""Command-line tools that read the ROS graph through the wire contract: echo, topics, nodes, record.
+
+Thin equivalents of `ros2 topic echo`, `ros2 topic list -t`, `ros2 node list` and `ros2 bag record` (none of
+which is on pip), built on rclpy; `cq-ros echo|topics|nodes|record` calls them (cq_ros/cli.py). They work on
+any topic of standard type; on a project topic (`parse_topic` knows it) echo also checks every message
+against the contract and says on stderr when one breaks it, and record picks the project topics by default.
+
+Every wait is bounded or ends on Ctrl-C/SIGTERM (`StopSignals`); every tool runs in its own rclpy Context
+(`ros_session`), which the launcher (world_node/launch.py) uses too. Failures raise `ToolError`, one line
+for the user.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Callable, Iterator, TextIO
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from .doc import to_yaml
+from .errors import WireError
+from .topics import TopicSpec, parse_topic
+
+__all__ = [
+    "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
+    "run_node", "compatible_qos",
+    "message_class", "echo", "topics", "nodes", "record",
+]
+
+# A new process shows up in the graph 0.05-2.8 s after it starts (DESIGN.md field notes): the default wait.
+DISCOVERY_S = 3.0
+GRAPH_POLL_S = 0.25  # how often record looks for new topics, and echo for its topic
+STORAGES = ("mcap", "sqlite3")
+# Deep enough that a burst (an episode boundary, every topic of a step at once) never overwrites a message
+# the recorder has not taken yet.
+RECORD_DEPTH = 1000
+
+
+class ToolError(RuntimeError):
+    """A tool could not do its job (topic not found, no message before the timeout, ...): one line."""
+
+
+class StopSignals:
+    """Within `with StopSignals() as stop:`, SIGINT and SIGTERM set `stop.received` (the signal's name)
+    instead of raising, so a loop that checks `stop` between short waits ends cleanly (closes its bag,
+    stops its children). Outside the main thread Python cannot install handlers: then it does nothing."""
+
+    def __init__(self) -> None:
+        self.received: str | None = None
+        self._saved: dict[int, Any] = {}
+
+    def __bool__(self) -> bool:
+        return self.received is not None
+
+    def __enter__(self) -> "StopSignals":
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._saved[sig] = signal.signal(sig, self._on_signal)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for sig, handler in self._saved.items():
+            signal.signal(sig, handler)
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        self.received = signal.Signals(signum).name
+
+
+@contextmanager
+def environment(**values: str) -> Iterator[None]:
+    """Set these environment variables (rcl reads some only at init) and restore them afterwards."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@contextmanager
+def ros_session(name: str, *, domain_id: int | None = None, namespace: str | None = None,
+                localhost_only: bool = False, hidden: bool = True) -> Iterator[tuple[Any, SingleThreadedExecutor]]:
+    """(node, executor) on a fresh rclpy Context, torn down in the Jazzy order (executor, node, context).
+
+    `domain_id` None: ROS_DOMAIN_ID from the environment, as every ROS tool. `localhost_only` keeps discovery
+    on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, read by rcl at init only). A `hidden` node's name
+    starts with '_' (hidden from `nodes`, as ros2cli's own nodes are). rclpy installs no signal handlers:
+    use StopSignals."""
+    ctx = Context()
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"} if localhost_only else {}
+    with environment(**env):
+        rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    node = executor = None
+    try:
+        node = rclpy.create_node(f"_{name}_{os.getpid()}" if hidden else name, context=ctx, namespace=namespace,
+                                 enable_rosout=False, start_parameter_services=False)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        yield node, executor
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[Exception], ...]) -> int:
+    """The `python -m world_node|agent_node` main: spin the node made by make_node() on the default context
+    until its `done` Future holds the exit code. A bad parameter (an exception in bad_input) is one line on
+    stderr and exit code 2; Ctrl-C or SIGTERM exit code 130."""
+    from rclpy.exceptions import ParameterException
+    from rclpy.executors import ExternalShutdownException
+
+    rclpy.init(args=sys.argv)
+    node = executor = None
+    code = 130
+    try:
+        executor = SingleThreadedExecutor()
+        node = make_node()
+        executor.add_node(node)
+        executor.spin_until_future_complete(node.done)
+        code = node.done.result() if node.done.done() else 130  # else: shut down by a signal
+    except (*bad_input, ParameterException) as e:
+        print(f"{program}: {e}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
+            raise
+    finally:
+        # Jazzy order (DESIGN.md field notes): executor, then node, then the context.
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float | None,
+               stop: StopSignals | None = None) -> bool:
+    """Spin until done() (True), the timeout passes or a stop signal comes (False). None: no timeout."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while not done():
+        if stop or (deadline is not None and time.monotonic() >= deadline):
+            return False
+        executor.spin_once(timeout_sec=0.05)
+    return True
+
+
+def compatible_qos(publishers: list[Any], fallback: QoSProfile, depth: int = 10) -> QoSProfile:
+    """A subscription profile every publisher of a topic can serve, as `ros2 topic echo` chooses it: reliable
+    if every publisher is, transient local if every publisher is (so latched topics deliver their history).
+    Built fresh: a profile read from the graph has history UNKNOWN, which rclpy refuses (field notes).
+    `fallback` decides while the topic has no publisher."""
+    if not publishers:
+        reliability, durability = fallback.reliability, fallback.durability
+    else:
+        profiles = [p.qos_profile for p in publishers]
+        reliability = (ReliabilityPolicy.RELIABLE if all(q.reliability == ReliabilityPolicy.RELIABLE for q in profiles)
+                       else ReliabilityPolicy.BEST_EFFORT)
+        durability = (DurabilityPolicy.TRANSIENT_LOCAL
+                      if all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in profiles)
+                      else DurabilityPolicy.VOLATILE)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability, durability=durability)
+
+
+def message_class(type_name: str) -> type:
+    """The Python class of 'pkg/msg/Type'; ToolError if its package is not installed."""
+    pkg, _, cls = type_name.partition("/msg/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.msg"), cls)
+    except (ImportError, AttributeError, ValueError):
+        raise ToolError(f"message type {type_name} is not installed here (no Python module {pkg}.msg.{cls})") from None
+
+
+def _project_spec(name: str) -> tuple[TopicSpec, int | None] | None:
+    try:
+        return parse_topic(name)
+    except ValueError:
+        return None
+
+
+def _graph_types(node: Any, name: str) -> list[str]:
+    return dict(node.get_topic_names_and_types()).get(name, [])
+
+
+def _seconds(value: float) -> str:
+    return f"{value:g} s"
+
+
+# --------------------------------------------------------------------------------------------------------
+# echo
+
+
+def echo(topic: str, *, count: int | None = None, timeout_s: float | None = None, domain_id: int | None = None,
+         out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+    """Print the messages of `topic` as `ros2 topic echo` does (YAML, then '---'); return the number printed.
+
+    The type comes from the graph (waiting at most `timeout_s`, or DISCOVERY_S without a timeout); a project
+    topic that is not in the graph yet is subscribed with the contract's type and QoS and waited for. Ends
+    after `count` messages, at `timeout_s` (ToolError if nothing came) or on Ctrl-C/SIGTERM."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    with StopSignals() as stop, ros_session("cq_ros_echo", domain_id=domain_id) as (node, executor):
+        name = node.resolve_topic_name(topic)
+        project = _project_spec(name)
+        wait = DISCOVERY_S if timeout_s is None else timeout_s
+        spin_until(executor, lambda: bool(_graph_types(node, name)), wait, stop)
+        types = _graph_types(node, name)
+        if stop:
+            return 0
+        if types:
+            msg_type = message_class(types[0])
+        elif project is not None:
+            msg_type = project[0].msg_type  # not up yet: the contract knows what it will carry
+        else:
+            raise ToolError(f"no topic {name} in the graph after {_seconds(wait)} (is the system running, on "
+                            f"this ROS_DOMAIN_ID? `cq-ros topics` lists what is there)")
+        spec, agent = project if project is not None else (None, None)
+        if spec is not None and msg_type is not spec.msg_type:
+            err.write(f"cq-ros echo: {name} carries {types[0]}, not the contract's {spec.type_name}: "
+                      "echoing it unchecked\n")
+            spec = None
+        fallback = spec.qos if spec is not None else QoSProfile(depth=10)
+        # Publishers seen a moment after the topic (a subscriber-only topic) still decide the QoS: wait briefly.
+        spin_until(executor, lambda: bool(node.get_publishers_info_by_topic(name)),
+                   min(GRAPH_POLL_S, wait), stop)
+        qos = compatible_qos(node.get_publishers_info_by_topic(name), fallback)
+        printed = 0
+
+        def show(msg: Any) -> None:
+            nonlocal printed
+            if count is not None and printed >= count:
+                return
+            printed += 1
+            if spec is not None:
+                try:
+                    spec.decode(msg, agent=agent)
+                except WireError as e:
+                    err.write(f"cq-ros echo: message {printed} on {name} breaks the contract: {e}\n")
+            out.write(to_yaml(msg) + "---\n")
+            out.flush()
+
+        node.create_subscription(msg_type, name, show, qos)
+        left = None if deadline is None else max(0.0, deadline - time.monotonic())
+        spin_until(executor, lambda: count is not None and printed >= count, left, stop)
+        if printed == 0 and not stop:
+            raise ToolError(f"no message on {name} within {_seconds(timeout_s)}")
+        return printed
+
+
+# --------------------------------------------------------------------------------------------------------
+# topics, nodes
+
+
+def _look(wait_s: float | None, domain_id: int | None, what: Callable[[Any], list[str]]) -> list[str]:
+    """Spin `wait_s` (None: DISCOVERY_S) so discovery can finish (Ctrl-C cuts it short), then ask the graph."""
+    with StopSignals() as stop, ros_session("cq_ros_graph", domain_id=domain_id) as (node, executor):
+        spin_until(executor, lambda: False, DISCOVERY_S if wait_s is None else wait_s, stop)
+        return what(node)
+
+
+def topics(*, show_types: bool = False, wait_s: float | None = None, domain_id: int | None = None,
+           out: TextIO = sys.stdout) -> list[str]:
+    """Print the live topics, sorted, with their types as `ros2 topic list -t` does ('/a/b [pkg/msg/T]')."""
+    lines = _look(wait_s, domain_id, lambda node: [
+        f"{name} [{', '.join(types)}]" if show_types else name
+        for name, types in sorted(node.get_topic_names_and_types())])
+    out.write("".join(line + "\n" for line in lines))
+    return lines
+
+
+def nodes(*, all_nodes: bool = False, wait_s: float | None = None, domain_id: int | None = None,
+          out: TextIO = sys.stdout) -> list[str]:
+    """Print the live nodes' full names ('/namespace/name'), sorted; hidden ones ('_name') only with all_nodes."""
+    lines = _look(wait_s, domain_id, lambda node: sorted(
+        f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces()
+        if all_nodes or not name.startswith("_")))
+    out.write("".join(line + "\n" for line in lines))
+    return lines
+
+
+# --------------------------------------------------------------------------------------------------------
+# record
+
+
+def _bag_qos(profile: QoSProfile) -> Any:
+    """rclpy's view of a publisher's QoS as rosbags' Qos, for the bag's offered_qos_profiles (what
+    `ros2 bag play` republishes with: a latched topic replays latched)."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    def span(duration: Any) -> QosTime:
+        return QosTime(*divmod(duration.nanoseconds, 10**9))
+
+    return Qos(history=QosHistory[profile.history.name], depth=profile.depth,
+               reliability=QosReliability[profile.reliability.name],
+               durability=QosDurability[profile.durability.name], deadline=span(profile.deadline),
+               lifespan=span(profile.lifespan), liveliness=QosLiveliness[profile.liveliness.name],
+               liveliness_lease_duration=span(profile.liveliness_lease_duration),
+               avoid_ros_namespace_conventions=profile.avoid_ros_namespace_conventions)
+
+
+def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_s: float | None = None,
+           count: int | None = None, storage: str = "mcap", domain_id: int | None = None,
+           out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+    """Record to a new rosbag2 directory `bag`; return the number of messages written.
+
+    `topics` None: every project topic (`parse_topic`), found as they appear; else these names (relative
+    names resolve against '/'). Messages are written as they came off the wire (raw CDR, never decoded),
+    stamped with their receive time, with each topic's type, definition, type hash and the publishers'
+    offered QoS, so `ros2 bag play` replays it. Ends after `duration_s`, after `count` messages, or on
+    Ctrl-C/SIGTERM (with neither limit, only then); the bag is closed properly in every case."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    if storage not in STORAGES:
+        raise ToolError(f"unknown storage {storage!r}; choose from {', '.join(STORAGES)}")
+    bag = Path(bag)
+    if bag.exists():
+        raise FileExistsError(f"{bag} exists; a bag is a new directory: choose another --out")
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    writer = Writer(bag, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin[storage.upper()])
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    written = 0
+    skipped: set[str] = set()
+    subscriptions = []
+
+    with StopSignals() as stop, ros_session("cq_ros_record", domain_id=domain_id) as (node, executor):
+        wanted = None if topics is None else {node.resolve_topic_name(t) for t in topics}
+        connections: dict[str, Any] = {}
+
+        def selected(name: str) -> bool:
+            return name in wanted if wanted is not None else _project_spec(name) is not None
+
+        def write(connection: Any, data: bytes) -> None:
+            nonlocal written
+            if count is None or written < count:
+                writer.write(connection, time.time_ns(), data)
+                written += 1
+
+        def subscribe_new_topics() -> None:
+            for name, types in node.get_topic_names_and_types():
+                if name in connections or name in skipped or not selected(name):
+                    continue
+                publishers = node.get_publishers_info_by_topic(name)
+                if not publishers:
+                    continue  # only subscribers so far: no type hash or QoS to store yet, nothing to record
+                type_name = types[0]
+                if type_name not in typestore.fielddefs:
+                    skipped.add(name)
+                    err.write(f"cq-ros record: skipping {name}: type {type_name} is not in rosbags' ROS 2 "
+                              "Jazzy type store\n")
+                    continue
+                connections[name] = connection = writer.add_connection(
+                    name, type_name, typestore=typestore,
+                    offered_qos_profiles=[_bag_qos(p.qos_profile) for p in publishers])
+                subscriptions.append(node.create_subscription(
+                    message_class(type_name), name, lambda data, c=connection: write(c, data),
+                    compatible_qos(publishers, QoSProfile(depth=RECORD_DEPTH), depth=RECORD_DEPTH), raw=True))
+
+        writer.open()
+        try:
+            next_look = 0.0
+            while not stop and (count is None or written < count):
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    break
+                if now >= next_look:
+                    subscribe_new_topics()
+                    next_look = now + GRAPH_POLL_S
+                executor.spin_once(timeout_sec=0.05)
+        finally:
+            for sub in subscriptions:  # no callback may write once the bag is closed
+                node.destroy_subscription(sub)
+            writer.close()
+    missing = sorted(wanted - connections.keys() - skipped) if wanted is not None else []
+    if missing:
+        err.write(f"cq-ros record: never saw a publisher on {', '.join(missing)}\n")
+    out.write(f"recorded {written} messages on {len(connections)} topics to {bag} ({storage})\n")
+    return written

@@ -1,0 +1,415 @@
+"""The agent drivers without ROS: which peers they listen to and when, when they act, what they refuse,
+checkpoints, and a whole lockstep run (world core + drivers, messages in any cross-topic order) that equals
+cq_ros.engine.run."""
+
+from __future__ import annotations
+
+import math
+import os
+import pickle
+import random
+from collections import defaultdict, deque
+
+import pytest
+
+from agent_node.driver import (
+    PARAMETERS, AgentDriver, CentralDriver, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe,
+    agent_config, load_checkpoint, make_driver, save_checkpoint,
+)
+from cq_ros.engine import make_learner, run
+from cq_ros.gridmap import load_map, parse_map
+from cq_ros.learners.base import Learner
+from cq_ros.settings import Settings, SettingsError
+from cq_ros.world import GridWorld
+from msgs_spec import Action, AgentStats, Feedback, Position, WorldStats, encode
+from world_node.lockstep import Lockstep
+
+THREE = parse_map("""agent 1: start 0,0  goal 0,3
+agent 2: start 1,0  goal 1,3
+agent 3: start 2,0  goal 2,3
+
++-+-+-+-+
+|. . . .|
++ + + + +
+|. . . .|
++ + + + +
+|. . . .|
++-+-+-+-+
+""")
+
+
+class Stub(Learner):
+    """Names the peers (0-based) listed in `needs`, one tuple per decision; records every call."""
+
+    name = "stub"
+
+    def __init__(self, needs=(), agent=0, gridmap=THREE):
+        super().__init__(agent, gridmap, Settings(), 0)
+        self.needs = list(needs)
+        self.calls = []
+
+    def observe(self, cell):
+        self.calls.append(("observe", cell))
+        return self.needs.pop(0) if self.needs else ()
+
+    def act(self, peer_cells):
+        self.calls.append(("act", dict(peer_cells)))
+        return 1
+
+    def learn(self, reward, next_cell, done):
+        self.calls.append(("learn", reward, next_cell, done))
+
+    def end_episode(self):
+        self.calls.append(("end",))
+
+    def state_count(self):
+        return self.n_cells
+
+
+def fb(agent, episode, step, row, col, reward=0.0, done=False, truncated=False):
+    return encode(Feedback(agent, episode, step, row, col, reward, done, truncated))
+
+
+def pos(agent, episode, step, row, col):
+    return encode(Position(agent, episode, step, row, col))
+
+
+def sent(effects, kind=Action):
+    return [e.payload for e in effects if isinstance(e, Send) and isinstance(e.payload, kind)]
+
+
+def test_acts_at_once_when_the_learner_needs_nobody():
+    d = AgentDriver(Stub(), 1, episodes=1, linger=0)
+    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == [Send(Action(1, 0, 0, 1))]
+    assert d.learner.calls == [("observe", 0), ("act", {})]
+
+
+def test_subscribes_to_exactly_the_named_peers_and_acts_once_their_positions_of_this_step_are_in():
+    learner = Stub(needs=[(), (2,)])  # peer index 2 = agent 3
+    d = AgentDriver(learner, 1, episodes=1, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    effects = d.on_feedback(1, fb(1, 0, 1, 0, 1))
+    assert effects == [Subscribe(3)]
+    assert d.on_position(3, pos(3, 0, 0, 2, 1)) == []  # an older step: not yet
+    assert d.on_position(3, pos(3, 0, 1, 2, 2)) == [Send(Action(1, 0, 1, 1))]
+    assert learner.calls[-1] == ("act", {2: THREE.index(2, 2)})
+
+
+def test_waits_for_every_needed_peer():
+    d = AgentDriver(Stub(needs=[(1, 2)]), 1, episodes=1, linger=0)
+    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == [Subscribe(2), Subscribe(3)]
+    assert d.on_position(2, pos(2, 0, 0, 1, 0)) == []
+    assert sent(d.on_position(3, pos(3, 0, 0, 2, 0))) == [Action(1, 0, 0, 1)]
+
+
+def test_positions_that_came_before_the_feedback_are_used():
+    d = AgentDriver(Stub(needs=[(1,), (1,)]), 1, episodes=1, linger=5)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    d.on_position(2, pos(2, 0, 0, 1, 0))
+    d.on_position(2, pos(2, 0, 1, 1, 1))  # the kept subscription delivers step 1 before our feedback
+    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
+    assert d.peers.created == 1
+
+
+@pytest.mark.parametrize("linger", [0, 2])
+def test_a_peer_no_longer_needed_is_dropped_after_linger_steps(linger):
+    needs = [(1,)] + [()] * 5
+    d = AgentDriver(Stub(needs=needs), 1, episodes=1, linger=linger)
+    effects = d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    d.on_position(2, pos(2, 0, 0, 1, 0))
+    dropped_at = None
+    for step in range(1, 6):
+        effects = d.on_feedback(1, fb(1, 0, step, 0, 0))
+        if Unsubscribe(2) in effects:
+            dropped_at = step
+    assert dropped_at == linger + 1
+    assert d.peers.subscribed == [] and d.peers.created == 1
+
+
+def test_the_end_of_an_episode_counts_as_a_step_without_need():
+    d = AgentDriver(Stub(needs=[(1,)]), 1, episodes=2, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    d.on_position(2, pos(2, 0, 0, 1, 0))
+    effects = d.on_feedback(1, fb(1, 0, 1, 0, 1, 10.0, done=True))
+    assert effects[0] == Unsubscribe(2)
+    [stats] = sent(effects, AgentStats)
+    assert (stats.subscriptions_created, stats.subscriptions_active, stats.peer_messages) == (1, 0, 1)
+
+
+def test_learns_only_from_the_outcome_of_its_own_action():
+    learner = Stub()
+    d = AgentDriver(learner, 1, episodes=1, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    d.on_feedback(1, fb(1, 0, 1, 0, 1, -1.0))
+    assert ("learn", -1.0, THREE.index(0, 1), False) in learner.calls
+
+
+def test_a_step_the_world_took_without_us_is_skipped_not_learnt():
+    learner = Stub(needs=[(1,)])
+    logs = []
+    d = AgentDriver(learner, 1, episodes=1, linger=0, log=logs.append)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))  # waits for agent 2, whose position never comes
+    effects = d.on_feedback(1, fb(1, 0, 1, 0, 0))  # the world timed us out and stepped
+    assert sent(effects) == [Action(1, 0, 1, 1)]
+    assert not any(c[0] == "learn" for c in learner.calls)
+    assert d.skipped_steps == 1 and d.counters()["skipped_steps"] == 1 and logs
+
+
+def test_bad_feedback_is_counted_and_dropped():
+    d = AgentDriver(Stub(), 1, episodes=1, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    nan = fb(1, 0, 1, 0, 1)
+    nan.data[5] = math.nan
+    for msg in (nan, fb(1, 0, 0, 0, 1), fb(1, 0, 2, 0, 1), fb(1, 1, 1, 0, 1), fb(2, 0, 1, 0, 1),
+                fb(1, 0, 1, 9, 9)):
+        assert d.on_feedback(1, msg) == []
+    assert d.drops.counts == {"not_finite": 1, "stale_step": 1, "future_step": 1, "future_episode": 1,
+                              "wrong_agent": 1, "cell_out_of_range": 1}
+    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
+
+
+def test_a_square_outside_the_world_is_refused_like_one_outside_the_grid():
+    gm = parse_map("""agent 1: start 0,0  goal 0,1
+agent 2: start 1,1  goal 1,1
+
++-+-+
+|. .|
++-+ +
+|# .|
++-+-+
+""")
+    d = AgentDriver(Stub(needs=[(1,)], gridmap=gm), 1, episodes=1, linger=0)
+    assert d.on_feedback(1, fb(1, 0, 0, 1, 0)) == []
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    assert d.on_position(2, pos(2, 0, 0, 1, 0)) == []
+    assert d.drops["cell_out_of_range"] == 2
+
+
+def test_resumes_at_whatever_step_the_world_is_at():
+    learner = Stub()
+    d = AgentDriver(learner, 1, episodes=10, linger=0, resync=True)
+    assert sent(d.on_feedback(1, fb(1, 7, 12, 0, 2, -1.0))) == [Action(1, 7, 12, 1)]
+    assert learner.calls[0] == ("observe", THREE.index(0, 2))  # nothing learnt: we sent no action before
+    assert d.expect == (7, 13)
+
+
+def test_episode_end_publishes_stats_checkpoints_and_finishes():
+    learner = make_learner("cq", THREE, Settings(), 0, 0, 0)
+    d = AgentDriver(learner, 1, episodes=4, linger=0, checkpoint_every=2)
+    kinds = []
+    for e in range(4):
+        d.on_feedback(1, fb(1, e, 0, 0, 0))
+        effects = d.on_feedback(1, fb(1, e, 1, 0, 1, truncated=True))
+        kinds.append([type(x).__name__ for x in effects])
+    assert kinds == [["Send"], ["Send", "SaveCheckpoint"], ["Send"], ["Send", "SaveCheckpoint", "Finish"]]
+    assert d.finished and effects[1] == SaveCheckpoint(3) and effects[2] == Finish()
+    [stats] = sent(effects, AgentStats)
+    assert (stats.agent, stats.episode, stats.algorithm, stats.local_states, stats.joint_states) == (1, 3, "cq", 12, 0)
+
+
+def test_checkpoint_round_trip_acts_identically(tmp_path):
+    gm = load_map("tunnel_to_goal")
+    learner = make_learner("cq", gm, Settings(window=5), 0, 0, 0)
+    rng = random.Random(1)
+    for _ in range(500):  # some learning, so the tables are not empty
+        learner.observe(rng.randrange(gm.n_cells))
+        learner.act({1: rng.randrange(gm.n_cells)})
+        learner.learn(rng.choice([0.0, -1.0, -10.0]), rng.randrange(gm.n_cells), False)
+    path = tmp_path / "agv1.ckpt"
+    save_checkpoint(path, learner, 41)
+    loaded, episode = load_checkpoint(path, "cq", gm, 0)
+    assert episode == 41 and os.listdir(tmp_path) == ["agv1.ckpt"]
+    for _ in range(300):
+        cell, peer = rng.randrange(gm.n_cells), rng.randrange(gm.n_cells)
+        assert loaded.observe(cell) == learner.observe(cell)
+        assert loaded.act({1: peer}) == learner.act({1: peer})
+        reward, nxt = rng.choice([0.0, -10.0]), rng.randrange(gm.n_cells)
+        loaded.learn(reward, nxt, False)
+        learner.learn(reward, nxt, False)
+    assert loaded.q_local == learner.q_local and loaded.joint_states() == learner.joint_states()
+
+
+def test_a_failed_checkpoint_write_leaves_the_previous_one(tmp_path, monkeypatch):
+    gm = load_map("tunnel_to_goal")
+    learner = make_learner("indep", gm, Settings(), 0, 0, 0)
+    path = tmp_path / "agv1.ckpt"
+    save_checkpoint(path, learner, 1)
+    replaced = []
+    real_replace = os.replace
+    monkeypatch.setattr(os, "replace", lambda a, b: (replaced.append((a, b)), real_replace(a, b)))
+    save_checkpoint(path, learner, 2)
+    [(tmp, dest)] = replaced
+    assert os.path.dirname(tmp) == str(tmp_path) and dest == str(path)  # a rename in the same directory
+
+    def broken_dump(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pickle, "dump", broken_dump)
+    with pytest.raises(OSError):
+        save_checkpoint(path, learner, 3)
+    assert load_checkpoint(path, "indep", gm, 0)[1] == 2 and os.listdir(tmp_path) == ["agv1.ckpt"]
+
+
+def test_load_checkpoint_refuses_another_agent_or_a_broken_file(tmp_path):
+    gm = load_map("tunnel_to_goal")
+    path = tmp_path / "c.ckpt"
+    save_checkpoint(path, make_learner("cq", gm, Settings(), 0, 0, 1), 5)
+    with pytest.raises(SettingsError, match="parameter checkpoint: .*agent index 1.*agent index 0"):
+        load_checkpoint(path, "cq", gm, 0)
+    with pytest.raises(SettingsError, match="algo js"):
+        load_checkpoint(path, "js", gm, 1)
+    path.write_bytes(b"not a pickle")
+    with pytest.raises(SettingsError, match="parameter checkpoint: .* cannot load it"):
+        load_checkpoint(path, "cq", gm, 1)
+
+
+def test_make_driver_resumes_from_an_existing_checkpoint(tmp_path):
+    values = {name: default for name, (default, _) in PARAMETERS.items()}
+    cfg = agent_config({**values, "agent_id": 2, "checkpoint": str(tmp_path / "c.ckpt")})
+    fresh = make_driver(cfg)
+    assert fresh.expect == (0, 0) and fresh.checkpoint_every == 50
+    save_checkpoint(cfg.checkpoint, fresh.learner, 9)
+    resumed = make_driver(cfg, log=lambda _: None)
+    assert resumed.expect is None and resumed.learner.agent == 1
+    assert make_driver(agent_config({**values, "agent_id": 2})).checkpoint_every == 0  # no path: none
+
+
+def test_agent_config_checks_every_parameter():
+    values = {name: default for name, (default, _) in PARAMETERS.items()}
+    with pytest.raises(SettingsError, match="parameter agent_id must be 1..2"):
+        agent_config(values)  # cq needs an agent id
+    assert agent_config({**values, "agent_id": 2}).agent == 2
+    with pytest.raises(SettingsError, match="parameter agent_id: algo jsa runs one central node"):
+        agent_config({**values, "algo": "jsa", "agent_id": 1})
+    assert agent_config({**values, "algo": "jsa"}).agent == 0
+    with pytest.raises(SettingsError, match="parameter algo: unknown algorithm 'sarsa'"):
+        agent_config({**values, "algo": "sarsa", "agent_id": 1})
+    with pytest.raises(SettingsError, match="parameter map: .*no such map"):
+        agent_config({**values, "map": "atlantis", "agent_id": 1})
+    with pytest.raises(SettingsError, match="setting epsilon"):
+        agent_config({**values, "epsilon": -0.1, "agent_id": 1})
+    with pytest.raises(SettingsError, match="parameter feedback_timeout must be > 0"):
+        agent_config({**values, "feedback_timeout": 0.0, "agent_id": 1})
+    with pytest.raises(SettingsError, match="parameter algo: jsa supports at most"):
+        make_driver(agent_config({**values, "algo": "jsa", "map": "warehouse_8"}))
+
+
+def test_central_driver_answers_for_every_acting_agent_once_all_feedback_is_in():
+    learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
+    d = CentralDriver(learner, episodes=1)
+    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == []
+    assert d.on_feedback(2, fb(2, 0, 0, 1, 0)) == []
+    actions = sent(d.on_feedback(3, fb(3, 0, 0, 2, 0)))
+    assert [(a.agent, a.episode, a.step) for a in actions] == [(1, 0, 0), (2, 0, 0), (3, 0, 0)]
+    d.on_feedback(1, fb(1, 0, 1, 0, 1))
+    d.on_feedback(2, fb(2, 0, 1, 1, 3, 10.0, done=True))
+    actions = sent(d.on_feedback(3, fb(3, 0, 1, 2, 1)))
+    assert [a.agent for a in actions] == [1, 3]  # agent 2 is at its goal
+    assert d.expect[2] == (1, 0) and d.expect[1] == (0, 2)
+
+
+def test_central_driver_resumes_from_the_positions_of_the_step_it_joins():
+    learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
+    d = CentralDriver(learner, episodes=5, resync=True)
+    assert d.on_feedback(3, fb(3, 2, 6, 2, 2)) == [Subscribe(1), Subscribe(2), Subscribe(3)]
+    assert d.on_feedback(1, fb(1, 2, 6, 0, 1)) == []  # the positions decide
+    assert d.on_position(1, pos(1, 2, 6, 0, 1)) == []
+    assert d.on_position(2, pos(2, 2, 6, 1, 3)) == []  # at its goal: done
+    effects = d.on_position(3, pos(3, 2, 6, 2, 2))
+    assert effects[:3] == [Unsubscribe(1), Unsubscribe(2), Unsubscribe(3)]
+    assert [(a.agent, a.episode, a.step) for a in sent(effects)] == [(1, 2, 6), (3, 2, 6)]
+    assert d.expect == {1: (2, 7), 2: (3, 0), 3: (2, 7)}
+
+
+# -- a whole run, world core and drivers, without ROS ---------------------------------------------------
+
+
+class Bus:
+    """Delivers messages between a Lockstep and drivers the way DDS does with our QoS: in order per topic
+    and receiver, in any order across topics (a seeded shuffle), latched positions handed to a new
+    subscription at once."""
+
+    def __init__(self, core, drivers, rng):
+        self.core, self.drivers, self.rng = core, drivers, rng
+        self.channels = defaultdict(deque)  # (receiver, topic) -> messages in order
+        self.latched = {}
+        self.subscribed = defaultdict(set)
+        self.world_stats, self.agent_stats = [], defaultdict(list)
+        self.owner = {k: d for d in drivers for k in d.agents}
+
+    def world_out(self, payloads):
+        for p in payloads:
+            if isinstance(p, WorldStats):
+                self.world_stats.append(p)
+            elif isinstance(p, Position):
+                self.latched[p.agent] = encode(p)
+                for d in self.drivers:
+                    if p.agent in self.subscribed[d]:
+                        self.channels[(d, "position", p.agent)].append(encode(p))
+            else:
+                d = self.owner[p.agent]
+                self.channels[(d, "feedback", p.agent)].append(encode(p))
+
+    def driver_out(self, d, effects):
+        for e in effects:
+            match e:
+                case Send(payload=Action() as a):
+                    self.channels[(self.core, "action", a.agent)].append(encode(a))
+                case Send(payload=stats):
+                    self.agent_stats[stats.agent].append(stats)
+                case Subscribe(peer=j):
+                    self.subscribed[d].add(j)
+                    if j in self.latched:
+                        self.channels[(d, "position", j)].append(self.latched[j])
+                case Unsubscribe(peer=j):
+                    self.subscribed[d].discard(j)
+                    # a message already queued may still arrive (the driver must ignore it)
+
+    def run(self):
+        self.world_out(self.core.begin())
+        while True:
+            ready = [c for c, q in self.channels.items() if q]
+            if not ready:
+                return
+            receiver, topic, agent = key = self.rng.choice(ready)
+            msg = self.channels[key].popleft()
+            if receiver is self.core:
+                self.world_out(self.core.on_action(agent, msg))
+            elif topic == "feedback":
+                self.driver_out(receiver, receiver.on_feedback(agent, msg))
+            else:
+                self.driver_out(receiver, receiver.on_position(agent, msg))
+
+
+ALGOS = ("cq", "js", "loc", "jsa", "indep")
+CASES = [(algo, "tunnel_to_goal", 4, 15, {"window": 10, "step_cap": 300}) for algo in ALGOS]
+CASES += [(algo, "grid_game_2", 1, 60, {"window": 5}) for algo in ALGOS]
+CASES += [("cq", "tunnel_to_goal", 4, 40, {"window": 10, "step_cap": 500})]
+
+
+@pytest.mark.parametrize("algo,map_name,seed,episodes,overrides", CASES)
+def test_a_whole_run_without_ros_equals_the_offline_engine(algo, map_name, seed, episodes, overrides):
+    gridmap = load_map(map_name)
+    settings = Settings().with_overrides(overrides)
+    core = Lockstep(GridWorld(gridmap, settings), episodes, step_timeout=1.0)
+    central = algo == "jsa"
+    drivers = [make_driver(agent_config({**{n: v for n, (v, _) in PARAMETERS.items()}, **overrides,
+                                         "algo": algo, "map": map_name, "seed": seed, "episodes": episodes,
+                                         "agent_id": k, "peer_linger_steps": 1}))
+               for k in ([0] if central else range(1, gridmap.n_agents + 1))]
+    bus = Bus(core, drivers, random.Random(seed))
+    bus.run()
+    assert core.finished and all(d.finished for d in drivers)
+    offline = run(algo, gridmap, settings, seed, 0, episodes).episodes
+    assert [(s.steps, s.collisions, s.truncated) for s in bus.world_stats] == \
+        [(int(e[0]), int(e[1]), bool(e[5])) for e in offline]
+    # the agents' statistics add up to the engine's per-episode joint plays and state counts
+    per_agent = [bus.agent_stats[1]] if central else [bus.agent_stats[k] for k in range(1, gridmap.n_agents + 1)]
+    plays = [sum(s[e].joint_plays for s in per_agent) for e in range(episodes)]
+    states = [sum(s[e].local_states + s[e].joint_states for s in per_agent) for e in range(episodes)]
+    assert plays == [int(e[2]) for e in offline]
+    assert states == [int(e[3]) for e in offline]
+    if algo == "indep":
+        assert all(s[-1].subscriptions_created == 0 for s in per_agent)
+    if algo == "js":
+        assert all(s[-1].subscriptions_created == 1 for s in per_agent)  # one peer, kept all along

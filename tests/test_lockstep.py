@@ -1,0 +1,279 @@
+"""The world's lockstep core without ROS: protocol order, timeouts, rejections, and per-episode statistics
+equal to the offline engine's for the same joint actions."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
+
+from cq_ros.engine import Team
+from cq_ros.gridmap import load_map, parse_map
+from cq_ros.learners.base import Learner
+from cq_ros.settings import Settings, SettingsError
+from cq_ros.world import GridWorld
+from msgs_spec import Action, Feedback, Position, WorldStats, encode
+from world_node.lockstep import PARAMETERS, Lockstep, world_config
+
+
+class Clock:
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def lockstep(gridmap, episodes=3, settings=Settings(), timeout=1.0, log=None):
+    clock = Clock()
+    core = Lockstep(GridWorld(gridmap, settings), episodes, timeout, log=log, clock=clock)
+    return core, clock
+
+
+def act(agent, episode, step, action):
+    return encode(Action(agent, episode, step, action))
+
+
+def int_array(label, data, size=4):
+    msg = Int32MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
+    msg.data = data
+    return msg
+
+
+# A 2x3 corridor: agent 1 walks east along the top row, agent 2 sits below its goal.
+CORRIDOR = parse_map("""agent 1: start 0,0  goal 0,2
+agent 2: start 1,1  goal 1,2
+
++-+-+-+
+|. . .|
++ + + +
+|. . .|
++-+-+-+
+""")
+EAST, WEST, NORTH = 1, 3, 0
+
+
+def test_begin_publishes_every_position_before_any_feedback():
+    core, _ = lockstep(CORRIDOR)
+    out = core.begin()
+    assert [type(p) for p in out] == [Position, Position, Feedback, Feedback]
+    assert out[0] == Position(1, 0, 0, 0, 0) and out[1] == Position(2, 0, 0, 1, 1)
+    assert out[2] == Feedback(1, 0, 0, 0, 0, 0.0) and out[3] == Feedback(2, 0, 0, 1, 1, 0.0)
+    assert core.waiting == {1, 2} and (core.episode, core.step) == (0, 0)
+
+
+def test_step_waits_for_every_acting_agent_then_positions_then_feedback():
+    core, _ = lockstep(CORRIDOR)
+    core.begin()
+    assert core.on_action(2, act(2, 0, 0, EAST)) == []  # agent 1 still missing
+    out = core.on_action(1, act(1, 0, 0, EAST))
+    assert [type(p) for p in out] == [Position, Position, Feedback, Feedback]
+    assert out[2] == Feedback(1, 0, 1, 0, 1, 0.0)
+    assert out[3] == Feedback(2, 0, 1, 1, 2, 10.0, done=True)  # at its goal: no more actions this episode
+    assert core.waiting == {1}
+
+
+def test_episode_end_sends_stats_then_the_next_episode():
+    core, _ = lockstep(CORRIDOR, episodes=2)
+    core.begin()
+    core.on_action(1, act(1, 0, 0, EAST))
+    core.on_action(2, act(2, 0, 0, EAST))
+    out = core.on_action(1, act(1, 0, 1, EAST))
+    # positions of step 2, the last feedback (only agent 1 was acting), the stats, episode 1 from scratch
+    assert [type(p) for p in out] == [Position, Position, Feedback, WorldStats, Position, Position, Feedback,
+                                      Feedback]
+    assert out[2] == Feedback(1, 0, 2, 0, 2, 10.0, done=True)
+    stats = out[3]
+    assert (stats.episode, stats.steps, stats.truncated, stats.collisions, stats.missed_actions,
+            stats.returns) == (0, 2, False, 0, 0, (10.0, 10.0))
+    assert out[6] == Feedback(1, 1, 0, 0, 0, 0.0)
+    core.on_action(1, act(1, 1, 0, EAST))
+    core.on_action(2, act(2, 1, 0, EAST))
+    out = core.on_action(1, act(1, 1, 1, EAST))
+    assert isinstance(out[-1], WorldStats) and core.finished and not core.waiting
+
+
+def test_step_cap_truncates_every_acting_agent():
+    core, _ = lockstep(CORRIDOR, episodes=1, settings=Settings(step_cap=1))
+    core.begin()
+    core.on_action(1, act(1, 0, 0, WEST))  # a wall bump: agent 1 stays
+    out = core.on_action(2, act(2, 0, 0, WEST))
+    fb = [p for p in out if isinstance(p, Feedback)]
+    assert fb == [Feedback(1, 0, 1, 0, 0, -1.0, truncated=True), Feedback(2, 0, 1, 1, 0, 0.0, truncated=True)]
+    assert out[-1].truncated and core.finished
+
+
+def test_timeout_lets_the_missing_agent_stay_and_counts_it():
+    logs = []
+    core, clock = lockstep(CORRIDOR, timeout=2.0, log=logs.append)
+    core.begin()
+    core.on_action(1, act(1, 0, 0, EAST))
+    clock.now = 1.9
+    assert core.on_tick() == []  # not yet
+    clock.now = 2.0
+    out = core.on_tick()
+    fb = {p.agent: p for p in out if isinstance(p, Feedback)}
+    assert fb[2] == Feedback(2, 0, 1, 1, 1, Settings().reward_step)  # stayed, bumped no wall
+    assert fb[1] == Feedback(1, 0, 1, 0, 1, 0.0)
+    assert any("agv2" in line and "stay" in line for line in logs)
+    assert core.on_action(2, act(2, 0, 0, EAST)) == []  # the late answer is stale now
+    assert core.drops["stale_step"] == 1
+    core.on_action(1, act(1, 0, 1, EAST))
+    out = core.on_action(2, act(2, 0, 1, EAST))  # both reach their goals
+    [stats] = [p for p in out if isinstance(p, WorldStats)]
+    assert (stats.steps, stats.missed_actions, stats.returns) == (2, 1, (10.0, 10.0 + Settings().reward_step))
+
+
+def test_missing_agent_blocks_its_cell_like_a_parked_one():
+    core, clock = lockstep(CORRIDOR, episodes=1, timeout=1.0, settings=Settings(step_cap=2, reward_step=-0.5))
+    core.begin()
+    core.on_action(2, act(2, 0, 0, NORTH))  # agent 2 to (0, 1); agent 1 misses the step
+    clock.now = 5.0
+    fb = {p.agent: p for p in core.on_tick() if isinstance(p, Feedback)}
+    assert (fb[1].row, fb[1].col, fb[1].reward) == (0, 0, -0.5)
+    assert (fb[2].row, fb[2].col, fb[2].reward) == (0, 1, -0.5)
+    core.on_action(1, act(1, 0, 1, EAST))  # agent 1 into agent 2's cell, while agent 2 misses this step
+    clock.now = 10.0
+    out = core.on_tick()
+    fb = {p.agent: p for p in out if isinstance(p, Feedback)}
+    assert (fb[1].row, fb[1].col, fb[1].reward) == (0, 0, Settings().reward_collision)
+    assert (fb[2].row, fb[2].col, fb[2].reward) == (0, 1, -0.5)
+    stats = out[-1]
+    assert (stats.steps, stats.truncated, stats.collisions, stats.missed_actions) == (2, True, 1, 2)
+
+
+def test_rejected_actions_are_counted_by_kind_and_change_nothing():
+    logs = []
+    core, _ = lockstep(CORRIDOR, log=logs.append)
+    core.begin()
+    core.on_action(1, act(1, 0, 0, EAST))
+    core.on_action(2, act(2, 0, 0, WEST))
+    assert (core.episode, core.step) == (0, 1)
+    bad = {
+        "wrong_type": Float64MultiArray(),
+        "wrong_layout": int_array("agent,episode,step,move", [1, 0, 1, 1]),
+        "wrong_length": int_array("agent,episode,step,action", [1, 0, 1]),
+        "out_of_range": int_array("agent,episode,step,action", [1, -1, 1, 1]),
+        "unknown_agent": int_array("agent,episode,step,action", [7, 0, 1, 1]),
+        "wrong_agent": act(2, 0, 1, EAST),
+        "action_out_of_range": int_array("agent,episode,step,action", [1, 0, 1, 4]),
+        "stale_step": act(1, 0, 0, EAST),
+        "future_step": act(1, 0, 2, EAST),
+        "future_episode": act(1, 1, 0, EAST),
+    }
+    for kind, msg in bad.items():
+        assert core.on_action(1, msg) == [], kind
+        assert core.drops[kind] == 1, kind
+    assert core.waiting == {1, 2}
+    assert core.on_action(1, act(1, 0, 1, EAST)) == []
+    assert core.on_action(1, act(1, 0, 1, WEST)) == []  # a second answer is ignored, not applied
+    assert core.unexpected_actions == 1
+    out = core.on_action(2, act(2, 0, 1, EAST))
+    assert Feedback(1, 0, 2, 0, 2, 10.0, done=True) in out  # the first answer counted
+    counters = core.counters()
+    assert all(counters[f"dropped.{kind}"] == 1 for kind in bad)
+    assert counters["ignored.unexpected_action"] == 1
+    # logged once per kind
+    assert sum("wrong_layout" in line for line in logs) == 1
+
+
+def test_stale_episode_and_actions_before_begin():
+    core, _ = lockstep(CORRIDOR, episodes=2)
+    assert core.on_action(1, act(1, 0, 0, EAST)) == []  # before begin: nothing is expected yet
+    assert core.drops["future_episode"] == 1
+    core.begin()
+    core.on_action(1, act(1, 0, 0, EAST))
+    core.on_action(2, act(2, 0, 0, EAST))
+    core.on_action(1, act(1, 0, 1, EAST))  # episode 0 over
+    assert core.episode == 1
+    core.on_action(1, act(1, 0, 2, EAST))
+    assert core.drops["stale_episode"] == 1
+
+
+def test_an_agent_starting_at_its_goal_gets_done_at_step_zero():
+    gm = parse_map("""agent 1: start 0,0  goal 0,2
+agent 2: start 1,2  goal 1,2
+
++-+-+-+
+|. . .|
++ + + +
+|. . .|
++-+-+-+
+""")
+    core, _ = lockstep(gm, episodes=1)
+    out = core.begin()
+    assert Feedback(2, 0, 0, 1, 2, 0.0, done=True) in out and core.waiting == {1}
+
+
+def test_an_episode_over_at_step_zero_is_reported_and_skipped():
+    gm = parse_map("""agent 1: start 0,0  goal 0,0
+
++-+-+
+|. .|
++-+-+
+""")
+    core, _ = lockstep(gm, episodes=3)
+    out = core.begin()
+    stats = [p for p in out if isinstance(p, WorldStats)]
+    assert [s.steps for s in stats] == [0, 0, 0] and core.finished
+
+
+class Scripted(Learner):
+    """Random moves from its own seeded RNG: the same sequence however the world is driven."""
+
+    name = "scripted"
+
+    def observe(self, cell):
+        return ()
+
+    def act(self, peer_cells):
+        return self.rng.randrange(4)
+
+    def learn(self, reward, next_cell, done):
+        pass
+
+    def state_count(self):
+        return 0
+
+
+@pytest.mark.parametrize("map_name", ["tunnel_to_goal", "grid_game_2", "tunnel_to_goal_3"])
+def test_statistics_equal_the_offline_team_for_the_same_moves(map_name):
+    gridmap = load_map(map_name)
+    settings = Settings(step_cap=150)
+    scripted = lambda: [Scripted(i, gridmap, settings, 100 + i) for i in range(gridmap.n_agents)]
+    offline = Team(GridWorld(gridmap, settings), scripted())
+    expected = [offline.episode() for _ in range(8)]
+    learners = scripted()
+    core, _ = lockstep(gridmap, episodes=8, settings=settings)
+    order = random.Random(3)
+    stats = []
+    out = core.begin()
+    while not core.finished:
+        stats += [p for p in out if isinstance(p, WorldStats)]
+        agents = sorted(core.waiting)
+        order.shuffle(agents)  # the order actions arrive in does not matter
+        out = []
+        for k in agents:
+            out += core.on_action(k, act(k, core.episode, core.step, learners[k - 1].act({})))
+    stats += [p for p in out if isinstance(p, WorldStats)]
+    assert [(s.steps, s.collisions, s.truncated) for s in stats] == \
+        [(e.steps, e.collisions, e.truncated) for e in expected]
+    assert [math.fsum(s.returns) for s in stats] == [e.ret for e in expected]
+
+
+def test_world_config_checks_every_parameter():
+    values = {name: default for name, (default, _) in PARAMETERS.items()}
+    cfg = world_config(values)
+    assert cfg.gridmap.name == "tunnel_to_goal" and cfg.settings == Settings() and cfg.episodes == 500
+    with pytest.raises(SettingsError, match="parameter map: .*no such map"):
+        world_config({**values, "map": "nowhere"})
+    with pytest.raises(SettingsError, match="parameter step_timeout must be > 0"):
+        world_config({**values, "step_timeout": 0.0})
+    with pytest.raises(SettingsError, match="parameter episodes must be >= 1"):
+        world_config({**values, "episodes": 0})
+    with pytest.raises(SettingsError, match="setting alpha"):
+        world_config({**values, "alpha": 2.0})
+    assert world_config({**values, "reward_collision": -5.0}).settings.reward_collision == -5.0

@@ -1,0 +1,351 @@
+"""World and agent nodes in ONE process, on one SingleThreadedExecutor, with their own Context (on the
+session's own domain): a ROS run equals cq_ros.engine.run episode for episode, CQ listens to its peer far
+less than JS, malformed messages are counted and change nothing, a killed agent resumes from its
+checkpoint, and bad parameters or a missing peer end a node cleanly."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import subprocess
+import sys
+from dataclasses import dataclass, field
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.exceptions import ParameterException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from std_msgs.msg import Int32MultiArray, MultiArrayDimension
+
+from agent_node import AgentNode
+from agent_node.driver import load_checkpoint
+from cq_ros.engine import run
+from cq_ros.gridmap import load_map
+from cq_ros.settings import Settings, SettingsError
+from msgs_spec import (
+    ACTION, AGENT_STATS, FEEDBACK, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
+    agent_stats_topic, decode_action, decode_agent_stats, decode_world_stats, encode, feedback_topic,
+)
+from world_node import WorldNode
+
+RUN_TIMEOUT_S = 90.0  # a bound for any one system run; the runs below take seconds
+
+
+@dataclass
+class System:
+    """A world, its agents and a probe recording world/stats and agv<k>/stats, on one executor."""
+
+    world: WorldNode
+    agents: list[AgentNode]
+    executor: SingleThreadedExecutor
+    world_stats: list = field(default_factory=list)
+    agent_stats: dict = field(default_factory=dict)
+    others: list = field(default_factory=list)  # further nodes on the executor (probe, injectors)
+
+    def add(self, node):
+        self.others.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def finished(self) -> bool:
+        return self.world.done.done() and all(a.done.done() for a in self.agents)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        for node in [self.world, *self.agents, *self.others]:
+            node.destroy_node()
+
+
+def parameters(**values) -> list[Parameter]:
+    return [Parameter(name, value=value) for name, value in values.items()]
+
+
+def start_system(ctx, spin_until, algo, map_name, seed, episodes, settings=(), *, world_extra=None,
+                 agent_extra=None) -> System:
+    """A world and its agents as a launcher starts them, and a probe recording every statistics message:
+    the world waits for the probe's world/stats subscription (min_stats_subscribers=1), and joins the
+    executor once the probe's agv<k>/stats subscriptions are matched too (they are for tools, volatile)."""
+    common = {"map": map_name, "episodes": episodes, "seed": seed, **dict(settings)}
+    world = WorldNode(context=ctx, parameter_overrides=parameters(
+        **{**common, "step_timeout": 30.0, "min_stats_subscribers": 1, **(world_extra or {})}))
+    n = load_map(map_name).n_agents
+    ids = [0] if algo == "jsa" else range(1, n + 1)
+    agents = [AgentNode(f"agv{k}" if k else "central", context=ctx, parameter_overrides=parameters(
+        **common, algo=algo, agent_id=k, **(agent_extra or {}).get(k, {})))
+        for k in ids]
+    system = System(world, agents, SingleThreadedExecutor(context=ctx))
+    probe = system.add(rclpy.create_node("probe", context=ctx))
+    probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
+                              lambda m: system.world_stats.append(decode_world_stats(m)), WORLD_STATS.qos)
+    stats_subs = []
+    for k in range(1, n + 1):
+        system.agent_stats[k] = []
+        stats_subs.append(probe.create_subscription(
+            AGENT_STATS.msg_type, agent_stats_topic(k), lambda m, k=k: system.agent_stats[k].append(
+                decode_agent_stats(m)), AGENT_STATS.qos))
+    for agent in agents:
+        system.executor.add_node(agent)
+    assert spin_until(system.executor, lambda: all(s.get_publisher_count() for s in stats_subs), 10.0)
+    system.executor.add_node(world)
+    return system
+
+
+def finish(system: System, spin_until) -> System:
+    assert spin_until(system.executor, system.finished, RUN_TIMEOUT_S), "the run did not finish in time"
+    episodes = system.world.config.episodes
+    everything = [system.world_stats, *system.agent_stats.values()]
+    assert spin_until(system.executor, lambda: all(len(got) >= episodes for got in everything), 5.0), \
+        [len(got) for got in everything]
+    assert system.world.done.result() == 0 and all(a.done.result() == 0 for a in system.agents)
+    return system
+
+
+@pytest.fixture
+def system_in(ros_context, spin_until):
+    """start_system(...) in the test's own context; closed after the test."""
+    systems = []
+
+    def start(*args, **kwargs) -> System:
+        systems.append(start_system(ros_context, spin_until, *args, **kwargs))
+        return systems[-1]
+
+    yield start
+    for s in systems:
+        s.close()
+
+
+def offline(algo, map_name, seed, episodes, settings=()):
+    return run(algo, load_map(map_name), Settings().with_overrides(dict(settings)), seed, 0, episodes)
+
+
+# Small enough for a test, long enough for collisions, truncations and (cq, loc) peer subscriptions.
+TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 300)))
+CQ_TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 500)))  # CQ marks joint states by episode 40
+GRID = ("grid_game_2", 1, (("window", 5),))
+CASES = [("cq", CQ_TUNNEL, 40), ("js", TUNNEL, 8), ("loc", ("tunnel_to_goal", 4, (("step_cap", 200),)), 6),
+         ("jsa", TUNNEL, 8), ("indep", TUNNEL, 8)]
+CASES += [(algo, GRID, 60) for algo in ("cq", "js", "loc", "jsa", "indep")]
+_RUNS: dict = {}
+
+
+def case_run(case, ros_domain_id, spin_until) -> System:
+    """The system run of a case, once per session (the communication test reads the same runs)."""
+    if case not in _RUNS:
+        algo, (map_name, seed, settings), episodes = case
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=ros_domain_id)
+        system = start_system(ctx, spin_until, algo, map_name, seed, episodes, settings)
+        try:
+            _RUNS[case] = finish(system, spin_until)
+        finally:
+            system.close()
+            rclpy.try_shutdown(context=ctx)
+    return _RUNS[case]
+
+
+@pytest.mark.parametrize("case", CASES, ids=[f"{c[0]}-{c[1][0]}" for c in CASES])
+def test_a_ros_run_equals_the_offline_engine(case, ros_domain_id, spin_until):
+    algo, (map_name, seed, settings), episodes = case
+    system = case_run(case, ros_domain_id, spin_until)
+    table = offline(algo, map_name, seed, episodes, settings).episodes
+    assert [(s.steps, s.collisions, s.truncated) for s in system.world_stats] == \
+        [(int(e[0]), int(e[1]), bool(e[5])) for e in table]
+    assert all(s.missed_actions == 0 and not s.counters for s in system.world_stats)
+    # every agent reported every episode; together, the engine's joint plays
+    stats = system.agent_stats
+    assert all(len(reports) == episodes for reports in stats.values())
+    reporters = [1] if algo == "jsa" else list(stats)  # the central node reports the same on every agvK
+    assert [sum(stats[k][e].joint_plays for k in reporters) for e in range(episodes)] == [int(e[2]) for e in table]
+
+
+def test_cq_listens_to_its_peer_far_less_than_js(ros_domain_id, spin_until):
+    cq = case_run(("cq", GRID, 60), ros_domain_id, spin_until)
+    js = case_run(("js", GRID, 60), ros_domain_id, spin_until)
+    js_steps = sum(s.steps for s in js.world_stats)
+    for k in (1, 2):
+        cq_last, js_last = cq.agent_stats[k][-1], js.agent_stats[k][-1]
+        assert js_last.subscriptions_created == 1 and js_last.subscriptions_active == 1  # kept all along
+        assert js_last.peer_messages >= js_steps // 2  # about one a step
+        assert 1 <= cq_last.subscriptions_created and cq_last.peer_messages < js_last.peer_messages
+    # where coordination is needed in one place only (the tunnel's entrance), CQ listens in a few steps
+    cq = case_run(("cq", CQ_TUNNEL, 40), ros_domain_id, spin_until)
+    steps = sum(s.steps for s in cq.world_stats)
+    for k in (1, 2):
+        reports = cq.agent_stats[k]
+        assert sum(r.joint_plays for r in reports) > 0 and reports[-1].peer_messages < steps / 10
+    # the marked joint states it reports are the offline learners' (the paper's Fig. 5b)
+    kept = offline("cq", *CQ_TUNNEL[:2], 40, CQ_TUNNEL[2]).joint_states
+    cells = load_map(CQ_TUNNEL[0]).cells
+    reported = sorted((k - 1, m.row, m.col, m.peer - 1, m.peer_row, m.peer_col, m.confidence)
+                      for k in (1, 2) for m in cq.agent_stats[k][-1].marked)
+    assert reported and reported == sorted((a, *cells[s], p, *cells[c], conf) for a, s, p, c, conf in kept)
+
+
+def int_array(label, data, size):
+    msg = Int32MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
+    msg.data = data
+    return msg
+
+
+def with_value(msg, index, value):
+    msg.data[index] = value
+    return msg
+
+
+def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_context, spin_until):
+    """An injector on the same executor sends every kind of bad action the ROS types can carry (an Int32
+    array holds no NaN nor fraction: those reach the agents' Float64 feedback instead), one per tick, at the
+    world and at agent 1 while they run."""
+    algo, (map_name, seed, settings), episodes = "cq", GRID, 60
+    system = system_in(algo, map_name, seed, episodes, settings)
+    world = system.world
+    label = "agent,episode,step,action"
+    bad_actions = {  # kind -> the message, given the world's (episode, step) now
+        "wrong_layout": lambda e, s: int_array("agent,episode,step,move", [1, e, s, 1], 4),
+        "wrong_length": lambda e, s: int_array(label, [1, e, s], 4),
+        "out_of_range": lambda e, s: int_array(label, [1, -1, s, 1], 4),
+        "unknown_agent": lambda e, s: int_array(label, [9, e, s, 1], 4),
+        "wrong_agent": lambda e, s: encode(Action(2, e, s, 1)),
+        "action_out_of_range": lambda e, s: int_array(label, [1, e, s, 7], 4),
+        "future_step": lambda e, s: encode(Action(1, e, s + 10_000, 1)),
+        "future_episode": lambda e, s: encode(Action(1, e + 10_000, 0, 1)),
+        "stale_step": lambda e, s: encode(Action(1, e, s - 1, 1)) if s else None,
+        "stale_episode": lambda e, s: encode(Action(1, e - 1, 0, 1)) if e else None,
+    }
+    bad_feedback = {
+        "not_finite": lambda e, s: with_value(encode(Feedback(1, e, s, 0, 0, 0.0)), 5, float("nan")),
+        "not_integer": lambda e, s: with_value(encode(Feedback(1, e, s, 0, 0, 0.0)), 2, s + 0.5),
+        "future_step": lambda e, s: encode(Feedback(1, e, s + 10_000, 0, 0, 0.0)),
+        "wrong_agent": lambda e, s: encode(Feedback(2, e, s, 0, 0, 0.0)),
+        "cell_out_of_range": lambda e, s: encode(Feedback(1, e, s, 40, 0, 0.0)),
+    }
+    injector = system.add(rclpy.create_node("injector", context=ros_context))
+    to_world = injector.create_publisher(ACTION.msg_type, action_topic(1), ACTION.qos)
+    to_agent = injector.create_publisher(FEEDBACK.msg_type, feedback_topic(1), FEEDBACK.qos)
+    plan = itertools.cycle([(to_world, f) for f in bad_actions.values()] +
+                           [(to_agent, f) for f in bad_feedback.values()])
+
+    def inject():
+        if world.core.episode >= 0 and not world.core.finished:
+            pub, make = next(plan)
+            msg = make(world.core.episode, world.core.step)
+            if msg is not None:
+                pub.publish(msg)
+
+    injector.create_timer(0.005, inject)
+    finish(system, spin_until)
+    table = offline(algo, map_name, seed, episodes, settings).episodes
+    assert [(s.steps, s.collisions) for s in system.world_stats] == [(int(e[0]), int(e[1])) for e in table]
+    assert all(s.missed_actions == 0 for s in system.world_stats)
+    world_counts = system.world_stats[-1].counters
+    assert {f"dropped.{k}" for k in bad_actions} <= world_counts.keys(), world_counts
+    agent_counts = system.agent_stats[1][-1].counters
+    assert {f"dropped.{k}" for k in bad_feedback} <= agent_counts.keys(), agent_counts
+    assert system.agent_stats[2][-1].counters == {}
+
+
+def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(system_in, tmp_path, spin_until,
+                                                                             monkeypatch):
+    replaced = []
+    real_replace = os.replace
+    monkeypatch.setattr(os, "replace", lambda a, b: (replaced.append((a, b)), real_replace(a, b)))
+    path = tmp_path / "agv1.ckpt"
+    system = system_in("cq", *GRID[:2], 30, GRID[2],
+                       agent_extra={1: {"checkpoint": str(path), "checkpoint_every": 7}})
+    finish(system, spin_until)
+    # after episodes 6, 13, 20, 27 and the last, 29: each a rename of a finished temporary file
+    assert [dest for _, dest in replaced] == [str(path)] * 5
+    assert all(os.path.dirname(tmp) == str(tmp_path) for tmp, _ in replaced)
+    assert os.listdir(tmp_path) == ["agv1.ckpt"]
+    gridmap = load_map(GRID[0])
+    loaded, episode = load_checkpoint(path, "cq", gridmap, 0)
+    learner = system.agents[0].driver.learner
+    assert episode == 29 and loaded.q_local == learner.q_local and loaded.joint_states() == learner.joint_states()
+    for cell, peer in itertools.product(range(gridmap.n_cells), repeat=2):  # and it acts identically
+        assert loaded.observe(cell) == learner.observe(cell)
+        assert loaded.act({1: peer}) == learner.act({1: peer})
+
+
+def test_a_killed_agent_resumes_from_its_checkpoint(system_in, ros_context, tmp_path, spin_until):
+    path = tmp_path / "agv2.ckpt"
+    extra = {2: {"checkpoint": str(path), "checkpoint_every": 5}}
+    system = system_in("cq", *GRID[:2], 30, GRID[2], world_extra={"step_timeout": 0.5}, agent_extra=extra)
+    world, agent2 = system.world, system.agents[1]
+    assert spin_until(system.executor, lambda: world.core.episode >= 12, RUN_TIMEOUT_S)
+    system.executor.remove_node(agent2)  # killed, a moment after its checkpoint of episode 9
+    agent2.destroy_node()
+    saved, saved_episode = load_checkpoint(path, "cq", load_map(GRID[0]), 1)
+    assert saved_episode == 9
+    assert spin_until(system.executor, lambda: world.core.missed_actions > 0, 5.0)  # it steps on without it
+    restarted = AgentNode("agv2", context=ros_context, parameter_overrides=parameters(
+        map=GRID[0], episodes=30, seed=GRID[1], algo="cq", agent_id=2, **dict(GRID[2]), **extra[2]))
+    assert restarted.driver.learner.q_local == saved.q_local  # it starts from what it had learnt
+    system.agents[1] = restarted
+    system.executor.add_node(restarted)
+    finish(system, spin_until)
+    assert sum(s.missed_actions for s in system.world_stats) >= 1
+    assert restarted.driver.skipped_steps == 0 and restarted.driver.drops.total == 0
+    assert system.agent_stats[2][-1].episode == 29
+
+
+def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match(ros_context, spin_until):
+    """Feedback proves the world is there, not that our action writer has matched its reader yet (a volatile
+    message sent before the match is lost): the agent holds the action until the match."""
+    agent = AgentNode(context=ros_context, parameter_overrides=parameters(agent_id=1, algo="indep"))
+    world = rclpy.create_node("fake_world", context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (agent, world):
+        executor.add_node(node)
+    try:
+        feedback = world.create_publisher(FEEDBACK.msg_type, feedback_topic(1), FEEDBACK.qos)
+        assert spin_until(executor, lambda: feedback.get_subscription_count() == 1, 10.0)
+        feedback.publish(encode(Feedback(1, 0, 0, 0, 0, 0.0)))
+        assert spin_until(executor, lambda: agent.driver.expect == (0, 1), 10.0)  # it has answered step 0
+        received = []
+        world.create_subscription(ACTION.msg_type, action_topic(1), lambda m: received.append(decode_action(m)),
+                                  ACTION.qos)
+        assert spin_until(executor, lambda: received, 10.0)
+        assert [(a.agent, a.episode, a.step) for a in received] == [(1, 0, 0)]
+    finally:
+        executor.shutdown()
+        agent.destroy_node()
+        world.destroy_node()
+
+
+@pytest.mark.parametrize("node_class, overrides", [
+    (WorldNode, {"startup_timeout": 0.3}),  # a world without agents
+    (AgentNode, {"agent_id": 1, "feedback_timeout": 0.3}),  # an agent without a world
+], ids=["world_without_agents", "agent_without_world"])
+def test_a_node_alone_gives_up_after_its_timeout_with_exit_code_1(ros_context, spin_until, node_class, overrides):
+    node = node_class(context=ros_context, parameter_overrides=parameters(**overrides))
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    try:
+        assert spin_until(executor, node.done.done, 5.0) and node.done.result() == 1
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+
+
+def test_bad_parameters_raise_one_line_naming_the_parameter(ros_context):
+    with pytest.raises(SettingsError, match="^parameter map: .*nowhere.*no such map"):
+        WorldNode(context=ros_context, parameter_overrides=parameters(map="nowhere"))
+    with pytest.raises(ParameterException, match="reward_collision"):
+        WorldNode(context=ros_context, parameter_overrides=parameters(reward_collision=-5))  # an int
+    with pytest.raises(SettingsError, match="^parameter agent_id: algo jsa runs one central node"):
+        AgentNode(context=ros_context, parameter_overrides=parameters(algo="jsa", agent_id=2))
+
+
+@pytest.mark.parametrize("module,args,message", [
+    ("world_node", ["-p", "map:=nowhere"], "parameter map: nowhere: no such map"),
+    ("world_node", ["-p", "step_timeout:=-1.0"], "parameter step_timeout must be > 0"),
+    ("agent_node", ["-p", "agent_id:=1", "-p", "slip:=2.0"], "setting slip must be in [0, 1]"),
+])
+def test_the_command_line_exits_2_with_one_line_for_a_bad_parameter(module, args, message):
+    done = subprocess.run([sys.executable, "-m", module, "--ros-args", *args], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr

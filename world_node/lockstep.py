@@ -1,0 +1,223 @@
+"""The world's side of the lockstep protocol (msgs_spec/README.md, "Protocol"), without ROS.
+
+`Lockstep` owns a `cq_ros.world.GridWorld` and decides everything the world node does: which actions it
+accepts (every message is decoded here, through one `DropCounter`), when a step is complete or timed out,
+and what goes out afterwards, in protocol order (every Position, then the Feedback of the agents that were
+acting, then WorldStats when the episode is over, then the next episode's step 0). The node only moves
+messages between ROS and this object, so the protocol is tested without a ROS graph
+(tests/test_lockstep.py) and a run equals `cq_ros.engine.run` step for step.
+
+A missing action past `step_timeout`: the agent stays where it is, for that step only, and is treated as
+parked: anyone moving into its cell collides (and gets the collision penalty, counted in the episode's
+collisions), it bumps no wall and gets `reward_step`, the reward of a step that changed nothing for it.
+The warning is logged and the miss counted (`WorldStats.missed_actions`).
+
+`world_config` turns the node's parameters into a checked `WorldConfig`; a bad value raises `SettingsError`
+with one line naming the parameter.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, fields
+from typing import Any, Callable, Mapping
+
+from cq_ros.gridmap import GridMap
+from cq_ros.parameters import check_numbers, map_and_settings
+from cq_ros.settings import Settings
+from cq_ros.world import GridWorld
+from msgs_spec import (
+    Bounds, DropCounter, Feedback, Position, WorldStats, action_topic, agent_namespace, decode_action,
+)
+
+__all__ = ["PARAMETERS", "WorldConfig", "world_config", "Lockstep"]
+
+# Every parameter of the world node: name -> (default, description). The default also fixes the ROS type.
+# Every field of cq_ros.settings.Settings is a parameter too, with the same name and default.
+PARAMETERS: dict[str, tuple[Any, str]] = {
+    "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
+    "episodes": (500, "episodes to run; the node exits 0 after the last one"),
+    "seed": (0, "experiment seed; with run it seeds the world's RNG (used only when slip > 0), "
+                "as cq_ros.engine.world_seed"),
+    "run": (0, "run index (cq_ros.engine.world_seed)"),
+    "step_timeout": (2.0, "seconds to wait for an acting agent's action; past it the agent stays for "
+                          "that step (warned and counted as missed_actions)"),
+    "startup_timeout": (30.0, "seconds to wait before the first step until every agent's action and "
+                              "feedback topics are matched; past it the node exits 1"),
+    "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
+                                 "subscriptions (a recorder that must not miss an episode sets 1)"),
+}
+PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (world dynamics use the rewards, "
+                                       "step_cap and slip)") for f in fields(Settings)})
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    gridmap: GridMap
+    settings: Settings
+    episodes: int
+    seed: int
+    run: int
+    step_timeout: float
+    startup_timeout: float
+    min_stats_subscribers: int
+
+
+def world_config(values: Mapping[str, Any]) -> WorldConfig:
+    """Check the node's parameter values (name -> value, already of the declared ROS type)."""
+    check_numbers(values, (("episodes", 1, False), ("seed", 0, False), ("run", 0, False), ("step_timeout", 0, True),
+                           ("startup_timeout", 0, True), ("min_stats_subscribers", 0, False)))
+    gridmap, settings = map_and_settings(values)
+    return WorldConfig(gridmap, settings, values["episodes"], values["seed"], values["run"],
+                       values["step_timeout"], values["startup_timeout"], values["min_stats_subscribers"])
+
+
+Outbox = list  # of Position | Feedback | WorldStats, to publish in this order
+
+
+class Lockstep:
+    """Steps `world` once every acting agent's action for the current step is in, or the step timed out.
+
+    Agents are numbered 1..N on the wire (index i of the world is agent i + 1). Call `begin()` once every
+    agent is connected, then feed it `on_action(agent, msg)` for every message on agv<k>/action and
+    `on_tick()` now and then (for the timeout); each returns what to publish, in order. `finished` turns
+    true with the last episode's WorldStats.
+    """
+
+    def __init__(self, world: GridWorld, episodes: int, step_timeout: float, *,
+                 log: Callable[[str], Any] | None = None, clock: Callable[[], float] = time.monotonic):
+        self.world = world
+        self.bounds = Bounds(world.n, world.map.height, world.map.width)
+        self.episodes = episodes
+        self.step_timeout = step_timeout
+        self.drops = DropCounter(log)
+        self._log = log or (lambda _msg: None)
+        self._clock = clock
+        self.episode = -1  # no episode yet: any action is future_episode until begin()
+        self.finished = False
+        self.waiting: set[int] = set()  # agents whose action for (episode, world.t) has not come
+        self.unexpected_actions = 0  # valid, but from an agent not asked (done, or a second answer)
+        self.collisions = self.missed_actions = 0  # in the current episode so far
+        self.returns: list[float] = []  # of each agent in the current episode so far
+        self._actions: list[int | None] = []
+
+    @property
+    def step(self) -> int:
+        return self.world.t
+
+    def begin(self) -> Outbox:
+        """Start episode 0: every agent's position and step-0 feedback."""
+        return self._next_episode()
+
+    def on_action(self, agent: int, msg: Any) -> Outbox:
+        """A message from agv<agent>/action; the step's outcome once it was the last action missing."""
+        action = self.drops.guard(decode_action, msg, bounds=self.bounds, agent=agent, episode=self.episode,
+                                  step=self.step, source=action_topic(agent))
+        if action is None:
+            return []
+        if agent not in self.waiting:
+            self.unexpected_actions += 1
+            if self.unexpected_actions == 1:  # a sender bug, not traffic: once is enough to find it
+                self._log(f"ignored {action}: {agent_namespace(agent)} is not acting at this step or "
+                          "has answered already (counted as ignored.unexpected_action)")
+            return []
+        self._actions[agent - 1] = action.action
+        self.waiting.discard(agent)
+        return [] if self.waiting else self._advance()
+
+    def on_tick(self) -> Outbox:
+        """Call periodically: past `step_timeout` the agents still missing stay, and the world steps."""
+        if not self.waiting or self._clock() - self._step_started < self.step_timeout:
+            return []
+        missing = sorted(self.waiting)
+        self.missed_actions += len(missing)
+        self._log(f"episode {self.episode} step {self.step}: no action from "
+                  f"{', '.join(agent_namespace(k) for k in missing)} within {self.step_timeout} s; "
+                  "they stay for this step")
+        self.waiting.clear()
+        return self._advance()
+
+    def counters(self) -> dict[str, int]:
+        """Monotonic counters for WorldStats: messages dropped by kind, actions ignored."""
+        out = self.drops.as_counters()
+        if self.unexpected_actions:
+            out["ignored.unexpected_action"] = self.unexpected_actions
+        return out
+
+    # -- the steps of the protocol ---------------------------------------------------------------------
+
+    def _advance(self) -> Outbox:
+        w = self.world
+        acting = [i + 1 for i in range(w.n) if not w.done[i]]
+        rewards = self._step_joint(self._actions)
+        self.collisions += w.last_collisions
+        self.returns = [r + x for r, x in zip(self.returns, rewards)]
+        out = self._positions()
+        cap = w.t >= w.step_cap
+        out += [self._feedback(k - 1, rewards[k - 1], cap) for k in acting]
+        if w.finished or cap:
+            out.append(self._episode_stats())
+            out += self._next_episode()
+        else:
+            self._collect()
+        return out
+
+    def _step_joint(self, actions: list[int | None]) -> list[float]:
+        """GridWorld.step_joint, with agents that sent no action staying put.
+
+        GridWorld leaves an agent marked done where it is and gives it nothing, while others still collide
+        with it: exactly a stay. So a missing agent is marked done for this one step, then gets reward_step.
+        """
+        w = self.world
+        missing = [i for i, a in enumerate(actions) if a is None and not w.done[i]]
+        for i in missing:
+            w.done[i] = True
+        try:
+            rewards = w.step_joint(actions)
+        finally:
+            for i in missing:
+                w.done[i] = False
+        for i in missing:
+            rewards[i] = w.rewards.step
+        return rewards
+
+    def _next_episode(self) -> Outbox:
+        """Reset for the next episode (skipping any that is over at step 0: every agent starts at its goal)."""
+        w = self.world
+        out: Outbox = []
+        while self.episode + 1 < self.episodes:
+            self.episode += 1
+            w.reset_joint()
+            self.collisions, self.missed_actions = 0, 0
+            self.returns = [0.0] * w.n
+            self._episode_started = self._clock()
+            out += self._positions()
+            out += [self._feedback(i, 0.0, False) for i in range(w.n)]
+            if not w.finished:
+                self._collect()
+                return out
+            out.append(self._episode_stats())
+        self.finished = True
+        return out
+
+    def _collect(self) -> None:
+        w = self.world
+        self.waiting = {i + 1 for i in range(w.n) if not w.done[i]}
+        self._actions = [None] * w.n
+        self._step_started = self._clock()
+
+    def _positions(self) -> Outbox:
+        w = self.world
+        return [Position(i + 1, self.episode, w.t, *w.map.cells[w.cells[i]]) for i in range(w.n)]
+
+    def _feedback(self, i: int, reward: float, cap: bool) -> Feedback:
+        w = self.world
+        row, col = w.map.cells[w.cells[i]]
+        return Feedback(i + 1, self.episode, w.t, row, col, reward, done=w.done[i],
+                        truncated=cap and not w.done[i])
+
+    def _episode_stats(self) -> WorldStats:
+        w = self.world
+        return WorldStats(episode=self.episode, steps=w.t, truncated=w.truncated, collisions=self.collisions,
+                          missed_actions=self.missed_actions, returns=tuple(self.returns),
+                          duration_s=self._clock() - self._episode_started, counters=self.counters())

@@ -1,0 +1,112 @@
+"""The world node: a cq_ros GridWorld stepped in lockstep with the agent nodes over the msgs_spec topics.
+
+Thin on purpose, like the ros2/examples minimal nodes: it declares its parameters, creates the publishers
+and subscriptions msgs_spec names with msgs_spec's QoS, and hands every message and timer tick to
+`world_node.lockstep.Lockstep`, publishing what it returns. Constructible in-process
+(`WorldNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding the exit code.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+from typing import Any
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from rclpy.task import Future
+
+from cq_ros.engine import world_seed
+from cq_ros.settings import SettingsError
+from cq_ros.world import GridWorld
+from msgs_spec import (
+    ACTION, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Position, WorldStats, action_topic,
+    agent_namespace, encode, feedback_topic, position_topic,
+)
+
+from .lockstep import PARAMETERS, Lockstep, world_config
+
+__all__ = ["WorldNode"]
+
+STARTUP_POLL_S = 0.05  # how often to look whether every agent is connected, before the first step
+FLUSH_TIMEOUT_S = 2.0  # at the end, how long to wait for subscribers to acknowledge the last messages
+
+
+class WorldNode(Node):
+    """Parameters: see world_node.lockstep.PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
+    rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter)."""
+
+    def __init__(self, node_name: str = "world", **kwargs: Any):
+        super().__init__(node_name, **kwargs)
+        try:
+            for name, (default, description) in PARAMETERS.items():
+                self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
+            self.config = cfg = world_config({name: self.get_parameter(name).value for name in PARAMETERS})
+        except (SettingsError, ParameterException):
+            self.destroy_node()
+            raise
+        world = GridWorld(cfg.gridmap, cfg.settings, seed=world_seed(cfg.seed, cfg.run))
+        self.core = Lockstep(world, cfg.episodes, cfg.step_timeout, log=self.get_logger().warning)
+        agents = range(1, world.n + 1)
+        self._outputs = {
+            Position: {k: self.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in agents},
+            Feedback: {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents},
+        }
+        self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+        self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
+                                                     ACTION.qos) for k in agents}
+        self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
+        self._deadline = time.monotonic() + cfg.startup_timeout
+        self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
+        self.get_logger().info(f"map {cfg.gridmap.name}, {world.n} agents, {cfg.episodes} episodes: "
+                               "waiting for the agents")
+
+    def _missing(self) -> list[str]:
+        """What the first step still waits for: agents whose action or feedback topic is not matched yet
+        (a feedback sent before its subscription matched would be lost), and world/stats subscribers."""
+        missing = [agent_namespace(k) for k, sub in self._actions.items()
+                   if sub.get_publisher_count() == 0 or self._outputs[Feedback][k].get_subscription_count() == 0]
+        if self._stats.get_subscription_count() < self.config.min_stats_subscribers:
+            missing.append(f"{self.config.min_stats_subscribers} {WORLD_STATS_TOPIC} subscriber(s)")
+        return missing
+
+    def _wait_for_agents(self) -> None:
+        missing = self._missing()
+        if not missing:
+            self._replace_timer(self.config.step_timeout / 4, self._tick)  # timeouts are noticed within 25%
+            self.get_logger().info("every agent is connected: stepping")
+            self._publish(self.core.begin())
+        elif time.monotonic() > self._deadline:
+            self.get_logger().error(f"no start after startup_timeout={self.config.startup_timeout} s: still "
+                                    f"waiting for {', '.join(missing)}")
+            self._finish(1)
+
+    def _on_action(self, agent: int, msg: Any) -> None:
+        self._publish(self.core.on_action(agent, msg))
+
+    def _tick(self) -> None:
+        self._publish(self.core.on_tick())
+
+    def _publish(self, out: list) -> None:
+        for payload in out:
+            pub = self._stats if isinstance(payload, WorldStats) else self._outputs[type(payload)][payload.agent]
+            pub.publish(encode(payload))
+        if self.core.finished and not self.done.done():
+            self.get_logger().info(f"all {self.config.episodes} episodes played")
+            self._finish(0)
+
+    def _replace_timer(self, period: float, callback) -> None:
+        self._timer.cancel()
+        self.destroy_timer(self._timer)
+        self._timer = self.create_timer(period, callback)
+
+    def _finish(self, code: int) -> None:
+        self._timer.cancel()
+        # Reliable messages still in flight go with the process: give the readers a bounded moment to
+        # acknowledge the last feedback and statistics (an exited agent's reader is no longer waited for).
+        end = time.monotonic() + FLUSH_TIMEOUT_S
+        for pub in [self._stats, *self._outputs[Feedback].values()]:
+            pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
+        self.done.set_result(code)
