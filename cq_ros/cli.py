@@ -40,14 +40,96 @@ def _algos(text: str) -> list[str]:
     return algos
 
 
+def _number(low: float, high: float | None = None, kind: type = float, strict: bool = False):
+    """An argparse type: a number of `kind` in [low, high] (low excluded when `strict`)."""
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'a whole number' if kind is int else 'a number'}, "
+                                             f"got {text!r}") from None
+        if value < low or (strict and value == low) or (high is not None and value > high):
+            span = f"more than {low:g}" if strict else f"at least {low:g}"
+            raise argparse.ArgumentTypeError(f"must be {span}{f' and at most {high:g}' if high is not None else ''}, "
+                                             f"got {text}")
+        return value
+    return parse
+
+
+def _algo(text: str) -> str:
+    if text not in ALGORITHMS:
+        raise argparse.ArgumentTypeError(f"unknown algorithm {text!r}; choose one of {','.join(ALGORITHMS)}")
+    return text
+
+
+def _add_settings_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a setting (repeatable); `cq-ros settings` lists them")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
+
+
 def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> None:
     p.add_argument("--runs", type=_positive, default=runs, help=f"independent runs (default {runs})")
     p.add_argument("--episodes", type=_positive, default=episodes, help=f"episodes per run (default {episodes})")
     p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="change a setting (repeatable); `cq-ros settings` lists them")
     p.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
+    _add_settings_options(p)
+
+
+# ROS_DOMAIN_ID: Fast DDS derives its ports from it; 0..232 is the range that works on Linux.
+_domain_id = _number(0, 232, kind=int)
+_seconds = _number(0, strict=True)
+
+
+def _add_domain_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
+                   help="ROS_DOMAIN_ID to use (default: the environment's)")
+
+
+def _add_ros_parsers(sub) -> None:
+    p = sub.add_parser("launch", help="run one algorithm on one map as ROS 2 nodes (a world process and one "
+                                      "process per AGV) and write results and figures")
+    p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
+    p.add_argument("--algo", type=_algo, required=True, help=f"one of {','.join(ALGORITHMS)}")
+    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/)")
+    p.add_argument("--episodes", type=_positive, default=500, help="episodes (default 500)")
+    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="master seed (default 0)")
+    p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
+                   help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
+    p.add_argument("--namespace", default=None, help="ROS namespace of the run (default: random cq_<hex>)")
+    p.add_argument("--step-timeout", type=_seconds, default=2.0, metavar="S",
+                   help="seconds the world waits for an action before the agent stays (default 2)")
+    p.add_argument("--peer-linger-steps", type=_number(0, kind=int), default=None, metavar="N",
+                   help="decision steps an agent keeps a peer subscription it no longer needs (default: the "
+                        "agent node's, 0)")
+    p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
+    _add_settings_options(p)
+
+    p = sub.add_parser("echo", help="print the messages of a topic as YAML, like `ros2 topic echo`")
+    p.add_argument("topic", help="topic name, e.g. /cq_1a2b3c4d/agv1/position")
+    p.add_argument("--count", type=_positive, default=None, metavar="N", help="exit after N messages")
+    p.add_argument("--timeout", type=_seconds, default=None, metavar="S",
+                   help="exit after S seconds (code 1 if no message came)")
+    _add_domain_option(p)
+
+    for name, what in (("topics", "the live topics, like `ros2 topic list`"),
+                       ("nodes", "the live nodes with their namespaces, like `ros2 node list`")):
+        p = sub.add_parser(name, help=f"list {what}")
+        if name == "topics":
+            p.add_argument("-t", "--show-types", dest="show_types", action="store_true", help="show each topic's type")
+        else:
+            p.add_argument("-a", "--all", dest="all_nodes", action="store_true", help="show hidden nodes too")
+        p.add_argument("--wait", type=_seconds, default=None, metavar="S",
+                       help="seconds of discovery before listing (default 3)")
+        _add_domain_option(p)
+
+    p = sub.add_parser("record", help="record topics to a rosbag2 file (default: every cq_ros topic)")
+    p.add_argument("--out", type=Path, required=True, help="bag directory to create")
+    p.add_argument("--topics", nargs="+", default=None, metavar="TOPIC", help="record these topics only")
+    p.add_argument("--duration", type=_seconds, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--count", type=_positive, default=None, metavar="N", help="stop after N messages")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage plugin (default mcap)")
+    _add_domain_option(p)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,6 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="result directory")
     _add_run_options(p, runs=10, episodes=10_000)
     p.add_argument("--no-sweep", dest="sweep", action="store_false", help="skip the settings sweep")
+    _add_ros_parsers(sub)
     return parser
 
 
@@ -102,7 +185,11 @@ def _dispatch(args) -> int:
         for key, value in Settings().as_dict().items():
             print(f"{key} = {value}")
         return 0
+    if args.command in ("echo", "topics", "nodes", "record"):
+        return _ros_tool(args)
     settings = Settings().with_overrides(args.overrides)
+    if args.command == "launch":
+        return _launch(args, settings)
     if args.command == "experiment":
         from .experiment import experiment
         from .summary import format_console_table, load_episodes
@@ -121,6 +208,50 @@ def _dispatch(args) -> int:
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
+
+
+# The ROS commands import rclpy (through world_node and msgs_spec) only when they run: the rest of cq_ros
+# works without it.
+
+
+def _launch(args, settings: Settings) -> int:
+    from world_node.launch import Interrupted, LaunchError, launch
+
+    from .summary import format_console_table, load_episodes
+
+    try:
+        result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
+                        domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
+                        peer_linger_steps=args.peer_linger_steps,
+                        force=args.force, figures=args.figures)
+    except Interrupted as e:
+        print(f"cq-ros launch: {e}", file=sys.stderr)
+        return 130
+    except LaunchError as e:
+        print(f"cq-ros launch: error: {e}", file=sys.stderr)
+        return 1
+    print(format_console_table(load_episodes(result.out / "episodes.csv")))
+    print(f"results: {result.out}")
+    return 0
+
+
+def _ros_tool(args) -> int:
+    from msgs_spec import tools
+
+    try:
+        if args.command == "echo":
+            tools.echo(args.topic, count=args.count, timeout_s=args.timeout, domain_id=args.domain_id)
+        elif args.command == "topics":
+            tools.topics(show_types=args.show_types, wait_s=args.wait, domain_id=args.domain_id)
+        elif args.command == "nodes":
+            tools.nodes(all_nodes=args.all_nodes, wait_s=args.wait, domain_id=args.domain_id)
+        else:
+            tools.record(args.out, topics=args.topics, duration_s=args.duration, count=args.count,
+                         storage=args.storage, domain_id=args.domain_id)
+    except tools.ToolError as e:
+        print(f"cq-ros {args.command}: error: {e}", file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == "__main__":

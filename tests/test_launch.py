@@ -1,0 +1,194 @@
+"""`cq-ros launch` as a process: a world and one process per AGV (or the central JSA node) give exactly the
+offline engine's episodes, CQ's agents talk less than JS's, a killed agent or Ctrl-C stops every process
+with one clear line, bad arguments exit 2 before anything starts, and no process outlives its test."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cq_ros.cli import main
+from cq_ros.engine import run
+from cq_ros.gridmap import load_map
+from cq_ros.settings import Settings
+from processes import alive_with
+
+LAUNCH_TIMEOUT_S = 120.0  # bound on one launch; each below takes about 10 s on 2 busy cores
+SEED = 1
+# (map, algorithm) -> (episodes, settings): short episodes on tunnel_to_goal (early ones wander for
+# thousands of steps; a negative float also checks that settings reach the nodes typed right), and on
+# grid_game_2 a window CQ fills within 40 episodes, so it marks joint states and subscribes to its peer.
+CASES = {
+    **{("tunnel_to_goal", a): (20, ("step_cap=100", "reward_step=-1")) for a in ("cq", "js", "loc")},
+    **{("grid_game_2", a): (40, ("window=10",)) for a in ("cq", "js", "loc", "jsa")},
+}
+COLUMNS = ("steps", "collisions", "joint_plays", "states", "return", "truncated")
+
+
+def unique(prefix: str) -> str:
+    return f"{prefix}_{uuid.uuid4().hex[:8]}"
+
+
+def launch_command(out: Path, namespace: str, map_name: str, algo: str, episodes: int, sets=()) -> list[str]:
+    return [sys.executable, "-m", "cq_ros.cli", "launch", "--map", map_name, "--algo", algo, "--episodes",
+            str(episodes), "--seed", str(SEED), "--out", str(out), "--namespace", namespace,
+            *[arg for s in sets for arg in ("--set", s)]]
+
+
+@pytest.fixture(scope="module")
+def launched(tmp_path_factory):
+    """launched(map, algo) -> the result directory of that case's launch (run once per module)."""
+    cache: dict[tuple[str, str], Path] = {}
+
+    def get(map_name: str, algo: str) -> Path:
+        if (map_name, algo) not in cache:
+            episodes, sets = CASES[map_name, algo]
+            out = tmp_path_factory.mktemp(f"{map_name}_{algo}") / "result"
+            namespace = unique("launch")
+            done = subprocess.run(launch_command(out, namespace, map_name, algo, episodes, sets),
+                                  capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+            assert done.returncode == 0, done.stderr
+            assert not alive_with(namespace)
+            cache[map_name, algo] = out
+        return cache[map_name, algo]
+
+    return get
+
+
+def read_episodes(out: Path) -> np.ndarray:
+    with open(out / "episodes.csv", newline="") as f:
+        return np.array([[float(row[c]) for c in COLUMNS] for row in csv.DictReader(f)])
+
+
+@pytest.mark.parametrize("map_name, algo", list(CASES))
+def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name, algo):
+    out = launched(map_name, algo)
+    episodes, sets = CASES[map_name, algo]
+    gridmap = load_map(map_name)
+    offline = run(algo, gridmap, Settings().with_overrides(list(sets)), SEED, 0, episodes)
+
+    ros = read_episodes(out)
+    assert ros.shape == offline.episodes.shape
+    for i, column in enumerate(COLUMNS):  # steps and collisions first: the transport adds and loses nothing
+        np.testing.assert_array_equal(ros[:, i], offline.episodes[:, i], err_msg=column)
+
+    with open(out / "observe.csv", newline="") as f:
+        marked = [(int(r["agent"]) - 1, gridmap.index(int(r["row"]), int(r["col"])), int(r["peer"]) - 1,
+                   gridmap.index(int(r["peer_row"]), int(r["peer_col"])), float(r["confidence"]))
+                  for r in csv.DictReader(f)]
+    assert marked == [(a, s, j, c, pytest.approx(conf, rel=1e-5)) for a, s, j, c, conf in offline.joint_states]
+    if algo == "cq" and map_name == "grid_game_2":
+        assert marked, "this case is chosen so that CQ marks joint states"
+
+    with open(out / "greedy.csv", newline="") as f:
+        greedy = list(csv.DictReader(f))
+    assert [(g["algo"], g["episodes"], g["collisions"]) for g in greedy] == [(algo, "0", "")]
+
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["mode"] == "ros" and manifest["seed"] == SEED and manifest["episodes"] == episodes
+    assert manifest["settings"] == Settings().with_overrides(list(sets)).as_dict()
+    learners = ["jsa"] if algo == "jsa" else [f"agv{k}" for k in range(1, gridmap.n_agents + 1)]
+    assert set(manifest["communication"]) == set(learners)
+    assert all(node["exit_code"] == 0 for node in manifest["nodes"].values())
+    assert set(manifest["nodes"]) == {"world", *learners}
+    assert manifest["world"]["missed_actions"] == 0
+    for node in manifest["nodes"]:
+        assert (out / "logs" / f"{node}.log").exists()
+    for png in ("collisions.png", "steps.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("map_name", ["tunnel_to_goal", "grid_game_2"])
+def test_cq_agents_receive_fewer_peer_messages_than_js_agents(launched, map_name):
+    def peer_messages(algo: str) -> int:
+        manifest = json.loads((launched(map_name, algo) / "manifest.json").read_text())
+        return sum(agent["peer_messages"] for agent in manifest["communication"].values())
+
+    cq, js = peer_messages("cq"), peer_messages("js")
+    assert 0 < js and cq < js
+
+
+def _start_long_launch(tmp_path: Path) -> tuple[subprocess.Popen, Path, str, Path]:
+    """A launch that would run for minutes, once its world is stepping: (process, out, namespace, stderr)."""
+    out, namespace, err = tmp_path / "result", unique("stopme"), tmp_path / "launch.stderr"
+    with open(err, "wb") as f:
+        launcher = subprocess.Popen(launch_command(out, namespace, "tunnel_to_goal", "cq", 100_000, ()),
+                                    stdout=subprocess.DEVNULL, stderr=f)
+    deadline = time.monotonic() + 60
+    world_log = out / "logs" / "world.log"
+    while not (world_log.exists() and "stepping" in world_log.read_text()):
+        if time.monotonic() > deadline or launcher.poll() is not None:
+            launcher.kill()
+            launcher.wait(timeout=30)
+            pytest.fail(f"the launch never started stepping: {err.read_text()}")
+        time.sleep(0.1)
+    return launcher, out, namespace, err
+
+
+def _wait(launcher: subprocess.Popen, namespace: str) -> int:
+    try:
+        return launcher.wait(timeout=30)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait(timeout=30)
+        for cmdline in alive_with(namespace):  # clean up after a failure, then fail
+            os.kill(int(cmdline.split(":")[0]), signal.SIGKILL)
+
+
+def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
+    launcher, out, namespace, err = _start_long_launch(tmp_path)
+    agent = [p for p in alive_with(f"__ns:=/{namespace}") if "__node:=agv1" in p]
+    assert len(agent) == 1
+    os.kill(int(agent[0].split(":")[0]), signal.SIGKILL)
+    code = _wait(launcher, namespace)
+    assert not alive_with(namespace)
+    assert code == 1
+    last = err.read_text().strip().splitlines()[-1]
+    assert re.fullmatch(r"cq-ros launch: error: agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) "
+                        r"after \d+/100000 episodes \(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)",
+                        last), last
+    assert not (out / "episodes.csv").exists()
+
+
+def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
+    launcher, out, namespace, err = _start_long_launch(tmp_path)
+    launcher.send_signal(signal.SIGINT)
+    code = _wait(launcher, namespace)
+    assert not alive_with(namespace)
+    assert code == 130
+    assert re.search(r"cq-ros launch: interrupted by SIGINT after \d+/100000 episodes; stopped world, agv1, agv2",
+                     err.read_text())
+    for log in (out / "logs").iterdir():  # each node ended through its own Ctrl-C path, not a crash
+        assert "Traceback" not in log.read_text(), log.name
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--algo", "sarsa"], "unknown algorithm 'sarsa'"),
+    (["--algo", "cq", "--domain-id", "300"], "at most 232"),
+    (["--algo", "cq", "--namespace", "9lives"], "is not a ROS name"),
+    (["--algo", "cq", "--set", "alhpa=1"], "unknown setting 'alhpa'"),
+    (["--algo", "cq", "--step-timeout", "0"], "must be more than 0"),
+    (["--algo", "jsa", "--map", "warehouse_8"], "jsa supports at most 5 agents"),
+    (["--algo", "cq", "--map", "nowhere"], "no such map"),
+])
+def test_bad_arguments_give_one_line_and_exit_2_before_any_process_starts(tmp_path, capsys, args, phrase):
+    if "--map" not in args:
+        args = [*args, "--map", "grid_game_2"]
+    with pytest.raises(SystemExit) as exit_:
+        main(["launch", *args, "--out", str(tmp_path / "X")])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert phrase in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "X").exists()

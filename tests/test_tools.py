@@ -1,0 +1,194 @@
+"""The ROS tools on the `cq-ros` command, run as processes against a live publisher in this process:
+echo prints what `ros2 topic echo` would (and flags contract violations), topics and nodes list the live
+graph, record writes a rosbag2 that rosbags reads back with the right types, QoS and messages."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import uuid
+from dataclasses import dataclass
+
+import pytest
+import rclpy
+import yaml
+from rclpy.executors import SingleThreadedExecutor
+
+from msgs_spec import (
+    POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Position, WorldStats, decode_position, decode_world_stats, encode,
+    position_topic,
+)
+from msgs_spec.doc import to_yaml
+from processes import alive_with
+
+TOOL_TIMEOUT_S = 60.0  # bound on any one tool process; each takes a few seconds
+PERIOD_S = 0.05  # the talker publishes every 50 ms
+
+
+@dataclass
+class Talker:
+    namespace: str  # '/tools_<hex>', unique to the test
+
+    def topic(self, relative: str) -> str:
+        return f"{self.namespace}/{relative}"
+
+
+@pytest.fixture
+def talker(ros_context):
+    """A node `talker` in a namespace of the test's own, publishing from a thread every PERIOD_S: agv2's
+    latched position (agent 2, episode 0, step i, cell (1, 3)), a WorldStats for episode i, and on
+    agv1/position a position that breaks the contract (it claims to be agent 2's)."""
+    namespace = f"/tools_{uuid.uuid4().hex[:8]}"
+    node = rclpy.create_node("talker", namespace=namespace, context=ros_context)
+    position = node.create_publisher(POSITION.msg_type, position_topic(2), POSITION.qos)
+    wrong = node.create_publisher(POSITION.msg_type, position_topic(1), POSITION.qos)
+    stats = node.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+    step = 0
+
+    def tick() -> None:
+        nonlocal step
+        position.publish(encode(Position(agent=2, episode=0, step=step, row=1, col=3)))
+        wrong.publish(encode(Position(agent=2, episode=0, step=step, row=1, col=3)))
+        stats.publish(encode(WorldStats(episode=step, steps=5, truncated=False, collisions=1, missed_actions=0,
+                                        returns=(-1.0, 2.5))))
+        step += 1
+
+    node.create_timer(PERIOD_S, tick)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    try:
+        yield Talker(namespace)
+    finally:
+        # Jazzy order (DESIGN.md field notes): the spinning thread, the executor, the node; the fixture
+        # ros_context shuts the context down after.
+        stop.set()
+        thread.join(timeout=5)
+        executor.shutdown()
+        node.destroy_node()
+    assert not alive_with(namespace), "a tool process outlived its test"
+
+
+def cq_ros(*args: str, timeout: float = TOOL_TIMEOUT_S) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cq_ros.cli", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_echo_prints_the_latched_position_as_ros2_topic_echo_does_and_stops_after_count(talker):
+    done = cq_ros("echo", talker.topic("agv2/position"), "--count", "3", "--timeout", "20")
+    assert done.returncode == 0, done.stderr
+    assert done.stderr == ""
+    docs = done.stdout.split("---\n")
+    assert docs[-1] == "" and len(docs) == 4  # three messages, each followed by '---'
+    steps = []
+    for doc in docs[:3]:
+        step = yaml.safe_load(doc)["data"][2]
+        assert doc == to_yaml(encode(Position(agent=2, episode=0, step=step, row=1, col=3)))
+        steps.append(step)
+    assert steps == sorted(steps) and len(set(steps)) == 3
+
+
+def test_echo_says_on_stderr_when_a_message_breaks_the_contract(talker):
+    done = cq_ros("echo", talker.topic("agv1/position"), "--count", "1", "--timeout", "20")
+    assert done.returncode == 0
+    assert "agent,episode,step,row,col" in done.stdout
+    assert f"message 1 on {talker.topic('agv1/position')} breaks the contract: wrong_agent" in done.stderr
+
+
+def test_echo_of_statistics_prints_the_key_value_pairs(talker):
+    done = cq_ros("echo", talker.topic("world/stats"), "--count", "1", "--timeout", "20")
+    assert done.returncode == 0 and done.stderr == ""
+    status = yaml.safe_load(done.stdout.split("---\n")[0])["status"][0]
+    values = {kv["key"]: kv["value"] for kv in status["values"]}
+    assert status["name"] == "world/stats" and values["collisions"] == "1" and values["return.agv2"] == "2.5"
+
+
+@pytest.mark.parametrize("relative, message", [
+    ("agv9/position", "no message on {topic} within 1.5 s"),  # a project topic: waited for, with its type
+    ("chatter", "no topic {topic} in the graph after 1.5 s"),
+])
+def test_echo_without_a_message_exits_1_with_one_line(talker, relative, message):
+    topic = talker.topic(relative)
+    done = cq_ros("echo", topic, "--timeout", "1.5")
+    assert done.returncode == 1 and done.stdout == ""
+    assert done.stderr.strip() == f"cq-ros echo: error: {message.format(topic=topic)}" + (
+        " (is the system running, on this ROS_DOMAIN_ID? `cq-ros topics` lists what is there)"
+        if relative == "chatter" else "")
+
+
+def test_topics_and_nodes_list_the_live_graph(talker):
+    topics = cq_ros("topics", "-t", "--wait", "4")
+    assert topics.returncode == 0, topics.stderr
+    lines = topics.stdout.splitlines()
+    assert f"{talker.topic('agv2/position')} [std_msgs/msg/Int32MultiArray]" in lines
+    assert f"{talker.topic('world/stats')} [diagnostic_msgs/msg/DiagnosticArray]" in lines
+    assert lines == sorted(lines)
+    names = cq_ros("topics", "--wait", "4").stdout.splitlines()
+    assert talker.topic("agv2/position") in names and "[" not in "".join(names)
+
+    nodes = cq_ros("nodes", "--wait", "4")
+    assert nodes.returncode == 0, nodes.stderr
+    assert talker.topic("talker") in nodes.stdout.splitlines()
+    assert "/_cq_ros" not in nodes.stdout  # the tool's own node is hidden
+
+
+def _read_bag(path):
+    """{topic: (type, offered QoS profiles, [raw messages])} through rosbags' reader."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(path) as reader:
+        out = {c.topic: (c.msgtype, c.ext.offered_qos_profiles, []) for c in reader.connections}
+        for connection, _stamp, raw in reader.messages():
+            out[connection.topic][2].append(raw)
+    return out
+
+
+@pytest.mark.parametrize("storage, explicit", [("mcap", True), ("sqlite3", False)])
+def test_record_writes_a_bag_that_rosbags_reads_back(talker, tmp_path, storage, explicit):
+    from rclpy.serialization import deserialize_message
+    from rosbags.interfaces import QosDurability
+    from rosbags.typesys import Stores, get_typestore
+
+    bag = tmp_path / "bag"
+    position, stats = talker.topic("agv2/position"), talker.topic("world/stats")
+    limit = ["--topics", position, stats, "--count", "30", "--duration", "30"] if explicit else ["--duration", "4"]
+    done = cq_ros("record", "--out", str(bag), "--storage", storage, *limit)
+    assert done.returncode == 0, done.stderr
+    recorded = _read_bag(bag)
+    if explicit:
+        assert set(recorded) == {position, stats}
+        assert sum(len(m) for _, _, m in recorded.values()) == 30
+        assert f"recorded 30 messages on 2 topics to {bag} ({storage})" in done.stdout
+    else:  # every project topic there is (the recorder stores, it does not judge: agv1's bad one too)
+        assert {position, stats, talker.topic("agv1/position")} <= set(recorded)
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    msgtype, qos, raw = recorded[position]
+    assert msgtype == "std_msgs/msg/Int32MultiArray" and raw
+    assert qos[0].durability == QosDurability.TRANSIENT_LOCAL  # replays latched, as published
+    steps = []
+    for data in raw:
+        assert list(typestore.deserialize_cdr(data, msgtype).data)[:2] == [2, 0]
+        pos = decode_position(deserialize_message(data, POSITION.msg_type), agent=2)
+        assert (pos.row, pos.col) == (1, 3)
+        steps.append(pos.step)
+    assert steps == sorted(steps)
+
+    msgtype, qos, raw = recorded[stats]
+    assert msgtype == "diagnostic_msgs/msg/DiagnosticArray" and raw
+    assert typestore.deserialize_cdr(raw[0], msgtype).status[0].name == "world/stats"
+    assert decode_world_stats(deserialize_message(raw[0], WORLD_STATS.msg_type)).returns == (-1.0, 2.5)
+
+
+def test_record_refuses_an_existing_output(tmp_path):
+    done = cq_ros("record", "--out", str(tmp_path), "--duration", "1")
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert "exists" in done.stderr

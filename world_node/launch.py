@@ -1,0 +1,409 @@
+"""`cq-ros launch`: a world node and its agent nodes as child processes, watched to the end, and the run
+written as the same result files as `cq-ros experiment` (episodes.csv, observe.csv, greedy.csv,
+manifest.json and the figures).
+
+One launch is one ROS 2 system of its own: a ROS_DOMAIN_ID (random in 100..200 unless given), discovery kept
+on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) and a namespace (/cq_<hex> unless given), so launches
+side by side never hear each other; `cq-ros echo /<namespace>/world/stats --domain-id N` watches one.
+
+Start-up. The launcher's own node (the listener, `/<namespace>/launch`) subscribes to every agv<k>/stats, then
+every child starts at once: the world, and one agent process per AGV (`agv<k>`) or the one central JSA node
+(`jsa`). The listener opens its world/stats subscription only once each agv<k>/stats subscription has matched
+its publisher, and the world runs with min_stats_subscribers:=1, so its first step waits for that: AgentStats
+are volatile, and an agent whose statistics were not yet heard when its first episode ended would lose that
+row. Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
+
+Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
+code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
+SIGINT, then SIGTERM after 3 s, then SIGKILL after 2 more. Children run in sessions of their own, so a
+terminal's Ctrl-C reaches the launcher only and it stops them in that order, and the kernel sends them SIGTERM
+if the launcher itself dies (PR_SET_PDEATHSIG on Linux): none outlives it. Each child's output goes to
+DIR/logs/<node>.log (ROS file logging is off: the console output is the log).
+
+Results. Per episode, steps, collisions, truncation and return (summed over agents) come from WorldStats;
+joint plays and states (local + joint) are summed over the learners' AgentStats, where the central JSA node,
+which repeats its one learner's counts on every agv<k>/stats, counts once; the last AgentStats' marked joint
+states make observe.csv. The launcher plays no greedy evaluation, so greedy.csv holds the row of a run without
+one, as an offline run with eval_episodes=0 writes. The manifest adds the communication cost (per agent node:
+peer subscriptions created, peer messages; the world's missed actions and dropped-message counters).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import random
+import re
+import secrets
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, fields
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
+from cq_ros.engine import RunResult, make_learner
+from cq_ros.experiment import manifest_for, prepare_output, write_results
+from cq_ros.gridmap import GridMap, load_map
+from cq_ros.learners import LEARNERS
+from cq_ros.settings import Settings
+from msgs_spec import (
+    AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
+    agent_stats_topic, decode_agent_stats, decode_world_stats,
+)
+from msgs_spec.tools import StopSignals, ros_session, spin_until
+
+__all__ = ["DOMAIN_IDS", "LaunchError", "Interrupted", "LaunchResult", "Child", "node_commands", "launch"]
+
+DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
+STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
+CHECKPOINT_EVERY = 50
+AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world finished is stuck
+DRAIN_S = 5.0  # after the last child exits, how long to wait for statistics still in the listener's queue
+STOP_GRACE_S = ((signal.SIGINT, 3.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0))
+NAMESPACE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+class LaunchError(RuntimeError):
+    """The launch failed (a child died or hung, statistics went missing); the message is one line."""
+
+
+class Interrupted(LaunchError):
+    """Ctrl-C or SIGTERM to the launcher; every child was stopped."""
+
+
+@dataclass
+class LaunchResult:
+    out: Path
+    episodes: np.ndarray  # (episodes, 6), the columns of RunResult.episodes
+    manifest: dict
+
+
+# -- children ----------------------------------------------------------------------------------------------
+
+if sys.platform.startswith("linux"):
+    _PR_SET_PDEATHSIG = 1
+    _prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up here: the child only calls it
+
+    def _die_with_launcher() -> None:
+        """Run in the child between fork and exec: the kernel sends it SIGTERM when the launcher dies."""
+        _prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+else:
+    _die_with_launcher = None
+
+
+@dataclass
+class Child:
+    """One node process: its name (also its log file's), command line, log and, once started, its process."""
+
+    name: str
+    command: list[str]
+    log: Path
+    process: subprocess.Popen | None = None
+
+    def start(self, env: dict[str, str]) -> None:
+        with open(self.log, "wb") as log:  # the child keeps its own copy of the descriptor
+            self.process = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, stdout=log,
+                                            stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                                            preexec_fn=_die_with_launcher)
+
+    @property
+    def exit_code(self) -> int | None:
+        return None if self.process is None else self.process.poll()
+
+    @property
+    def running(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def signal_group(self, sig: int) -> None:
+        try:
+            os.killpg(self.process.pid, sig)  # its own session: the group is the child and anything it started
+        except ProcessLookupError:
+            pass
+
+    def describe_exit(self) -> str:
+        code = self.exit_code
+        how = f" (killed by {signal.Signals(-code).name})" if code is not None and code < 0 else ""
+        return f"{self.name} (pid {self.process.pid}) exited with code {code}{how}"
+
+
+def _param(value: Any) -> str:
+    """A parameter value as ROS parses it back into the declared type: floats always with a point or exponent."""
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def _params(values: dict[str, Any]) -> list[str]:
+    return [arg for k, v in values.items() for arg in ("-p", f"{k}:={_param(v)}")]
+
+
+def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, namespace: str,
+                  step_timeout: float, out: Path, peer_linger_steps: int | None = None) -> list[Child]:
+    """The world and the agent node(s) of one launch, with the command lines fixed by world_node and
+    agent_node (__main__): every setting that differs from its default goes to both."""
+    gridmap = load_map(map_name)
+    defaults = Settings()
+    changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
+               if getattr(settings, f.name) != getattr(defaults, f.name)}
+    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0}
+    ros = [sys.executable, "-m"]
+    # File logging off: each child's console output is its log (DIR/logs/<node>.log), in one place.
+    args = ["--ros-args", "--disable-external-lib-logs", "-r", f"__ns:=/{namespace}"]
+    world = Child("world", [*ros, "world_node", *args, *_params({
+        **common, "step_timeout": float(step_timeout), "startup_timeout": STARTUP_TIMEOUT_S,
+        "min_stats_subscribers": 1, **changed})], out / "logs" / "world.log")
+    if LEARNERS[algo].central:
+        agents = [("jsa", {})]  # one node moves every AGV; agent_id stays 0
+    else:
+        agents = [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
+    linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
+    children = [world]
+    for name, ident in agents:
+        children.append(Child(name, [*ros, "agent_node", *args, "-r", f"__node:={name}", *_params({
+            **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
+            "checkpoint_every": CHECKPOINT_EVERY, **linger, **changed})], out / "logs" / f"{name}.log"))
+    return children
+
+
+def _stop(children: list[Child]) -> None:
+    """SIGINT to every child still running, then SIGTERM, then SIGKILL, each with a bounded wait; reaps them."""
+    running = [c for c in children if c.running]
+    for sig, grace in STOP_GRACE_S:
+        if not running:
+            return
+        for child in running:
+            child.signal_group(sig)
+        deadline = time.monotonic() + grace
+        while running and time.monotonic() < deadline:
+            time.sleep(0.02)
+            running = [c for c in running if c.running]
+
+
+# -- the listener ------------------------------------------------------------------------------------------
+
+
+def _ranges(numbers: list[int]) -> str:
+    """[0, 1, 2, 5] -> '0-2, 5'."""
+    spans: list[list[int]] = []
+    for n in numbers:
+        if spans and n == spans[-1][1] + 1:
+            spans[-1][1] = n
+        else:
+            spans.append([n, n])
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans)
+
+
+class StatsListener:
+    """The launcher's subscriptions: every WorldStats and AgentStats of the run, decoded through the contract
+    (a bad message is logged, counted and dropped, never raised)."""
+
+    def __init__(self, node: Any, gridmap: GridMap, episodes: int):
+        self.node = node
+        self.episodes = episodes
+        self.bounds = Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
+        self.drops = DropCounter(node.get_logger().warning)
+        self.world: dict[int, WorldStats] = {}
+        self.collisions = 0  # over the episodes heard so far, for the progress display
+        self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
+        self.newest: dict[int, AgentStats] = {}  # each agent's statistics of its latest episode so far
+        self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
+                                                     partial(self._on_agent, k), AGENT_STATS.qos)
+                            for k in self.agents]
+        self._world_sub = None
+
+    def open_world_stats(self) -> bool:
+        """Subscribe to world/stats once every agv<k>/stats has matched (see the module docstring); True then."""
+        if self._world_sub is None and all(s.get_publisher_count() > 0 for s in self._agent_subs):
+            self._world_sub = self.node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
+                                                            self._on_world, WORLD_STATS.qos)
+        return self._world_sub is not None
+
+    def _on_world(self, msg: Any) -> None:
+        stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, source=WORLD_STATS_TOPIC)
+        if stats is not None and stats.episode not in self.world:
+            self.world[stats.episode] = stats
+            self.collisions += stats.collisions
+
+    def _on_agent(self, agent: int, msg: Any) -> None:
+        stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent,
+                                 source=agent_stats_topic(agent))
+        if stats is not None:
+            self.agents[agent][stats.episode] = stats
+            if agent not in self.newest or stats.episode > self.newest[agent].episode:
+                self.newest[agent] = stats
+
+    @property
+    def complete(self) -> bool:
+        return len(self.world) == self.episodes and all(len(s) == self.episodes for s in self.agents.values())
+
+    def missing(self) -> list[str]:
+        """What has not come yet, e.g. ['world/stats episodes 7-9', 'agv2/stats episode 0']."""
+        wanted = range(self.episodes)
+        out = []
+        heard = [(WORLD_STATS_TOPIC, self.world)] + [(agent_stats_topic(k), v) for k, v in self.agents.items()]
+        for topic, got in heard:
+            gone = [e for e in wanted if e not in got]
+            if gone:
+                out.append(f"{topic} episode{'s' if len(gone) > 1 else ''} {_ranges(gone)}")
+        return out
+
+
+# -- progress ----------------------------------------------------------------------------------------------
+
+
+class _Progress:
+    """A tqdm bar on a terminal; otherwise a plain line every 5% of the episodes (and at the last)."""
+
+    def __init__(self, label: str, episodes: int, enabled: bool):
+        self.label, self.episodes, self.enabled = label, episodes, enabled
+        self.tty = enabled and sys.stderr.isatty()
+        self.bar = tqdm(total=episodes, desc=label, unit="episode", disable=not self.tty)
+        self.every = max(1, episodes // 20)
+        self.shown = 0
+
+    def update(self, done: int, collisions: int, joint_states: int, peer_messages: int) -> None:
+        if self.tty:
+            self.bar.set_postfix(collisions=collisions, joint_states=joint_states, peer_msgs=peer_messages,
+                                 refresh=False)
+            self.bar.update(done - self.shown)
+        elif self.enabled and (done // self.every > self.shown // self.every or done == self.episodes):
+            print(f"{self.label}: episode {done}/{self.episodes}, {collisions} collisions, {joint_states} joint "
+                  f"states, {peer_messages} peer messages", file=sys.stderr, flush=True)
+        self.shown = done
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+# -- one launch --------------------------------------------------------------------------------------------
+
+
+def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
+           settings: Settings = Settings(), *, domain_id: int | None = None, namespace: str | None = None,
+           step_timeout: float = 2.0, peer_linger_steps: int | None = None, force: bool = False, figures: bool = True,
+           progress: bool = True) -> LaunchResult:
+    """Run one (map, algorithm, seed) over ROS and write the result directory `out`.
+
+    Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
+    a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
+    gridmap = load_map(map_name)
+    if algo not in LEARNERS:
+        raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
+    make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
+    namespace = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
+    if not NAMESPACE.fullmatch(namespace):
+        raise ValueError(f"namespace {namespace!r} is not a ROS name (letters, digits, _; not starting with a digit)")
+    if domain_id is None:
+        domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
+    out = prepare_output(Path(out), force)
+    for sub in ("logs", "checkpoints"):
+        (out / sub).mkdir(exist_ok=True)
+    if peer_linger_steps is not None and peer_linger_steps < 0:
+        raise ValueError(f"peer_linger_steps must be >= 0, got {peer_linger_steps}")
+    children = node_commands(map_name, algo, episodes, seed, settings, namespace, step_timeout, out,
+                             peer_linger_steps)
+    for child in children:  # a fresh run: a checkpoint left by an earlier result would be resumed from
+        (out / "checkpoints" / f"{child.name}.pkl").unlink(missing_ok=True)
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+           "PYTHONUNBUFFERED": "1"}
+    learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
+    started = time.perf_counter()
+
+    with StopSignals() as stop, ros_session("launch", domain_id=domain_id, namespace=f"/{namespace}",
+                                            localhost_only=True, hidden=False) as (node, executor):
+        listener = StatsListener(node, gridmap, episodes)
+        bar = _Progress(f"{gridmap.name} {algo}", episodes, progress)
+        try:
+            for child in children:
+                child.start(env)
+            if progress:
+                print(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "
+                      + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
+                      + f"; logs in {out / 'logs'}", file=sys.stderr, flush=True)
+            _watch(children, listener, executor, stop, bar, learners)
+            if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
+                if stop:
+                    raise Interrupted(f"interrupted by {stop.received}")
+                raise LaunchError(f"every node finished, but the launcher never got {'; '.join(listener.missing())}")
+        except LaunchError as e:
+            stopping = [c.name for c in children if c.running]
+            _stop(children)
+            raise type(e)(f"{e}{'; stopped ' + ', '.join(stopping) if stopping else ''} "
+                          f"(logs in {out / 'logs'})") from None
+        finally:
+            _stop(children)
+            bar.close()
+
+    run_info = dict(mode="ros", domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
+                    peer_linger_steps=AGENT_PARAMETERS["peer_linger_steps"][0] if peer_linger_steps is None
+                    else peer_linger_steps)
+    result = _write(out, gridmap, algo, seed, settings, time.perf_counter() - started, listener, learners,
+                    children, run_info)
+    if figures:
+        from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
+
+        write_figures(out)
+    return result
+
+
+def _write(out: Path, gridmap: GridMap, algo: str, seed: int, settings: Settings, wall: float,
+           listener: StatsListener, learners: list[int], children: list[Child], run_info: dict) -> LaunchResult:
+    """episodes.csv, observe.csv, greedy.csv and manifest.json from the statistics heard (see the module
+    docstring for what comes from where)."""
+    episodes = listener.episodes
+    world = [listener.world[e] for e in range(episodes)]
+    per_learner = [[listener.agents[k][e] for k in learners] for e in range(episodes)]
+    table = np.array([(w.steps, w.collisions, sum(s.joint_plays for s in a),
+                       sum(s.local_states + s.joint_states for s in a), sum(w.returns), w.truncated)
+                      for w, a in zip(world, per_learner)], dtype=float).reshape(episodes, 6)
+    final = per_learner[-1]
+    kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
+             m.confidence) for s in final for m in s.marked]
+    manifest = manifest_for(
+        gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
+        greedy="not evaluated: the launcher plays no greedy episodes (greedy.csv rows are empty)",
+        nodes={c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
+               for c in children},
+        # children[1:] are the learners' nodes, in the order of `learners`
+        communication={child.name: {"subscriptions_created": s.subscriptions_created,
+                                    "subscriptions_active": s.subscriptions_active,
+                                    "peer_messages": s.peer_messages, "counters": dict(s.counters)}
+                       for child, s in zip(children[1:], final)},
+        world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
+               "stepping_s": round(sum(w.duration_s for w in world), 3)},
+        launcher={"dropped": listener.drops.as_counters()})
+    write_results(out, gridmap, [RunResult(algo, 0, table, kept, np.empty((0, 6)))], manifest)
+    return LaunchResult(out, table, manifest)
+
+
+def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: _Progress,
+           learners: list[int]) -> None:
+    """Spin the listener until every child has exited 0; LaunchError/Interrupted as soon as one fails."""
+    world_done_at = None
+    while True:
+        if stop:
+            raise Interrupted(f"interrupted by {stop.received} after {len(listener.world)}/{listener.episodes} "
+                              "episodes")
+        executor.spin_once(timeout_sec=0.05)
+        listener.open_world_stats()
+        if len(listener.world) != bar.shown:
+            latest = [listener.newest[k] for k in learners if k in listener.newest]
+            bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
+                       sum(s.peer_messages for s in latest))
+        failed = [c for c in children if c.exit_code not in (None, 0)]
+        if failed:
+            raise LaunchError(f"{failed[0].describe_exit()} after {len(listener.world)}/{listener.episodes} "
+                              f"episodes (its log: {failed[0].log})")
+        running = [c for c in children if c.running]
+        if not running:
+            return
+        if world_done_at is None and not children[0].running:
+            world_done_at = time.monotonic()
+        if world_done_at is not None and time.monotonic() - world_done_at > AGENT_EXIT_GRACE_S:
+            raise LaunchError(f"{', '.join(c.name for c in running)} still running {AGENT_EXIT_GRACE_S:g} s "
+                              "after the world finished")
