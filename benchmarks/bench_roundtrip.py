@@ -28,9 +28,8 @@ import sys
 import tempfile
 import threading
 import time
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 QOS_NAMES = ("reliable", "best_effort")
 TYPE_NAMES = ("position", "point_stamped")
@@ -70,23 +69,6 @@ def _seq(type_name: str, msg) -> int:
 def _topics(type_name: str, qos_name: str) -> tuple[str, str]:
     base = f"bench/{type_name}/{qos_name}"
     return f"{base}/ping", f"{base}/pong"
-
-
-@contextmanager
-def _ros_env(domain_id: int, log_dir: str) -> Iterator[dict[str, str]]:
-    """Set the isolation variables in this process (rcl reads them at init) and restore them after."""
-    want = {"ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-            "ROS_LOG_DIR": log_dir}
-    saved = {k: os.environ.get(k) for k in want}
-    os.environ.update(want)
-    try:
-        yield dict(os.environ)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -173,8 +155,11 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
     # the echo lives at most as long as a slow run could take, even if we die without closing its stdin
     lifetime = discovery_timeout_s + len(pairs) * (n + warmup) * 0.05 + 30.0
 
-    with tempfile.TemporaryDirectory(prefix="bench_rt_") as tmp, _ros_env(domain_id, tmp) as env:
-        env["PYTHONUNBUFFERED"] = "1"
+    from msgs_spec.tools import environment
+
+    with tempfile.TemporaryDirectory(prefix="bench_rt_") as tmp, environment(
+            ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_LOG_DIR=tmp):
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         cmd = [sys.executable, str(Path(__file__).resolve()), "--echo", "--domain", str(domain_id),
                "--types", ",".join(types), "--qos", ",".join(qos), "--lifetime", f"{lifetime:.0f}"]
         err_path = Path(tmp) / "echo.stderr"
