@@ -23,14 +23,22 @@ steps/s; JS in the same run received 27,421 (12.4x, 9.6x and 7.2x CQ's) at 451 s
 subscriptions, not messages; LoC, which re-decides COORDINATE every step, gains most from it
 (`--peer-linger-steps 3`; grid_game_2: 53 subscriptions instead of 167, 320-335 steps/s instead of 170-205).
 
+Greedy evaluation: after its `episodes` learning episodes a driver plays `eval_episodes` more, as
+`cq_ros.engine.greedy_episodes` does after `run`: on a deep copy of the learner with epsilon 0 (learning goes
+on inside the copy), so its random stream continues exactly as the engine's copy does. The world plays
+them as ordinary episodes (episode indices episodes..episodes+eval_episodes-1) and the AgentStats go on.
+
 Checkpoints (`save_checkpoint`/`load_checkpoint`): a pickle of the learner and the last finished episode,
 written to a temporary file in the same directory and moved into place with os.replace, so a reader sees
-the old checkpoint or the new one, never half of one. A node restarted from one decodes its first
-feedback without an expected (episode, step) and resumes at whatever step the world is at.
+the old checkpoint or the new one, never half of one. Only learning episodes are checkpointed, so the last
+checkpoint holds the trained learner, not its greedy copy. A node restarted from one decodes its first
+feedback without an expected (episode, step) and resumes at whatever step the world is at (switching to
+the greedy copy first if the world is past the learning episodes).
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import pickle
 import tempfile
@@ -62,11 +70,14 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "algo": ("cq", f"learner: {', '.join(LEARNERS)} (cq_ros.learners)"),
     "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file; "
                               "the same as the world's"),
-    "episodes": (500, "episodes to play; the node exits 0 after its last one (the same as the world's)"),
+    "episodes": (500, "learning episodes (the same as the world's); then eval_episodes greedy ones (epsilon 0, "
+                      "on a copy of the learner, as cq_ros.engine.greedy_episodes); the node exits 0 after the "
+                      "last of all"),
     "seed": (0, "experiment seed; with run and the agent it seeds the learner (cq_ros.engine.learner_seed)"),
     "run": (0, "run index (cq_ros.engine.learner_seed)"),
     "checkpoint": ("", "learner checkpoint file: loaded at start when it exists (resume), written every "
-                       "checkpoint_every episodes and after the last; empty: no checkpoints"),
+                       "checkpoint_every episodes and after the last learning one (never in the greedy "
+                       "episodes); empty: no checkpoints"),
     "checkpoint_every": (50, "episodes between checkpoints"),
     "feedback_timeout": (30.0, "seconds without feedback from the world after which the node gives up "
                                "(exit 1)"),
@@ -130,10 +141,12 @@ def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None) -> "A
         except ValueError as e:  # e.g. jsa on a map with too many agents
             raise SettingsError(f"parameter algo: {e}") from None
     every = cfg.checkpoint_every if cfg.checkpoint else 0
+    greedy = cfg.settings.eval_episodes
     if learner.central:
-        return CentralDriver(learner, cfg.episodes, checkpoint_every=every, resync=resume, log=log)
-    return AgentDriver(learner, cfg.agent, cfg.episodes, linger=cfg.peer_linger_steps, checkpoint_every=every,
-                       resync=resume, log=log)
+        return CentralDriver(learner, cfg.episodes, eval_episodes=greedy, checkpoint_every=every, resync=resume,
+                             log=log)
+    return AgentDriver(learner, cfg.agent, cfg.episodes, eval_episodes=greedy, linger=cfg.peer_linger_steps,
+                       checkpoint_every=every, resync=resume, log=log)
 
 
 # -- effects: what a driver asks its node to do, in order ------------------------------------------------
@@ -157,11 +170,14 @@ class Send:
 @dataclass(frozen=True)
 class SaveCheckpoint:
     episode: int  # the last episode learnt
+    # The learner as it was after that episode: named here because the driver may have moved on to its
+    # greedy copy by the time the node carries the effect out.
+    learner: Learner
 
 
 @dataclass(frozen=True)
 class Finish:
-    """The last episode is over: the node may exit."""
+    """The last episode (the last greedy one, if any) is over: the node may exit."""
 
 
 Effects = list  # of the effects above
@@ -297,12 +313,14 @@ class PeerView:
 class AgentDriver:
     """One decentralised learner (agent id `agent`, 1..N) in the lockstep protocol."""
 
-    def __init__(self, learner: Learner, agent: int, episodes: int, *, linger: int, checkpoint_every: int = 0,
-                 resync: bool = False, log: Callable[[str], Any] | None = None):
+    def __init__(self, learner: Learner, agent: int, episodes: int, *, eval_episodes: int = 0, linger: int,
+                 checkpoint_every: int = 0, resync: bool = False, log: Callable[[str], Any] | None = None):
         self.learner = learner
         self.agent = agent
         self.agents = (agent,)  # whose feedback it hears and whose actions it sends
-        self.episodes = episodes
+        self.episodes = episodes  # learning episodes; then eval_episodes greedy ones
+        self.eval_episodes = eval_episodes
+        self.greedy = False  # playing the greedy episodes (self.learner is the copy at epsilon 0)
         self.checkpoint_every = checkpoint_every
         self.map = learner.map
         self.bounds = _bounds(self.map)
@@ -330,6 +348,8 @@ class AgentDriver:
             self._log(f"episode {fb.episode}: the world stepped to {fb.step} before our action of step "
                       f"{fb.step - 1} (step timeout); resuming there")
             self._pending = None
+        if self.expect is None:  # resumed: the world may be past the learning episodes already
+            _greedy_from(self, fb.episode)
         if fb.step == 0 or self.expect is None:
             self._plays_before = self.learner.joint_plays
         # Learn only from the outcome of an action we sent: after a skipped step or a restart there is none.
@@ -372,7 +392,7 @@ class AgentDriver:
         # peer again at its first step (dropping would cost a new subscription every episode).
         out = self.peers.need([j + 1 for j in self.learner.peers] if self.learner.joint_state else ())
         out.append(Send(self._stats(episode)))
-        out += _checkpoint_and_finish(self, episode)
+        out += _after_episode(self, episode)
         return out
 
     def _stats(self, episode: int) -> AgentStats:
@@ -386,15 +406,31 @@ class AgentDriver:
                           marked=marked, counters=self.counters())
 
 
-def _checkpoint_and_finish(driver: "AgentDriver | CentralDriver", episode: int) -> Effects:
-    last = episode >= driver.episodes - 1
+def _after_episode(driver: "AgentDriver | CentralDriver", episode: int) -> Effects:
+    """After episode `episode`: a checkpoint (of learning episodes only: every checkpoint_every and the last),
+    then Finish after the last episode of all, or else on to the next (greedy from `driver.episodes` on)."""
     out: Effects = []
-    if driver.checkpoint_every and (last or (episode + 1) % driver.checkpoint_every == 0):
-        out.append(SaveCheckpoint(episode))
-    if last:
+    every = driver.checkpoint_every
+    if every and episode < driver.episodes and (episode == driver.episodes - 1 or (episode + 1) % every == 0):
+        out.append(SaveCheckpoint(episode, driver.learner))
+    if episode >= driver.episodes + driver.eval_episodes - 1:
         driver.finished = True
         out.append(Finish())
+    else:
+        _greedy_from(driver, episode + 1)
     return out
+
+
+def _greedy_from(driver: "AgentDriver | CentralDriver", episode: int) -> None:
+    """Before playing `episode`: past the learning episodes, switch once to the greedy copy of the learner.
+
+    Exactly what cq_ros.engine.greedy_episodes does (a deep copy, then epsilon 0), so the copy's random
+    stream continues as the engine's does; the learner checkpointed before stays the trained one. The copy
+    keeps joint_plays, so the per-episode counts (joint_plays - _plays_before) go on unchanged."""
+    if episode >= driver.episodes and not driver.greedy:
+        driver.learner = copy.deepcopy(driver.learner)
+        driver.learner.epsilon = 0.0
+        driver.greedy = True
 
 
 # -- the central (JSA) node ----------------------------------------------------------------------------
@@ -408,10 +444,12 @@ class CentralDriver:
     an agent at its goal is done (goals are absorbing).
     """
 
-    def __init__(self, learner: Learner, episodes: int, *, checkpoint_every: int = 0, resync: bool = False,
-                 log: Callable[[str], Any] | None = None):
+    def __init__(self, learner: Learner, episodes: int, *, eval_episodes: int = 0, checkpoint_every: int = 0,
+                 resync: bool = False, log: Callable[[str], Any] | None = None):
         self.learner = learner
-        self.episodes = episodes
+        self.episodes = episodes  # learning episodes; then eval_episodes greedy ones
+        self.eval_episodes = eval_episodes
+        self.greedy = False  # playing the greedy episodes (self.learner is the copy at epsilon 0)
         self.checkpoint_every = checkpoint_every
         self.map = learner.map
         self.n = self.map.n_agents
@@ -503,6 +541,9 @@ class CentralDriver:
         self._truncated = False
 
     def _act(self, episode: int, step: int) -> Effects:
+        # A no-op but after a resume, which may join the world past the learning episodes (from a
+        # truncated step or from positions, neither passing through _end_episode).
+        _greedy_from(self, episode)
         self.learner.observe(tuple(self._cells))
         joint = decode_joint_action(self.learner.act({}), self.n)
         acting = [k for k in self.agents if not self._done[k - 1]]
@@ -515,7 +556,7 @@ class CentralDriver:
         self._done = [False] * self.n
         self._collect(set(self.agents))
         out: Effects = [Send(self._stats(k, episode)) for k in self.agents]
-        out += _checkpoint_and_finish(self, episode)
+        out += _after_episode(self, episode)
         return out
 
     def _stats(self, agent: int, episode: int) -> AgentStats:

@@ -65,11 +65,12 @@ class AgentNode(Node):
                                                    partial(self._on_feedback, k), FEEDBACK.qos) for k in agents]
         self._positions = {}  # peer -> its position subscription, while the driver wants it
         self._unsent: dict[int, Action] = {}  # agent -> action held until its publisher matches the world
-        self.done = Future()  # result: the exit code (0 last episode played, 1 the world went silent)
+        self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._last_feedback = time.monotonic()
         self._watchdog = self.create_timer(cfg.feedback_timeout / 4, self._check_world)
         self.get_logger().info(f"{cfg.algo} learner for {', '.join(map(agent_namespace, agents))} on map "
-                               f"{cfg.gridmap.name}, {cfg.episodes} episodes")
+                               f"{cfg.gridmap.name}, {cfg.episodes} episodes, then "
+                               f"{cfg.settings.eval_episodes} greedy")
 
     def _on_feedback(self, agent: int, msg: Any) -> None:
         self._last_feedback = time.monotonic()
@@ -90,8 +91,8 @@ class AgentNode(Node):
                         POSITION.msg_type, position_topic(peer), partial(self._on_position, peer), POSITION.qos)
                 case Unsubscribe(peer=peer):
                     self.destroy_subscription(self._positions.pop(peer))
-                case SaveCheckpoint(episode=episode):
-                    save_checkpoint(self.config.checkpoint, self.driver.learner, episode)
+                case SaveCheckpoint(episode=episode, learner=learner):
+                    save_checkpoint(self.config.checkpoint, learner, episode)
                 case Finish():
                     self._finish(0)
 

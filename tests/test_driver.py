@@ -1,6 +1,6 @@
 """The agent drivers without ROS: which peers they listen to and when, when they act, what they refuse,
-checkpoints, and a whole lockstep run (world core + drivers, messages in any cross-topic order) that equals
-cq_ros.engine.run."""
+checkpoints, the greedy episodes after the learning ones, and a whole lockstep run (world core + drivers,
+messages in any cross-topic order) that equals cq_ros.engine.run, greedy episodes included."""
 
 from __future__ import annotations
 
@@ -10,13 +10,14 @@ import pickle
 import random
 from collections import defaultdict, deque
 
+import numpy as np
 import pytest
 
 from agent_node.driver import (
     PARAMETERS, AgentDriver, CentralDriver, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe,
     agent_config, load_checkpoint, make_driver, save_checkpoint,
 )
-from cq_ros.engine import make_learner, run
+from cq_ros.engine import make_learner, run, world_seed
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner
 from cq_ros.settings import Settings, SettingsError
@@ -202,9 +203,86 @@ def test_episode_end_publishes_stats_checkpoints_and_finishes():
         effects = d.on_feedback(1, fb(1, e, 1, 0, 1, truncated=True))
         kinds.append([type(x).__name__ for x in effects])
     assert kinds == [["Send"], ["Send", "SaveCheckpoint"], ["Send"], ["Send", "SaveCheckpoint", "Finish"]]
-    assert d.finished and effects[1] == SaveCheckpoint(3) and effects[2] == Finish()
+    assert d.finished and effects[1] == SaveCheckpoint(3, learner) and effects[2] == Finish()
     [stats] = sent(effects, AgentStats)
     assert (stats.agent, stats.episode, stats.algorithm, stats.local_states, stats.joint_states) == (1, 3, "cq", 12, 0)
+
+
+class Counting(Stub):
+    """A Stub whose every action counts as a joint play."""
+
+    def act(self, peer_cells):
+        self.joint_plays += 1
+        return super().act(peer_cells)
+
+
+def play_agent_episode(d, episode):
+    """Agent 1 acts at step 0; the episode is truncated at step 1."""
+    return d.on_feedback(1, fb(1, episode, 0, 0, 0)) + d.on_feedback(1, fb(1, episode, 1, 0, 1, truncated=True))
+
+
+def play_central_episode(d, episode):
+    """Every agent of THREE acts at step 0; the episode is truncated at step 1."""
+    out = []
+    for step, truncated in ((0, False), (1, True)):
+        for k in (1, 2, 3):
+            out += d.on_feedback(k, fb(k, episode, step, k - 1, step, truncated=truncated))
+    return out
+
+
+@pytest.mark.parametrize("central", [False, True], ids=["agent", "central"])
+def test_the_greedy_episodes_follow_the_last_learning_one_on_a_copy_at_epsilon_0(central, tmp_path):
+    if central:
+        learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
+        d, play = CentralDriver(learner, 2, eval_episodes=2, checkpoint_every=1), play_central_episode
+    else:
+        learner = Counting()
+        d, play = AgentDriver(learner, 1, 2, eval_episodes=2, linger=0, checkpoint_every=1), play_agent_episode
+    effects = [play(d, e) for e in range(4)]
+    saved = [[x for x in out if isinstance(x, SaveCheckpoint)] for out in effects]
+    assert saved == [[SaveCheckpoint(0, learner)], [SaveCheckpoint(1, learner)], [], []]  # learning ones only
+    assert [[x for x in out if isinstance(x, Finish)] for out in effects] == [[], [], [], [Finish()]]
+    assert d.finished and d.greedy and d.learner is not learner
+    assert d.learner.epsilon == 0.0 and learner.epsilon == Settings().epsilon
+    save_checkpoint(tmp_path / "c.ckpt", saved[1][0].learner, 1)  # as the node does, once the effects are out
+    loaded, _ = load_checkpoint(tmp_path / "c.ckpt", learner.name, THREE, 0)
+    assert loaded.epsilon == Settings().epsilon  # the trained learner, not its greedy copy
+    stats = [s for out in effects for s in sent(out, AgentStats) if s.agent == 1]
+    assert [s.episode for s in stats] == [0, 1, 2, 3]
+    if not central:  # the copy acted in the greedy episodes, the original stopped; plays counted per episode
+        assert [c[0] for c in learner.calls].count("act") == 2 and [c[0] for c in d.learner.calls].count("act") == 4
+        assert [s.joint_plays for s in stats] == [1, 1, 1, 1]
+
+
+def test_the_switch_to_greedy_comes_at_the_end_of_the_last_learning_episode():
+    learner = Stub()
+    d = AgentDriver(learner, 1, 1, eval_episodes=1, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    assert d.learner is learner and not d.greedy  # still learning in episode 0
+    effects = d.on_feedback(1, fb(1, 0, 1, 0, 1, truncated=True))
+    assert d.greedy and d.learner.epsilon == 0.0 and Finish() not in effects
+    finished = AgentDriver(Stub(), 1, 1, linger=0)  # eval_episodes 0: finished right after learning
+    assert play_agent_episode(finished, 0)[-1] == Finish() and not finished.greedy
+
+
+def test_a_driver_resumed_in_the_greedy_phase_plays_greedy():
+    learner = Stub()
+    d = AgentDriver(learner, 1, 2, eval_episodes=3, linger=0, resync=True)
+    assert sent(d.on_feedback(1, fb(1, 3, 5, 0, 2))) == [Action(1, 3, 5, 1)]
+    assert d.greedy and d.learner is not learner and d.learner.epsilon == 0.0
+    assert learner.calls == [] and d.learner.calls == [("observe", THREE.index(0, 2)), ("act", {})]
+    learning = AgentDriver(Stub(), 1, 2, eval_episodes=3, linger=0, resync=True)
+    learning.on_feedback(1, fb(1, 1, 5, 0, 2))
+    assert not learning.greedy and learning.learner.epsilon == Settings().epsilon
+
+
+def test_a_central_driver_resumed_in_the_greedy_phase_plays_greedy():
+    learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
+    d = CentralDriver(learner, 2, eval_episodes=3, resync=True)
+    d.on_feedback(1, fb(1, 2, 4, 0, 1))
+    for k in (1, 2, 3):
+        effects = d.on_position(k, pos(k, 2, 4, k - 1, 1))
+    assert len(sent(effects)) == 3 and d.greedy and d.learner is not learner and d.learner.epsilon == 0.0
 
 
 def test_checkpoint_round_trip_acts_identically(tmp_path):
@@ -268,6 +346,7 @@ def test_make_driver_resumes_from_an_existing_checkpoint(tmp_path):
     cfg = agent_config({**values, "agent_id": 2, "checkpoint": str(tmp_path / "c.ckpt")})
     fresh = make_driver(cfg)
     assert fresh.expect == (0, 0) and fresh.checkpoint_every == 50
+    assert (fresh.episodes, fresh.eval_episodes) == (500, Settings().eval_episodes)
     save_checkpoint(cfg.checkpoint, fresh.learner, 9)
     resumed = make_driver(cfg, log=lambda _: None)
     assert resumed.expect is None and resumed.learner.agent == 1
@@ -382,16 +461,20 @@ class Bus:
 
 
 ALGOS = ("cq", "js", "loc", "jsa", "indep")
-CASES = [(algo, "tunnel_to_goal", 4, 15, {"window": 10, "step_cap": 300}) for algo in ALGOS]
-CASES += [(algo, "grid_game_2", 1, 60, {"window": 5}) for algo in ALGOS]
-CASES += [("cq", "tunnel_to_goal", 4, 40, {"window": 10, "step_cap": 500})]
+# A few greedy episodes each: a barely trained greedy policy may run to step_cap.
+CASES = [(algo, "tunnel_to_goal", 4, 15, {"window": 10, "step_cap": 300, "eval_episodes": 2}) for algo in ALGOS]
+CASES += [(algo, "grid_game_2", 1, 60, {"window": 5, "eval_episodes": 3}) for algo in ALGOS]
+CASES += [("cq", "tunnel_to_goal", 4, 40, {"window": 10, "step_cap": 500, "eval_episodes": 2})]
+# Slipping moves draw from the world's RNG, which the greedy episodes go on drawing from.
+CASES += [("cq", "grid_game_2", 1, 60, {"window": 5, "eval_episodes": 3, "slip": 0.2})]
 
 
 @pytest.mark.parametrize("algo,map_name,seed,episodes,overrides", CASES)
 def test_a_whole_run_without_ros_equals_the_offline_engine(algo, map_name, seed, episodes, overrides):
     gridmap = load_map(map_name)
     settings = Settings().with_overrides(overrides)
-    core = Lockstep(GridWorld(gridmap, settings), episodes, step_timeout=1.0)
+    played = episodes + settings.eval_episodes  # the world plays the greedy episodes as any other
+    core = Lockstep(GridWorld(gridmap, settings, seed=world_seed(seed, 0)), played, step_timeout=1.0)
     central = algo == "jsa"
     drivers = [make_driver(agent_config({**{n: v for n, (v, _) in PARAMETERS.items()}, **overrides,
                                          "algo": algo, "map": map_name, "seed": seed, "episodes": episodes,
@@ -400,13 +483,15 @@ def test_a_whole_run_without_ros_equals_the_offline_engine(algo, map_name, seed,
     bus = Bus(core, drivers, random.Random(seed))
     bus.run()
     assert core.finished and all(d.finished for d in drivers)
-    offline = run(algo, gridmap, settings, seed, 0, episodes).episodes
+    result = run(algo, gridmap, settings, seed, 0, episodes)
+    offline = np.vstack([result.episodes, result.greedy])  # the greedy episodes follow the learning ones
+    assert len(result.greedy) == settings.eval_episodes > 0
     assert [(s.steps, s.collisions, s.truncated) for s in bus.world_stats] == \
         [(int(e[0]), int(e[1]), bool(e[5])) for e in offline]
     # the agents' statistics add up to the engine's per-episode joint plays and state counts
     per_agent = [bus.agent_stats[1]] if central else [bus.agent_stats[k] for k in range(1, gridmap.n_agents + 1)]
-    plays = [sum(s[e].joint_plays for s in per_agent) for e in range(episodes)]
-    states = [sum(s[e].local_states + s[e].joint_states for s in per_agent) for e in range(episodes)]
+    plays = [sum(s[e].joint_plays for s in per_agent) for e in range(played)]
+    states = [sum(s[e].local_states + s[e].joint_states for s in per_agent) for e in range(played)]
     assert plays == [int(e[2]) for e in offline]
     assert states == [int(e[3]) for e in offline]
     if algo == "indep":

@@ -1,6 +1,7 @@
 """`cq-ros launch` as a process: a world and one process per AGV (or the central JSA node) give exactly the
-offline engine's episodes, CQ's agents talk less than JS's, a killed agent or Ctrl-C stops every process
-with one clear line, bad arguments exit 2 before anything starts, and no process outlives its test."""
+offline engine's episodes and greedy episodes, CQ's agents talk less than JS's, a killed agent or Ctrl-C
+stops every process with one clear line, bad arguments exit 2 before anything starts, and no process
+outlives its test."""
 
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ import pytest
 
 from cq_ros.cli import main
 from cq_ros.engine import run
+from cq_ros.experiment import write_results
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings
 from processes import alive_with
@@ -29,9 +31,11 @@ SEED = 1
 # (map, algorithm) -> (episodes, settings): short episodes on tunnel_to_goal (early ones wander for
 # thousands of steps; a negative float also checks that settings reach the nodes typed right), and on
 # grid_game_2 a window CQ fills within 40 episodes, so it marks joint states and subscribes to its peer.
+# A few greedy episodes after them (a barely trained greedy policy may run to step_cap).
 CASES = {
-    **{("tunnel_to_goal", a): (20, ("step_cap=100", "reward_step=-1")) for a in ("cq", "js", "loc")},
-    **{("grid_game_2", a): (40, ("window=10",)) for a in ("cq", "js", "loc", "jsa")},
+    **{("tunnel_to_goal", a): (20, ("step_cap=100", "reward_step=-1", "eval_episodes=2"))
+       for a in ("cq", "js", "loc")},
+    **{("grid_game_2", a): (40, ("window=10", "eval_episodes=3")) for a in ("cq", "js", "loc", "jsa")},
 }
 COLUMNS = ("steps", "collisions", "joint_plays", "states", "return", "truncated")
 
@@ -72,7 +76,7 @@ def read_episodes(out: Path) -> np.ndarray:
 
 
 @pytest.mark.parametrize("map_name, algo", list(CASES))
-def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name, algo):
+def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name, algo, tmp_path):
     out = launched(map_name, algo)
     episodes, sets = CASES[map_name, algo]
     gridmap = load_map(map_name)
@@ -91,12 +95,14 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
     if algo == "cq" and map_name == "grid_game_2":
         assert marked, "this case is chosen so that CQ marks joint states"
 
-    with open(out / "greedy.csv", newline="") as f:
-        greedy = list(csv.DictReader(f))
-    assert [(g["algo"], g["episodes"], g["collisions"]) for g in greedy] == [(algo, "0", "")]
+    # greedy.csv: the engine's greedy episodes, written as `cq-ros experiment` writes them
+    assert len(offline.greedy) == Settings().with_overrides(list(sets)).eval_episodes > 0
+    write_results(tmp_path, gridmap, [offline], {})
+    assert (out / "greedy.csv").read_text() == (tmp_path / "greedy.csv").read_text()
 
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["mode"] == "ros" and manifest["seed"] == SEED and manifest["episodes"] == episodes
+    assert "greedy" not in manifest  # as cq-ros experiment's: greedy.csv holds them
     assert manifest["settings"] == Settings().with_overrides(list(sets)).as_dict()
     learners = ["jsa"] if algo == "jsa" else [f"agv{k}" for k in range(1, gridmap.n_agents + 1)]
     assert set(manifest["communication"]) == set(learners)
@@ -156,8 +162,9 @@ def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
     assert not alive_with(namespace)
     assert code == 1
     last = err.read_text().strip().splitlines()[-1]
+    # out of 100,000 learning episodes and the default 20 greedy ones
     assert re.fullmatch(r"cq-ros launch: error: agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) "
-                        r"after \d+/100000 episodes \(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)",
+                        r"after \d+/100020 episodes \(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)",
                         last), last
     assert not (out / "episodes.csv").exists()
 
@@ -168,7 +175,7 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
     code = _wait(launcher, namespace)
     assert not alive_with(namespace)
     assert code == 130
-    assert re.search(r"cq-ros launch: interrupted by SIGINT after \d+/100000 episodes; stopped world, agv1, agv2",
+    assert re.search(r"cq-ros launch: interrupted by SIGINT after \d+/100020 episodes; stopped world, agv1, agv2",
                      err.read_text())
     for log in (out / "logs").iterdir():  # each node ended through its own Ctrl-C path, not a crash
         assert "Traceback" not in log.read_text(), log.name

@@ -268,6 +268,7 @@ def test_world_config_checks_every_parameter():
     values = {name: default for name, (default, _) in PARAMETERS.items()}
     cfg = world_config(values)
     assert cfg.gridmap.name == "tunnel_to_goal" and cfg.settings == Settings() and cfg.episodes == 500
+    assert world_config({**values, "eval_episodes": 3}).total_episodes == 503  # the greedy ones come after
     with pytest.raises(SettingsError, match="parameter map: .*no such map"):
         world_config({**values, "map": "nowhere"})
     with pytest.raises(SettingsError, match="parameter step_timeout must be > 0"):

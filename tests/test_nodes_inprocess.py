@@ -1,7 +1,7 @@
 """World and agent nodes in ONE process, on one SingleThreadedExecutor, with their own Context (on the
-session's own domain): a ROS run equals cq_ros.engine.run episode for episode, CQ listens to its peer far
-less than JS, malformed messages are counted and change nothing, a killed agent resumes from its
-checkpoint, and bad parameters or a missing peer end a node cleanly."""
+session's own domain): a ROS run equals cq_ros.engine.run episode for episode, its greedy episodes
+included, CQ listens to its peer far less than JS, malformed messages are counted and change nothing, a
+killed agent resumes from its checkpoint, and bad parameters or a missing peer end a node cleanly."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import subprocess
 import sys
 from dataclasses import dataclass, field
 
+import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
@@ -21,9 +22,10 @@ from std_msgs.msg import Int32MultiArray, MultiArrayDimension
 
 from agent_node import AgentNode
 from agent_node.driver import load_checkpoint
-from cq_ros.engine import run
+from cq_ros.engine import Team, make_learners, run, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, SettingsError
+from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
     agent_stats_topic, decode_action, decode_agent_stats, decode_world_stats, encode, feedback_topic,
@@ -94,7 +96,7 @@ def start_system(ctx, spin_until, algo, map_name, seed, episodes, settings=(), *
 
 def finish(system: System, spin_until) -> System:
     assert spin_until(system.executor, system.finished, RUN_TIMEOUT_S), "the run did not finish in time"
-    episodes = system.world.config.episodes
+    episodes = system.world.config.total_episodes
     everything = [system.world_stats, *system.agent_stats.values()]
     assert spin_until(system.executor, lambda: all(len(got) >= episodes for got in everything), 5.0), \
         [len(got) for got in everything]
@@ -120,11 +122,22 @@ def offline(algo, map_name, seed, episodes, settings=()):
     return run(algo, load_map(map_name), Settings().with_overrides(dict(settings)), seed, 0, episodes)
 
 
-# Small enough for a test, long enough for collisions, truncations and (cq, loc) peer subscriptions.
-TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 300)))
-CQ_TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 500)))  # CQ marks joint states by episode 40
-GRID = ("grid_game_2", 1, (("window", 5),))
-CASES = [("cq", CQ_TUNNEL, 40), ("js", TUNNEL, 8), ("loc", ("tunnel_to_goal", 4, (("step_cap", 200),)), 6),
+def offline_rows(algo, map_name, seed, episodes, settings=()):
+    """The engine's rows of every episode a ROS run plays: the learning ones, then the greedy ones."""
+    result = offline(algo, map_name, seed, episodes, settings)
+    return np.vstack([result.episodes, result.greedy])
+
+
+# Small enough for a test, long enough for collisions, truncations and (cq, loc) peer subscriptions; a few
+# greedy episodes (a barely trained greedy policy may run to step_cap).
+TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 300), ("eval_episodes", 2)))
+# CQ marks joint states by episode 40. No greedy episodes: its greedy policy loops to the step cap in a
+# marked joint state, subscribing anew every other step (about 20 s an episode here); the GRID case plays
+# CQ's greedy episodes.
+CQ_TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 500), ("eval_episodes", 0)))
+GRID = ("grid_game_2", 1, (("window", 5), ("eval_episodes", 3)))
+CASES = [("cq", CQ_TUNNEL, 40), ("js", TUNNEL, 8),
+         ("loc", ("tunnel_to_goal", 4, (("step_cap", 200), ("eval_episodes", 1))), 6),
          ("jsa", TUNNEL, 8), ("indep", TUNNEL, 8)]
 CASES += [(algo, GRID, 60) for algo in ("cq", "js", "loc", "jsa", "indep")]
 _RUNS: dict = {}
@@ -149,15 +162,17 @@ def case_run(case, ros_domain_id, spin_until) -> System:
 def test_a_ros_run_equals_the_offline_engine(case, ros_domain_id, spin_until):
     algo, (map_name, seed, settings), episodes = case
     system = case_run(case, ros_domain_id, spin_until)
-    table = offline(algo, map_name, seed, episodes, settings).episodes
+    table = offline_rows(algo, map_name, seed, episodes, settings)  # greedy episodes included
     assert [(s.steps, s.collisions, s.truncated) for s in system.world_stats] == \
         [(int(e[0]), int(e[1]), bool(e[5])) for e in table]
     assert all(s.missed_actions == 0 and not s.counters for s in system.world_stats)
-    # every agent reported every episode; together, the engine's joint plays
+    # every agent reported every episode; together, the engine's joint plays and states
     stats = system.agent_stats
-    assert all(len(reports) == episodes for reports in stats.values())
+    assert all(len(reports) == len(table) for reports in stats.values())
     reporters = [1] if algo == "jsa" else list(stats)  # the central node reports the same on every agvK
-    assert [sum(stats[k][e].joint_plays for k in reporters) for e in range(episodes)] == [int(e[2]) for e in table]
+    heard = [[stats[k][e] for k in reporters] for e in range(len(table))]
+    assert [(sum(s.joint_plays for s in a), sum(s.local_states + s.joint_states for s in a)) for a in heard] == \
+        [(int(e[2]), int(e[3])) for e in table]
 
 
 def test_cq_listens_to_its_peer_far_less_than_js(ros_domain_id, spin_until):
@@ -175,11 +190,12 @@ def test_cq_listens_to_its_peer_far_less_than_js(ros_domain_id, spin_until):
     for k in (1, 2):
         reports = cq.agent_stats[k]
         assert sum(r.joint_plays for r in reports) > 0 and reports[-1].peer_messages < steps / 10
-    # the marked joint states it reports are the offline learners' (the paper's Fig. 5b)
+    # the marked joint states it reports after its last learning episode are the offline learners' (the
+    # paper's Fig. 5b; the greedy episodes after it go on learning in a copy)
     kept = offline("cq", *CQ_TUNNEL[:2], 40, CQ_TUNNEL[2]).joint_states
     cells = load_map(CQ_TUNNEL[0]).cells
     reported = sorted((k - 1, m.row, m.col, m.peer - 1, m.peer_row, m.peer_col, m.confidence)
-                      for k in (1, 2) for m in cq.agent_stats[k][-1].marked)
+                      for k in (1, 2) for m in cq.agent_stats[k][40 - 1].marked)
     assert reported and reported == sorted((a, *cells[s], p, *cells[c], conf) for a, s, p, c, conf in kept)
 
 
@@ -237,7 +253,7 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
 
     injector.create_timer(0.005, inject)
     finish(system, spin_until)
-    table = offline(algo, map_name, seed, episodes, settings).episodes
+    table = offline_rows(algo, map_name, seed, episodes, settings)
     assert [(s.steps, s.collisions) for s in system.world_stats] == [(int(e[0]), int(e[1])) for e in table]
     assert all(s.missed_actions == 0 for s in system.world_stats)
     world_counts = system.world_stats[-1].counters
@@ -256,13 +272,20 @@ def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(syst
     system = system_in("cq", *GRID[:2], 30, GRID[2],
                        agent_extra={1: {"checkpoint": str(path), "checkpoint_every": 7}})
     finish(system, spin_until)
-    # after episodes 6, 13, 20, 27 and the last, 29: each a rename of a finished temporary file
+    # after episodes 6, 13, 20, 27 and the last learning one, 29 (none in the greedy episodes after it): each
+    # a rename of a finished temporary file
     assert [dest for _, dest in replaced] == [str(path)] * 5
     assert all(os.path.dirname(tmp) == str(tmp_path) for tmp, _ in replaced)
     assert os.listdir(tmp_path) == ["agv1.ckpt"]
-    gridmap = load_map(GRID[0])
+    # it holds the trained learner, the offline engine's after 30 episodes, not the greedy copy played since
+    gridmap, settings = load_map(GRID[0]), Settings().with_overrides(dict(GRID[2]))
+    team = Team(GridWorld(gridmap, settings, seed=world_seed(GRID[1], 0)),
+                make_learners("cq", gridmap, settings, GRID[1], 0))
+    for _ in range(30):
+        team.episode()
+    learner = team.learners[0]
     loaded, episode = load_checkpoint(path, "cq", gridmap, 0)
-    learner = system.agents[0].driver.learner
+    assert system.agents[0].driver.learner.epsilon == 0.0 and loaded.epsilon == settings.epsilon
     assert episode == 29 and loaded.q_local == learner.q_local and loaded.joint_states() == learner.joint_states()
     for cell, peer in itertools.product(range(gridmap.n_cells), repeat=2):  # and it acts identically
         assert loaded.observe(cell) == learner.observe(cell)
@@ -272,7 +295,10 @@ def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(syst
 def test_a_killed_agent_resumes_from_its_checkpoint(system_in, ros_context, tmp_path, spin_until):
     path = tmp_path / "agv2.ckpt"
     extra = {2: {"checkpoint": str(path), "checkpoint_every": 5}}
-    system = system_in("cq", *GRID[:2], 30, GRID[2], world_extra={"step_timeout": 0.5}, agent_extra=extra)
+    # The restarted agent learns less than the engine's, and its greedy policy may loop: one greedy episode,
+    # capped short (the learning episodes here end far below the cap).
+    settings = {**dict(GRID[2]), "eval_episodes": 1, "step_cap": 300}
+    system = system_in("cq", *GRID[:2], 30, settings, world_extra={"step_timeout": 0.5}, agent_extra=extra)
     world, agent2 = system.world, system.agents[1]
     assert spin_until(system.executor, lambda: world.core.episode >= 12, RUN_TIMEOUT_S)
     system.executor.remove_node(agent2)  # killed, a moment after its checkpoint of episode 9
@@ -281,14 +307,14 @@ def test_a_killed_agent_resumes_from_its_checkpoint(system_in, ros_context, tmp_
     assert saved_episode == 9
     assert spin_until(system.executor, lambda: world.core.missed_actions > 0, 5.0)  # it steps on without it
     restarted = AgentNode("agv2", context=ros_context, parameter_overrides=parameters(
-        map=GRID[0], episodes=30, seed=GRID[1], algo="cq", agent_id=2, **dict(GRID[2]), **extra[2]))
+        map=GRID[0], episodes=30, seed=GRID[1], algo="cq", agent_id=2, **settings, **extra[2]))
     assert restarted.driver.learner.q_local == saved.q_local  # it starts from what it had learnt
     system.agents[1] = restarted
     system.executor.add_node(restarted)
     finish(system, spin_until)
     assert sum(s.missed_actions for s in system.world_stats) >= 1
     assert restarted.driver.skipped_steps == 0 and restarted.driver.drops.total == 0
-    assert system.agent_stats[2][-1].episode == 29
+    assert system.agent_stats[2][-1].episode == 30 and restarted.driver.greedy  # after 30 learning, 1 greedy
 
 
 def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match(ros_context, spin_until):

@@ -20,12 +20,15 @@ terminal's Ctrl-C reaches the launcher only and it stops them in that order, and
 if the launcher itself dies (PR_SET_PDEATHSIG on Linux): none outlives it. Each child's output goes to
 DIR/logs/<node>.log (ROS file logging is off: the console output is the log).
 
-Results. Per episode, steps, collisions, truncation and return (summed over agents) come from WorldStats;
-joint plays and states (local + joint) are summed over the learners' AgentStats, where the central JSA node,
-which repeats its one learner's counts on every agv<k>/stats, counts once; the last AgentStats' marked joint
-states make observe.csv. The launcher plays no greedy evaluation, so greedy.csv holds the row of a run without
-one, as an offline run with eval_episodes=0 writes. The manifest adds the communication cost (per agent node:
-peer subscriptions created, peer messages; the world's missed actions and dropped-message counters).
+Results. The nodes play `episodes` learning episodes, then `eval_episodes` greedy ones (the agents on a copy
+of their learner at epsilon 0, as `cq_ros.engine.greedy_episodes`). Per episode, steps, collisions,
+truncation and return (summed over agents) come from WorldStats; joint plays and states (local + joint) are
+summed over the learners' AgentStats, where the central JSA node, which repeats its one learner's counts on
+every agv<k>/stats, counts once. The learning episodes' rows make episodes.csv, the greedy ones' greedy.csv
+(RunResult.greedy, as `cq_ros.engine.run` gives it), and the marked joint states of the last learning
+episode's AgentStats make observe.csv (the engine takes them before its greedy episodes too). The manifest
+adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
+messages; the world's missed actions and dropped-message counters).
 """
 
 from __future__ import annotations
@@ -82,6 +85,7 @@ class Interrupted(LaunchError):
 class LaunchResult:
     out: Path
     episodes: np.ndarray  # (episodes, 6), the columns of RunResult.episodes
+    greedy: np.ndarray  # (eval_episodes, 6), the same columns, as RunResult.greedy
     manifest: dict
 
 
@@ -199,8 +203,9 @@ def _ranges(numbers: list[int]) -> str:
 
 
 class StatsListener:
-    """The launcher's subscriptions: every WorldStats and AgentStats of the run, decoded through the contract
-    (a bad message is logged, counted and dropped, never raised)."""
+    """The launcher's subscriptions: every WorldStats and AgentStats of the run (`episodes` of each: learning
+    and greedy episodes alike), decoded through the contract (a bad message is logged, counted and dropped,
+    never raised)."""
 
     def __init__(self, node: Any, gridmap: GridMap, episodes: int):
         self.node = node
@@ -257,22 +262,25 @@ class StatsListener:
 
 
 class _Progress:
-    """A tqdm bar on a terminal; otherwise a plain line every 5% of the episodes (and at the last)."""
+    """A tqdm bar on a terminal; otherwise a plain line every 5% of the episodes (and at the last). It counts
+    every episode; the label says "greedy" once the learning episodes (the first `learning`) are over."""
 
-    def __init__(self, label: str, episodes: int, enabled: bool):
-        self.label, self.episodes, self.enabled = label, episodes, enabled
+    def __init__(self, label: str, episodes: int, learning: int, enabled: bool):
+        self.label, self.episodes, self.learning, self.enabled = label, episodes, learning, enabled
         self.tty = enabled and sys.stderr.isatty()
         self.bar = tqdm(total=episodes, desc=label, unit="episode", disable=not self.tty)
         self.every = max(1, episodes // 20)
         self.shown = 0
 
     def update(self, done: int, collisions: int, joint_states: int, peer_messages: int) -> None:
+        label = f"{self.label} greedy" if self.learning <= done < self.episodes else self.label
         if self.tty:
+            self.bar.set_description(label, refresh=False)
             self.bar.set_postfix(collisions=collisions, joint_states=joint_states, peer_msgs=peer_messages,
                                  refresh=False)
             self.bar.update(done - self.shown)
         elif self.enabled and (done // self.every > self.shown // self.every or done == self.episodes):
-            print(f"{self.label}: episode {done}/{self.episodes}, {collisions} collisions, {joint_states} joint "
+            print(f"{label}: episode {done}/{self.episodes}, {collisions} collisions, {joint_states} joint "
                   f"states, {peer_messages} peer messages", file=sys.stderr, flush=True)
         self.shown = done
 
@@ -316,8 +324,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     with StopSignals() as stop, ros_session("launch", domain_id=domain_id, namespace=f"/{namespace}",
                                             localhost_only=True, hidden=False) as (node, executor):
-        listener = StatsListener(node, gridmap, episodes)
-        bar = _Progress(f"{gridmap.name} {algo}", episodes, progress)
+        listener = StatsListener(node, gridmap, episodes + settings.eval_episodes)
+        bar = _Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
         try:
             for child in children:
                 child.start(env)
@@ -342,8 +350,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     run_info = dict(mode="ros", domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
                     peer_linger_steps=AGENT_PARAMETERS["peer_linger_steps"][0] if peer_linger_steps is None
                     else peer_linger_steps)
-    result = _write(out, gridmap, algo, seed, settings, time.perf_counter() - started, listener, learners,
-                    children, run_info)
+    result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
+                    learners, children, run_info)
     if figures:
         from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
 
@@ -351,22 +359,22 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     return result
 
 
-def _write(out: Path, gridmap: GridMap, algo: str, seed: int, settings: Settings, wall: float,
+def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings, wall: float,
            listener: StatsListener, learners: list[int], children: list[Child], run_info: dict) -> LaunchResult:
-    """episodes.csv, observe.csv, greedy.csv and manifest.json from the statistics heard (see the module
-    docstring for what comes from where)."""
-    episodes = listener.episodes
-    world = [listener.world[e] for e in range(episodes)]
-    per_learner = [[listener.agents[k][e] for k in learners] for e in range(episodes)]
-    table = np.array([(w.steps, w.collisions, sum(s.joint_plays for s in a),
-                       sum(s.local_states + s.joint_states for s in a), sum(w.returns), w.truncated)
-                      for w, a in zip(world, per_learner)], dtype=float).reshape(episodes, 6)
-    final = per_learner[-1]
+    """episodes.csv, observe.csv, greedy.csv and manifest.json from the statistics heard: the first `episodes`
+    (learning) and the greedy ones after them (see the module docstring for what comes from where)."""
+    played = range(listener.episodes)
+    world = [listener.world[e] for e in played]
+    per_learner = [[listener.agents[k][e] for k in learners] for e in played]
+    rows = np.array([(w.steps, w.collisions, sum(s.joint_plays for s in a),
+                      sum(s.local_states + s.joint_states for s in a), sum(w.returns), w.truncated)
+                     for w, a in zip(world, per_learner)], dtype=float).reshape(len(played), 6)
+    table, greedy = rows[:episodes], rows[episodes:]
     kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
-             m.confidence) for s in final for m in s.marked]
+             m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
+    final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
     manifest = manifest_for(
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
-        greedy="not evaluated: the launcher plays no greedy episodes (greedy.csv rows are empty)",
         nodes={c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
                for c in children},
         # children[1:] are the learners' nodes, in the order of `learners`
@@ -377,8 +385,8 @@ def _write(out: Path, gridmap: GridMap, algo: str, seed: int, settings: Settings
         world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher={"dropped": listener.drops.as_counters()})
-    write_results(out, gridmap, [RunResult(algo, 0, table, kept, np.empty((0, 6)))], manifest)
-    return LaunchResult(out, table, manifest)
+    write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest)
+    return LaunchResult(out, table, greedy, manifest)
 
 
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: _Progress,

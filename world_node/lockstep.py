@@ -13,7 +13,11 @@ collisions), it bumps no wall and gets `reward_step`, the reward of a step that 
 The warning is logged and the miss counted (`WorldStats.missed_actions`).
 
 `world_config` turns the node's parameters into a checked `WorldConfig`; a bad value raises `SettingsError`
-with one line naming the parameter.
+with one line naming the parameter. The node plays `episodes + eval_episodes` episodes: the agents learn
+in the first `episodes` and play their greedy policy in the rest, as `cq_ros.engine.run` then
+`greedy_episodes`; for the world they are alike. The engine plays the greedy ones in a deep copy of its
+world, whose RNG (used only when slip > 0) goes on from the same state; since it never uses the original
+again, going on with the one world is the same.
 """
 
 from __future__ import annotations
@@ -36,7 +40,8 @@ __all__ = ["PARAMETERS", "WorldConfig", "world_config", "Lockstep"]
 # Every field of cq_ros.settings.Settings is a parameter too, with the same name and default.
 PARAMETERS: dict[str, tuple[Any, str]] = {
     "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
-    "episodes": (500, "episodes to run; the node exits 0 after the last one"),
+    "episodes": (500, "learning episodes; then eval_episodes more, where the agents play their greedy policy "
+                      "(cq_ros.engine.greedy_episodes); the node exits 0 after the last of all"),
     "seed": (0, "experiment seed; with run it seeds the world's RNG (used only when slip > 0), "
                 "as cq_ros.engine.world_seed"),
     "run": (0, "run index (cq_ros.engine.world_seed)"),
@@ -61,6 +66,11 @@ class WorldConfig:
     step_timeout: float
     startup_timeout: float
     min_stats_subscribers: int
+
+    @property
+    def total_episodes(self) -> int:
+        """The episodes the world plays: the learning ones, then the greedy ones."""
+        return self.episodes + self.settings.eval_episodes
 
 
 def world_config(values: Mapping[str, Any]) -> WorldConfig:

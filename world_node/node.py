@@ -48,7 +48,7 @@ class WorldNode(Node):
             self.destroy_node()
             raise
         world = GridWorld(cfg.gridmap, cfg.settings, seed=world_seed(cfg.seed, cfg.run))
-        self.core = Lockstep(world, cfg.episodes, cfg.step_timeout, log=self.get_logger().warning)
+        self.core = Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=self.get_logger().warning)
         agents = range(1, world.n + 1)
         self._outputs = {
             Position: {k: self.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in agents},
@@ -60,8 +60,8 @@ class WorldNode(Node):
         self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
         self._deadline = time.monotonic() + cfg.startup_timeout
         self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
-        self.get_logger().info(f"map {cfg.gridmap.name}, {world.n} agents, {cfg.episodes} episodes: "
-                               "waiting for the agents")
+        self.get_logger().info(f"map {cfg.gridmap.name}, {world.n} agents, {cfg.episodes} episodes and "
+                               f"{cfg.settings.eval_episodes} greedy: waiting for the agents")
 
     def _missing(self) -> list[str]:
         """What the first step still waits for: agents whose action or feedback topic is not matched yet
@@ -94,7 +94,8 @@ class WorldNode(Node):
             pub = self._stats if isinstance(payload, WorldStats) else self._outputs[type(payload)][payload.agent]
             pub.publish(encode(payload))
         if self.core.finished and not self.done.done():
-            self.get_logger().info(f"all {self.config.episodes} episodes played")
+            self.get_logger().info(f"all {self.config.total_episodes} episodes played ({self.config.episodes} "
+                                   f"learning, {self.config.settings.eval_episodes} greedy)")
             self._finish(0)
 
     def _replace_timer(self, period: float, callback) -> None:
