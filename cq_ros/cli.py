@@ -231,6 +231,13 @@ def _launch(args, settings: Settings) -> int:
         print(f"cq-ros launch: error: {e}", file=sys.stderr)
         return 1
     print(format_console_table(load_episodes(result.out / "episodes.csv")))
+    if len(result.greedy):
+        steps, collisions = result.greedy[:, 0], result.greedy[:, 1]
+        print(f"greedy policy, {len(result.greedy)} episodes: {collisions.mean():.2f} collisions/ep, "
+              f"{steps.mean():.1f} steps/ep, {int(result.greedy[:, 5].sum())} truncated")
+    for node, cost in result.manifest["communication"].items():
+        print(f"{node}: {cost['peer_messages']} peer position messages, "
+              f"{cost['subscriptions_created']} subscriptions created")
     print(f"results: {result.out}")
     return 0
 

@@ -64,6 +64,7 @@ def launched(tmp_path_factory):
                                   capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
             assert done.returncode == 0, done.stderr
             assert not alive_with(namespace)
+            (out.parent / "stdout.txt").write_text(done.stdout)
             cache[map_name, algo] = out
         return cache[map_name, algo]
 
@@ -113,6 +114,20 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
         assert (out / "logs" / f"{node}.log").exists()
     for png in ("collisions.png", "steps.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_cost(launched):
+    out = launched("tunnel_to_goal", "cq")
+    stdout = (out.parent / "stdout.txt").read_text()
+    with open(out / "greedy.csv", newline="") as f:
+        greedy = next(csv.DictReader(f))
+    communication = json.loads((out / "manifest.json").read_text())["communication"]
+    assert "collisions/ep (last 10%)" in stdout and f"results: {out}" in stdout
+    assert re.search(rf"greedy policy, {greedy['episodes']} episodes: {float(greedy['collisions']):.2f} "
+                     rf"collisions/ep, {float(greedy['steps']):.1f} steps/ep", stdout)
+    for node, cost in communication.items():
+        assert (f"{node}: {cost['peer_messages']} peer position messages, "
+                f"{cost['subscriptions_created']} subscriptions created") in stdout
 
 
 @pytest.mark.parametrize("map_name", ["tunnel_to_goal", "grid_game_2"])
