@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/cq-ros experiment --map tunnel_to_goal --algo cq,indep --runs 4 --episodes 1000 --seed 1 --out results/demo --force
+	$(BIN)/cq-ros launch --map tunnel_to_goal --algo cq --episodes 300 --seed 1 --out results/demo --force
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
