@@ -116,6 +116,18 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(capsys):
+    from world_node.launch import _Progress
+
+    bar = _Progress("tunnel_to_goal cq", episodes=6, learning=4, enabled=True)  # stderr is not a terminal here
+    for done in range(1, 7):
+        bar.update(done, collisions=done, joint_states=1, peer_messages=2 * done)
+    bar.close()
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(":")[0] for line in lines] == ["tunnel_to_goal cq"] * 4 + ["tunnel_to_goal cq greedy"] * 2
+    assert lines[-1] == "tunnel_to_goal cq greedy: episode 6/6, 6 collisions, 1 joint states, 12 peer messages"
+
+
 def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_cost(launched):
     out = launched("tunnel_to_goal", "cq")
     stdout = (out.parent / "stdout.txt").read_text()

@@ -273,7 +273,7 @@ class _Progress:
         self.shown = 0
 
     def update(self, done: int, collisions: int, joint_states: int, peer_messages: int) -> None:
-        label = f"{self.label} greedy" if self.learning <= done < self.episodes else self.label
+        label = f"{self.label} greedy" if done > self.learning else self.label
         if self.tty:
             self.bar.set_description(label, refresh=False)
             self.bar.set_postfix(collisions=collisions, joint_states=joint_states, peer_msgs=peer_messages,
