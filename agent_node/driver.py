@@ -83,6 +83,9 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                                "(exit 1)"),
     "peer_linger_steps": (0, "decision steps a peer subscription is kept after the learner last named the "
                              "peer (0: drop at the first step without need)"),
+    "min_stats_subscribers": (0, "hold this node's agv<k>/stats messages until that many subscribers are "
+                                 "matched, then send them in order (cq-ros launch: 1, so that it hears every "
+                                 "episode); learning never waits for them, the exit at most 10 s"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (learning settings and rewards, "
                                        "as the world's)") for f in fields(Settings)})
@@ -103,13 +106,15 @@ class AgentConfig:
     checkpoint_every: int
     feedback_timeout: float
     peer_linger_steps: int
+    min_stats_subscribers: int
 
 
 def agent_config(values: Mapping[str, Any]) -> AgentConfig:
     """Check the node's parameter values (name -> value, already of the declared ROS type)."""
     check_numbers(values, (("episodes", 1, False), ("seed", 0, False), ("run", 0, False),
                            ("checkpoint_every", 1, False), ("feedback_timeout", 0, True),
-                           ("peer_linger_steps", 0, False), ("agent_id", 0, False)))
+                           ("peer_linger_steps", 0, False), ("agent_id", 0, False),
+                           ("min_stats_subscribers", 0, False)))
     algo = values["algo"]
     if algo not in LEARNERS:
         raise SettingsError(f"parameter algo: unknown algorithm {algo!r}; algorithms are: "
@@ -125,7 +130,7 @@ def agent_config(values: Mapping[str, Any]) -> AgentConfig:
                             f"{gridmap.name}) for algo {algo}, got {agent}")
     return AgentConfig(gridmap, settings, algo, agent, values["episodes"], values["seed"], values["run"],
                        values["checkpoint"], values["checkpoint_every"], values["feedback_timeout"],
-                       values["peer_linger_steps"])
+                       values["peer_linger_steps"], values["min_stats_subscribers"])
 
 
 def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None) -> "AgentDriver | CentralDriver":

@@ -35,6 +35,10 @@ from .driver import (
 __all__ = ["AgentNode"]
 
 FLUSH_TIMEOUT_S = 2.0  # at the end, how long to wait for subscribers to acknowledge the last statistics
+# At the end, how long statistics held for min_stats_subscribers may wait for the match (discovery takes
+# 0.05-2.8 s here, DESIGN.md field notes), and how often to look.
+STATS_MATCH_TIMEOUT_S = 10.0
+HELD_POLL_S = 0.05
 
 
 class AgentNode(Node):
@@ -59,8 +63,10 @@ class AgentNode(Node):
         self._actions = {k: self.create_publisher(
             ACTION.msg_type, action_topic(k), ACTION.qos,
             event_callbacks=PublisherEventCallbacks(matched=partial(self._on_matched, k))) for k in agents}
-        self._stats = {k: self.create_publisher(AGENT_STATS.msg_type, agent_stats_topic(k), AGENT_STATS.qos)
-                       for k in agents}
+        self._stats = {k: self.create_publisher(
+            AGENT_STATS.msg_type, agent_stats_topic(k), AGENT_STATS.qos,
+            event_callbacks=PublisherEventCallbacks(matched=partial(self._on_stats_matched, k))) for k in agents}
+        self._held_stats: dict[int, list] = {k: [] for k in agents}  # until min_stats_subscribers match
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
                                                    partial(self._on_feedback, k), FEEDBACK.qos) for k in agents]
         self._positions = {}  # peer -> its position subscription, while the driver wants it
@@ -85,7 +91,8 @@ class AgentNode(Node):
                 case Send(payload=Action() as action):
                     self._send_action(action)
                 case Send(payload=stats):
-                    self._stats[stats.agent].publish(encode(stats))
+                    self._held_stats[stats.agent].append(stats)
+                    self._send_stats(stats.agent)
                 case Subscribe(peer=peer):
                     self._positions[peer] = self.create_subscription(
                         POSITION.msg_type, position_topic(peer), partial(self._on_position, peer), POSITION.qos)
@@ -108,6 +115,17 @@ class AgentNode(Node):
         if agent in self._unsent and self._actions[agent].get_subscription_count() > 0:
             self._actions[agent].publish(encode(self._unsent.pop(agent)))
 
+    def _send_stats(self, agent: int) -> None:
+        # AgentStats are volatile: one published before its reader matched our writer would be lost, and a
+        # reader that sees the match first (as the launcher's does) cannot tell.
+        if self._stats[agent].get_subscription_count() >= self.config.min_stats_subscribers:
+            for stats in self._held_stats[agent]:
+                self._stats[agent].publish(encode(stats))
+            self._held_stats[agent].clear()
+
+    def _on_stats_matched(self, agent: int, _status: Any) -> None:
+        self._send_stats(agent)
+
     def _check_world(self) -> None:
         silent = time.monotonic() - self._last_feedback
         if silent > self.config.feedback_timeout and not self.done.done():
@@ -117,6 +135,25 @@ class AgentNode(Node):
 
     def _finish(self, code: int) -> None:
         self._watchdog.cancel()
+        if not any(self._held_stats.values()):
+            self._close(code)
+            return
+        # A short run can end before our statistics writer has matched its subscribers: wait for them, bounded.
+        deadline = time.monotonic() + STATS_MATCH_TIMEOUT_S
+        self._watchdog = self.create_timer(HELD_POLL_S, lambda: self._close_once_sent(code, deadline))
+
+    def _close_once_sent(self, code: int, deadline: float) -> None:
+        held = sum(map(len, self._held_stats.values()))
+        if held and time.monotonic() < deadline:
+            return
+        self._watchdog.cancel()
+        if held:
+            self.get_logger().warning(f"{held} statistics message(s) never sent: fewer than min_stats_subscribers="
+                                      f"{self.config.min_stats_subscribers} subscribers within "
+                                      f"{STATS_MATCH_TIMEOUT_S} s")
+        self._close(code)
+
+    def _close(self, code: int) -> None:
         end = time.monotonic() + FLUSH_TIMEOUT_S
         for pub in self._stats.values():
             pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))

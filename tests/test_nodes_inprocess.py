@@ -64,33 +64,29 @@ def parameters(**values) -> list[Parameter]:
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
-def start_system(ctx, spin_until, algo, map_name, seed, episodes, settings=(), *, world_extra=None,
+def start_system(ctx, algo, map_name, seed, episodes, settings=(), *, world_extra=None,
                  agent_extra=None) -> System:
     """A world and its agents as a launcher starts them, and a probe recording every statistics message:
-    the world waits for the probe's world/stats subscription (min_stats_subscribers=1), and joins the
-    executor once the probe's agv<k>/stats subscriptions are matched too (they are for tools, volatile)."""
+    the world waits for the probe's world/stats subscription and each agent holds its statistics until the
+    probe's agv<k>/stats subscription has matched (min_stats_subscribers=1 for both)."""
     common = {"map": map_name, "episodes": episodes, "seed": seed, **dict(settings)}
     world = WorldNode(context=ctx, parameter_overrides=parameters(
         **{**common, "step_timeout": 30.0, "min_stats_subscribers": 1, **(world_extra or {})}))
     n = load_map(map_name).n_agents
     ids = [0] if algo == "jsa" else range(1, n + 1)
     agents = [AgentNode(f"agv{k}" if k else "central", context=ctx, parameter_overrides=parameters(
-        **common, algo=algo, agent_id=k, **(agent_extra or {}).get(k, {})))
+        **common, algo=algo, agent_id=k, min_stats_subscribers=1, **(agent_extra or {}).get(k, {})))
         for k in ids]
     system = System(world, agents, SingleThreadedExecutor(context=ctx))
     probe = system.add(rclpy.create_node("probe", context=ctx))
     probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
                               lambda m: system.world_stats.append(decode_world_stats(m)), WORLD_STATS.qos)
-    stats_subs = []
     for k in range(1, n + 1):
         system.agent_stats[k] = []
-        stats_subs.append(probe.create_subscription(
-            AGENT_STATS.msg_type, agent_stats_topic(k), lambda m, k=k: system.agent_stats[k].append(
-                decode_agent_stats(m)), AGENT_STATS.qos))
-    for agent in agents:
-        system.executor.add_node(agent)
-    assert spin_until(system.executor, lambda: all(s.get_publisher_count() for s in stats_subs), 10.0)
-    system.executor.add_node(world)
+        probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k), lambda m, k=k: system.agent_stats[
+            k].append(decode_agent_stats(m)), AGENT_STATS.qos)
+    for node in (*agents, world):
+        system.executor.add_node(node)
     return system
 
 
@@ -105,12 +101,12 @@ def finish(system: System, spin_until) -> System:
 
 
 @pytest.fixture
-def system_in(ros_context, spin_until):
+def system_in(ros_context):
     """start_system(...) in the test's own context; closed after the test."""
     systems = []
 
     def start(*args, **kwargs) -> System:
-        systems.append(start_system(ros_context, spin_until, *args, **kwargs))
+        systems.append(start_system(ros_context, *args, **kwargs))
         return systems[-1]
 
     yield start
@@ -149,7 +145,7 @@ def case_run(case, ros_domain_id, spin_until) -> System:
         algo, (map_name, seed, settings), episodes = case
         ctx = Context()
         rclpy.init(context=ctx, domain_id=ros_domain_id)
-        system = start_system(ctx, spin_until, algo, map_name, seed, episodes, settings)
+        system = start_system(ctx, algo, map_name, seed, episodes, settings)
         try:
             _RUNS[case] = finish(system, spin_until)
         finally:
@@ -339,6 +335,34 @@ def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match
         executor.shutdown()
         agent.destroy_node()
         world.destroy_node()
+
+
+def test_statistics_are_held_until_min_stats_subscribers_match_then_sent_in_order(ros_context, spin_until):
+    """With min_stats_subscribers=1 an agent that plays every episode before anyone listens keeps its
+    statistics, and a subscriber that comes afterwards gets all of them, episode 0 first."""
+    episodes, greedy = 4, 1
+    common = {"map": "grid_game_2", "episodes": episodes, "seed": 1, "eval_episodes": greedy}
+    world = WorldNode(context=ros_context, parameter_overrides=parameters(**common, step_timeout=30.0))
+    agents = [AgentNode(f"agv{k}", context=ros_context, parameter_overrides=parameters(
+        **common, algo="indep", agent_id=k, min_stats_subscribers=1)) for k in (1, 2)]
+    probe = rclpy.create_node("late_probe", context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (world, *agents, probe):
+        executor.add_node(node)
+    try:
+        assert spin_until(executor, lambda: world.done.done() and all(a.done.done() for a in agents), RUN_TIMEOUT_S)
+        assert world.done.result() == 0
+        heard: dict[int, list[int]] = {1: [], 2: []}
+        for k in heard:
+            probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
+                                      lambda m, k=k: heard[k].append(decode_agent_stats(m).episode), AGENT_STATS.qos)
+        total = episodes + greedy
+        assert spin_until(executor, lambda: all(len(h) >= total for h in heard.values()), 10.0), heard
+        assert heard == {1: list(range(total)), 2: list(range(total))}
+    finally:
+        executor.shutdown()
+        for node in (world, *agents, probe):
+            node.destroy_node()
 
 
 @pytest.mark.parametrize("node_class, overrides", [

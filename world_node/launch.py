@@ -8,10 +8,12 @@ side by side never hear each other; `cq-ros echo /<namespace>/world/stats --doma
 
 Start-up. The launcher's own node (the listener, `/<namespace>/launch`) subscribes to every agv<k>/stats, then
 every child starts at once: the world, and one agent process per AGV (`agv<k>`) or the one central JSA node
-(`jsa`). The listener opens its world/stats subscription only once each agv<k>/stats subscription has matched
-its publisher, and the world runs with min_stats_subscribers:=1, so its first step waits for that: AgentStats
-are volatile, and an agent whose statistics were not yet heard when its first episode ended would lose that
-row. Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
+(`jsa`). Statistics are volatile, so a message sent before its publisher matched the listener would be lost:
+the world runs with min_stats_subscribers:=1 (its first step waits for the listener's world/stats
+subscription) and so does every agent (it holds its statistics until its own publisher has matched the
+listener, and waits for that before it exits; only the publisher's side of a match says that a message will
+arrive). Starting everything at once
+(instead of the agents first) overlaps the interpreters' start-up.
 
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
@@ -170,7 +172,8 @@ def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: 
     for name, ident in agents:
         children.append(Child(name, [*ros, "agent_node", *args, "-r", f"__node:={name}", *_params({
             **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
-            "checkpoint_every": CHECKPOINT_EVERY, **linger, **changed})], out / "logs" / f"{name}.log"))
+            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **changed})],
+            out / "logs" / f"{name}.log"))
     return children
 
 
@@ -219,14 +222,8 @@ class StatsListener:
         self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
                                                      partial(self._on_agent, k), AGENT_STATS.qos)
                             for k in self.agents]
-        self._world_sub = None
-
-    def open_world_stats(self) -> bool:
-        """Subscribe to world/stats once every agv<k>/stats has matched (see the module docstring); True then."""
-        if self._world_sub is None and all(s.get_publisher_count() > 0 for s in self._agent_subs):
-            self._world_sub = self.node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
-                                                            self._on_world, WORLD_STATS.qos)
-        return self._world_sub is not None
+        self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
+                                                   WORLD_STATS.qos)
 
     def _on_world(self, msg: Any) -> None:
         stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, source=WORLD_STATS_TOPIC)
@@ -330,9 +327,9 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             for child in children:
                 child.start(env)
             if progress:
-                print(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "
-                      + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
-                      + f"; logs in {out / 'logs'}", file=sys.stderr, flush=True)
+                tqdm.write(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "  # above the bar
+                           + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
+                           + f"; logs in {out / 'logs'}", file=sys.stderr)
             _watch(children, listener, executor, stop, bar, learners)
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
@@ -398,7 +395,6 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
             raise Interrupted(f"interrupted by {stop.received} after {len(listener.world)}/{listener.episodes} "
                               "episodes")
         executor.spin_once(timeout_sec=0.05)
-        listener.open_world_stats()
         if len(listener.world) != bar.shown:
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
