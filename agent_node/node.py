@@ -41,6 +41,32 @@ STATS_MATCH_TIMEOUT_S = 10.0
 HELD_POLL_S = 0.05
 
 
+class _HeldPublisher:
+    """A publisher that holds what it is given until its writer has matched `min_matched` subscriptions, then
+    sends it in order. Our topics here are volatile: a message published before the match is lost, and only
+    the writer's side of a match says it will arrive (a reader may see the match first, as the world's
+    action reader and the launcher's statistics readers do). With `latest_only` it holds the newest message
+    alone (a stale action is worth nothing)."""
+
+    def __init__(self, node: Node, spec: Any, topic: str, min_matched: int, latest_only: bool = False):
+        self.min_matched, self.latest_only = min_matched, latest_only
+        self.held: list = []  # payloads not sent yet
+        self.pub = node.create_publisher(spec.msg_type, topic, spec.qos,
+                                         event_callbacks=PublisherEventCallbacks(matched=lambda _: self.flush()))
+
+    def publish(self, payload: Any) -> None:
+        if self.latest_only:
+            self.held.clear()
+        self.held.append(payload)
+        self.flush()
+
+    def flush(self) -> None:
+        if self.held and self.pub.get_subscription_count() >= self.min_matched:
+            for payload in self.held:
+                self.pub.publish(encode(payload))
+            self.held.clear()
+
+
 class AgentNode(Node):
     """Parameters: see agent_node.driver.PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
     rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter).
@@ -60,17 +86,13 @@ class AgentNode(Node):
             self.destroy_node()
             raise
         agents = self.driver.agents
-        self._actions = {k: self.create_publisher(
-            ACTION.msg_type, action_topic(k), ACTION.qos,
-            event_callbacks=PublisherEventCallbacks(matched=partial(self._on_matched, k))) for k in agents}
-        self._stats = {k: self.create_publisher(
-            AGENT_STATS.msg_type, agent_stats_topic(k), AGENT_STATS.qos,
-            event_callbacks=PublisherEventCallbacks(matched=partial(self._on_stats_matched, k))) for k in agents}
-        self._held_stats: dict[int, list] = {k: [] for k in agents}  # until min_stats_subscribers match
+        # Feedback proves the world's action reader exists, not that our writer has matched it yet.
+        self._actions = {k: _HeldPublisher(self, ACTION, action_topic(k), 1, latest_only=True) for k in agents}
+        self._stats = {k: _HeldPublisher(self, AGENT_STATS, agent_stats_topic(k), cfg.min_stats_subscribers)
+                       for k in agents}
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
                                                    partial(self._on_feedback, k), FEEDBACK.qos) for k in agents]
         self._positions = {}  # peer -> its position subscription, while the driver wants it
-        self._unsent: dict[int, Action] = {}  # agent -> action held until its publisher matches the world
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._last_feedback = time.monotonic()
         self._watchdog = self.create_timer(cfg.feedback_timeout / 4, self._check_world)
@@ -89,10 +111,9 @@ class AgentNode(Node):
         for effect in effects:
             match effect:
                 case Send(payload=Action() as action):
-                    self._send_action(action)
+                    self._actions[action.agent].publish(action)
                 case Send(payload=stats):
-                    self._held_stats[stats.agent].append(stats)
-                    self._send_stats(stats.agent)
+                    self._stats[stats.agent].publish(stats)
                 case Subscribe(peer=peer):
                     self._positions[peer] = self.create_subscription(
                         POSITION.msg_type, position_topic(peer), partial(self._on_position, peer), POSITION.qos)
@@ -103,29 +124,6 @@ class AgentNode(Node):
                 case Finish():
                     self._finish(0)
 
-    def _send_action(self, action: Action) -> None:
-        # Feedback came, so the world's action reader exists; but our writer may match it a moment after the
-        # world saw the match from its side, and a volatile message sent before the match is lost.
-        if self._actions[action.agent].get_subscription_count() == 0:
-            self._unsent[action.agent] = action
-        else:
-            self._actions[action.agent].publish(encode(action))
-
-    def _on_matched(self, agent: int, _status: Any) -> None:
-        if agent in self._unsent and self._actions[agent].get_subscription_count() > 0:
-            self._actions[agent].publish(encode(self._unsent.pop(agent)))
-
-    def _send_stats(self, agent: int) -> None:
-        # AgentStats are volatile: one published before its reader matched our writer would be lost, and a
-        # reader that sees the match first (as the launcher's does) cannot tell.
-        if self._stats[agent].get_subscription_count() >= self.config.min_stats_subscribers:
-            for stats in self._held_stats[agent]:
-                self._stats[agent].publish(encode(stats))
-            self._held_stats[agent].clear()
-
-    def _on_stats_matched(self, agent: int, _status: Any) -> None:
-        self._send_stats(agent)
-
     def _check_world(self) -> None:
         silent = time.monotonic() - self._last_feedback
         if silent > self.config.feedback_timeout and not self.done.done():
@@ -135,7 +133,7 @@ class AgentNode(Node):
 
     def _finish(self, code: int) -> None:
         self._watchdog.cancel()
-        if not any(self._held_stats.values()):
+        if not any(pub.held for pub in self._stats.values()):
             self._close(code)
             return
         # A short run can end before our statistics writer has matched its subscribers: wait for them, bounded.
@@ -143,7 +141,7 @@ class AgentNode(Node):
         self._watchdog = self.create_timer(HELD_POLL_S, lambda: self._close_once_sent(code, deadline))
 
     def _close_once_sent(self, code: int, deadline: float) -> None:
-        held = sum(map(len, self._held_stats.values()))
+        held = sum(len(pub.held) for pub in self._stats.values())
         if held and time.monotonic() < deadline:
             return
         self._watchdog.cancel()
@@ -155,6 +153,6 @@ class AgentNode(Node):
 
     def _close(self, code: int) -> None:
         end = time.monotonic() + FLUSH_TIMEOUT_S
-        for pub in self._stats.values():
-            pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
+        for stats in self._stats.values():
+            stats.pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
         self.done.set_result(code)

@@ -12,8 +12,7 @@ every child starts at once: the world, and one agent process per AGV (`agv<k>`) 
 the world runs with min_stats_subscribers:=1 (its first step waits for the listener's world/stats
 subscription) and so does every agent (it holds its statistics until its own publisher has matched the
 listener, and waits for that before it exits; only the publisher's side of a match says that a message will
-arrive). Starting everything at once
-(instead of the agents first) overlaps the interpreters' start-up.
+arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
 
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
