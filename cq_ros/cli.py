@@ -62,9 +62,11 @@ def _algo(text: str) -> str:
     return text
 
 
-def _add_settings_options(p: argparse.ArgumentParser) -> None:
+def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="change a setting (repeatable); `cq-ros settings` lists them")
+                   help="change a setting (repeatable); `cq-ros settings` lists them" + (
+                       "; a node parameter too (e.g. feedback_timeout=60, heartbeat_period=0.5: the "
+                       "`PARAMETERS` of world_node/lockstep.py and agent_node/driver.py)" if nodes else ""))
     p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
 
 
@@ -103,7 +105,7 @@ def _add_ros_parsers(sub) -> None:
                    help="decision steps an agent keeps a peer subscription it no longer needs (default: the "
                         "agent node's, 0)")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
-    _add_settings_options(p)
+    _add_settings_options(p, nodes=True)
 
     p = sub.add_parser("echo", help="print the messages of a topic as YAML, like `ros2 topic echo`")
     p.add_argument("topic", help="topic name, e.g. /cq_1a2b3c4d/agv1/position")
@@ -187,9 +189,9 @@ def _dispatch(args) -> int:
         return 0
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
-    settings = Settings().with_overrides(args.overrides)
     if args.command == "launch":
-        return _launch(args, settings)
+        return _launch(args)
+    settings = Settings().with_overrides(args.overrides)
     if args.command == "experiment":
         from .experiment import experiment
         from .summary import format_console_table, load_episodes
@@ -214,15 +216,16 @@ def _dispatch(args) -> int:
 # works without it.
 
 
-def _launch(args, settings: Settings) -> int:
-    from world_node.launch import Interrupted, LaunchError, launch
+def _launch(args) -> int:
+    from world_node.launch import Interrupted, LaunchError, launch, split_sets
 
     from .summary import format_console_table, load_episodes
 
+    settings, node_parameters = split_sets(args.overrides)  # Settings fields and node parameters alike
     try:
         result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps,
+                        peer_linger_steps=args.peer_linger_steps, node_parameters=node_parameters,
                         force=args.force, figures=args.figures)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)

@@ -16,7 +16,7 @@ See msgs_spec/README.md (its tables are generated from this code; `python -m msg
 from .auth import KeyFileError, new_key_file, read_key
 from .codec import (
     ACTION_LAYOUT, AGENT_STATS_KEYS, ARRAY_LAYOUTS, FEEDBACK_LAYOUT, HEARTBEAT_LAYOUT, POSITION_LAYOUT,
-    WORLD_STATS_KEYS, WORLD_STATS_NAME, ArrayLayout, agent_stats_name, decode, decode_action,
+    WORLD_STATS_KEYS, WORLD_STATS_NAME, ArrayLayout, agent_stats_name, check_sequence, decode, decode_action,
     decode_agent_stats, decode_feedback, decode_heartbeat, decode_position, decode_world_stats, encode,
     encode_action, encode_agent_stats, encode_feedback, encode_heartbeat, encode_position, encode_world_stats,
 )
@@ -43,7 +43,7 @@ __all__ = [
     # codec
     "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "HEARTBEAT_LAYOUT", "ARRAY_LAYOUTS",
     "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
-    "encode", "decode", "encode_feedback", "decode_feedback", "encode_position", "decode_position",
+    "encode", "decode", "check_sequence", "encode_feedback", "decode_feedback", "encode_position", "decode_position",
     "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
     "decode_world_stats",
     "encode_agent_stats", "decode_agent_stats",

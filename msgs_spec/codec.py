@@ -193,7 +193,8 @@ def _check_cell(row: int, col: int, bounds: Bounds | None, what: str = "cell") -
         raise WireError("cell_out_of_range", f"{what} ({row}, {col}) outside the {grid} grid")
 
 
-def _check_sequence(ep: int, st: int | None, episode: int | None, step: int | None) -> None:
+def check_sequence(ep: int, st: int | None, episode: int | None, step: int | None) -> None:
+    """WireError stale_*/future_* when (ep, st) is not the expected (episode, step) (None: not checked)."""
     if episode is not None:
         if ep < episode:
             raise WireError("stale_episode", f"episode {ep}, expected {episode}")
@@ -214,7 +215,7 @@ def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
     if isinstance(payload, Heartbeat):
         if payload.beat < 1:
             raise WireError("out_of_range", f"beat = {payload.beat}, must be >= 1")
-        _check_sequence(payload.episode, payload.step, episode, step)
+        check_sequence(payload.episode, payload.step, episode, step)
         return
     _check_agent(payload.agent, bounds, agent)
     if isinstance(payload, Action):
@@ -224,7 +225,7 @@ def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
         _check_cell(payload.row, payload.col, bounds)
     if isinstance(payload, Feedback) and payload.done and payload.truncated:
         raise WireError("malformed", "done and truncated both set")
-    _check_sequence(payload.episode, payload.step, episode, step)
+    check_sequence(payload.episode, payload.step, episode, step)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -538,7 +539,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
                         f"returns for {n} agents, the world has {bounds.n_agents}")
     counters = _take_counters(values)
     _no_leftovers(values)
-    _check_sequence(ints["episode"], None, episode, None)
+    check_sequence(ints["episode"], None, episode, None)
     return WorldStats(episode=ints["episode"], steps=ints["steps"], truncated=truncated,
                       collisions=ints["collisions"], missed_actions=ints["missed_actions"],
                       returns=tuple(found[k] for k in range(1, n + 1)), duration_s=duration,
@@ -618,7 +619,7 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
         raise WireError("malformed", f"marked indices {sorted(found)}, expected 0..{len(found) - 1}")
     counters = _take_counters(values)
     _no_leftovers(values)
-    _check_sequence(ints["episode"], None, episode, None)
+    check_sequence(ints["episode"], None, episode, None)
     return AgentStats(agent=ints["agent"], episode=ints["episode"], algorithm=algorithm,
                       joint_plays=ints["joint_plays"], local_states=ints["local_states"],
                       joint_states=ints["joint_states"], subscriptions_created=ints["subscriptions_created"],
