@@ -104,10 +104,9 @@ class AgentNode(Node):
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
                                                    HEARTBEAT.reader_qos)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
-        # result: the exit code (0 last (greedy) episode played, 1 the world went silent, 2 a second system)
-        self.done = Future()
+        self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._watchdog = self.create_timer(min(cfg.feedback_timeout / 10, 1.0), self._check_world)
-        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
+        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning, refuse=False)
         self._graph_topics = [HEARTBEAT_TOPIC] + [position_topic(k) for k in range(1, cfg.gridmap.n_agents + 1)] + [
             name(k) for k in agents for name in (feedback_topic, action_topic, agent_stats_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
@@ -147,11 +146,8 @@ class AgentNode(Node):
             self._finish(1)
 
     def _check_graph(self) -> None:
-        refusal = watch_graph(self, self._graph, self._graph_topics)
+        watch_graph(self, self._graph, self._graph_topics)
         self.driver.link.extra_counters.update(self._graph.counters())
-        if refusal and not self.done.done():
-            self.get_logger().error(refusal)
-            self._finish(2)
 
     def _finish(self, code: int) -> None:
         self._watchdog.cancel()

@@ -5,10 +5,12 @@ the graph (`get_publishers_info_by_topic`) does list every writer. Every topic o
 writer (the world, or one agent node), so more than one writer on a topic is logged, once per new set of
 writers, and counted (`second_writers` in the node's statistics).
 
-A second system on the same ROS_DOMAIN_ID and namespace shows as a second node of our own name in our
-namespace. A node that sees one within `REFUSE_WITHIN_S` of its start refuses to run (the node exits 2
-with the line `check` returns); one that has run longer keeps running and logs it: the newcomer refuses.
-Discovery of a new process takes 0.05-2.8 s here (DESIGN.md field notes), hence the window.
+A second system on the same ROS_DOMAIN_ID and namespace shows as a second world node in our namespace. A
+world that sees a twin within `REFUSE_WITHIN_S` of its start refuses to run (the node exits 2 with the
+line `check` returns); one that has run longer keeps running and logs it: the newcomer refuses. Discovery
+of a new process takes 0.05-2.8 s here (DESIGN.md field notes), hence the window. Agents only log a twin:
+a killed process stays in the graph until its DDS lease runs out (about 20 s), so an agent restarted
+after a crash would see its own ghost.
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ class GraphWatch:
     """Feed it the graph now and then (`check`); it logs and counts, and says when to refuse."""
 
     def __init__(self, name: str, namespace: str, log: Callable[[str], Any] | None = None,
-                 clock: Callable[[], float] = time.monotonic, refuse_within_s: float = REFUSE_WITHIN_S):
-        self.name, self.namespace = name, namespace
+                 clock: Callable[[], float] = time.monotonic, refuse_within_s: float = REFUSE_WITHIN_S,
+                 refuse: bool = True):
+        self.name, self.namespace, self.refuse = name, namespace, refuse
         self._log = log or (lambda _msg: None)
         self._clock = clock
         self._refuse_until = clock() + refuse_within_s
@@ -41,13 +44,14 @@ class GraphWatch:
         twins = sum(1 for n in nodes if tuple(n) == (self.name, self.namespace))
         if twins > 1:
             fq = f"{self.namespace.rstrip('/')}/{self.name}"
-            if self._clock() < self._refuse_until:
-                return (f"another node named {fq} is running on this ROS_DOMAIN_ID: a second system in namespace "
-                        f"{self.namespace}? refusing to start (give this one another namespace or domain id)")
+            if self.refuse and self._clock() < self._refuse_until:
+                return (f"another node named {fq} is on this ROS_DOMAIN_ID: a second system in namespace "
+                        f"{self.namespace} (or one killed less than about 20 s ago)? refusing to start; give this "
+                        "one another namespace or domain id")
             if not self._twin_logged:
                 self._twin_logged = True
-                self._log(f"a second node named {fq} appeared on this ROS_DOMAIN_ID (a second system started "
-                          "in our namespace); it should refuse to start")
+                self._log(f"a second node named {fq} is on this ROS_DOMAIN_ID (a second system in our namespace, "
+                          "or a restarted node's ghost)")
         for topic, pubs in writers.items():
             if len(pubs) <= 1:
                 continue
