@@ -378,7 +378,7 @@ class WorldLink:
         if stamp < expected:
             _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
             return ""
-        if self.key is not None or stamp <= self.at:
+        if self.vouches_for(stamp):
             self._drop_held()
             return "adopt"
         if self.held is None or stamp < self.held[0]:
@@ -388,9 +388,14 @@ class WorldLink:
             _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
         return ""
 
+    def vouches_for(self, stamp: tuple[int, int]) -> bool:
+        """Is a feedback stamped `stamp` the world's? Any is, with the run's key; without it, one the world's
+        heartbeat has reached."""
+        return self.key is not None or stamp <= self.at
+
     def vouched(self) -> tuple | None:
         """The held (agent, feedback, cell) once the world's heartbeat has reached its stamp (no longer held)."""
-        if self.held is None or self.held[0] > self.at:
+        if self.held is None or not self.vouches_for(self.held[0]):
             return None
         _, agent, fb, cell, _ = self.held
         self.held = None
@@ -709,7 +714,7 @@ class CentralDriver:
         if cell is None:
             return []
         if self._resync is not None:  # the positions decide; a later feedback moves the step they must show
-            if (fb.episode, fb.step) > self._resync:
+            if (fb.episode, fb.step) > self._resync and self.link.vouches_for((fb.episode, fb.step)):
                 self.link.heard()
                 return self._start_resync(fb)
             return []
