@@ -7,9 +7,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
-from .gridmap import MapError, available_maps, load_map
+from tqdm import tqdm
+
+from .gridmap import ACTIONS, MapError, available_maps, load_map
 from .learners import ALGORITHMS, LEARNERS
 from .settings import Settings, SettingsError
 
@@ -149,6 +152,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_run_options(p, runs=10, episodes=10_000)
 
+    p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
+                                    "for the learners): makespan, sum of costs, arrival steps")
+    p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
+    p.add_argument("--seed", type=int, default=0, help="seed of the priority orders and LNS rounds (default 0)")
+    p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=5000, metavar="N",
+                   help="search nodes of the optimal conflict-based search before falling back on prioritized "
+                        "planning (default 5000; 0: skip it)")
+    p.add_argument("--orders", type=_positive, default=20, metavar="N",
+                   help="priority orders prioritized planning tries (default 20)")
+    p.add_argument("--rounds", type=_number(0, kind=int), default=300, metavar="N",
+                   help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
+    p.add_argument("--show", action="store_true",
+                   help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
+
     p = sub.add_parser("reproduce", help="the paper's grid (4 maps x 5 algorithms), figures and REPORT.md")
     p.add_argument("--out", type=Path, required=True, help="result directory")
     _add_run_options(p, runs=10, episodes=10_000)
@@ -185,6 +202,8 @@ def _dispatch(args) -> int:
         for key, value in Settings().as_dict().items():
             print(f"{key} = {value}")
         return 0
+    if args.command == "plan":
+        return _plan(args)
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
     settings = Settings().with_overrides(args.overrides)
@@ -208,6 +227,66 @@ def _dispatch(args) -> int:
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
+
+
+def _plan(args) -> int:
+    from .planner import NoPlan, PlanError, distances_to, plan, validate
+
+    gridmap = load_map(args.map)
+    started = time.perf_counter()
+    progress = _PlanProgress()
+    try:
+        result = plan(gridmap, args.seed, args.cbs_nodes, args.orders, args.rounds, progress)
+    except NoPlan as e:
+        print(f"cq-ros plan: {e}", file=sys.stderr)
+        return 1
+    finally:
+        progress.close()
+    seconds = time.perf_counter() - started
+    try:
+        arrivals = validate(gridmap, result)
+    except PlanError as e:
+        print(f"cq-ros plan: the world rejects the plan (a planner bug): {e}", file=sys.stderr)
+        return 1
+    alone = sum(distances_to(gridmap, goal)[start] for start, goal in zip(gridmap.starts, gridmap.goals))
+    print(f"{gridmap.name}: {gridmap.n_agents} agents, {result.method}"
+          f"{' (optimal sum of costs)' if result.optimal else ''}")
+    print(f"makespan {result.makespan}, sum of costs {result.sum_of_costs} (each agent alone: {alone:g})")
+    print("arrival steps: " + ", ".join(f"agv{i + 1} {step}" for i, step in enumerate(arrivals)))
+    print(f"planning time {seconds:.2f} s; replayed through the world: every agent at its goal, no collision")
+    if args.show:
+        for i, (path, actions) in enumerate(zip(result.paths, result.actions)):
+            moves = "".join(ACTIONS[a][0] if b != a_cell else ACTIONS[a][0].lower()
+                            for a, a_cell, b in zip(actions, path, path[1:]))
+            print(f"agv{i + 1} {gridmap.cells[path[0]]} -> {gridmap.cells[path[-1]]}: {moves or '(at its goal)'}")
+    return 0
+
+
+class _PlanProgress:
+    """The planner's progress on stderr: a tqdm bar per phase on a terminal, a plain line at most every 30 s
+    elsewhere."""
+
+    def __init__(self):
+        self.tty = sys.stderr.isatty()
+        self.bar = None
+        self.phase = None
+        self.last_line = time.monotonic()
+
+    def __call__(self, phase: str, done: int, total: int) -> None:
+        if self.tty:
+            if phase != self.phase:
+                self.close()
+                self.bar = tqdm(total=total, desc=f"plan: {phase}", leave=False)
+            self.bar.update(done - self.bar.n)
+        elif time.monotonic() - self.last_line >= 30:
+            print(f"cq-ros plan: {phase} {done}/{total}", file=sys.stderr, flush=True)
+            self.last_line = time.monotonic()
+        self.phase = phase
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 # The ROS commands import rclpy (through world_node and msgs_spec) only when they run: the rest of cq_ros
