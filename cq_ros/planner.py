@@ -134,21 +134,24 @@ def distances_to(gridmap: GridMap, goal: int) -> list[float]:
     return dist
 
 
-def find_path(gridmap: GridMap, start: int, goal: int, dist: list[float], rules: Rules) -> tuple[int, ...] | None:
-    """The earliest-arriving path from `start` to `goal` under `rules` (cells at steps 0..arrival), or None.
+def find_path(gridmap: GridMap, start: int, goal: int, dist: list[float], rules: Rules,
+              busy: frozenset = frozenset()) -> tuple[int, ...] | None:
+    """The earliest-arriving path from `start` to `goal` under `rules` (cells at steps 0..arrival), or None;
+    among the earliest, one through the fewest (step, cell) of `busy` (where the other agents are).
 
-    A state is (cell, step), with steps past `rules.horizon` merged, so the search is finite. Successors are
-    the cells the four actions lead to; the cell itself only where an action bumps (that is how one waits).
+    A state is (cell, step), with steps past the last of `rules` and `busy` merged, so the search is finite.
+    Successors are the cells the four actions lead to; the cell itself only where an action bumps (that is
+    how one waits).
     """
     if start == goal:
         return (start,) if rules.may_arrive(goal, 0) else None
-    settle = rules.horizon
-    best = {(start, 0): 0}
+    settle = max([rules.horizon] + [t for t, _ in busy])
+    best = {(start, 0): (0, 0)}
     parent: dict[tuple[int, int], tuple[int, int]] = {}
-    heap = [(dist[start], 0, start)]  # (f, -step, cell): among equal f, the deepest first
+    heap = [(dist[start], 0, 0, start)]  # (f, conflicts, -step, cell): then the deepest first
     closed = set()
     while heap:
-        _, minus_t, cell = heapq.heappop(heap)
+        _, crossed, minus_t, cell = heapq.heappop(heap)
         t = -minus_t
         key = (cell, min(t, settle))
         if key in closed:
@@ -161,10 +164,10 @@ def find_path(gridmap: GridMap, start: int, goal: int, dist: list[float], rules:
                 continue
             if there == goal and not rules.may_arrive(goal, t + 1):
                 continue  # reaching one's goal ends the journey, so no passing through it
-            nxt = (there, min(t + 1, settle))
-            if t + 1 < best.get(nxt, _NEVER):
-                best[nxt], parent[nxt] = t + 1, key
-                heapq.heappush(heap, (t + 1 + dist[there], -(t + 1), there))
+            nxt, cost = (there, min(t + 1, settle)), (t + 1, crossed + ((t + 1, there) in busy))
+            if cost < best.get(nxt, (_NEVER,)):
+                best[nxt], parent[nxt] = cost, key
+                heapq.heappush(heap, (t + 1 + dist[there], cost[1], -(t + 1), there))
     return None
 
 
@@ -183,23 +186,24 @@ def _at(path: tuple[int, ...], t: int) -> int:
     return path[min(t, len(path) - 1)]
 
 
-def first_conflict(paths: list[tuple[int, ...]], goals: tuple[int, ...]) -> tuple | None:
-    """The earliest conflict in the world's terms, as ("at", t, cell, i, j) or ("move", t, a, b, i, j) where
-    agent i moves a->b while j moves b->a; None if the paths are conflict-free."""
-    for t in range(1, max(len(p) for p in paths)):
+def conflicts(paths: list[tuple[int, ...]], goals: tuple[int, ...]):
+    """The conflicts in the world's terms, earliest first: ("at", t, cell, i, j) where agents i and j end
+    step t in one cell that is not a goal of both, ("move", t, a, b, i, j) where i moves a->b as j moves b->a."""
+    length = max(len(p) for p in paths)
+    padded = [path + path[-1:] * (length - len(path)) for path in paths]  # at their goals for good
+    for t in range(1, length):
         here: dict[int, int] = {}
         moving: dict[tuple[int, int], int] = {}
-        for i, path in enumerate(paths):
-            cell = _at(path, t)
+        for i, path in enumerate(padded):
+            cell = path[t]
             j = here.setdefault(cell, i)
             if j != i and not goals[i] == goals[j] == cell:
-                return ("at", t, cell, j, i)
-            move = (_at(path, t - 1), cell)
+                yield ("at", t, cell, j, i)
+            move = (path[t - 1], cell)
             if move[0] != move[1]:
                 if (move[1], move[0]) in moving:
-                    return ("move", t, *move, i, moving[(move[1], move[0])])
+                    yield ("move", t, *move, i, moving[(move[1], move[0])])
                 moving[move] = i
-    return None
 
 
 def conflict_based_search(gridmap: GridMap, dists: list[list[float]], max_nodes: int,
@@ -211,24 +215,30 @@ def conflict_based_search(gridmap: GridMap, dists: list[list[float]], max_nodes:
     if any(p is None for p in paths):
         return None
     tie = count()
-    open_nodes = [(_cost(paths), next(tie), constraints, paths)]
+    open_nodes = [(_rank(paths, goals), next(tie), constraints, paths)]
     for expanded in range(max_nodes):
         if not open_nodes:
             return None
         if progress and expanded % 100 == 0:
             progress(expanded)
         _, _, constraints, paths = heapq.heappop(open_nodes)
-        conflict = first_conflict(paths, goals)
+        conflict = next(conflicts(paths, goals), None)
         if conflict is None:
             return paths
         for agent, constraint in _split(conflict):
             mine = constraints[agent] | {constraint}
-            path = find_path(gridmap, starts[agent], goals[agent], dists[agent], Rules.from_constraints(mine))
+            busy = frozenset((t, cell) for j, p in enumerate(paths) if j != agent for t, cell in enumerate(p))
+            path = find_path(gridmap, starts[agent], goals[agent], dists[agent], Rules.from_constraints(mine), busy)
             if path is not None:
                 child_paths = paths[:agent] + [path] + paths[agent + 1:]
                 child = constraints[:agent] + [mine] + constraints[agent + 1:]
-                heapq.heappush(open_nodes, (_cost(child_paths), next(tie), child, child_paths))
+                heapq.heappush(open_nodes, (_rank(child_paths, goals), next(tie), child, child_paths))
     return None
+
+
+def _rank(paths: list[tuple[int, ...]], goals: tuple[int, ...]) -> tuple[int, int]:
+    """Which node conflict-based search expands first: the least sum of costs, then the fewest conflicts."""
+    return sum(len(p) - 1 for p in paths), sum(1 for _ in conflicts(paths, goals))
 
 
 def _cost(paths: list[tuple[int, ...]]) -> tuple[int, int]:

@@ -4,11 +4,10 @@ the world's joint states, the validator's verdicts, every shipped map, and `cq-r
 import heapq
 import itertools
 import random
-import subprocess
-import sys
 
 import pytest
 
+from cq_ros.cli import main
 from cq_ros.gridmap import _opens_into, _render, available_maps, load_map, parse_map
 from cq_ros.planner import NoPlan, Plan, PlanError, distances_to, plan, prioritized, validate
 from cq_ros.world import N_ACTIONS, GridWorld
@@ -235,27 +234,25 @@ def test_conflict_based_search_finds_the_least_sum_of_costs_the_world_allows(see
 # --- the command ------------------------------------------------------------------------------------------
 
 
-def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "cq_ros.cli", *args], capture_output=True, text=True, timeout=120)
-
-
-def test_plan_command_prints_the_figures(tmp_path):
+def test_plan_command_prints_the_figures(tmp_path, capsys):
     path = tmp_path / "corridor.txt"
     path.write_text(CORRIDOR_WITH_SIDE_CELL)
-    result = run_cli("plan", "--map", str(path), "--show")
-    assert result.returncode == 0, result.stderr
-    assert "makespan 3, sum of costs 5 (each agent alone: 4)" in result.stdout
-    assert "arrival steps: agv1 2, agv2 3" in result.stdout
-    assert "planning time" in result.stdout
-    assert "agv2 (1, 1) -> (0, 0): eNW" in result.stdout  # lower case: the bump that is a wait
+    assert main(["plan", "--map", str(path), "--show"]) == 0
+    out = capsys.readouterr().out
+    assert "makespan 3, sum of costs 5 (each agent alone: 4)" in out
+    assert "arrival steps: agv1 2, agv2 3" in out
+    assert "planning time" in out
+    assert "agv2 (1, 1) -> (0, 0): eNW" in out  # lower case: the bump that is a wait
 
 
-def test_plan_command_without_a_plan_exits_1_and_with_bad_arguments_2(tmp_path):
+def test_plan_command_without_a_plan_exits_1_and_with_bad_arguments_2(tmp_path, capsys):
     path = tmp_path / "bay.txt"
     path.write_text(BAY)
-    result = run_cli("plan", "--map", str(path), "--cbs-nodes", "0", "--orders", "2")
-    assert result.returncode == 1 and "no plan found for bay" in result.stderr
+    assert main(["plan", "--map", str(path), "--cbs-nodes", "0", "--orders", "2"]) == 1
+    assert "no plan found for bay" in capsys.readouterr().err
     for args, phrase in ((["--map", "nowhere"], "no such map"), (["--map", "isr", "--orders", "0"], "at least 1")):
-        result = run_cli("plan", *args)
-        assert result.returncode == 2 and phrase in result.stderr
-        assert len(result.stderr.strip().splitlines()) == 1
+        with pytest.raises(SystemExit) as exit_:
+            main(["plan", *args])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and phrase in err
+        assert len(err.strip().splitlines()) == 1
