@@ -4,15 +4,17 @@ measured against (issue 11), not a learner.
 The rules are those of `cq_ros.world`: every agent that has not arrived moves every step; it stays put only
 by bumping into a wall, the edge or a '#' cell, so it can wait only in a cell with a blocked direction; two
 agents may not end a step in one cell unless it is a goal of both, nor swap cells; an agent that reaches its
-goal stays there for good (and an agent bound for the same goal may still enter it). Maintained MAPF
-libraries (and the PyPI ones, e.g. cbs-mapf) give every agent a free wait action and let an arrived agent
-move on, so plans they find can fail in this world; the search here is small enough to own.
+goal stays there for good (and an agent bound for the same goal may still enter it). The MAPF packages on
+PyPI (cbs-mapf, unchanged since 2020, and course projects) give every agent a free wait action, so plans
+they find can fail in this world; the search here is small enough to own.
 
 Two searches share one space-time A* (`find_path`), which obeys a set of `Rules` (cells and moves forbidden
 at given steps, goals of others held for good from their arrival):
-- conflict-based search (Sharon et al. 2015): optimal sum of costs, up to a budget of search nodes;
+- conflict-based search (Sharon et al. 2015), ties broken by conflicts: optimal sum of costs, within a
+  budget of search nodes (enough for 8 and 16 AGVs, not for 32);
 - prioritized planning: each agent in turn avoids the paths of those before it, over a few deterministic
-  priority orders (farthest first, then the agent that failed first, then shuffles drawn from the seed).
+  priority orders (farthest first, then the agent that failed first, then shuffles drawn from the seed),
+  then improved by large neighbourhood search (replanning a few agents at a time around the others).
 `plan` tries the first and falls back on the second. `validate` replays a plan through `GridWorld.step_joint`,
 so a plan is checked against the world, not against the planner's model of it.
 
@@ -182,10 +184,6 @@ def _walk_back(parent: dict, key: tuple[int, int], length: int) -> tuple[int, ..
 # --- many agents ------------------------------------------------------------------------------------------
 
 
-def _at(path: tuple[int, ...], t: int) -> int:
-    return path[min(t, len(path) - 1)]
-
-
 def conflicts(paths: list[tuple[int, ...]], goals: tuple[int, ...]):
     """The conflicts in the world's terms, earliest first: ("at", t, cell, i, j) where agents i and j end
     step t in one cell that is not a goal of both, ("move", t, a, b, i, j) where i moves a->b as j moves b->a."""
@@ -208,10 +206,13 @@ def conflicts(paths: list[tuple[int, ...]], goals: tuple[int, ...]):
 
 def conflict_based_search(gridmap: GridMap, dists: list[list[float]], max_nodes: int,
                           progress: Callable[[int], None] | None = None) -> list[tuple[int, ...]] | None:
-    """Paths with the least sum of costs, or None if none was found within `max_nodes` search nodes."""
+    """Paths with the least sum of costs, or None if none was found within `max_nodes` search nodes.
+
+    Among nodes of equal cost the one with the fewest conflicts goes first, and a replanned agent takes,
+    among its earliest paths, one through the fewest cells the others occupy: both only speed the search."""
     starts, goals, n = gridmap.starts, gridmap.goals, gridmap.n_agents
     constraints = [frozenset()] * n
-    paths = [find_path(gridmap, starts[i], goals[i], dists[i], Rules()) for i in range(n)] if n else []
+    paths = [find_path(gridmap, starts[i], goals[i], dists[i], Rules()) for i in range(n)]
     if any(p is None for p in paths):
         return None
     tie = count()
@@ -345,6 +346,10 @@ def _with_actions(gridmap: GridMap, paths: list[tuple[int, ...]], method: str, o
 
 
 # --- the check against the world --------------------------------------------------------------------------
+
+
+def _at(path: tuple[int, ...], t: int) -> int:
+    return path[min(t, len(path) - 1)]
 
 
 def validate(gridmap: GridMap, the_plan: Plan) -> list[int]:
