@@ -231,6 +231,29 @@ def test_conflict_based_search_finds_the_least_sum_of_costs_the_world_allows(see
         assert result.optimal and result.sum_of_costs == optimum
 
 
+@pytest.mark.parametrize("seed", range(20))
+def test_prioritized_plans_with_neighbourhood_search_are_carried_out_by_the_world(seed):
+    # Denser instances than above (18 of these 20 get a plan), for the planner the larger maps rely on;
+    # `solved` replays the plan through the world.
+    rng = random.Random(seed)
+    m = None
+    while m is None:
+        m = random_instance(rng, 4, 4, 5)
+    try:
+        result = solved(m, cbs_nodes=0, orders=5, rounds=20, seed=seed)
+    except NoPlan:
+        return
+    alone = sum(distances_to(m, goal)[start] for start, goal in zip(m.starts, m.goals))
+    assert not result.optimal and result.sum_of_costs >= alone
+
+
+def test_the_same_seed_gives_the_same_plan():
+    m = load_map("warehouse_8")
+    plans = [plan(m, seed=seed, cbs_nodes=0, rounds=30) for seed in (1, 1, 2)]
+    assert plans[0] == plans[1]
+    assert all(validate(m, p) == list(p.arrivals) for p in plans)
+
+
 # --- the command ------------------------------------------------------------------------------------------
 
 
