@@ -238,7 +238,7 @@ def _plan(args) -> int:
     try:
         result = plan(gridmap, args.seed, args.cbs_nodes, args.orders, args.rounds, progress)
     except NoPlan as e:
-        print(f"cq-ros plan: {e}", file=sys.stderr)
+        print(f"cq-ros plan: {e} (--cbs-nodes and --orders search longer)", file=sys.stderr)
         return 1
     finally:
         progress.close()

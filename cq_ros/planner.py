@@ -331,7 +331,7 @@ def plan(gridmap: GridMap, seed: int = 0, cbs_nodes: int = 2000, orders: int = 2
             return _with_actions(gridmap, paths, method, optimal=False)
         order = chooser.send(failed)
     raise NoPlan(f"no plan found for {gridmap.name}: conflict-based search ran out of its {cbs_nodes} nodes and "
-                 f"prioritized planning failed with {orders} priority orders (raise --cbs-nodes or --orders)")
+                 f"prioritized planning failed with {orders} priority orders; the instance may have no plan at all")
 
 
 def _phase(progress: Callable[[str, int, int], None] | None, phase: str, total: int):
