@@ -249,9 +249,9 @@ def _plan(args) -> int:
         print(f"cq-ros plan: the world rejects the plan (a planner bug): {e}", file=sys.stderr)
         return 1
     alone = sum(distances_to(gridmap, goal)[start] for start, goal in zip(gridmap.starts, gridmap.goals))
-    print(f"{gridmap.name}: {gridmap.n_agents} agents, {result.method}"
-          f"{' (optimal sum of costs)' if result.optimal else ''}")
-    print(f"makespan {result.makespan}, sum of costs {result.sum_of_costs} (each agent alone: {alone:g})")
+    least = "the least possible" if result.optimal else f"the least possible is at least {result.lower_bound}"
+    print(f"{gridmap.name}: {gridmap.n_agents} agents, {result.method}")
+    print(f"makespan {result.makespan}, sum of costs {result.sum_of_costs} ({least}; each agent alone: {alone:g})")
     print("arrival steps: " + ", ".join(f"agv{i + 1} {step}" for i, step in enumerate(arrivals)))
     print(f"planning time {seconds:.2f} s; replayed through the world: every agent at its goal, no collision")
     if args.show:

@@ -48,12 +48,13 @@ class PlanError(ValueError):
 @dataclass(frozen=True)
 class Plan:
     """Each agent's cells at steps 0..arrival (it stays at its goal afterwards) and the actions that take it
-    there; `method` says which search found it, `optimal` whether its sum of costs is proven least."""
+    there; `method` says which search found it, `lower_bound` what the least sum of costs is proven to be at
+    least (the planner's search, or each agent's shortest path alone)."""
 
     paths: tuple[tuple[int, ...], ...]
     actions: tuple[tuple[int, ...], ...]
     method: str
-    optimal: bool
+    lower_bound: int
 
     @property
     def arrivals(self) -> tuple[int, ...]:
@@ -66,6 +67,10 @@ class Plan:
     @property
     def sum_of_costs(self) -> int:
         return sum(self.arrivals)
+
+    @property
+    def optimal(self) -> bool:
+        return self.sum_of_costs == self.lower_bound
 
 
 # --- the rules one agent's search obeys ------------------------------------------------------------------
@@ -205,8 +210,9 @@ def conflicts(paths: list[tuple[int, ...]], goals: tuple[int, ...]):
 
 
 def conflict_based_search(gridmap: GridMap, dists: list[list[float]], max_nodes: int,
-                          progress: Callable[[int], None] | None = None) -> list[tuple[int, ...]] | None:
-    """Paths with the least sum of costs, or None if none was found within `max_nodes` search nodes.
+                          progress: Callable[[int], None] | None = None) -> tuple[list | None, float]:
+    """(paths with the least sum of costs, that sum), or (None, a lower bound on it) if none was found within
+    `max_nodes` search nodes.
 
     Among nodes of equal cost the one with the fewest conflicts goes first, and a replanned agent takes,
     among its earliest paths, one through the fewest cells the others occupy: both only speed the search."""
@@ -214,27 +220,38 @@ def conflict_based_search(gridmap: GridMap, dists: list[list[float]], max_nodes:
     constraints = [frozenset()] * n
     paths = [find_path(gridmap, starts[i], goals[i], dists[i], Rules()) for i in range(n)]
     if any(p is None for p in paths):
-        return None
+        return None, 0
     tie = count()
-    open_nodes = [(_rank(paths, goals), next(tie), constraints, paths)]
+    rank = _rank(paths, goals)
+    open_nodes = [(rank, next(tie), constraints, paths)]
     for expanded in range(max_nodes):
         if not open_nodes:
-            return None
+            break
         if progress and expanded % 100 == 0:
             progress(expanded)
-        _, _, constraints, paths = heapq.heappop(open_nodes)
+        rank, _, constraints, paths = heapq.heappop(open_nodes)
         conflict = next(conflicts(paths, goals), None)
         if conflict is None:
-            return paths
+            return paths, rank[0]
+        children = []
         for agent, constraint in _split(conflict):
             mine = constraints[agent] | {constraint}
             busy = frozenset((t, cell) for j, p in enumerate(paths) if j != agent for t, cell in enumerate(p))
             path = find_path(gridmap, starts[agent], goals[agent], dists[agent], Rules.from_constraints(mine), busy)
-            if path is not None:
-                child_paths = paths[:agent] + [path] + paths[agent + 1:]
-                child = constraints[:agent] + [mine] + constraints[agent + 1:]
-                heapq.heappush(open_nodes, (_rank(child_paths, goals), next(tie), child, child_paths))
-    return None
+            if path is None:
+                continue
+            child_paths = paths[:agent] + [path] + paths[agent + 1:]
+            child_rank = _rank(child_paths, goals)
+            if child_rank[0] == rank[0] and child_rank[1] < rank[1]:
+                # Bypass (Boyarski et al. 2015): as cheap and fewer conflicts, and the new path obeys this
+                # node's constraints too, so this node takes it instead of branching.
+                children = [(child_rank, constraints, child_paths)]
+                break
+            children.append((child_rank, constraints[:agent] + [mine] + constraints[agent + 1:], child_paths))
+        for child in children:
+            heapq.heappush(open_nodes, (child[0], next(tie), *child[1:]))
+    # Best first: every node left costs at least the cheapest, and so does every plan below them.
+    return None, min(open_nodes)[0][0] if open_nodes else rank[0]
 
 
 def _rank(paths: list[tuple[int, ...]], goals: tuple[int, ...]) -> tuple[int, int]:
@@ -314,10 +331,11 @@ def plan(gridmap: GridMap, seed: int = 0, cbs_nodes: int = 2000, orders: int = 2
 
     `progress(phase, done, total)` is called as the search goes: "cbs" nodes, priority "orders", "rounds"."""
     dists = [distances_to(gridmap, goal) for goal in gridmap.goals]
+    bound = sum(int(dist[start]) for dist, start in zip(dists, gridmap.starts))
     if cbs_nodes:
-        paths = conflict_based_search(gridmap, dists, cbs_nodes, _phase(progress, "cbs", cbs_nodes))
+        paths, bound = conflict_based_search(gridmap, dists, cbs_nodes, _phase(progress, "cbs", cbs_nodes))
         if paths is not None:
-            return _with_actions(gridmap, paths, "conflict-based search", optimal=True)
+            return _with_actions(gridmap, paths, "conflict-based search", bound)
     rng = random.Random(seed)
     chooser = priority_orders(gridmap, dists, rng)
     order = next(chooser)
@@ -328,7 +346,7 @@ def plan(gridmap: GridMap, seed: int = 0, cbs_nodes: int = 2000, orders: int = 2
         if paths is not None:
             paths = improve(gridmap, dists, paths, rounds, rng, _phase(progress, "rounds", rounds))
             method = f"prioritized planning (priority order {k} of {orders} tried), then {rounds} rounds of LNS"
-            return _with_actions(gridmap, paths, method, optimal=False)
+            return _with_actions(gridmap, paths, method, bound)
         order = chooser.send(failed)
     raise NoPlan(f"no plan found for {gridmap.name}: conflict-based search ran out of its {cbs_nodes} nodes and "
                  f"prioritized planning failed with {orders} priority orders; the instance may have no plan at all")
@@ -338,11 +356,11 @@ def _phase(progress: Callable[[str, int, int], None] | None, phase: str, total: 
     return (lambda done: progress(phase, done, total)) if progress else None
 
 
-def _with_actions(gridmap: GridMap, paths: list[tuple[int, ...]], method: str, optimal: bool) -> Plan:
+def _with_actions(gridmap: GridMap, paths: list[tuple[int, ...]], method: str, lower_bound: int) -> Plan:
     """The plan with the action of every step: the one that moves there, or for a wait the first that bumps."""
     nbr = gridmap.neighbours
     actions = tuple(tuple(nbr[a].index(b) for a, b in zip(path, path[1:])) for path in paths)
-    return Plan(tuple(paths), actions, method, optimal)
+    return Plan(tuple(paths), actions, method, lower_bound)
 
 
 # --- the check against the world --------------------------------------------------------------------------

@@ -140,7 +140,7 @@ def test_the_validator_rejects_a_plan_with_a_collision():
     m = parse_map(CORRIDOR_WITH_SIDE_CELL)
     a, b, c, side = m.index(0, 0), m.index(0, 1), m.index(0, 2), m.index(1, 1)
     east, north, west = 1, 0, 3
-    clash = Plan(paths=((a, b, c), (side, b, a)), actions=((east, east), (north, west)), method="", optimal=False)
+    clash = Plan(paths=((a, b, c), (side, b, a)), actions=((east, east), (north, west)), method="", lower_bound=0)
     with pytest.raises(PlanError, match="step 1: 1 collision"):
         validate(m, clash)
 
@@ -149,12 +149,12 @@ def test_the_validator_rejects_a_plan_that_stops_short_or_that_the_world_does_no
     m = parse_map(CORRIDOR_WITH_SIDE_CELL)
     a, b, c, side = m.index(0, 0), m.index(0, 1), m.index(0, 2), m.index(1, 1)
     east, north, south, west = 1, 0, 2, 3
-    short = Plan(paths=((a, b, c), (side, side)), actions=((east, east), (south,)), method="", optimal=False)
+    short = Plan(paths=((a, b, c), (side, side)), actions=((east, east), (south,)), method="", lower_bound=0)
     with pytest.raises(PlanError, match="agv2 has no action for step 2"):
         validate(m, short)
     # The paths claim agent 2 waits in (0,1) at step 2 though the action moves it on: the world disagrees.
     wrong = Plan(paths=((a, b, c), (side, side, b, b)), actions=((east, east), (south, north, west)),
-                 method="", optimal=False)
+                 method="", lower_bound=0)
     with pytest.raises(PlanError, match="step 3: the world put agv2"):
         validate(m, wrong)
 
@@ -229,6 +229,8 @@ def test_conflict_based_search_finds_the_least_sum_of_costs_the_world_allows(see
     else:
         result = solved(m, cbs_nodes=20_000)
         assert result.optimal and result.sum_of_costs == optimum
+        cut_short = plan(m, cbs_nodes=1, orders=5, rounds=5)  # a bound from the search's frontier, then a plan
+        assert cut_short.lower_bound <= optimum <= cut_short.sum_of_costs
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -244,7 +246,7 @@ def test_prioritized_plans_with_neighbourhood_search_are_carried_out_by_the_worl
     except NoPlan:
         return
     alone = sum(distances_to(m, goal)[start] for start, goal in zip(m.starts, m.goals))
-    assert not result.optimal and result.sum_of_costs >= alone
+    assert result.sum_of_costs >= result.lower_bound == alone
 
 
 def test_the_same_seed_gives_the_same_plan():
@@ -262,7 +264,7 @@ def test_plan_command_prints_the_figures(tmp_path, capsys):
     path.write_text(CORRIDOR_WITH_SIDE_CELL)
     assert main(["plan", "--map", str(path), "--show"]) == 0
     out = capsys.readouterr().out
-    assert "makespan 3, sum of costs 5 (each agent alone: 4)" in out
+    assert "makespan 3, sum of costs 5 (the least possible; each agent alone: 4)" in out
     assert "arrival steps: agv1 2, agv2 3" in out
     assert "planning time" in out
     assert "agv2 (1, 1) -> (0, 0): eNW" in out  # lower case: the bump that is a wait
