@@ -1,4 +1,4 @@
-"""The `cq-ros` command: maps, offline experiments, the paper's reproduction, and the ROS tools.
+"""The `cq-ros` command: maps, offline experiments, the paper's reproduction, the planner, and the ROS tools.
 
 Bad arguments print one line naming what is wrong and exit with code 2, as argparse does.
 """
