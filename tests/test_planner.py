@@ -7,7 +7,7 @@ import random
 
 import pytest
 
-from cq_ros.cli import main
+from cq_ros.cli import _PlanProgress, main
 from cq_ros.gridmap import _opens_into, _render, available_maps, load_map, parse_map
 from cq_ros.planner import NoPlan, Plan, PlanError, distances_to, plan, prioritized, validate
 from cq_ros.world import N_ACTIONS, GridWorld
@@ -281,3 +281,12 @@ def test_plan_command_without_a_plan_exits_1_and_with_bad_arguments_2(tmp_path, 
         err = capsys.readouterr().err
         assert exit_.value.code == 2 and phrase in err
         assert len(err.strip().splitlines()) == 1
+
+
+def test_plan_progress_off_a_terminal_is_a_plain_line_at_most_every_30_s(capsys):
+    progress = _PlanProgress()
+    progress("cbs", 100, 2000)
+    assert capsys.readouterr().err == ""  # not yet 30 s
+    progress.last_line -= 30
+    progress("rounds", 10, 300)
+    assert capsys.readouterr().err == "cq-ros plan: rounds 10/300\n"
