@@ -237,9 +237,10 @@ def _generate(args) -> int:
     if args.out is None:
         sys.stdout.write(text)
         return 0
-    if args.out.exists() and not (args.force and args.out.is_file()):
-        what = "is not a file" if args.out.exists() and not args.out.is_file() else "exists; pass --force to overwrite it"
-        raise FileExistsError(f"{args.out} {what}")
+    if args.out.exists() and not args.out.is_file():
+        raise FileExistsError(f"{args.out} is not a file")
+    if args.out.exists() and not args.force:
+        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
     try:
         args.out.write_text(text, encoding="utf-8")
     except OSError as e:
