@@ -39,7 +39,7 @@ Cell = tuple[int, int]
 
 
 def default_aisles(agents: int) -> int:
-    """Aisles when none are asked for: 2 + ceil(agents / 4), about two AGVs per aisle (4 for 8 AGVs,
+    """Aisles when none are asked for: 2 + ceil(agents / 4), two to three AGVs per aisle (4 for 8 AGVs,
     6 for 16, 10 for 32), so that conflicts stay at entrances and the map stays small for tabular learners."""
     return 2 + math.ceil(agents / 4)
 
