@@ -144,8 +144,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("generate", help="generate a map (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
-    p = kinds.add_parser("warehouse", help="a warehouse: two-lane cross-aisles, two-lane aisles behind one-lane "
-                                           "entrances, pick stations in bays (cq_ros.warehouse)")
+    what = ("a warehouse: two-lane cross-aisles (top and bottom), two-lane aisles behind one-lane entrances, "
+            "pick stations in bays beside the aisles (cq_ros.warehouse)")
+    p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
+                         "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
+                         "goal with the others parked at theirs. The map carries `set reward_step=-1`.")
     p.add_argument("--agents", type=_positive, required=True, metavar="N", help="AGVs, each with its own goal")
     p.add_argument("--aisles", type=_positive, default=None, metavar="A",
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
