@@ -14,7 +14,8 @@ from tqdm import tqdm
 
 from .gridmap import ACTIONS, MapError, available_maps, load_map
 from .learners import ALGORITHMS, LEARNERS
-from .settings import Settings, SettingsError
+from .settings import Settings, SettingsError, run_settings
+from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
 
 
 class _Parser(argparse.ArgumentParser):
@@ -144,6 +145,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("map", help="a shipped map name or a path to a map file")
     sub.add_parser("settings", help="list every setting with its default")
 
+    p = sub.add_parser("generate", help="generate a map (print it, or write it with --out)")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
+    what = ("a warehouse: two-lane cross-aisles (top and bottom), two-lane aisles behind one-lane entrances, "
+            "pick stations in bays beside the aisles (cq_ros.warehouse)")
+    p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
+                         "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
+                         "goal with the others parked at theirs. The map carries `set reward_step=-1`.")
+    p.add_argument("--agents", type=_positive, required=True, metavar="N", help="AGVs, each with its own goal")
+    p.add_argument("--aisles", type=_positive, default=None, metavar="A",
+                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
+    p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
+                   help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
+    p.add_argument("--seed", type=int, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+
     p = sub.add_parser("experiment", help="run algorithms on one map offline and write results and figures")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
     p.add_argument("--algo", type=_algos, default=list(ALGORITHMS),
@@ -197,7 +214,14 @@ def _dispatch(args) -> int:
         m = load_map(args.map)
         print(f"{m.name}: {m.n_cells} cells, {m.n_agents} agents (digits: starts, G: goals)")
         print(m.draw())
+        if m.defaults:
+            print("map defaults: " + ", ".join(f"{k}={v:g}" for k, v in m.defaults.items()))
+        pairs = m.walled_in()
+        print("walled in by an early arrival (agent: by the agent parked at its goal): "
+              + ("; ".join(f"{i + 1}: by {k + 1} at {'%d,%d' % m.cells[m.goals[k]]}" for i, k in pairs) or "none"))
         return 0
+    if args.command == "generate":
+        return _generate(args)
     if args.command == "settings":
         for key, value in Settings().as_dict().items():
             print(f"{key} = {value}")
@@ -206,14 +230,14 @@ def _dispatch(args) -> int:
         return _plan(args)
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
-    settings = Settings().with_overrides(args.overrides)
     if args.command == "launch":
-        return _launch(args, settings)
+        return _launch(args, run_settings(load_map(args.map), args.overrides))
     if args.command == "experiment":
         from .experiment import experiment
         from .summary import format_console_table, load_episodes
 
-        load_map(args.map)  # fail on a bad map before any work starts
+        # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
+        settings = run_settings(load_map(args.map), args.overrides)
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
                          workers=args.jobs, force=args.force, figures=args.figures)
         print(format_console_table(load_episodes(out / "episodes.csv")))
@@ -222,8 +246,9 @@ def _dispatch(args) -> int:
     if args.command == "reproduce":
         from .reproduce import reproduce
 
-        report = reproduce(args.out, args.runs, args.episodes, args.seed, settings, workers=args.jobs,
-                           force=args.force, sweep=args.sweep)
+        # The paper's maps carry no defaults of their own.
+        report = reproduce(args.out, args.runs, args.episodes, args.seed, Settings().with_overrides(args.overrides),
+                           workers=args.jobs, force=args.force, sweep=args.sweep)
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
@@ -287,6 +312,23 @@ class _PlanProgress:
         if self.bar is not None:
             self.bar.close()
             self.bar = None
+
+
+def _generate(args) -> int:
+    text = warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed)
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    if args.out.exists() and not args.out.is_file():
+        raise FileExistsError(f"{args.out} is not a file")
+    if args.out.exists() and not args.force:
+        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
+    try:
+        args.out.write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise ValueError(f"cannot write {args.out}: {e.strerror or e}") from None
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
 
 
 # The ROS commands import rclpy (through world_node and msgs_spec) only when they run: the rest of cq_ros

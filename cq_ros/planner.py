@@ -378,7 +378,6 @@ def validate(gridmap: GridMap, the_plan: Plan) -> list[int]:
     says, an agent runs out of actions before its goal, or some agent is not at its goal at the end."""
     world = GridWorld(gridmap)
     world.reset_joint()
-    arrivals = [0 if done else None for done in world.done]
     for t in range(max((len(a) for a in the_plan.actions), default=0)):
         joint = []
         for i, acts in enumerate(the_plan.actions):
@@ -395,9 +394,7 @@ def validate(gridmap: GridMap, the_plan: Plan) -> list[int]:
             if world.cells[i] != _at(path, t + 1):
                 raise PlanError(f"step {t + 1}: the world put agv{i + 1} in cell {world.cells[i]}, "
                                 f"the plan in {_at(path, t + 1)}")
-            if world.done[i] and arrivals[i] is None:
-                arrivals[i] = t + 1
-    missing = [f"agv{i + 1}" for i, step in enumerate(arrivals) if step is None]
+    missing = [f"agv{i + 1}" for i, step in enumerate(world.arrival) if step is None]
     if missing:
         raise PlanError(f"{', '.join(missing)} not at the goal when the plan ends")
-    return arrivals
+    return list(world.arrival)

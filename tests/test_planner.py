@@ -8,7 +8,7 @@ import random
 import pytest
 
 from cq_ros.cli import _PlanProgress, main
-from cq_ros.gridmap import _opens_into, _render, available_maps, load_map, parse_map
+from cq_ros.gridmap import available_maps, load_map, parse_map
 from cq_ros.planner import NoPlan, Plan, PlanError, distances_to, plan, prioritized, validate
 from cq_ros.world import N_ACTIONS, GridWorld
 
@@ -208,9 +208,11 @@ def random_instance(rng: random.Random, height: int, width: int, agents: int):
     starts = rng.sample(cells, agents)
     goals = [rng.choice(cells) for _ in range(agents)]
     lines = [f"agent {k}: start {s[0]},{s[1]}  goal {g[0]},{g[1]}" for k, (s, g) in enumerate(zip(starts, goals), 1)]
+    # No wall drawn anywhere: a move into a '#' cell or off the grid is a bump all the same.
+    for row in range(height):
+        lines += ["+" + " +" * width, " " + " ".join("." if (row, col) in world else "#" for col in range(width))]
     try:
-        return parse_map("\n".join(lines + [""] + _render(height, width, dict.fromkeys(world, "."),
-                                                          _opens_into(world))) + "\n")
+        return parse_map("\n".join(lines + ["+" + " +" * width]) + "\n")
     except ValueError:
         return None
 
