@@ -173,9 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
                                     "for the learners): makespan, sum of costs, arrival steps")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
     p.add_argument("--seed", type=int, default=0, help="seed of the priority orders and LNS rounds (default 0)")
-    p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=2000, metavar="N",
+    p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=1000, metavar="N",
                    help="search nodes of the optimal conflict-based search before falling back on prioritized "
-                        "planning (default 2000; 0: skip it)")
+                        "planning (default 1000; 0: skip it)")
     p.add_argument("--orders", type=_positive, default=20, metavar="N",
                    help="priority orders prioritized planning tries (default 20)")
     p.add_argument("--rounds", type=_number(0, kind=int), default=300, metavar="N",

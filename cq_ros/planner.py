@@ -324,7 +324,7 @@ def priority_orders(gridmap: GridMap, dists: list[list[float]], rng: random.Rand
         order = nxt
 
 
-def plan(gridmap: GridMap, seed: int = 0, cbs_nodes: int = 2000, orders: int = 20, rounds: int = 300,
+def plan(gridmap: GridMap, seed: int = 0, cbs_nodes: int = 1000, orders: int = 20, rounds: int = 300,
          progress: Callable[[str, int, int], None] | None = None) -> Plan:
     """A collision-free plan: conflict-based search (optimal) within `cbs_nodes` search nodes; else prioritized
     planning over up to `orders` priority orders, improved by `rounds` rounds of `improve`. NoPlan if neither
