@@ -2,14 +2,20 @@
 them, our choices where it does not (README, "Defaults"), each written into every result manifest.
 
 `Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
-parameters reach it, so a bad key or value is reported the same way everywhere.
+parameters reach it, so a bad key or value is reported the same way everywhere. `run_settings` is the one
+place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- the user's.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .gridmap import GridMap
 
 
 class SettingsError(ValueError):
@@ -91,6 +97,13 @@ class Settings:
                 raise SettingsError(f"unknown setting {key!r}; settings are: {', '.join(sorted(types))}")
             changes[key] = coerce(key, value, int if types[key] in ("int", int) else float)
         return dataclasses.replace(self, **changes)
+
+
+def run_settings(gridmap: "GridMap", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
+    """The settings of a run on `gridmap`: the defaults, then the map's (its `set` lines), then `overrides`
+    (`key=value` strings, or a dict such as a node's parameters that were given)."""
+    given = dict(overrides) if isinstance(overrides, Mapping) else dict(split_pair(p) for p in overrides)
+    return Settings().with_overrides({**gridmap.defaults, **given})
 
 
 def split_pair(pair: str) -> tuple[str, str]:

@@ -12,23 +12,22 @@ import time
 from functools import partial
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
+from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
 from cq_ros.engine import world_seed
+from cq_ros.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
-from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
-from cq_ros.parameters import check_names
 from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
     Position, WorldStats, action_topic, agent_namespace, encode, feedback_topic, position_topic,
 )
 from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
-from msgs_spec.tools import undeclared_overrides, watch_graph
+from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
 
 from .lockstep import PARAMETERS, Lockstep, world_config
 
@@ -45,10 +44,9 @@ class WorldNode(Node):
     def __init__(self, node_name: str = "world", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            for name, (default, description) in PARAMETERS.items():
-                self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
+            values = declare_parameters(self, PARAMETERS, unset=SETTING_NAMES)
             check_names(undeclared_overrides(self), PARAMETERS, AGENT_PARAMETERS)
-            self.config = cfg = world_config({name: self.get_parameter(name).value for name in PARAMETERS})
+            self.config = cfg = world_config(values)
         except (SettingsError, ParameterException):
             self.destroy_node()
             raise
