@@ -34,8 +34,8 @@ __all__ = ["DEFAULT_AISLE_LENGTH", "MAP_DEFAULTS", "default_aisles", "warehouse_
            "warehouse_text"]
 
 DEFAULT_AISLE_LENGTH = 6
-# Setting -> (value, why). Measured on warehouse_16 with the paper's defaults (indep, 1,000 episodes, cap 5,000):
-# 924 episodes truncated and a greedy policy stuck; with both below, every AGV home in 34 steps.
+# Setting -> (value, why). On warehouse_16, indep with reward_step=-1 and gamma 0.9 ran 924 of 1,000 episodes
+# to the 5,000-step cap; with gamma 0.98, 17 of 3,000, and every greedy policy got all home (README, Use).
 MAP_DEFAULTS = {
     "reward_step": ("-1", "steps cost: with free steps, learners wander in the safe cross-aisles rather than "
                           "cross an entrance where they have collided"),

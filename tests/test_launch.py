@@ -245,7 +245,7 @@ def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_inc
     a joint state and subscribes to a peer within the run, give the offline engine's episodes exactly."""
     path = tmp_path / "w4.txt"
     path.write_text(warehouse_text(4, aisles=2, aisle_length=2, seed=0))
-    sets, episodes = ("step_cap=100", "window=3", "eval_episodes=1"), 8
+    sets, episodes = ("step_cap=100", "window=2", "eval_episodes=1"), 8
     settings = run_settings(load_map(path), list(sets))
     offline = run("cq", load_map(path), settings, SEED, 0, episodes)
     assert offline.episodes[:, 2].sum() > 0  # the premise: some agent acted on a joint state
