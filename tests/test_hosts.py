@@ -1,0 +1,191 @@
+"""Several hosts, for real: the world and each AGV in a network namespace of its own, joined by a bridge, with
+addresses from 198.18.0.0/15 (`cq-ros hosts`, world_node/hosts.py), and `cq-ros launch --hosts` across them.
+The run equals the offline engine's with discovery on the subnet and with unicast to ROS_STATIC_PEERS only; a
+link down for 2 s costs a few counted misses and the agent is back in step; a host cut for good ends the run as
+a lost agent does, with what was written before intact. Every namespace made is removed, even on failure, and
+nothing changes in the machine's own network namespace.
+
+Needs root and the `ip` command (skipped otherwise, with the reason); CI here runs as root.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cq_ros.engine import run
+from cq_ros.gridmap import load_map
+from cq_ros.settings import Settings
+from processes import alive_with
+from test_launch import SEED, launch_command, read_episodes, unique
+
+NEEDS = ("the `ip` command (iproute2)" if shutil.which("ip") is None
+         else "root (network namespaces)" if os.geteuid() != 0 else None)
+pytestmark = pytest.mark.skipif(NEEDS is not None, reason=f"needs {NEEDS}")
+
+LAUNCH_TIMEOUT_S = 90.0  # bound on one launch across hosts; each below takes 10-30 s on 2 busy cores
+CUT_S = 2.0
+
+
+def own_links() -> list[str]:
+    """The interfaces of this process's (the machine's) network namespace."""
+    out = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True, timeout=10).stdout
+    return sorted(line.split(":")[1].strip() for line in out.splitlines())
+
+
+@pytest.fixture
+def hosts():
+    from world_node.hosts import existing_prefixes, hosts_down, hosts_up
+
+    before = own_links()
+    made = hosts_up(2)
+    try:
+        yield made
+    finally:
+        hosts_down(made.prefix)
+        for cmdline in alive_with(made.prefix):  # a node left by a failed test: kill it, then fail below
+            os.kill(int(cmdline.split(":")[0]), 9)
+        assert made.prefix not in existing_prefixes()
+        assert own_links() == before
+
+
+def launch_on(hosts, out: Path, map_name: str, algo: str, episodes: int, sets, discovery: str) -> list[str]:
+    return [*launch_command(out, unique("hosts"), map_name, algo, episodes, sets), "--hosts", hosts.prefix,
+            "--discovery", discovery, "--no-figures"]
+
+
+def cq_ros(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cq_ros.cli", *args], capture_output=True, text=True, timeout=60)
+
+
+def test_hosts_up_and_down_make_and_remove_namespaces_only(hosts):
+    listed = cq_ros("hosts", "list")
+    assert listed.returncode == 0
+    assert f"{hosts.prefix}: {', '.join(sorted(hosts.namespaces))}" in listed.stdout
+    for host in hosts.names:  # lo and eth0 up, the address from the test range, the cable plugged into br0
+        ns = hosts.namespace(host)
+        addresses = subprocess.run(["ip", "-n", ns, "-o", "-4", "addr"], capture_output=True, text=True).stdout
+        assert re.search(r"\blo\b.*127\.0\.0\.1", addresses)
+        assert re.search(rf"\beth0\b.*inet {re.escape(hosts.address(host))}/24", addresses)
+        assert ipaddress.ip_address(hosts.address(host)) in ipaddress.ip_network("198.18.0.0/15")
+        cable = subprocess.run(["ip", "-n", hosts.switch, "-o", "link", "show", hosts.cable(host)],
+                               capture_output=True, text=True).stdout
+        assert "master br0" in cable and "state UP" in cable
+
+    made = cq_ros("hosts", "up", "--agents", "1")
+    assert made.returncode == 0, made.stderr
+    prefix = made.stdout.split()[1].rstrip(":")
+    try:
+        assert f"{prefix}-agv1: eth0 198.18.0.2/24" in made.stdout
+        again = cq_ros("hosts", "up", "--prefix", prefix)
+        assert again.returncode == 2 and f"hosts {prefix} exist already" in again.stderr
+    finally:
+        gone = cq_ros("hosts", "down", "--prefix", prefix)
+    assert gone.returncode == 0 and sorted(gone.stdout.split("removed ")[1].strip().split(", ")) == sorted(
+        f"{prefix}-{n}" for n in ("net", "world", "agv1"))
+    twice = cq_ros("hosts", "down", "--prefix", prefix)  # after any failure: nothing left is not an error
+    assert twice.returncode == 0 and "nothing to remove" in twice.stdout
+
+
+def test_a_failed_up_removes_what_it_made(monkeypatch):
+    from world_node import hosts as module
+
+    real = module._ip
+    calls = []
+
+    def fail_at_the_second_host(*args):
+        calls.append(args)
+        if args[:2] == ("netns", "add") and args[2].endswith("-agv1"):
+            raise module.HostsError("`ip netns add` failed: injected")
+        real(*args)
+
+    monkeypatch.setattr(module, "_ip", fail_at_the_second_host)
+    with pytest.raises(module.HostsError, match="injected .*removed what was made"):
+        module.hosts_up(2, prefix="cqrfail" + unique("x")[-1])
+    prefix = calls[0][2].split("-")[0]
+    assert prefix not in module.existing_prefixes()
+
+
+@pytest.mark.parametrize("problem, patch", [
+    ("the `ip` command", lambda m: m.setattr(shutil, "which", lambda name: None)),
+    ("needs root", lambda m: m.setattr(os, "geteuid", lambda: 1000)),
+])
+def test_hosts_refuse_with_exit_2_without_root_or_ip(monkeypatch, capsys, problem, patch):
+    from cq_ros.cli import main
+
+    patch(monkeypatch)
+    assert main(["hosts", "up", "--agents", "2"]) == 2
+    err = capsys.readouterr().err
+    assert problem in err and len(err.strip().splitlines()) == 1
+
+
+def assert_equals_offline(out: Path, map_name: str, algo: str, episodes: int, sets) -> None:
+    offline = run(algo, load_map(map_name), Settings().with_overrides(list(sets)), SEED, 0, episodes)
+    np.testing.assert_array_equal(read_episodes(out), offline.episodes)
+
+
+def test_discovery_on_the_subnet_gives_the_offline_engines_episodes(hosts, tmp_path):
+    sets = ("step_cap=100", "reward_step=-1", "eval_episodes=2")
+    out = tmp_path / "result"
+    done = subprocess.run(launch_on(hosts, out, "tunnel_to_goal", "cq", 20, sets, "subnet"),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    assert_equals_offline(out, "tunnel_to_goal", "cq", 20, sets)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["hosts"] == {"prefix": hosts.prefix, "discovery": "subnet",
+                                 "addresses": {"world": "198.18.0.1", "agv1": "198.18.0.2", "agv2": "198.18.0.3"}}
+    assert manifest["world"]["missed_actions"] == 0
+
+
+def start_nodes(hosts, namespace: str, env: dict[str, str], params: list[str],
+                world_params: list[str]) -> list[subprocess.Popen]:
+    """The world and each agent node on its own host, as `cq-ros launch --hosts` starts them, by hand."""
+    ros = ["--ros-args", "-r", f"__ns:=/{namespace}", *[a for p in params for a in ("-p", p)]]
+    procs = [subprocess.Popen([*hosts.exec_on("world"), sys.executable, "-m", "world_node", *ros,
+                               *[a for p in world_params for a in ("-p", p)]],
+                              env={**os.environ, **env}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+    for k in range(1, hosts.agents + 1):
+        procs.append(subprocess.Popen([*hosts.exec_on(f"agv{k}"), sys.executable, "-m", "agent_node", *ros,
+                                       "-r", f"__node:=agv{k}", "-p", f"agent_id:={k}", "-p", "algo:=indep"],
+                                      env={**os.environ, **env}, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL))
+    return procs
+
+
+def test_unicast_to_static_peers_alone_gives_the_offline_engines_episodes(hosts, tmp_path):
+    # The switch stops flooding multicast: discovery can only be the unicast one, to ROS_STATIC_PEERS.
+    for host in hosts.names:
+        subprocess.run(["ip", "-n", hosts.switch, "link", "set", "dev", hosts.cable(host), "type", "bridge_slave",
+                        "mcast_flood", "off"], check=True, timeout=10)
+    # That it does: with discovery on the subnet the world never sees its agents.
+    namespace = unique("control")
+    procs = start_nodes(hosts, namespace, {"ROS_DOMAIN_ID": "7", **hosts.discovery_env("world", "subnet")},
+                        ["map:=grid_game_2", "episodes:=1"], ["startup_timeout:=4.0"])
+    try:
+        world_out, _ = procs[0].communicate(timeout=LAUNCH_TIMEOUT_S)
+        assert procs[0].returncode == 1
+        assert "still waiting for agv1, agv2" in world_out
+        assert [p.poll() for p in procs[1:]] == [None, None]  # the agents were there, waiting to be found
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait(timeout=10)
+    sets = ("window=10", "eval_episodes=3")  # CQ marks joint states and subscribes to its peer's position
+    out = tmp_path / "result"
+    done = subprocess.run(launch_on(hosts, out, "grid_game_2", "cq", 40, sets, "static"),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    assert_equals_offline(out, "grid_game_2", "cq", 40, sets)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["hosts"]["discovery"] == "static"
+    assert sum(agent["peer_messages"] for agent in manifest["communication"].values()) > 0
