@@ -189,3 +189,77 @@ def test_unicast_to_static_peers_alone_gives_the_offline_engines_episodes(hosts,
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["hosts"]["discovery"] == "static"
     assert sum(agent["peer_messages"] for agent in manifest["communication"].values()) > 0
+
+
+def launch_until(hosts, out: Path, episodes: int, sets, after: int, step_timeout: float):
+    """Start a launch across the hosts (tunnel_to_goal, indep) and return (process, stderr file) once its
+    progress lines say that at least `after` episodes were played."""
+    err = out.parent / "launch.stderr"
+    with open(err, "w") as f:
+        launcher = subprocess.Popen([*launch_on(hosts, out, "tunnel_to_goal", "indep", episodes, sets, "subnet"),
+                                     "--step-timeout", str(step_timeout)], stdout=subprocess.DEVNULL, stderr=f)
+    deadline = time.monotonic() + LAUNCH_TIMEOUT_S
+    while True:
+        played = [int(n) for n in re.findall(r"episode (\d+)/", err.read_text())]
+        if played and played[-1] >= after:
+            return launcher, err
+        if time.monotonic() > deadline or launcher.poll() is not None:
+            launcher.kill()
+            launcher.wait(timeout=30)
+            pytest.fail(f"the launch never reached episode {after}: {err.read_text()}")
+        time.sleep(0.05)
+
+
+def missed(world_log: Path) -> list[tuple[float, int, str]]:
+    """(wall time, episode, agents) of every step the world played without an agent's action."""
+    return [(float(t), int(e), who) for t, e, who in re.findall(
+        r"\[(\d+\.\d+)\] \[[^]]*world\]: episode (\d+) step \d+: no action from ([a-z0-9, ]+) within",
+        world_log.read_text())]
+
+
+def test_a_link_down_for_2_s_costs_counted_misses_and_the_agent_comes_back_in_step(hosts, tmp_path):
+    out, episodes, sets = tmp_path / "result", 60, ("step_cap=100", "reward_step=-1", "eval_episodes=2")
+    launcher, err = launch_until(hosts, out, episodes, sets, after=6, step_timeout=0.5)
+    try:
+        down = time.time()
+        hosts.set_link("agv1", up=False)
+        time.sleep(CUT_S)
+        hosts.set_link("agv1", up=True)
+        up = time.time()
+        assert launcher.wait(timeout=LAUNCH_TIMEOUT_S) == 0, err.read_text()
+    finally:
+        launcher.kill()
+        launcher.wait(timeout=30)
+    manifest = json.loads((out / "manifest.json").read_text())
+    misses = missed(out / "logs" / "world.log")
+    assert misses and manifest["world"]["missed_actions"] == len(misses)
+    assert {who for _, _, who in misses} == {"agv1"}
+    # Only while the cable was out, and until the next DDS heartbeat repairs the reliable feedback stream (3 s)
+    # or the agent catches up: then agv1 answers every step again, to the last episode.
+    assert all(down <= t <= up + 8.0 for t, _, _ in misses), (down, up, misses)
+    assert max(e for _, e, _ in misses) + 5 < episodes
+    assert read_episodes(out).shape == (episodes, 6)
+
+
+def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_was_written(hosts, tmp_path):
+    from agent_node.driver import load_checkpoint
+
+    out, sets = tmp_path / "result", ("step_cap=100", "reward_step=-1")
+    launcher, err = launch_until(hosts, out, 1000, sets, after=51, step_timeout=0.5)  # checkpoints after 50
+    try:
+        hosts.set_link("agv1", up=False)
+        code = launcher.wait(timeout=LAUNCH_TIMEOUT_S)
+    finally:
+        launcher.kill()
+        launcher.wait(timeout=30)
+    assert code == 1
+    last = err.read_text().strip().splitlines()[-1]
+    assert re.fullmatch(r"cq-ros launch: error: agv1 \(pid \d+\) exited with code 1 after \d+/1020 episodes "
+                        r"\(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)", last), last
+    assert "no feedback from the world" in (out / "logs" / "agv1.log").read_text()
+    assert not (out / "episodes.csv").exists()  # a failed launch writes no results
+    gridmap = load_map("tunnel_to_goal")
+    for k in (1, 2):  # each agent's last checkpoint, written before the cut, loads whole
+        learner, episode = load_checkpoint(out / "checkpoints" / f"agv{k}.pkl", "indep", gridmap, k - 1)
+        assert episode >= 49 and learner.agent == k - 1
+    assert not list((out / "checkpoints").glob("*.tmp"))
