@@ -116,6 +116,26 @@ def test_a_failed_up_removes_what_it_made(monkeypatch):
     assert prefix not in module.existing_prefixes()
 
 
+@pytest.mark.parametrize("args, phrase", [
+    (["--algo", "jsa"], "jsa is one central node"),
+    (["--algo", "cq", "--map", "warehouse_8"], "have 2 AGV hosts, map warehouse_8 has 8 agents"),
+])
+def test_launch_refuses_hosts_it_cannot_use_with_exit_2(hosts, tmp_path, args, phrase):
+    command = [*launch_command(tmp_path / "X", unique("bad"), "grid_game_2", "cq", 5), *args, "--hosts", hosts.prefix]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and phrase in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "X").exists()
+
+
+def test_launch_on_hosts_that_are_not_there_is_exit_2(tmp_path, capsys):
+    from cq_ros.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["launch", "--map", "grid_game_2", "--algo", "cq", "--out", str(tmp_path / "X"), "--hosts", "cqrnone"])
+    assert exit_.value.code == 2
+    assert "no hosts cqrnone on this machine" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("problem, patch", [
     ("the `ip` command", lambda m: m.setattr(shutil, "which", lambda name: None)),
     ("needs root", lambda m: m.setattr(os, "geteuid", lambda: 1000)),
@@ -129,19 +149,19 @@ def test_hosts_refuse_with_exit_2_without_root_or_ip(monkeypatch, capsys, proble
     assert problem in err and len(err.strip().splitlines()) == 1
 
 
-def assert_equals_offline(out: Path, map_name: str, algo: str, episodes: int, sets) -> None:
+def launch_equals_offline(hosts, out: Path, map_name: str, algo: str, episodes: int, sets, discovery: str) -> dict:
+    """Launch across the hosts, check that its episodes are the offline engine's; the run's manifest."""
+    done = subprocess.run(launch_on(hosts, out, map_name, algo, episodes, sets, discovery),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
     offline = run(algo, load_map(map_name), Settings().with_overrides(list(sets)), SEED, 0, episodes)
     np.testing.assert_array_equal(read_episodes(out), offline.episodes)
+    return json.loads((out / "manifest.json").read_text())
 
 
 def test_discovery_on_the_subnet_gives_the_offline_engines_episodes(hosts, tmp_path):
-    sets = ("step_cap=100", "reward_step=-1", "eval_episodes=2")
-    out = tmp_path / "result"
-    done = subprocess.run(launch_on(hosts, out, "tunnel_to_goal", "cq", 20, sets, "subnet"),
-                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
-    assert done.returncode == 0, done.stderr
-    assert_equals_offline(out, "tunnel_to_goal", "cq", 20, sets)
-    manifest = json.loads((out / "manifest.json").read_text())
+    manifest = launch_equals_offline(hosts, tmp_path / "result", "tunnel_to_goal", "cq", 20,
+                                     ("step_cap=100", "reward_step=-1", "eval_episodes=2"), "subnet")
     assert manifest["hosts"] == {"prefix": hosts.prefix, "discovery": "subnet",
                                  "addresses": {"world": "198.18.0.1", "agv1": "198.18.0.2", "agv2": "198.18.0.3"}}
     assert manifest["world"]["missed_actions"] == 0
@@ -180,13 +200,9 @@ def test_unicast_to_static_peers_alone_gives_the_offline_engines_episodes(hosts,
         for proc in procs:
             proc.kill()
             proc.wait(timeout=10)
-    sets = ("window=10", "eval_episodes=3")  # CQ marks joint states and subscribes to its peer's position
-    out = tmp_path / "result"
-    done = subprocess.run(launch_on(hosts, out, "grid_game_2", "cq", 40, sets, "static"),
-                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
-    assert done.returncode == 0, done.stderr
-    assert_equals_offline(out, "grid_game_2", "cq", 40, sets)
-    manifest = json.loads((out / "manifest.json").read_text())
+    # window 10: CQ marks joint states and subscribes to its peer's position
+    manifest = launch_equals_offline(hosts, tmp_path / "result", "grid_game_2", "cq", 40,
+                                     ("window=10", "eval_episodes=3"), "static")
     assert manifest["hosts"]["discovery"] == "static"
     assert sum(agent["peer_messages"] for agent in manifest["communication"].values()) > 0
 
