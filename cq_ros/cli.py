@@ -374,7 +374,7 @@ def _hosts(args) -> int:
 
 def _launch(args, settings: Settings) -> int:
     from world_node.hosts import HostsError, check_can_make_hosts, find_hosts
-    from world_node.launch import Interrupted, LaunchError, launch
+    from world_node.launch import Interrupted, LaunchError, check_hosts, launch
 
     from .summary import format_console_table, load_episodes
 
@@ -385,6 +385,7 @@ def _launch(args, settings: Settings) -> int:
             hosts = find_hosts(args.hosts)
         except HostsError as e:
             raise ValueError(e) from None
+        check_hosts(hosts, load_map(args.map), args.algo, args.discovery)
         if hosts.current_host() != "world":  # the launcher listens on the world's host: run there
             sys.stdout.flush()
             os.execvp("ip", [*hosts.exec_on("world"), sys.executable, "-m", "cq_ros.cli", *args.argv])

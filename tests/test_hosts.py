@@ -64,11 +64,14 @@ def launch_on(hosts, out: Path, map_name: str, algo: str, episodes: int, sets, d
             "--discovery", discovery, "--no-figures"]
 
 
-def cq_ros(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cq_ros.cli", *args], capture_output=True, text=True, timeout=60)
+def test_hosts_up_and_down_make_and_remove_namespaces_only(hosts, capsys):
+    from cq_ros.cli import main
 
+    def cq_ros(*args: str):
+        code = main(list(args))
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out, err)
 
-def test_hosts_up_and_down_make_and_remove_namespaces_only(hosts):
     listed = cq_ros("hosts", "list")
     assert listed.returncode == 0
     assert f"{hosts.prefix}: {', '.join(sorted(hosts.namespaces))}" in listed.stdout

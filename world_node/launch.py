@@ -69,7 +69,8 @@ from msgs_spec.tools import StopSignals, environment, ros_session, spin_until
 
 from .hosts import Hosts
 
-__all__ = ["DOMAIN_IDS", "LaunchError", "Interrupted", "LaunchResult", "Child", "node_commands", "launch"]
+__all__ = ["DOMAIN_IDS", "LaunchError", "Interrupted", "LaunchResult", "Child", "node_commands", "check_hosts",
+           "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -295,6 +296,16 @@ class _Progress:
 # -- one launch --------------------------------------------------------------------------------------------
 
 
+def check_hosts(hosts: Hosts, gridmap: GridMap, algo: str, discovery: str) -> None:
+    """ValueError unless a launch of `algo` on `gridmap` can run on these hosts: one per agent node."""
+    if LEARNERS[algo].central:
+        raise ValueError(f"{algo} is one central node: hosts run one agent node per AGV")
+    if hosts.agents != gridmap.n_agents:
+        raise ValueError(f"hosts {hosts.prefix} have {hosts.agents} AGV hosts, map {gridmap.name} has "
+                         f"{gridmap.n_agents} agents")
+    hosts.discovery_env("world", discovery)  # a bad discovery fails here
+
+
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
            settings: Settings | None = None, *, domain_id: int | None = None, namespace: str | None = None,
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, force: bool = False, figures: bool = True,
@@ -316,14 +327,9 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     if not NAMESPACE.fullmatch(namespace):
         raise ValueError(f"namespace {namespace!r} is not a ROS name (letters, digits, _; not starting with a digit)")
     if hosts is not None:
-        if LEARNERS[algo].central:
-            raise ValueError(f"{algo} is one central node: hosts run one agent node per AGV")
-        if hosts.agents != gridmap.n_agents:
-            raise ValueError(f"hosts {hosts.prefix} have {hosts.agents} AGV hosts, map {gridmap.name} has "
-                             f"{gridmap.n_agents} agents")
+        check_hosts(hosts, gridmap, algo, discovery)
         if hosts.current_host() != "world":
             raise ValueError(f"the launcher must run on the world's host: ip netns exec {hosts.namespace('world')} ...")
-        hosts.discovery_env("world", discovery)  # a bad discovery fails here
     if domain_id is None:
         domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
     out = prepare_output(Path(out), force)
