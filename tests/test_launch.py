@@ -239,6 +239,23 @@ def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_of
     assert manifest["settings"] == settings.as_dict() and manifest["settings_from_map"] == {"reward_step": -1.0}
 
 
+def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_included(tmp_path):
+    """Issue 11: CQ's AGVs over ROS on a generated warehouse, with a window short enough that an agent marks
+    a joint state and subscribes to a peer within the run, give the offline engine's episodes exactly."""
+    path = tmp_path / "w4.txt"
+    path.write_text(warehouse_text(4, aisles=2, aisle_length=2, seed=0))
+    sets, episodes = ("step_cap=100", "window=3", "eval_episodes=1"), 8
+    settings = run_settings(load_map(path), list(sets))
+    offline = run("cq", load_map(path), settings, SEED, 0, episodes)
+    assert offline.episodes[:, 2].sum() > 0  # the premise: some agent acted on a joint state
+    out, namespace = tmp_path / "result", unique("warehouse_cq")
+    done = subprocess.run(launch_command(out, namespace, str(path), "cq", episodes, sets),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    assert not alive_with(namespace)
+    np.testing.assert_array_equal(read_episodes(out), offline.episodes)
+
+
 @pytest.mark.parametrize("args, phrase", [
     (["--algo", "sarsa"], "unknown algorithm 'sarsa'"),
     (["--algo", "cq", "--domain-id", "300"], "at most 232"),
