@@ -67,9 +67,11 @@ def _algo(text: str) -> str:
     return text
 
 
-def _add_settings_options(p: argparse.ArgumentParser) -> None:
+def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="change a setting (repeatable); `cq-ros settings` lists them")
+                   help="change a setting (repeatable); `cq-ros settings` lists them" + (
+                       "; a node parameter too (e.g. feedback_timeout=60, heartbeat_period=0.5: the "
+                       "`PARAMETERS` of world_node/lockstep.py and agent_node/driver.py)" if nodes else ""))
     p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
 
 
@@ -113,7 +115,7 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--discovery", choices=("subnet", "static"), default="subnet",
                    help="with --hosts: multicast discovery on the subnet, or unicast to ROS_STATIC_PEERS only")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
-    _add_settings_options(p)
+    _add_settings_options(p, nodes=True)
 
     p = sub.add_parser("hosts", help="make or remove hosts for --hosts: network namespaces joined by a bridge, "
                                      "addresses from 198.18.0.0/15 (root)")
@@ -246,7 +248,7 @@ def _dispatch(args) -> int:
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
     if args.command == "launch":
-        return _launch(args, run_settings(load_map(args.map), args.overrides))
+        return _launch(args)
     if args.command == "hosts":
         return _hosts(args)
     if args.command == "experiment":
@@ -372,12 +374,14 @@ def _hosts(args) -> int:
     return 0
 
 
-def _launch(args, settings: Settings) -> int:
+def _launch(args) -> int:
     from world_node.hosts import HostsError, check_can_make_hosts, find_hosts
-    from world_node.launch import Interrupted, LaunchError, check_hosts, launch
+    from world_node.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
 
     from .summary import format_console_table, load_episodes
 
+    # Settings fields (over the map's defaults) and node parameters alike
+    settings, node_parameters = split_sets(args.overrides, load_map(args.map))
     hosts = None
     if args.hosts is not None:
         try:
@@ -392,7 +396,7 @@ def _launch(args, settings: Settings) -> int:
     try:
         result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps,
+                        peer_linger_steps=args.peer_linger_steps, node_parameters=node_parameters,
                         force=args.force, figures=args.figures, hosts=hosts, discovery=args.discovery)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)
