@@ -238,7 +238,7 @@ def missed(world_log: Path) -> list[tuple[float, int, str]]:
 
 def test_a_link_down_for_2_s_costs_counted_misses_and_the_agent_comes_back_in_step(hosts, tmp_path):
     out, episodes, sets = tmp_path / "result", 60, ("step_cap=100", "reward_step=-1", "eval_episodes=2")
-    launcher, err = launch_until(hosts, out, episodes, sets, after=6, step_timeout=0.5)
+    launcher, err = launch_until(hosts, out, episodes, sets, after=6, step_timeout=1.0)
     try:
         down = time.time()
         hosts.set_link("agv1", up=False)
@@ -251,20 +251,27 @@ def test_a_link_down_for_2_s_costs_counted_misses_and_the_agent_comes_back_in_st
         launcher.wait(timeout=30)
     manifest = json.loads((out / "manifest.json").read_text())
     misses = missed(out / "logs" / "world.log")
-    assert misses and manifest["world"]["missed_actions"] == len(misses)
-    assert {who for _, _, who in misses} == {"agv1"}
+    assert manifest["world"]["missed_actions"] == sum(len(who.split(", ")) for _, _, who in misses)
+    # (a loaded machine can make agv2 miss a step too; that is not what this test is about)
+    agv1 = [(t, e) for t, e, who in misses if "agv1" in who.split(", ")]
+    assert agv1
     # Only while the cable was out, and until the next DDS heartbeat repairs the reliable feedback stream (3 s)
     # or the agent catches up: then agv1 answers every step again, to the last episode.
-    assert all(down <= t <= up + 8.0 for t, _, _ in misses), (down, up, misses)
-    assert max(e for _, e, _ in misses) + 5 < episodes
+    assert all(down <= t <= up + 8.0 for t, _ in agv1), (down, up, agv1)
+    assert max(e for _, e in agv1) + 5 < episodes
     assert read_episodes(out).shape == (episodes, 6)
+    # agv1's side of the loss is counted too: the feedback it heard late (DDS repaired the stream) it answered
+    # too late for the world, which drops those answers as stale; the feedback it never heard, it counts.
+    late = manifest["world"]["counters"].get("dropped.stale_step", 0)
+    never_heard = manifest["communication"]["agv1"]["counters"].get("missed_feedback", 0)
+    assert late + never_heard >= 1
 
 
 def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_was_written(hosts, tmp_path):
     from agent_node.driver import load_checkpoint
 
-    out, sets = tmp_path / "result", ("step_cap=100", "reward_step=-1")
-    launcher, err = launch_until(hosts, out, 1000, sets, after=51, step_timeout=0.5)  # checkpoints after 50
+    out, sets = tmp_path / "result", ("step_cap=100", "reward_step=-1", "checkpoint_every=5", "feedback_timeout=5")
+    launcher, err = launch_until(hosts, out, 1000, sets, after=6, step_timeout=0.5)
     try:
         hosts.set_link("agv1", up=False)
         code = launcher.wait(timeout=LAUNCH_TIMEOUT_S)
@@ -275,10 +282,10 @@ def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_wa
     last = err.read_text().strip().splitlines()[-1]
     assert re.fullmatch(r"cq-ros launch: error: agv1 \(pid \d+\) exited with code 1 after \d+/1020 episodes "
                         r"\(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)", last), last
-    assert "no feedback from the world" in (out / "logs" / "agv1.log").read_text()
+    assert "(feedback_timeout=5.0): giving up" in (out / "logs" / "agv1.log").read_text()
     assert not (out / "episodes.csv").exists()  # a failed launch writes no results
     gridmap = load_map("tunnel_to_goal")
     for k in (1, 2):  # each agent's last checkpoint, written before the cut, loads whole
         learner, episode = load_checkpoint(out / "checkpoints" / f"agv{k}.pkl", "indep", gridmap, k - 1)
-        assert episode >= 49 and learner.agent == k - 1
+        assert episode >= 4 and learner.agent == k - 1
     assert not list((out / "checkpoints").glob("*.tmp"))
