@@ -15,6 +15,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -26,12 +27,20 @@ import pytest
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings
-from processes import alive_with
 from test_launch import SEED, launch_command, read_episodes, unique
+from world_node.hosts import HostsError, check_can_make_hosts, existing_prefixes, hosts_up, hosts_down
 
-NEEDS = ("the `ip` command (iproute2)" if shutil.which("ip") is None
-         else "root (network namespaces)" if os.geteuid() != 0 else None)
-pytestmark = pytest.mark.skipif(NEEDS is not None, reason=f"needs {NEEDS}")
+
+
+def why_not() -> str | None:
+    try:
+        check_can_make_hosts()
+    except HostsError as e:
+        return str(e)
+    return None
+
+
+pytestmark = pytest.mark.skipif(why_not() is not None, reason=f"no network namespaces here: {why_not()}")
 
 LAUNCH_TIMEOUT_S = 90.0  # bound on one launch across hosts; each below takes 10-30 s on 2 busy cores
 CUT_S = 2.0
@@ -45,18 +54,19 @@ def own_links() -> list[str]:
 
 @pytest.fixture
 def hosts():
-    from world_node.hosts import existing_prefixes, hosts_down, hosts_up
-
     before = own_links()
     made = hosts_up(2)
+    left = []
     try:
         yield made
     finally:
+        left = made.pids()
+        for pid in left:  # a process left by a failed test: kill it, then fail below
+            os.kill(pid, signal.SIGKILL)
         hosts_down(made.prefix)
-        for cmdline in alive_with(made.prefix):  # a node left by a failed test: kill it, then fail below
-            os.kill(int(cmdline.split(":")[0]), 9)
-        assert made.prefix not in existing_prefixes()
-        assert own_links() == before
+    assert not left, f"processes left on the hosts: {left}"
+    assert made.prefix not in existing_prefixes()
+    assert own_links() == before
 
 
 def launch_on(hosts, out: Path, map_name: str, algo: str, episodes: int, sets, discovery: str) -> list[str]:

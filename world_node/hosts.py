@@ -96,6 +96,25 @@ class Hosts:
                 return host
         return None
 
+    def pids(self) -> list[int]:
+        """Every process running on one of these hosts (the switch included)."""
+        ours = set()
+        for ns in self.namespaces:
+            try:
+                st = os.stat(os.path.join(NETNS_DIR, ns))
+            except FileNotFoundError:
+                continue
+            ours.add((st.st_dev, st.st_ino))
+        found = []
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                st = os.stat(f"/proc/{pid}/ns/net")
+            except OSError:  # gone meanwhile, or not ours to see
+                continue
+            if (st.st_dev, st.st_ino) in ours:
+                found.append(int(pid))
+        return found
+
     def exec_on(self, host: str) -> list[str]:
         """The command prefix that runs a program on `host`."""
         return ["ip", "netns", "exec", self.namespace(host)]
