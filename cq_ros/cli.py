@@ -102,6 +102,11 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--peer-linger-steps", type=_number(0, kind=int), default=None, metavar="N",
                    help="decision steps an agent keeps a peer subscription it no longer needs (default: the "
                         "agent node's, 0)")
+    p.add_argument("--compose", action="store_true",
+                   help="run every node in one process on one executor (a component container) instead of a "
+                        "process per node")
+    p.add_argument("--executor", choices=("events", "single"), default=None,
+                   help="the nodes' executor: rclpy's EventsExecutor (default) or the SingleThreadedExecutor")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_settings_options(p)
 
@@ -222,8 +227,8 @@ def _launch(args, settings: Settings) -> int:
     try:
         result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps,
-                        force=args.force, figures=args.figures)
+                        peer_linger_steps=args.peer_linger_steps, compose=args.compose,
+                        executor=args.executor, force=args.force, figures=args.figures)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)
         return 130

@@ -34,7 +34,7 @@ from .topics import TopicSpec, parse_topic
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
-    "run_node", "compatible_qos",
+    "EXECUTORS", "EXECUTOR_ENV", "executor_kind", "make_executor", "spin_nodes", "run_node", "compatible_qos",
     "message_class", "echo", "topics", "nodes", "record",
 ]
 
@@ -120,22 +120,69 @@ def ros_session(name: str, *, domain_id: int | None = None, namespace: str | Non
         rclpy.try_shutdown(context=ctx)
 
 
+# The executors a node process can spin on (`$CQ_ROS_EXECUTOR`, `cq-ros launch --executor`). rclpy's
+# EventsExecutor is the default: lockstep in one process ran 4.5x as fast on it as on the
+# SingleThreadedExecutor, and never slower across processes (benchmarks/bench_ros.py --executors).
+EXECUTORS = ("events", "single")
+EXECUTOR_ENV = "CQ_ROS_EXECUTOR"
+SPIN_S = 0.05  # the longest a node process sleeps in one spin_once before it looks at its nodes again
+
+
+def executor_kind(kind: str | None = None) -> str:
+    """`kind`, else $CQ_ROS_EXECUTOR, else "events"; ValueError (one line) if it is not one of EXECUTORS."""
+    kind = kind or os.environ.get(EXECUTOR_ENV) or EXECUTORS[0]
+    if kind not in EXECUTORS:
+        raise ValueError(f"executor {kind!r} (${EXECUTOR_ENV} or --executor): choose from {', '.join(EXECUTORS)}")
+    return kind
+
+
+def make_executor(kind: str | None = None, context: Context | None = None) -> Any:
+    """A new executor of `executor_kind(kind)` on `context` (None: the default, initialised already).
+
+    Spin it with spin_once in a loop (`spin_nodes`), never spin(): the EventsExecutor's spin() in rclpy 7.1.6
+    busy-loops and ignores signals (DESIGN.md field notes)."""
+    if executor_kind(kind) == "single":
+        return SingleThreadedExecutor(context=context)
+    from rclpy.experimental import EventsExecutor
+
+    return EventsExecutor(context=context)
+
+
+def spin_nodes(executor: Any, nodes: list[Any], ok: Callable[[], bool] = rclpy.ok) -> int | None:
+    """Spin until every node's `done` Future holds its exit code (then the largest of them), or until ok()
+    turns false (a signal shut the context down: None)."""
+    while not all(node.done.done() for node in nodes):
+        if not ok():
+            return None
+        executor.spin_once(timeout_sec=SPIN_S)
+    return max(node.done.result() for node in nodes)
+
+
 def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[Exception], ...]) -> int:
-    """The `python -m world_node|agent_node` main: spin the node made by make_node() on the default context
-    until its `done` Future holds the exit code. A bad parameter (an exception in bad_input) is one line on
-    stderr and exit code 2; Ctrl-C or SIGTERM exit code 130."""
+    """The `python -m world_node|agent_node|world_node.compose` main: spin the node, or the list of nodes,
+    made by make_node() on the default context, on one executor (`make_executor`), until every `done`
+    Future holds its exit code; the process exits with the largest. A bad parameter (an exception in
+    bad_input) is one line on stderr and exit code 2; Ctrl-C or SIGTERM exit code 130. make_node() must
+    destroy what it made before it raises."""
     from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
 
+    try:
+        kind = executor_kind()
+    except ValueError as e:
+        print(f"{program}: {e}", file=sys.stderr)
+        return 2
     rclpy.init(args=sys.argv)
-    node = executor = None
+    executor = make_executor(kind)
+    nodes: list[Any] = []
     code = 130
     try:
-        executor = SingleThreadedExecutor()
-        node = make_node()
-        executor.add_node(node)
-        executor.spin_until_future_complete(node.done)
-        code = node.done.result() if node.done.done() else 130  # else: shut down by a signal
+        made = make_node()
+        nodes = made if isinstance(made, list) else [made]
+        for node in nodes:
+            executor.add_node(node)
+        finished = spin_nodes(executor, nodes)
+        code = 130 if finished is None else finished  # None: shut down by a signal
     except (*bad_input, ParameterException) as e:
         print(f"{program}: {e}", file=sys.stderr)
         code = 2
@@ -145,10 +192,9 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
         if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
             raise
     finally:
-        # Jazzy order (DESIGN.md field notes): executor, then node, then the context.
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
+        # Jazzy order (DESIGN.md field notes): executor, then nodes, then the context.
+        executor.shutdown()
+        for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
     return code

@@ -13,6 +13,8 @@ the world runs with min_stats_subscribers:=1 (its first step waits for the liste
 subscription) and so does every agent (it holds its statistics until its own publisher has matched the
 listener, and waits for that before it exits; only the publisher's side of a match says that a message will
 arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
+With `--compose` the one child is a container (world_node.compose) holding every node, each reading its
+parameters under its own name in DIR/params.yaml; the nodes and the protocol are the same.
 
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
@@ -49,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from tqdm import tqdm
 
 from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
@@ -61,9 +64,10 @@ from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
     agent_stats_topic, decode_agent_stats, decode_world_stats,
 )
-from msgs_spec.tools import StopSignals, ros_session, spin_until
+from msgs_spec.tools import EXECUTOR_ENV, StopSignals, executor_kind, ros_session, spin_until
 
-__all__ = ["DOMAIN_IDS", "LaunchError", "Interrupted", "LaunchResult", "Child", "node_commands", "launch"]
+__all__ = ["DOMAIN_IDS", "LaunchError", "Interrupted", "LaunchResult", "Child", "node_parameters", "node_commands",
+           "compose_command", "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -147,33 +151,53 @@ def _params(values: dict[str, Any]) -> list[str]:
     return [arg for k, v in values.items() for arg in ("-p", f"{k}:={_param(v)}")]
 
 
-def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, namespace: str,
-                  step_timeout: float, out: Path, peer_linger_steps: int | None = None) -> list[Child]:
-    """The world and the agent node(s) of one launch, with the command lines fixed by world_node and
-    agent_node (__main__): every setting that differs from its default goes to both."""
+def node_parameters(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
+                    step_timeout: float, peer_linger_steps: int | None = None) -> dict[str, tuple[str, dict]]:
+    """The nodes of one launch: node name -> (its module, its parameters). The world, then the agent node(s):
+    every setting that differs from its default goes to both."""
     gridmap = load_map(map_name)
     defaults = Settings()
     changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
                if getattr(settings, f.name) != getattr(defaults, f.name)}
     common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0}
-    ros = [sys.executable, "-m"]
-    # File logging off: each child's console output is its log (DIR/logs/<node>.log), in one place.
-    args = ["--ros-args", "--disable-external-lib-logs", "-r", f"__ns:=/{namespace}"]
-    world = Child("world", [*ros, "world_node", *args, *_params({
-        **common, "step_timeout": float(step_timeout), "startup_timeout": STARTUP_TIMEOUT_S,
-        "min_stats_subscribers": 1, **changed})], out / "logs" / "world.log")
+    nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
+                                      "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1, **changed})}
     if LEARNERS[algo].central:
         agents = [("jsa", {})]  # one node moves every AGV; agent_id stays 0
     else:
         agents = [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
     linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
-    children = [world]
     for name, ident in agents:
-        children.append(Child(name, [*ros, "agent_node", *args, "-r", f"__node:={name}", *_params({
+        nodes[name] = ("agent_node", {
             **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
-            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **changed})],
-            out / "logs" / f"{name}.log"))
+            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **changed})
+    return nodes
+
+
+# File logging off: each child's console output is its log (DIR/logs/<node>.log), in one place.
+def _ros_args(namespace: str) -> list[str]:
+    return ["--ros-args", "--disable-external-lib-logs", "-r", f"__ns:=/{namespace}"]
+
+
+def node_commands(nodes: dict[str, tuple[str, dict]], namespace: str, out: Path) -> list[Child]:
+    """A process per node (`python -m world_node|agent_node`), the world first, with the command lines fixed
+    by world_node and agent_node (__main__)."""
+    children = []
+    for name, (module, params) in nodes.items():
+        rename = [] if module == "world_node" else ["-r", f"__node:={name}"]
+        children.append(Child(name, [sys.executable, "-m", module, *_ros_args(namespace), *rename, *_params(params)],
+                              out / "logs" / f"{name}.log"))
     return children
+
+
+def compose_command(nodes: dict[str, tuple[str, dict]], namespace: str, out: Path) -> Child:
+    """Every node in one process (`python -m world_node.compose`), each reading its parameters under its own
+    name in DIR/params.yaml (written here)."""
+    params = {f"/{namespace}/{name}": {"ros__parameters": values} for name, (_, values) in nodes.items()}
+    path = out / "params.yaml"
+    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    return Child("container", [sys.executable, "-m", "world_node.compose", *nodes, *_ros_args(namespace),
+                               "--params-file", str(path)], out / "logs" / "container.log")
 
 
 def _stop(children: list[Child]) -> None:
@@ -289,9 +313,11 @@ class _Progress:
 
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
            settings: Settings = Settings(), *, domain_id: int | None = None, namespace: str | None = None,
-           step_timeout: float = 2.0, peer_linger_steps: int | None = None, force: bool = False, figures: bool = True,
-           progress: bool = True) -> LaunchResult:
-    """Run one (map, algorithm, seed) over ROS and write the result directory `out`.
+           step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
+           executor: str | None = None, force: bool = False, figures: bool = True, progress: bool = True) -> LaunchResult:
+    """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
+    with `compose` every node in one process (world_node.compose), spinning on `executor` (EXECUTORS; None:
+    the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor).
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
     a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
@@ -299,6 +325,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
+    executor_name = executor_kind(executor)
     namespace = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
     if not NAMESPACE.fullmatch(namespace):
         raise ValueError(f"namespace {namespace!r} is not a ROS name (letters, digits, _; not starting with a digit)")
@@ -309,12 +336,12 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         (out / sub).mkdir(exist_ok=True)
     if peer_linger_steps is not None and peer_linger_steps < 0:
         raise ValueError(f"peer_linger_steps must be >= 0, got {peer_linger_steps}")
-    children = node_commands(map_name, algo, episodes, seed, settings, namespace, step_timeout, out,
-                             peer_linger_steps)
-    for child in children:  # a fresh run: a checkpoint left by an earlier result would be resumed from
-        (out / "checkpoints" / f"{child.name}.pkl").unlink(missing_ok=True)
+    nodes = node_parameters(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps)
+    children = [compose_command(nodes, namespace, out)] if compose else node_commands(nodes, namespace, out)
+    for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
+        (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-           "PYTHONUNBUFFERED": "1"}
+           "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
     learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
     started = time.perf_counter()
 
@@ -343,11 +370,11 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             _stop(children)
             bar.close()
 
-    run_info = dict(mode="ros", domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
+    run_info = dict(mode="ros", composed=compose, executor=executor_name, domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
                     peer_linger_steps=AGENT_PARAMETERS["peer_linger_steps"][0] if peer_linger_steps is None
                     else peer_linger_steps)
     result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
-                    learners, children, run_info)
+                    learners, list(nodes)[1:], children, run_info)
     if figures:
         from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
 
@@ -356,7 +383,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
 
 def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings, wall: float,
-           listener: StatsListener, learners: list[int], children: list[Child], run_info: dict) -> LaunchResult:
+           listener: StatsListener, learners: list[int], learner_nodes: list[str], children: list[Child],
+           run_info: dict) -> LaunchResult:
     """episodes.csv, observe.csv, greedy.csv and manifest.json from the statistics heard: the first `episodes`
     (learning) and the greedy ones after them (see the module docstring for what comes from where)."""
     played = range(listener.episodes)
@@ -373,11 +401,10 @@ def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, set
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
         nodes={c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
                for c in children},
-        # children[1:] are the learners' nodes, in the order of `learners`
-        communication={child.name: {"subscriptions_created": s.subscriptions_created,
-                                    "subscriptions_active": s.subscriptions_active,
-                                    "peer_messages": s.peer_messages, "counters": dict(s.counters)}
-                       for child, s in zip(children[1:], final)},
+        communication={name: {"subscriptions_created": s.subscriptions_created,
+                              "subscriptions_active": s.subscriptions_active,
+                              "peer_messages": s.peer_messages, "counters": dict(s.counters)}
+                       for name, s in zip(learner_nodes, final)},
         world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher={"dropped": listener.drops.as_counters()})
