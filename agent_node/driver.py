@@ -86,6 +86,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "min_stats_subscribers": (0, "hold this node's agv<k>/stats messages until that many subscribers are "
                                  "matched, then send them in order (cq-ros launch: 1, so that it hears every "
                                  "episode); learning never waits for them, the exit at most 10 s"),
+    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
+                          "agv<k>/looks at every decision; false: not even the publishers"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (learning settings and rewards, "
                                        "as the world's)") for f in fields(Settings)})

@@ -31,6 +31,7 @@ from .driver import (
     PARAMETERS, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
     save_checkpoint,
 )
+from .viz import AgentView
 
 __all__ = ["AgentNode"]
 
@@ -93,6 +94,7 @@ class AgentNode(Node):
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
                                                    partial(self._on_feedback, k), FEEDBACK.qos) for k in agents]
         self._positions = {}  # peer -> its position subscription, while the driver wants it
+        self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._last_feedback = time.monotonic()
         self._watchdog = self.create_timer(cfg.feedback_timeout / 4, self._check_world)
@@ -112,8 +114,12 @@ class AgentNode(Node):
             match effect:
                 case Send(payload=Action() as action):
                     self._actions[action.agent].publish(action)
+                    if self._view is not None:
+                        self._view.on_action(action)
                 case Send(payload=stats):
                     self._stats[stats.agent].publish(stats)
+                    if self._view is not None:
+                        self._view.on_stats(stats)
                 case Subscribe(peer=peer):
                     self._positions[peer] = self.create_subscription(
                         POSITION.msg_type, position_topic(peer), partial(self._on_position, peer), POSITION.qos)

@@ -136,6 +136,22 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage plugin (default mcap)")
     _add_domain_option(p)
 
+    p = sub.add_parser("render", help="draw one episode as an animated GIF (or MP4 where ffmpeg is installed): "
+                                      "the map, the AGVs, their goals and whom each agent looks at; from the "
+                                      "offline engine (--map, --algo) or from a bag of `cq-ros record` (--bag)")
+    p.add_argument("--out", type=Path, required=True, help="the animation to write: NAME.gif, or NAME.mp4 (ffmpeg)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--map", help="run the offline engine on this map (a shipped name or a path)")
+    source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
+    p.add_argument("--algo", type=_algo, default="cq", help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
+    p.add_argument("--episodes", type=_positive, default=100, help="with --map: episodes to learn (default 100)")
+    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="with --map: master seed (default 0)")
+    p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
+                   help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+    p.add_argument("--fps", type=_seconds, default=4.0, help="frames (steps) per second (default 4)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --map: change a setting (repeatable)")
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="cq-ros", description=__doc__.splitlines()[0])
@@ -192,6 +208,8 @@ def _dispatch(args) -> int:
         return 0
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
+    if args.command == "render":
+        return _render(args)
     settings = Settings().with_overrides(args.overrides)
     if args.command == "launch":
         return _launch(args, settings)
@@ -245,6 +263,47 @@ def _launch(args, settings: Settings) -> int:
               f"{cost['subscriptions_created']} subscriptions created")
     print(f"results: {result.out}")
     return 0
+
+
+def _render(args) -> int:
+    from .render import check_output, engine_frames, frames_from, lattice, write_animation
+
+    check_output(args.out)
+    if args.map is not None:
+        gridmap = load_map(args.map)
+        settings = Settings().with_overrides(args.overrides)
+        occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
+        title = f"{gridmap.name} {args.algo}"
+        _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
+        frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode)
+    else:
+        from msgs_spec import tools
+
+        if args.overrides:
+            raise ValueError("--set applies to --map (the offline engine), not to a bag")
+        try:
+            occupancy, scenes, looks = tools.read_view_bag(args.bag)
+        except tools.ToolError as e:
+            print(f"cq-ros render: error: {e}", file=sys.stderr)
+            return 1
+        if occupancy is None or not scenes:
+            print(f"cq-ros render: error: {args.bag} holds no {'world/map' if occupancy is None else 'world/markers'}"
+                  " message (record while the run starts, with markers on)", file=sys.stderr)
+            return 1
+        episodes = sorted({s.episode for s in scenes})
+        episode = episodes[-1] if args.episode is None else args.episode
+        if episode not in episodes:
+            raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
+        frames = frames_from([s for s in scenes if s.episode == episode], looks)
+        goals, title = scenes[0].goals, args.bag.name
+    _note(f"drawing {len(frames)} steps to {args.out}")
+    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps)
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
+    return 0
+
+
+def _note(line: str) -> None:
+    print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
 
 
 def _ros_tool(args) -> int:

@@ -29,13 +29,14 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from .doc import to_yaml
-from .errors import WireError
+from .errors import DropCounter, WireError
 from .topics import TopicSpec, parse_topic
+from .viz import LOOKS, MAP, SCENE, parse_view_topic
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
     "EXECUTORS", "EXECUTOR_ENV", "executor_kind", "make_executor", "spin_nodes", "run_node", "compatible_qos",
-    "message_class", "echo", "topics", "nodes", "record",
+    "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
 ]
 
 # A new process shows up in the graph 0.05-2.8 s after it starts (DESIGN.md field notes): the default wait.
@@ -148,11 +149,12 @@ def make_executor(kind: str | None = None, context: Context | None = None) -> An
     return EventsExecutor(context=context)
 
 
-def spin_nodes(executor: Any, nodes: list[Any], ok: Callable[[], bool] = rclpy.ok) -> int | None:
-    """Spin until every node's `done` Future holds its exit code (then the largest of them), or until ok()
-    turns false (a signal shut the context down: None)."""
+def spin_nodes(executor: Any, nodes: list[Any], stop: Callable[[], bool] = lambda: False) -> int | None:
+    """Spin until every node's `done` Future holds its exit code (then the largest of them), or until their
+    context is shut down (a signal, under rclpy's handlers) or stop() turns true: None."""
+    context = nodes[0].context
     while not all(node.done.done() for node in nodes):
-        if not ok():
+        if not context.ok() or stop():
             return None
         executor.spin_once(timeout_sec=SPIN_S)
     return max(node.done.result() for node in nodes)
@@ -238,10 +240,13 @@ def message_class(type_name: str) -> type:
 
 
 def _project_spec(name: str) -> tuple[TopicSpec, int | None] | None:
-    try:
-        return parse_topic(name)
-    except ValueError:
-        return None
+    """The spec of a project topic, the lockstep's or a viewer's (msgs_spec.viz), or None."""
+    for parse in (parse_topic, parse_view_topic):
+        try:
+            return parse(name)
+        except ValueError:
+            pass
+    return None
 
 
 def _graph_types(node: Any, name: str) -> list[str]:
@@ -441,3 +446,35 @@ def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_
         err.write(f"cq-ros record: never saw a publisher on {', '.join(missing)}\n")
     out.write(f"recorded {written} messages on {len(connections)} topics to {bag} ({storage})\n")
     return written
+
+
+def read_view_bag(bag: str | os.PathLike, *, err: TextIO = sys.stderr) -> tuple[Any, list[Any], list[Any]]:
+    """What a viewer would have seen of a recorded run: (the map's Occupancy or None, every Scene and every
+    Looks, in the bag's order), decoded through the contract from the bag's world/map, world/markers and
+    agv<k>/looks topics (under any namespace). A message that breaks the contract is skipped and counted on
+    `err`; ToolError if the bag cannot be read."""
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Reader
+
+    occupancy, scenes, looks = None, [], []
+    drops = DropCounter(lambda line: err.write(f"cq-ros render: {line}\n"))
+    try:
+        reader = Reader(Path(bag))
+        reader.open()
+    except Exception as e:  # rosbags raises its own errors for a missing or broken bag
+        raise ToolError(f"cannot read the bag {bag}: {e}") from None
+    try:
+        wanted = [c for c in reader.connections if (_project_spec(c.topic) or (None,))[0] in (MAP, SCENE, LOOKS)]
+        for connection, _, raw in reader.messages(connections=wanted):
+            spec, agent = _project_spec(connection.topic)
+            msg = deserialize_message(raw, spec.msg_type)
+            payload = drops.guard(spec.decode, msg, agent=agent, source=connection.topic)
+            if payload is None:
+                continue
+            if spec is MAP:
+                occupancy = payload
+            else:
+                (scenes if spec is SCENE else looks).append(payload)
+    finally:
+        reader.close()
+    return occupancy, scenes, looks

@@ -51,6 +51,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                               "feedback topics are matched; past it the node exits 1"),
     "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
                                  "subscriptions (a recorder that must not miss an episode sets 1)"),
+    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
+                          "world/map (latched) and world/markers every step; false: not even the publishers"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (world dynamics use the rewards, "
                                        "step_cap and slip)") for f in fields(Settings)})

@@ -27,6 +27,7 @@ from msgs_spec import (
 )
 
 from .lockstep import PARAMETERS, Lockstep, world_config
+from .viz import WorldView
 
 __all__ = ["WorldNode"]
 
@@ -55,6 +56,7 @@ class WorldNode(Node):
             Feedback: {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents},
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+        self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
                                                      ACTION.qos) for k in agents}
         self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
@@ -93,6 +95,8 @@ class WorldNode(Node):
         for payload in out:
             pub = self._stats if isinstance(payload, WorldStats) else self._outputs[type(payload)][payload.agent]
             pub.publish(encode(payload))
+        if self._view is not None:
+            self._view.publish(out)
         if self.core.finished and not self.done.done():
             self.get_logger().info(f"all {self.config.total_episodes} episodes played ({self.config.episodes} "
                                    f"learning, {self.config.settings.eval_episodes} greedy)")
