@@ -40,8 +40,8 @@ def check_names(names: list[str]) -> None:
     for name in names:
         try:
             validate_node_name(name)
-        except Exception as e:  # rclpy's InvalidNodeNameException says why
-            raise ValueError(f"node name {name!r}: {e}") from None
+        except Exception as e:  # rclpy's InvalidNodeNameException says why, on its first line
+            raise ValueError(f"node name {name!r}: {str(e).splitlines()[0]}") from None
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise ValueError(f"node names must be distinct, repeated: {', '.join(repeated)}")

@@ -144,6 +144,8 @@ class Child:
 
 def _param(value: Any) -> str:
     """A parameter value as ROS parses it back into the declared type: floats always with a point or exponent."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
@@ -152,14 +154,15 @@ def _params(values: dict[str, Any]) -> list[str]:
 
 
 def node_parameters(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
-                    step_timeout: float, peer_linger_steps: int | None = None) -> dict[str, tuple[str, dict]]:
+                    step_timeout: float, peer_linger_steps: int | None = None,
+                    markers: bool = True) -> dict[str, tuple[str, dict]]:
     """The nodes of one launch: node name -> (its module, its parameters). The world, then the agent node(s):
-    every setting that differs from its default goes to both."""
+    every setting that differs from its default, and markers, go to both."""
     gridmap = load_map(map_name)
     defaults = Settings()
     changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
                if getattr(settings, f.name) != getattr(defaults, f.name)}
-    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0}
+    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0, "markers": markers}
     nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
                                       "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1, **changed})}
     if LEARNERS[algo].central:
@@ -314,10 +317,10 @@ class _Progress:
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
            settings: Settings = Settings(), *, domain_id: int | None = None, namespace: str | None = None,
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
-           executor: str | None = None, force: bool = False, figures: bool = True, progress: bool = True) -> LaunchResult:
+           executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True, progress: bool = True) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (world_node.compose), spinning on `executor` (EXECUTORS; None:
-    the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor).
+    the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
     a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
@@ -336,7 +339,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         (out / sub).mkdir(exist_ok=True)
     if peer_linger_steps is not None and peer_linger_steps < 0:
         raise ValueError(f"peer_linger_steps must be >= 0, got {peer_linger_steps}")
-    nodes = node_parameters(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps)
+    nodes = node_parameters(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
+                            markers)
     children = [compose_command(nodes, namespace, out)] if compose else node_commands(nodes, namespace, out)
     for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
         (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
@@ -370,7 +374,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             _stop(children)
             bar.close()
 
-    run_info = dict(mode="ros", composed=compose, executor=executor_name, domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
+    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=markers, domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
                     peer_linger_steps=AGENT_PARAMETERS["peer_linger_steps"][0] if peer_linger_steps is None
                     else peer_linger_steps)
     result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
