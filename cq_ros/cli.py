@@ -295,7 +295,7 @@ def _render(args) -> int:
         if episode not in episodes:
             raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
-        goals, title = scenes[0].goals, args.bag.name
+        occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
     _note(f"drawing {len(frames)} steps to {args.out}")
     out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps)
     print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
