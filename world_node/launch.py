@@ -386,7 +386,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     if figures:
         from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
 
-        write_figures(out)
+        write_figures(out, map_loader=lambda _name: gridmap)  # a map file is known by its name only here
     return result
 
 
