@@ -396,7 +396,8 @@ def _render(args) -> int:
         occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
         title = f"{gridmap.name} {args.algo}"
         _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
-        frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode)
+        frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode,
+                               _every_30_s("episode {} learnt"))
     else:
         from msgs_spec import tools
 
@@ -418,9 +419,23 @@ def _render(args) -> int:
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
         occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
     _note(f"drawing {len(frames)} steps to {args.out}")
-    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps)
+    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps,
+                          progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
     print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
     return 0
+
+
+def _every_30_s(line: str):
+    """A progress callback for render's long loops: `line` (with the 1-based count) at most every 30 s."""
+    shown = time.monotonic()
+
+    def progress(i: int) -> None:
+        nonlocal shown
+        if time.monotonic() - shown >= 30:
+            shown = time.monotonic()
+            _note(line.format(i + 1))
+
+    return progress
 
 
 def _note(line: str) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 from .engine import Team, make_learners, world_seed
 from .gridmap import GridMap
@@ -104,16 +104,19 @@ class _FilmedLearner:
 
 
 def engine_frames(gridmap: GridMap, algo: str, settings: Settings, seed: int, episodes: int,
-                  episode: int | None = None) -> list[Frame]:
+                  episode: int | None = None, progress: Callable[[int], Any] | None = None) -> list[Frame]:
     """The frames of learning episode `episode` (0-based; None: the last of `episodes`) of the offline run
-    `cq_ros.engine.run(algo, gridmap, settings, seed, 0, episodes)`: every step from 0 to the last."""
+    `cq_ros.engine.run(algo, gridmap, settings, seed, 0, episodes)`: every step from 0 to the last.
+    `progress(e)` is called after each episode e played before it."""
     episode = episodes - 1 if episode is None else episode
     if not 0 <= episode < episodes:
         raise ValueError(f"episode {episode} is not one of the {episodes} episodes (0..{episodes - 1})")
     world = GridWorld(gridmap, settings, seed=world_seed(seed, 0))
     team = Team(world, make_learners(algo, gridmap, settings, seed, 0))
-    for _ in range(episode):
+    for e in range(episode):
         team.episode()
+        if progress is not None:
+            progress(e)
     filmed = _FilmedWorld(world, episode)
     team.world, team.learners = filmed, [_FilmedLearner(learner, filmed) for learner in team.learners]
     team.episode()
@@ -145,9 +148,9 @@ def check_output(path: Path) -> str:
 
 def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], ...],
                     goals: tuple[tuple[int, int], ...], frames: list[Frame], *, title: str = "",
-                    fps: float = 4.0) -> Path:
+                    fps: float = 4.0, progress: Callable[[int], Any] | None = None) -> Path:
     """Write `frames` as an animation to `path` (.gif with Pillow, .mp4 with ffmpeg); ValueError for another
-    suffix, an empty episode or a missing ffmpeg."""
+    suffix, an empty episode or a missing ffmpeg. `progress(i)` is called after frame i is drawn."""
     from matplotlib import animation, colormaps
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.collections import LineCollection
@@ -181,7 +184,7 @@ def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], 
 
     writer = animation.writers[writer_name](fps=fps)
     with writer.saving(fig, str(path), dpi=DPI):
-        for frame in frames:
+        for i, frame in enumerate(frames):
             xy = [(col + 0.5, -(row + 0.5)) for row, col in frame.cells]
             agvs.set_offsets(xy)
             for label, (x, y) in zip(labels, xy):
@@ -192,4 +195,6 @@ def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], 
             lines.set_color([colour[k - 1] for k, peers in sorted(frame.looks.items()) for _ in peers])
             heading.set_text(f"{title}  episode {frame.episode}, step {frame.step}".strip())
             writer.grab_frame()
+            if progress is not None:
+                progress(i)
     return path
