@@ -36,7 +36,8 @@ from .viz import LOOKS, MAP, SCENE, parse_view_topic
 __all__ = [
     "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
     "EXECUTORS", "EXECUTOR_ENV", "executor_kind", "make_executor", "spin_nodes", "run_node", "declare_parameters",
-    "compatible_qos", "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
+    "compatible_qos", "undeclared_overrides", "watch_graph", "message_class", "echo", "topics", "nodes", "record",
+    "read_view_bag",
 ]
 
 # A new process shows up in the graph 0.05-2.8 s after it starts (DESIGN.md field notes): the default wait.
@@ -179,8 +180,16 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
     except ValueError as e:
         print(f"{program}: {e}", file=sys.stderr)
         return 2
+    missing = _missing_params_files(sys.argv)
+    if missing:
+        print(f"{program}: --params-file {missing}: no such file", file=sys.stderr)
+        return 2
     os.environ.setdefault(FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))  # read when rclpy.init makes the participant
-    rclpy.init(args=sys.argv)
+    try:
+        rclpy.init(args=sys.argv)
+    except RuntimeError as e:  # rcl refused the arguments (e.g. a parameters file it cannot parse)
+        print(f"{program}: bad ROS arguments: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 2
     executor = make_executor(kind)
     nodes: list[Any] = []
     code = 130
@@ -223,6 +232,29 @@ def declare_parameters(node: Any, parameters: dict[str, tuple[Any, str]], unset:
         value = Parameter.Type.from_parameter_value(default) if name in unset else default
         values[name] = node.declare_parameter(name, value, descriptor).value
     return {name: value for name, value in values.items() if not (name in unset and value is None)}
+
+
+def _missing_params_files(argv: list[str]) -> str | None:
+    """The first `--params-file PATH` after --ros-args that names no readable file."""
+    for flag, path in zip(argv, argv[1:]):
+        if flag == "--params-file" and not os.access(path, os.R_OK):
+            return path
+    return None
+
+
+def undeclared_overrides(node: Any) -> list[str]:
+    """Parameter names given to `node` (command line, parameters file, parameter_overrides) that it did not
+    declare: rclpy ignores them silently, so a typo would run with the default."""
+    # rclpy keeps the overrides in a private dict, the only place they are listed (rclpy 7.1.6).
+    return sorted(set(node._parameter_overrides) - set(node._parameters))
+
+
+def watch_graph(node: Any, watch: Any, topics: list[str]) -> str | None:
+    """Hand the graph around `node` (its peers' names, every writer of `topics`) to a msgs_spec.graph.GraphWatch;
+    its answer: a line to refuse with, or None."""
+    writers = {node.resolve_topic_name(t): [(p.node_name, p.node_namespace, p.endpoint_gid)
+                                            for p in node.get_publishers_info_by_topic(t)] for t in topics}
+    return watch.check(node.get_node_names_and_namespaces(), writers)
 
 
 def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float | None,

@@ -28,7 +28,7 @@ from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_t
 from msgs_spec.tools import make_executor, spin_nodes
 from processes import alive_with
 from world_node.compose import make_nodes
-from world_node.launch import compose_command, node_parameters
+from world_node.launch import compose_command, node_specs
 
 RUN_TIMEOUT_S = 60.0  # a bound for one composed run; each below takes a second or two
 # Short runs: on grid_game_2 CQ marks joint states (and so subscribes to its peer) within 30 episodes;
@@ -43,8 +43,8 @@ def composed_run(map_name: str, algo: str, tmp_path: Path, domain_id: int) -> tu
     """Run the nodes of a launch of (map, algo) composed in this process, as the container does; return
     (WorldStats by episode, {agent: AgentStats by episode}) heard by a probe node beside them."""
     episodes, overrides = CASES[map_name]
-    nodes = node_parameters(map_name, algo, episodes, SEED, Settings().with_overrides(overrides), tmp_path,
-                            step_timeout=30.0)
+    nodes = node_specs(map_name, algo, episodes, SEED, Settings().with_overrides(overrides), tmp_path,
+                       step_timeout=30.0)
     (tmp_path / "checkpoints").mkdir()
     command = compose_command(nodes, "composed", tmp_path).command
     ctx = Context()  # the container's arguments: its namespace and the params file with every node's parameters

@@ -16,6 +16,12 @@ arrive). Starting everything at once (instead of the agents first) overlaps the 
 With `--compose` the one child is a container (world_node.compose) holding every node, each reading its
 parameters under its own name in DIR/params.yaml; the nodes and the protocol are the same.
 
+Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
+for a run (timeouts, heartbeat, linger, checkpoints: `SETTABLE`), checked by the nodes' own rules before
+anything starts. Each launch writes a fresh key to a file only the user can read (msgs_spec.auth) and hands
+every node its path (`key_file`): a writer outside the launch cannot steer the run; the file is removed at
+the end.
+
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
 SIGINT, then SIGTERM after 3 s, then SIGKILL after 2 more. Children run in sessions of their own, so a
@@ -55,19 +61,24 @@ import yaml
 from tqdm import tqdm
 
 from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
+from agent_node.driver import agent_config
 from cq_ros.engine import RunResult, make_learner
 from cq_ros.experiment import manifest_for, prepare_output, write_results
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.settings import Settings, run_settings
+from cq_ros.parameters import check_names
+from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
 from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
-    agent_stats_topic, decode_agent_stats, decode_world_stats,
+    agent_stats_topic, decode_agent_stats, decode_world_stats, new_key_file,
 )
 from msgs_spec.tools import EXECUTOR_ENV, StopSignals, executor_kind, ros_session, spin_until
 
-__all__ = ["DOMAIN_IDS", "LaunchError", "Interrupted", "LaunchResult", "Child", "node_parameters", "node_commands",
-           "compose_command", "launch"]
+from .lockstep import PARAMETERS as WORLD_PARAMETERS
+from .lockstep import world_config
+
+__all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
+           "node_specs", "node_commands", "compose_command", "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -76,6 +87,13 @@ AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world fi
 DRAIN_S = 5.0  # after the last child exits, how long to wait for statistics still in the listener's queue
 STOP_GRACE_S = ((signal.SIGINT, 3.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0))
 NAMESPACE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+# Node parameters the launcher fixes itself (from its own options, or as its children need them).
+LAUNCHER_OWNS = {"map", "episodes", "seed", "run", "algo", "agent_id", "checkpoint", "min_stats_subscribers",
+                 "key_file"}
+_SETTINGS = {f.name for f in fields(Settings)}
+# name -> default: the node parameters `--set` may change, beside the Settings fields.
+SETTABLE = {name: default for params in (WORLD_PARAMETERS, AGENT_PARAMETERS)
+            for name, (default, _) in params.items() if name not in LAUNCHER_OWNS | _SETTINGS}
 
 
 class LaunchError(RuntimeError):
@@ -142,6 +160,34 @@ class Child:
         return f"{self.name} (pid {self.process.pid}) exited with code {code}{how}"
 
 
+def split_sets(pairs: list[str], gridmap: GridMap) -> tuple[Settings, dict[str, Any]]:
+    """`--set key=value` pairs -> (the run's Settings on `gridmap`, node parameter -> typed value); SettingsError
+    names a bad one (an unknown key with the closest known one)."""
+    settings, node = [], {}
+    for pair in pairs:
+        key, value = split_pair(pair)
+        if key in _SETTINGS:
+            settings.append(pair)
+        elif key in SETTABLE:
+            default = SETTABLE[key]
+            node[key] = value if isinstance(default, str) else coerce(key, value, type(default))
+        elif key in LAUNCHER_OWNS:
+            raise SettingsError(f"setting {key} is fixed by cq-ros launch (see cq-ros launch --help)")
+        else:
+            check_names([key], _SETTINGS | SETTABLE.keys(), what="setting")
+    return run_settings(gridmap, settings), node
+
+
+def _check_node_parameters(map_name: str, algo: str, settings: Settings, node: dict[str, Any]) -> None:
+    """The nodes' own checks on what a launch hands them, before any process starts."""
+    common = {"map": str(map_name), **settings.as_dict(), **node}
+    world_config({**{k: d for k, (d, _) in WORLD_PARAMETERS.items()},
+                  **{k: v for k, v in common.items() if k in WORLD_PARAMETERS}})
+    agent_config({**{k: d for k, (d, _) in AGENT_PARAMETERS.items()}, "algo": algo,
+                  "agent_id": 0 if LEARNERS[algo].central else 1,
+                  **{k: v for k, v in common.items() if k in AGENT_PARAMETERS}})
+
+
 def _param(value: Any) -> str:
     """A parameter value as ROS parses it back into the declared type: floats always with a point or exponent."""
     if isinstance(value, bool):
@@ -153,19 +199,25 @@ def _params(values: dict[str, Any]) -> list[str]:
     return [arg for k, v in values.items() for arg in ("-p", f"{k}:={_param(v)}")]
 
 
-def node_parameters(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
-                    step_timeout: float, peer_linger_steps: int | None = None,
-                    markers: bool = True) -> dict[str, tuple[str, dict]]:
-    """The nodes of one launch: node name -> (its module, its parameters). The world, then the agent node(s):
-    every setting that differs from its default on this map (Settings' or the map's own), and markers, go to
-    both."""
+def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
+               step_timeout: float, peer_linger_steps: int | None = None,
+               node_parameters: dict[str, Any] | None = None,
+               key_file: Path | None = None) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The nodes of one launch: node name -> (its module, its parameters), the world first, then the agent
+    node(s). Every setting that differs from its default on this map (Settings' or the map's own) goes to
+    both, every node parameter (`node_parameters`, from `--set`) to the nodes that take it."""
     gridmap = load_map(map_name)
     defaults = run_settings(gridmap)
     changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
                if getattr(settings, f.name) != getattr(defaults, f.name)}
-    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0, "markers": markers}
+    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0,
+              **({"key_file": str(key_file)} if key_file else {})}
+    node_parameters = node_parameters or {}
+    to_world = {k: v for k, v in node_parameters.items() if k in WORLD_PARAMETERS}
+    to_agents = {k: v for k, v in node_parameters.items() if k in AGENT_PARAMETERS}
     nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
-                                      "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1, **changed})}
+                                      "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1,
+                                      **to_world, **changed})}
     if LEARNERS[algo].central:
         agents = [("jsa", {})]  # one node moves every AGV; agent_id stays 0
     else:
@@ -174,7 +226,7 @@ def node_parameters(map_name: str, algo: str, episodes: int, seed: int, settings
     for name, ident in agents:
         nodes[name] = ("agent_node", {
             **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
-            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **changed})
+            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **to_agents, **changed})
     return nodes
 
 
@@ -183,7 +235,7 @@ def _ros_args(namespace: str) -> list[str]:
     return ["--ros-args", "--disable-external-lib-logs", "-r", f"__ns:=/{namespace}"]
 
 
-def node_commands(nodes: dict[str, tuple[str, dict]], namespace: str, out: Path) -> list[Child]:
+def node_commands(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path) -> list[Child]:
     """A process per node (`python -m world_node|agent_node`), the world first, with the command lines fixed
     by world_node and agent_node (__main__)."""
     children = []
@@ -194,7 +246,7 @@ def node_commands(nodes: dict[str, tuple[str, dict]], namespace: str, out: Path)
     return children
 
 
-def compose_command(nodes: dict[str, tuple[str, dict]], namespace: str, out: Path) -> Child:
+def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path) -> Child:
     """Every node in one process (`python -m world_node.compose`), each reading its parameters under its own
     name in DIR/params.yaml (written here)."""
     params = {f"/{namespace}/{name}": {"ros__parameters": values} for name, (_, values) in nodes.items()}
@@ -319,7 +371,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            settings: Settings | None = None, *, domain_id: int | None = None, namespace: str | None = None,
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
-           progress: bool = True) -> LaunchResult:
+           progress: bool = True, node_parameters: dict[str, Any] | None = None) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (world_node.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -333,6 +385,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
     executor_name = executor_kind(executor)
+    node_parameters = {"step_timeout": float(step_timeout),
+                       **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
+                       **({} if markers else {"markers": False}), **(node_parameters or {})}
+    _check_node_parameters(map_name, algo, settings, node_parameters)
     namespace = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
     if not NAMESPACE.fullmatch(namespace):
         raise ValueError(f"namespace {namespace!r} is not a ROS name (letters, digits, _; not starting with a digit)")
@@ -341,10 +397,9 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     out = prepare_output(Path(out), force)
     for sub in ("logs", "checkpoints"):
         (out / sub).mkdir(exist_ok=True)
-    if peer_linger_steps is not None and peer_linger_steps < 0:
-        raise ValueError(f"peer_linger_steps must be >= 0, got {peer_linger_steps}")
-    nodes = node_parameters(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
-                            markers)
+    key_file = new_key_file()
+    nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
+                       node_parameters, key_file)
     children = [compose_command(nodes, namespace, out)] if compose else node_commands(nodes, namespace, out)
     for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
         (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
@@ -376,11 +431,13 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                           f"(logs in {out / 'logs'})") from None
         finally:
             _stop(children)
+            key_file.unlink(missing_ok=True)
             bar.close()
 
-    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=markers, domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
-                    peer_linger_steps=AGENT_PARAMETERS["peer_linger_steps"][0] if peer_linger_steps is None
-                    else peer_linger_steps)
+    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=markers, domain_id=domain_id, namespace=f"/{namespace}",
+                    step_timeout_s=node_parameters["step_timeout"],
+                    peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
+                    node_parameters=node_parameters, authenticated=True)
     result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
                     learners, list(nodes)[1:], children, run_info)
     if figures:
