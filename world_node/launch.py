@@ -170,7 +170,12 @@ def split_sets(pairs: list[str], gridmap: GridMap) -> tuple[Settings, dict[str, 
             settings.append(pair)
         elif key in SETTABLE:
             default = SETTABLE[key]
-            node[key] = value if isinstance(default, str) else coerce(key, value, type(default))
+            if isinstance(default, bool):  # markers=false
+                if value.lower() not in ("true", "false"):
+                    raise SettingsError(f"setting {key} takes true or false, got {value!r}")
+                node[key] = value.lower() == "true"
+            else:
+                node[key] = value if isinstance(default, str) else coerce(key, value, type(default))
         elif key in LAUNCHER_OWNS:
             raise SettingsError(f"setting {key} is fixed by cq-ros launch (see cq-ros launch --help)")
         else:
@@ -434,7 +439,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             key_file.unlink(missing_ok=True)
             bar.close()
 
-    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=markers, domain_id=domain_id, namespace=f"/{namespace}",
+    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True), domain_id=domain_id, namespace=f"/{namespace}",
                     step_timeout_s=node_parameters["step_timeout"],
                     peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
