@@ -439,7 +439,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             key_file.unlink(missing_ok=True)
             bar.close()
 
-    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True), domain_id=domain_id, namespace=f"/{namespace}",
+    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
+                    domain_id=domain_id, namespace=f"/{namespace}",
                     step_timeout_s=node_parameters["step_timeout"],
                     peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
