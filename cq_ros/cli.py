@@ -6,6 +6,7 @@ Bad arguments print one line naming what is wrong and exit with code 2, as argpa
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -113,8 +114,21 @@ def _add_ros_parsers(sub) -> None:
                         "process per node")
     p.add_argument("--executor", choices=("events", "single"), default=None,
                    help="the nodes' executor: rclpy's EventsExecutor (default) or the SingleThreadedExecutor")
+    p.add_argument("--hosts", default=None, metavar="PREFIX",
+                   help="run each node on its own host made by `cq-ros hosts up` (root; re-runs itself on the "
+                        "world's host)")
+    p.add_argument("--discovery", choices=("subnet", "static"), default="subnet",
+                   help="with --hosts: multicast discovery on the subnet, or unicast to ROS_STATIC_PEERS only")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_settings_options(p, nodes=True)
+
+    p = sub.add_parser("hosts", help="make or remove hosts for --hosts: network namespaces joined by a bridge, "
+                                     "addresses from 198.18.0.0/15 (root)")
+    p.add_argument("action", choices=("up", "down", "list"),
+                   help="up: make a world host and one per AGV; down: remove them; list: the sets there are")
+    p.add_argument("--agents", type=_positive, default=2, help="up: AGV hosts (default 2)")
+    p.add_argument("--prefix", default=None,
+                   help="the set's name: cqr and up to 8 letters or digits (up: default random; down: required)")
 
     p = sub.add_parser("echo", help="print the messages of a topic as YAML, like `ros2 topic echo`")
     p.add_argument("topic", help="topic name, e.g. /cq_1a2b3c4d/agv1/position")
@@ -217,6 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
         return _dispatch(args)
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
@@ -257,6 +272,8 @@ def _dispatch(args) -> int:
         return _render(args)
     if args.command == "launch":
         return _launch(args)
+    if args.command == "hosts":
+        return _hosts(args)
     if args.command == "experiment":
         from .experiment import experiment
         from .summary import format_console_table, load_episodes
@@ -360,19 +377,51 @@ def _generate(args) -> int:
 # works without it.
 
 
+def _hosts(args) -> int:
+    from world_node.hosts import HostsError, existing_prefixes, hosts_down, hosts_up
+
+    try:
+        if args.action == "up":
+            print(hosts_up(args.agents, args.prefix).describe())
+        elif args.action == "down":
+            if args.prefix is None:
+                raise HostsError("down needs --prefix (`cq-ros hosts list` shows the sets)")
+            gone = hosts_down(args.prefix)
+            print(f"removed {', '.join(gone)}" if gone else f"no hosts {args.prefix}: nothing to remove")
+        else:
+            for prefix, names in existing_prefixes().items():
+                print(f"{prefix}: {', '.join(names)}")
+    except HostsError as e:
+        print(f"cq-ros hosts: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def _launch(args) -> int:
-    from world_node.launch import Interrupted, LaunchError, launch, split_sets
+    from world_node.hosts import HostsError, check_can_make_hosts, find_hosts
+    from world_node.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
 
     from .summary import format_console_table, load_episodes
 
     # Settings fields (over the map's defaults) and node parameters alike
     settings, node_parameters = split_sets(args.overrides, load_map(args.map))
+    hosts = None
+    if args.hosts is not None:
+        try:
+            check_can_make_hosts()
+            hosts = find_hosts(args.hosts)
+        except HostsError as e:
+            raise ValueError(e) from None
+        check_hosts(hosts, load_map(args.map), args.algo, args.discovery)
+        if hosts.current_host() != "world":  # the launcher listens on the world's host: run there
+            sys.stdout.flush()
+            os.execvp("ip", [*hosts.exec_on("world"), sys.executable, "-m", "cq_ros.cli", *args.argv])
     try:
         result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
                         peer_linger_steps=args.peer_linger_steps, compose=args.compose,
                         executor=args.executor, node_parameters=node_parameters, force=args.force,
-                        figures=args.figures)
+                        figures=args.figures, hosts=hosts, discovery=args.discovery)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)
         return 130

@@ -29,6 +29,10 @@ terminal's Ctrl-C reaches the launcher only and it stops them in that order, and
 if the launcher itself dies (PR_SET_PDEATHSIG on Linux): none outlives it. Each child's output goes to
 DIR/logs/<node>.log (ROS file logging is off: the console output is the log).
 
+Hosts. With `hosts` (world_node.hosts: network namespaces joined by a bridge), the launcher runs on the world's
+host and starts each node on its own (`ip netns exec`), all over UDP, discovering each other on the subnet or
+through ROS_STATIC_PEERS only; `cq-ros launch --hosts PREFIX` enters the world's host itself.
+
 Results. The nodes play `episodes` learning episodes, then `eval_episodes` greedy ones (the agents on a copy
 of their learner at epsilon 0, as `cq_ros.engine.greedy_episodes`). Per episode, steps, collisions,
 truncation and return (summed over agents) come from WorldStats; joint plays and states (local + joint) are
@@ -51,7 +55,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -72,13 +76,14 @@ from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
     agent_stats_topic, decode_agent_stats, decode_world_stats, new_key_file,
 )
-from msgs_spec.tools import EXECUTOR_ENV, StopSignals, executor_kind, ros_session, spin_until
+from msgs_spec.tools import EXECUTOR_ENV, StopSignals, environment, executor_kind, ros_session, spin_until
 
+from .hosts import Hosts
 from .lockstep import PARAMETERS as WORLD_PARAMETERS
 from .lockstep import world_config
 
 __all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
-           "node_specs", "node_commands", "compose_command", "launch"]
+           "node_specs", "node_commands", "compose_command", "check_hosts", "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -133,12 +138,13 @@ class Child:
     command: list[str]
     log: Path
     process: subprocess.Popen | None = None
+    env: dict[str, str] = field(default_factory=dict)  # its own, over the launch's
 
     def start(self, env: dict[str, str]) -> None:
         with open(self.log, "wb") as log:  # the child keeps its own copy of the descriptor
             self.process = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, stdout=log,
-                                            stderr=subprocess.STDOUT, env=env, start_new_session=True,
-                                            preexec_fn=_die_with_launcher)
+                                            stderr=subprocess.STDOUT, env={**env, **self.env},
+                                            start_new_session=True, preexec_fn=_die_with_launcher)
 
     @property
     def exit_code(self) -> int | None:
@@ -372,15 +378,29 @@ class _Progress:
 # -- one launch --------------------------------------------------------------------------------------------
 
 
+def check_hosts(hosts: Hosts, gridmap: GridMap, algo: str, discovery: str) -> None:
+    """ValueError unless a launch of `algo` on `gridmap` can run on these hosts: one per agent node."""
+    if LEARNERS[algo].central:
+        raise ValueError(f"{algo} is one central node: hosts run one agent node per AGV")
+    if hosts.agents != gridmap.n_agents:
+        raise ValueError(f"hosts {hosts.prefix} have {hosts.agents} AGV hosts, map {gridmap.name} has "
+                         f"{gridmap.n_agents} agents")
+    hosts.discovery_env("world", discovery)  # a bad discovery fails here
+
+
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
            settings: Settings | None = None, *, domain_id: int | None = None, namespace: str | None = None,
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
-           progress: bool = True, node_parameters: dict[str, Any] | None = None) -> LaunchResult:
+           progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
+           discovery: str = "subnet") -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (world_node.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
     Without `settings`, the run's are the map's (`cq_ros.settings.run_settings`).
+
+    With `hosts` (world_node.hosts, one per AGV of the map), each node runs on its own host, found by
+    `discovery` ("subnet" or "static", see world_node.hosts.DISCOVERY); the launcher must run on the world's.
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
     a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
@@ -397,6 +417,12 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     namespace = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
     if not NAMESPACE.fullmatch(namespace):
         raise ValueError(f"namespace {namespace!r} is not a ROS name (letters, digits, _; not starting with a digit)")
+    if hosts is not None:
+        if compose:
+            raise ValueError("--compose runs every node in one process, --hosts each on its own host: choose one")
+        check_hosts(hosts, gridmap, algo, discovery)
+        if hosts.current_host() != "world":
+            raise ValueError(f"the launcher must run on the world's host: ip netns exec {hosts.namespace('world')} ...")
     if domain_id is None:
         domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
     out = prepare_output(Path(out), force)
@@ -410,11 +436,18 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
            "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
+    listener_env: dict[str, str] = {}
+    if hosts is not None:
+        for child in children:
+            child.command = [*hosts.exec_on(child.name), *child.command]
+            child.env = hosts.discovery_env(child.name, discovery)
+        listener_env = hosts.discovery_env("world", discovery)
     learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
     started = time.perf_counter()
 
-    with StopSignals() as stop, ros_session("launch", domain_id=domain_id, namespace=f"/{namespace}",
-                                            localhost_only=True, hidden=False) as (node, executor):
+    with StopSignals() as stop, environment(**listener_env), ros_session(
+            "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
+            hidden=False) as (node, executor):
         listener = StatsListener(node, gridmap, episodes + settings.eval_episodes)
         bar = _Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
         try:
@@ -439,9 +472,11 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             key_file.unlink(missing_ok=True)
             bar.close()
 
+    on_hosts = {} if hosts is None else {"hosts": {"prefix": hosts.prefix, "discovery": discovery,
+                                                   "addresses": {h: hosts.address(h) for h in hosts.names}}}
     run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
                     domain_id=domain_id, namespace=f"/{namespace}",
-                    step_timeout_s=node_parameters["step_timeout"],
+                    step_timeout_s=node_parameters["step_timeout"], **on_hosts,
                     peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
     result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
