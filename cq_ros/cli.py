@@ -109,6 +109,11 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--peer-linger-steps", type=_number(0, kind=int), default=None, metavar="N",
                    help="decision steps an agent keeps a peer subscription it no longer needs (default: the "
                         "agent node's, 0)")
+    p.add_argument("--compose", action="store_true",
+                   help="run every node in one process on one executor (a component container) instead of a "
+                        "process per node")
+    p.add_argument("--executor", choices=("events", "single"), default=None,
+                   help="the nodes' executor: rclpy's EventsExecutor (default) or the SingleThreadedExecutor")
     p.add_argument("--hosts", default=None, metavar="PREFIX",
                    help="run each node on its own host made by `cq-ros hosts up` (root; re-runs itself on the "
                         "world's host)")
@@ -150,6 +155,22 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--count", type=_positive, default=None, metavar="N", help="stop after N messages")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage plugin (default mcap)")
     _add_domain_option(p)
+
+    p = sub.add_parser("render", help="draw one episode as an animated GIF (or MP4 where ffmpeg is installed): "
+                                      "the map, the AGVs, their goals and whom each agent looks at; from the "
+                                      "offline engine (--map, --algo) or from a bag of `cq-ros record` (--bag)")
+    p.add_argument("--out", type=Path, required=True, help="the animation to write: NAME.gif, or NAME.mp4 (ffmpeg)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--map", help="run the offline engine on this map (a shipped name or a path)")
+    source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
+    p.add_argument("--algo", type=_algo, default="cq", help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
+    p.add_argument("--episodes", type=_positive, default=100, help="with --map: episodes to learn (default 100)")
+    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="with --map: master seed (default 0)")
+    p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
+                   help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+    p.add_argument("--fps", type=_seconds, default=4.0, help="frames (steps) per second (default 4)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --map: change a setting (repeatable)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -247,6 +268,8 @@ def _dispatch(args) -> int:
         return _plan(args)
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
+    if args.command == "render":
+        return _render(args)
     if args.command == "launch":
         return _launch(args)
     if args.command == "hosts":
@@ -396,8 +419,9 @@ def _launch(args) -> int:
     try:
         result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps, node_parameters=node_parameters,
-                        force=args.force, figures=args.figures, hosts=hosts, discovery=args.discovery)
+                        peer_linger_steps=args.peer_linger_steps, compose=args.compose,
+                        executor=args.executor, node_parameters=node_parameters, force=args.force,
+                        figures=args.figures, hosts=hosts, discovery=args.discovery)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)
         return 130
@@ -414,6 +438,62 @@ def _launch(args) -> int:
               f"{cost['subscriptions_created']} subscriptions created")
     print(f"results: {result.out}")
     return 0
+
+
+def _render(args) -> int:
+    from .render import check_output, engine_frames, frames_from, lattice, write_animation
+
+    check_output(args.out)
+    if args.map is not None:
+        gridmap = load_map(args.map)
+        settings = run_settings(gridmap, args.overrides)
+        occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
+        title = f"{gridmap.name} {args.algo}"
+        _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
+        frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode,
+                               _every_30_s("episode {} learnt"))
+    else:
+        from msgs_spec import tools
+
+        if args.overrides:
+            raise ValueError("--set applies to --map (the offline engine), not to a bag")
+        try:
+            occupancy, scenes, looks = tools.read_view_bag(args.bag)
+        except tools.ToolError as e:
+            print(f"cq-ros render: error: {e}", file=sys.stderr)
+            return 1
+        if occupancy is None or not scenes:
+            print(f"cq-ros render: error: {args.bag} holds no {'world/map' if occupancy is None else 'world/markers'}"
+                  " message (record while the run starts, with markers on)", file=sys.stderr)
+            return 1
+        episodes = sorted({s.episode for s in scenes})
+        episode = episodes[-1] if args.episode is None else args.episode
+        if episode not in episodes:
+            raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
+        frames = frames_from([s for s in scenes if s.episode == episode], looks)
+        occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
+    _note(f"drawing {len(frames)} steps to {args.out}")
+    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps,
+                          progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
+    return 0
+
+
+def _every_30_s(line: str):
+    """A progress callback for render's long loops: `line` (with the 1-based count) at most every 30 s."""
+    shown = time.monotonic()
+
+    def progress(i: int) -> None:
+        nonlocal shown
+        if time.monotonic() - shown >= 30:
+            shown = time.monotonic()
+            _note(line.format(i + 1))
+
+    return progress
+
+
+def _note(line: str) -> None:
+    print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
 
 
 def _ros_tool(args) -> int:
