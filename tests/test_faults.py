@@ -157,9 +157,12 @@ def test_junk_bursts_of_100_messages_per_step_on_every_topic_change_nothing(syst
 
 
 def test_a_second_writer_of_positions_and_actions_without_the_key_is_dropped(system_in, ros_context, spin_until,
-                                                                              key_file):
+                                                                              key_file, monkeypatch):
     """Another node answers for agv2 before agv2 does, and publishes agv1's position stamped with the step
     at another cell, 40 messages a second each: with the key neither steers the run."""
+    # the run can end within a second: nodes look at the graph often enough to see the intruder before then
+    monkeypatch.setattr("world_node.node.CHECK_PERIOD_S", 0.05)
+    monkeypatch.setattr("agent_node.node.CHECK_PERIOD_S", 0.05)
     algo, episodes = "js", 20
     system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], common_extra={"key_file": key_file})
     world = system.world
