@@ -122,7 +122,7 @@ def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, s
                  wall_time: float, **extra) -> dict:
     return {
         "map": gridmap.name,
-        "map_source": str(gridmap.source),
+        "map_source": str(Path(gridmap.source).resolve()) if Path(gridmap.source).is_file() else gridmap.source,
         "n_agents": gridmap.n_agents,
         "n_cells": gridmap.n_cells,
         "algos": list(algos),

@@ -350,7 +350,7 @@ def _mark_starts_and_goals(ax: Axes, gridmap: GridMap) -> None:
 def write_figures(
     result_dir: str | os.PathLike,
     smooth: int | None = None,
-    map_loader: Callable[[str], GridMap] = load_map,
+    map_loader: Callable[[str], GridMap] | None = None,
 ) -> list[Path]:
     """Draw every figure of a result directory into it and return their paths.
 
@@ -359,7 +359,8 @@ def write_figures(
     directory has an observe.csv; other algorithms found there get observe_map_<algo>.png). A directory
     holding several maps gets one set per map, each file name prefixed with ``<map>_``. ``smooth`` is
     the moving-average window of the per-episode curves, by default 1% of the episodes. ``map_loader``
-    turns a map name into a GridMap, for the observe map and for maps the manifest does not describe.
+    turns a map name into a GridMap, for the observe map and for maps the manifest does not describe; by
+    default the manifest's map is read from the file it was read from (``map_source``), any other by name.
     """
     result_dir = Path(result_dir)
     data = load_episodes(result_dir / "episodes.csv")
@@ -367,6 +368,7 @@ def write_figures(
     manifest = json.loads(manifest_path.read_text(encoding="utf-8")) if manifest_path.exists() else {}
     observe_path = result_dir / "observe.csv"
     observations = load_observations(observe_path) if observe_path.exists() else None
+    map_loader = map_loader or _manifest_map_loader(manifest)
     maps = by_map(data)
     written = []
     for name, by_algo in maps.items():
@@ -383,6 +385,16 @@ def write_figures(
             written.extend(_observe_maps(observations, name, by_algo, map_loader, result_dir, prefix))
         written.append(plot_steps(data, result_dir / f"{prefix}steps.png", name, window))
     return written
+
+
+def _manifest_map_loader(manifest: dict) -> Callable[[str], GridMap]:
+    # A map given as a path has a name (its file's stem) that no shipped map need have.
+    source = Path(manifest.get("map_source", ""))
+
+    def load(name: str) -> GridMap:
+        return load_map(source) if manifest.get("map") == name and source.is_file() else load_map(name)
+
+    return load
 
 
 def _map_sizes(name: str, manifest: dict, map_loader: Callable[[str], GridMap]) -> tuple[int, int]:
