@@ -299,9 +299,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
-    namespace = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
+    given = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
+    namespace = given.removeprefix("/")  # "/demo" and "demo" name one namespace, as they do for ROS
     if not NAMESPACE.fullmatch(namespace):
-        raise ValueError(f"namespace {namespace!r} is not a ROS name (letters, digits, _; not starting with a digit)")
+        raise ValueError(f"namespace {given!r} is not a ROS name (letters, digits, _; not starting with a digit)")
     if domain_id is None:
         domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
     out = prepare_output(Path(out), force)
