@@ -65,6 +65,7 @@ class CQLearner(Learner):
         return reward
 
     def end_episode(self):
+        super().end_episode()
         self.conflict_at = None
 
     def state_count(self):
