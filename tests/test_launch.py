@@ -118,11 +118,13 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
 
 def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it(tmp_path):
     """--map a path (named unlike any shipped map) is the map used to the last figure; --namespace /name is
-    the namespace name, as `-r __ns:=/name` is for a node."""
+    the namespace name, as `-r __ns:=/name` is for a node. Exploration falls to 0 on the nodes' schedule as it
+    does offline."""
     copied = tmp_path / "my" / "mymap.txt"
     copied.parent.mkdir()
     copied.write_text(Path(load_map("tunnel_to_goal").source).read_text())
     episodes, sets = CASES["tunnel_to_goal", "cq"]
+    sets = (*sets, "epsilon_decay_episodes=10")
     out, namespace = tmp_path / "result", unique("slash")
     done = subprocess.run(launch_command(out, f"/{namespace}", str(copied), "cq", episodes, sets),
                           capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
