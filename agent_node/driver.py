@@ -58,7 +58,8 @@ __all__ = [
 ]
 
 # Every parameter of the agent node: name -> (default, description). The default also fixes the ROS type.
-# Every field of cq_ros.settings.Settings is a parameter too, with the same name and default.
+# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
+# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
 PARAMETERS: dict[str, tuple[Any, str]] = {
     "agent_id": (0, "the AGV this node drives, 1..N as numbered in the map; leave 0 for algo jsa, whose "
                     "one central node drives every AGV"),
@@ -83,7 +84,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                                  "episode); learning never waits for them, the exit at most 10 s"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (learning settings and rewards, "
-                                       "as the world's)") for f in fields(Settings)})
+                                       "as the world's); not given: the map's default, else this one")
+                   for f in fields(Settings)})
 
 _CHECKPOINT_FORMAT = 1
 

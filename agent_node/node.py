@@ -14,18 +14,19 @@ import time
 from functools import partial
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
+from cq_ros.parameters import SETTING_NAMES
 from cq_ros.settings import SettingsError
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, POSITION, Action, action_topic, agent_namespace, agent_stats_topic, encode,
     feedback_topic, position_topic,
 )
+from msgs_spec.tools import declare_parameters
 
 from .driver import (
     PARAMETERS, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
@@ -78,9 +79,7 @@ class AgentNode(Node):
     def __init__(self, node_name: str = "agent", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            for name, (default, description) in PARAMETERS.items():
-                self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
-            self.config = cfg = agent_config({name: self.get_parameter(name).value for name in PARAMETERS})
+            self.config = cfg = agent_config(declare_parameters(self, PARAMETERS, unset=SETTING_NAMES))
             self.driver = make_driver(cfg, log=self.get_logger().warning)
         except (SettingsError, ParameterException):
             self.destroy_node()

@@ -1,4 +1,4 @@
-"""The `cq-ros` command: maps, offline experiments, the paper's reproduction, and the ROS tools.
+"""The `cq-ros` command: maps, offline experiments, the paper's reproduction, the planner, and the ROS tools.
 
 Bad arguments print one line naming what is wrong and exit with code 2, as argparse does.
 """
@@ -7,11 +7,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
-from .gridmap import MapError, available_maps, load_map
+from tqdm import tqdm
+
+from .gridmap import ACTIONS, MapError, available_maps, load_map
 from .learners import ALGORITHMS, LEARNERS
-from .settings import Settings, SettingsError
+from .settings import Settings, SettingsError, run_settings
+from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
 
 
 class _Parser(argparse.ArgumentParser):
@@ -141,6 +145,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("map", help="a shipped map name or a path to a map file")
     sub.add_parser("settings", help="list every setting with its default")
 
+    p = sub.add_parser("generate", help="generate a map (print it, or write it with --out)")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
+    what = ("a warehouse: two-lane cross-aisles (top and bottom), two-lane aisles behind one-lane entrances, "
+            "pick stations in bays beside the aisles (cq_ros.warehouse)")
+    p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
+                         "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
+                         "goal with the others parked at theirs. The map carries `set reward_step=-1`.")
+    p.add_argument("--agents", type=_positive, required=True, metavar="N", help="AGVs, each with its own goal")
+    p.add_argument("--aisles", type=_positive, default=None, metavar="A",
+                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
+    p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
+                   help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
+    p.add_argument("--seed", type=int, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+
     p = sub.add_parser("experiment", help="run algorithms on one map offline and write results and figures")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
     p.add_argument("--algo", type=_algos, default=list(ALGORITHMS),
@@ -148,6 +168,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_run_options(p, runs=10, episodes=10_000)
+
+    p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
+                                    "for the learners): makespan, sum of costs, arrival steps")
+    p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
+    p.add_argument("--seed", type=int, default=0, help="seed of the priority orders and LNS rounds (default 0)")
+    p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=1000, metavar="N",
+                   help="search nodes of the optimal conflict-based search before falling back on prioritized "
+                        "planning (default 1000; 0: skip it)")
+    p.add_argument("--orders", type=_positive, default=20, metavar="N",
+                   help="priority orders prioritized planning tries (default 20)")
+    p.add_argument("--rounds", type=_number(0, kind=int), default=300, metavar="N",
+                   help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
+    p.add_argument("--show", action="store_true",
+                   help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
 
     p = sub.add_parser("reproduce", help="the paper's grid (4 maps x 5 algorithms), figures and REPORT.md")
     p.add_argument("--out", type=Path, required=True, help="result directory")
@@ -180,21 +214,30 @@ def _dispatch(args) -> int:
         m = load_map(args.map)
         print(f"{m.name}: {m.n_cells} cells, {m.n_agents} agents (digits: starts, G: goals)")
         print(m.draw())
+        if m.defaults:
+            print("map defaults: " + ", ".join(f"{k}={v:g}" for k, v in m.defaults.items()))
+        pairs = m.walled_in()
+        print("walled in by an early arrival (agent: by the agent parked at its goal): "
+              + ("; ".join(f"{i + 1}: by {k + 1} at {'%d,%d' % m.cells[m.goals[k]]}" for i, k in pairs) or "none"))
         return 0
+    if args.command == "generate":
+        return _generate(args)
     if args.command == "settings":
         for key, value in Settings().as_dict().items():
             print(f"{key} = {value}")
         return 0
+    if args.command == "plan":
+        return _plan(args)
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
-    settings = Settings().with_overrides(args.overrides)
     if args.command == "launch":
-        return _launch(args, settings)
+        return _launch(args, run_settings(load_map(args.map), args.overrides))
     if args.command == "experiment":
         from .experiment import experiment
         from .summary import format_console_table, load_episodes
 
-        load_map(args.map)  # fail on a bad map before any work starts
+        # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
+        settings = run_settings(load_map(args.map), args.overrides)
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
                          workers=args.jobs, force=args.force, figures=args.figures)
         print(format_console_table(load_episodes(out / "episodes.csv")))
@@ -203,11 +246,89 @@ def _dispatch(args) -> int:
     if args.command == "reproduce":
         from .reproduce import reproduce
 
-        report = reproduce(args.out, args.runs, args.episodes, args.seed, settings, workers=args.jobs,
-                           force=args.force, sweep=args.sweep)
+        # The paper's maps carry no defaults of their own.
+        report = reproduce(args.out, args.runs, args.episodes, args.seed, Settings().with_overrides(args.overrides),
+                           workers=args.jobs, force=args.force, sweep=args.sweep)
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
+
+
+def _plan(args) -> int:
+    from .planner import NoPlan, PlanError, distances_to, plan, validate
+
+    gridmap = load_map(args.map)
+    started = time.perf_counter()
+    progress = _PlanProgress()
+    try:
+        result = plan(gridmap, args.seed, args.cbs_nodes, args.orders, args.rounds, progress)
+    except NoPlan as e:
+        print(f"cq-ros plan: {e} (--cbs-nodes and --orders search longer)", file=sys.stderr)
+        return 1
+    finally:
+        progress.close()
+    seconds = time.perf_counter() - started
+    try:
+        arrivals = validate(gridmap, result)
+    except PlanError as e:
+        print(f"cq-ros plan: the world rejects the plan (a planner bug): {e}", file=sys.stderr)
+        return 1
+    alone = sum(distances_to(gridmap, goal)[start] for start, goal in zip(gridmap.starts, gridmap.goals))
+    least = "the least possible" if result.optimal else f"the least possible is at least {result.lower_bound}"
+    print(f"{gridmap.name}: {gridmap.n_agents} agents, {result.method}")
+    print(f"makespan {result.makespan}, sum of costs {result.sum_of_costs} ({least}; each agent alone: {alone:g})")
+    print("arrival steps: " + ", ".join(f"agv{i + 1} {step}" for i, step in enumerate(arrivals)))
+    print(f"planning time {seconds:.2f} s; replayed through the world: every agent at its goal, no collision")
+    if args.show:
+        for i, (path, actions) in enumerate(zip(result.paths, result.actions)):
+            moves = "".join(ACTIONS[a][0] if b != a_cell else ACTIONS[a][0].lower()
+                            for a, a_cell, b in zip(actions, path, path[1:]))
+            print(f"agv{i + 1} {gridmap.cells[path[0]]} -> {gridmap.cells[path[-1]]}: {moves or '(at its goal)'}")
+    return 0
+
+
+class _PlanProgress:
+    """The planner's progress on stderr: a tqdm bar per phase on a terminal, a plain line at most every 30 s
+    elsewhere."""
+
+    def __init__(self):
+        self.tty = sys.stderr.isatty()
+        self.bar = None
+        self.phase = None
+        self.last_line = time.monotonic()
+
+    def __call__(self, phase: str, done: int, total: int) -> None:
+        if self.tty:
+            if phase != self.phase:
+                self.close()
+                self.bar = tqdm(total=total, desc=f"plan: {phase}", leave=False)
+            self.bar.update(done - self.bar.n)
+        elif time.monotonic() - self.last_line >= 30:
+            print(f"cq-ros plan: {phase} {done}/{total}", file=sys.stderr, flush=True)
+            self.last_line = time.monotonic()
+        self.phase = phase
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+def _generate(args) -> int:
+    text = warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed)
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    if args.out.exists() and not args.out.is_file():
+        raise FileExistsError(f"{args.out} is not a file")
+    if args.out.exists() and not args.force:
+        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
+    try:
+        args.out.write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise ValueError(f"cannot write {args.out}: {e.strerror or e}") from None
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
 
 
 # The ROS commands import rclpy (through world_node and msgs_spec) only when they run: the rest of cq_ros

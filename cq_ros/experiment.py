@@ -29,7 +29,7 @@ from . import __version__
 from .engine import RunResult, run
 from .gridmap import GridMap, load_map
 from .learners import LEARNERS
-from .settings import Settings
+from .settings import Settings, run_settings
 
 EPISODE_COLUMNS = ("map", "algo", "run", "episode", "steps", "collisions", "joint_plays", "states", "return", "truncated")
 GREEDY_COLUMNS = ("map", "algo", "run", "episodes", "collisions", "steps", "truncated")
@@ -185,6 +185,9 @@ def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, s
         "seed": seed,
         "seeds": "learner of agent i in run r: SeedSequence([seed, r, i]); world: SeedSequence([seed, r, 2**31])",
         "settings": settings.as_dict(),
+        # The map's own defaults (its `set` lines), and those of them the run used (not overridden).
+        "map_defaults": dict(gridmap.defaults),
+        "settings_from_map": {k: v for k, v in gridmap.defaults.items() if getattr(settings, k) == v},
         "versions": versions(),
         "command": sys.argv,
         "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -205,10 +208,12 @@ def versions() -> dict:
 
 
 def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: int, out: Path,
-               settings: Settings = Settings(), workers: int | None = None, force: bool = False,
+               settings: Settings | None = None, workers: int | None = None, force: bool = False,
                figures: bool = True) -> Path:
-    """Run every algorithm on one map and write the result directory; returns it."""
+    """Run every algorithm on one map and write the result directory; returns it. Without `settings`, the
+    run's are the map's (`cq_ros.settings.run_settings`)."""
     gridmap = load_map(map_name)
+    settings = run_settings(gridmap) if settings is None else settings
     out = prepare_output(out, force)
     started = time.perf_counter()
     jobs = [Job(str(map_name), a, r, episodes, seed, settings) for a in algos for r in range(runs)]

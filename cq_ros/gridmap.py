@@ -1,10 +1,11 @@
-"""Gridworld maps: read the text format of ``cq_ros/maps`` and generate warehouse maps in it.
+"""Gridworld maps: read and check the text format of ``cq_ros/maps`` (``cq_ros.warehouse`` generates maps in it).
 
 A map becomes plain integer tables (cell index -> the cell each action leads to) so that the world, the
 learners and the ROS nodes all share one numbering of states and none of them re-derives the geometry.
 The format is described in ``maps/README.md`` of the reference data; in short::
 
     agent 1: start ROW,COL  goal ROW,COL
+    set reward_step=-1         optional: a default of this map for a cq_ros.settings.Settings field
     +-+-+
     |. .|      '.' a cell of the world, '#' not part of it,
     + +-+      '|' / '-' a wall between two cells, ' ' open, '+' a corner (means nothing)
@@ -15,15 +16,16 @@ The format is described in ``maps/README.md`` of the reference data; in short::
 from __future__ import annotations
 
 import os
-import random
 import re
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
+
+from .settings import Settings, SettingsError
 
 ACTIONS = ("NORTH", "EAST", "SOUTH", "WEST")
 _STEPS = ((-1, 0), (0, 1), (1, 0), (0, -1))  # (d_row, d_col) per action index
@@ -34,6 +36,8 @@ _AGENT_GLYPHS = "123456789abcdefghijklmnopqrstuvwxyz"
 _DRAWING_CHARS = frozenset(" .#|-+")
 
 _AGENT_SYNTAX = "agent K: start ROW,COL  goal ROW,COL"
+_SET_SYNTAX = "set KEY=VALUE"
+_SET_LINE = re.compile(r"set\s+(?P<key>[^=\s]+)\s*=\s*(?P<value>\S+)\s*$")
 _COORD = r"(-?\d+)\s*,\s*(-?\d+)"  # a sign is accepted so that -1 is reported as off the grid
 # Matched piece by piece so that an error can point at the first piece that is wrong.
 _AGENT_PIECES = (
@@ -72,6 +76,8 @@ class GridMap:
     neighbours: tuple[tuple[int, int, int, int], ...]
     starts: tuple[int, ...]
     goals: tuple[int, ...]
+    # The map's own defaults for cq_ros.settings.Settings fields (its `set` lines): settings name -> value.
+    defaults: Mapping[str, int | float] = field(default_factory=dict, hash=False)
 
     @property
     def n_agents(self) -> int:
@@ -112,6 +118,23 @@ class GridMap:
                 raise ValueError(f"mark for cell {cell} must be one character, got {mark!r}")
             glyphs[self.cells[cell]] = mark
         return "\n".join(_render(self.height, self.width, glyphs, self._is_open))
+
+    def reachable(self, start: int, parked: frozenset[int] = frozenset()) -> set[int]:
+        """The cells an agent at ``start`` can reach while agents stand still on the cells ``parked``."""
+        return _reachable(self.neighbours, start, parked)
+
+    def walled_in(self) -> list[tuple[int, int]]:
+        """Pairs (i, k) of agent indices: with agent k parked at its goal, agent i cannot reach its own goal
+        from its start. Agents that share a goal cell do not block each other there."""
+        return [(i, k) for i in range(self.n_agents) for k in range(self.n_agents)
+                if k != i and self.goals[k] != self.goals[i]
+                and self.goals[i] not in self.reachable(self.starts[i], frozenset({self.goals[k]}))]
+
+    def goal_blocked_by_parked(self) -> list[int]:
+        """The agents that cannot reach their goal from their start while every other agent stands parked
+        at its own goal (agents sharing that goal cell excepted)."""
+        return [i for i in range(self.n_agents)
+                if self.goals[i] not in self.reachable(self.starts[i], frozenset(self.goals) - {self.goals[i]})]
 
     def _is_open(self, row: int, col: int, action: int) -> bool:
         cell = self._index[(row, col)]
@@ -175,7 +198,7 @@ class _Drawing:
 
 def parse_map(text: str, name: str = "<text>", source: str = "<text>") -> GridMap:
     """Parse a map text; any fault raises MapError pointing at its line and column in ``source``."""
-    agents, drawing_lines, first_line = _split(text, source)
+    agents, defaults, drawing_lines, first_line = _split(text, source)
     if not drawing_lines:
         raise _error(source, "no drawing (expected lines of '+', '-', '|', '.' and '#')")
     drawing = _read_drawing(drawing_lines, first_line, source)
@@ -189,20 +212,23 @@ def parse_map(text: str, name: str = "<text>", source: str = "<text>") -> GridMa
     neighbours = tuple(_moves(drawing, index, row, col) for row, col in cells)
     starts = tuple(index[agent.start] for agent in agents)
     goals = tuple(index[agent.goal] for agent in agents)
+    gridmap = GridMap(name, source, drawing.height, drawing.width, cells, neighbours, starts, goals, defaults)
     for agent, start, goal in zip(agents, starts, goals):
-        if goal not in _reachable(neighbours, start):
+        if goal not in gridmap.reachable(start):
             raise _error(
                 source,
                 f"agent {agent.number}'s goal {_at(agent.goal)} is unreachable from its start {_at(agent.start)}",
                 agent.line,
                 agent.goal_col,
             )
-    return GridMap(name, source, drawing.height, drawing.width, cells, neighbours, starts, goals)
+    return gridmap
 
 
-def _split(text: str, source: str) -> tuple[list[_AgentLine], list[str], int]:
-    """Agent lines, the drawing's lines and the drawing's first line number; comments and blank lines go."""
+def _split(text: str, source: str) -> tuple[list[_AgentLine], dict[str, int | float], list[str], int]:
+    """Agent lines, the `set` lines' defaults, the drawing's lines and the drawing's first line number;
+    comments and blank lines go."""
     agents: list[_AgentLine] = []
+    defaults: dict[str, int | float] = {}
     drawing: list[str] = []
     first_line = 0
     for number, line in enumerate(text.splitlines(), start=1):
@@ -211,12 +237,15 @@ def _split(text: str, source: str) -> tuple[list[_AgentLine], list[str], int]:
         if line.startswith("agent"):
             agents.append(_parse_agent_line(line, number, source))
             continue
+        if line.startswith("set"):
+            defaults.update(_parse_set_line(line, number, source, defaults))
+            continue
         if drawing and number != first_line + len(drawing):
             raise _error(source, "a second drawing starts here (a map has one drawing, without blank lines)", number, 1)
         if not drawing:
             first_line = number
         drawing.append(line)
-    return agents, drawing, first_line
+    return agents, defaults, drawing, first_line
 
 
 def _parse_agent_line(line: str, number: int, source: str) -> _AgentLine:
@@ -232,6 +261,24 @@ def _parse_agent_line(line: str, number: int, source: str) -> _AgentLine:
         pos = match.end()
     agent, start_row, start_col, goal_row, goal_col = values
     return _AgentLine(number, agent, (start_row, start_col), (goal_row, goal_col), *columns)
+
+
+def _parse_set_line(line: str, number: int, source: str, earlier: Mapping[str, int | float]) -> dict:
+    """A `set KEY=VALUE` line as {key: value}, checked as the settings it makes with the earlier lines."""
+    match = _SET_LINE.match(line)
+    if match is None:
+        raise _error(source, f"expected '{_SET_SYNTAX}' (KEY a setting, `cq-ros settings` lists them)", number, 1)
+    key, value = match["key"], match["value"]
+    where = {"line": number, "col": match.start("key") + 1}
+    if key in earlier:
+        raise _error(source, f"setting {key} is set twice in this map", **where)
+    if key not in Settings.__dataclass_fields__:
+        raise _error(source, f"unknown setting {key!r}; `cq-ros settings` lists them", **where)
+    try:
+        settings = Settings().with_overrides({**earlier, key: value})
+    except SettingsError as e:
+        raise _error(source, str(e), number, match.start("value") + 1) from None
+    return {key: getattr(settings, key)}
 
 
 def _read_drawing(raw: list[str], first_line: int, source: str) -> _Drawing:
@@ -345,12 +392,12 @@ def _moves(drawing: _Drawing, index: Mapping[tuple[int, int], int], row: int, co
     return tuple(targets)
 
 
-def _reachable(neighbours: tuple[tuple[int, ...], ...], start: int) -> set[int]:
+def _reachable(neighbours: tuple[tuple[int, ...], ...], start: int, blocked: frozenset[int]) -> set[int]:
     seen = {start}
     frontier = deque([start])
     while frontier:
         for nxt in neighbours[frontier.popleft()]:
-            if nxt not in seen:
+            if nxt not in seen and nxt not in blocked:
                 seen.add(nxt)
                 frontier.append(nxt)
     return seen
@@ -392,65 +439,3 @@ def load_map(name_or_path: str | os.PathLike) -> GridMap:
 
 def _looks_like_path(name: str) -> bool:
     return name.endswith(".txt") or "/" in name or os.sep in name
-
-
-# --- generated warehouse ---------------------------------------------------------------------------
-
-
-def _warehouse_layout(
-    aisles: int, aisle_length: int
-) -> tuple[int, int, set[tuple[int, int]], list[tuple[int, int]], list[tuple[int, int]]]:
-    """Grid size, world cells, dock cells (starts) and pick faces (goals) of a warehouse.
-
-    Columns repeat shelf, lane, lane; a final shelf closes the last aisle. Rows: top cross-aisle, a corridor
-    row, the aisles, a corridor row, bottom cross-aisle. Each two-lane aisle meets each cross-aisle through
-    a single cell, so AGVs bound for the same aisle must take turns there.
-    """
-    width = 3 * aisles + 1
-    height = aisle_length + 4
-    top, bottom = 0, height - 1
-    docks = [(row, col) for row in (top, bottom) for col in range(width)]
-    picks = [(row, 3 * a + lane) for a in range(aisles) for row in range(2, 2 + aisle_length) for lane in (1, 2)]
-    # Top corridors in the left lane, bottom ones in the right, so a through-route must change lanes.
-    corridors = [(1, 3 * a + 1) for a in range(aisles)] + [(height - 2, 3 * a + 2) for a in range(aisles)]
-    return height, width, set(docks + picks + corridors), docks, picks
-
-
-def warehouse_text(n_agents: int = 8, aisles: int = 4, aisle_length: int = 6, seed: int = 0) -> str:
-    """A generated warehouse map in the text format, agents' starts on the cross-aisles and their (distinct)
-    goals at pick faces in the aisles, both drawn by ``random.Random(seed)``."""
-    if aisles < 1 or aisle_length < 1:
-        raise ValueError(f"a warehouse needs at least 1 aisle of length 1, got {aisles} of length {aisle_length}")
-    height, width, world, docks, picks = _warehouse_layout(aisles, aisle_length)
-    if not 1 <= n_agents <= min(len(docks), len(picks)):
-        raise ValueError(
-            f"{n_agents} agents do not fit: {aisles} aisles of length {aisle_length} have "
-            f"{len(docks)} dock cells and {len(picks)} pick faces"
-        )
-    rng = random.Random(seed)
-    starts = rng.sample(docks, n_agents)
-    goals = rng.sample(picks, n_agents)
-
-    call = f"warehouse_text(n_agents={n_agents}, aisles={aisles}, aisle_length={aisle_length}, seed={seed})"
-    header = [
-        f"# warehouse_{n_agents} - generated warehouse: {aisles} two-lane aisles of {aisle_length} cells between "
-        "shelves ('#'), each joined to the top and bottom cross-aisles by a one-lane corridor",
-        f"# Generated by: python -c \"from cq_ros.gridmap import warehouse_text; print({call}, end='')\"",
-        "# Starts are on the cross-aisles (docks), goals at pick faces in the aisles; one goal per agent.",
-    ]
-    agent_lines = [f"agent {k}: start {_at(s)}  goal {_at(g)}" for k, (s, g) in enumerate(zip(starts, goals), 1)]
-    drawing = _render(height, width, dict.fromkeys(world, "."), _opens_into(world))
-    return "\n".join(header + agent_lines + [""] + drawing) + "\n"
-
-
-def _opens_into(world: set[tuple[int, int]]) -> Callable[[int, int, int], bool]:
-    def is_open(row: int, col: int, action: int) -> bool:
-        d_row, d_col = _STEPS[action]
-        return (row + d_row, col + d_col) in world
-
-    return is_open
-
-
-def warehouse_map(n_agents: int = 8, aisles: int = 4, aisle_length: int = 6, seed: int = 0) -> GridMap:
-    """The generated warehouse, parsed."""
-    return parse_map(warehouse_text(n_agents, aisles, aisle_length, seed), name=f"warehouse_{n_agents}")

@@ -16,18 +16,20 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from .gridmap import GridMap, load_map
-from .settings import Settings
+from .settings import Settings, run_settings
 from .world import N_ACTIONS, GridWorld
 
 
 class GridWorldEnv(ParallelEnv):
     metadata = {"name": "cq_ros_gridworld_v0", "render_modes": ["ansi"]}
 
-    def __init__(self, gridmap: GridMap | str, settings: Settings = Settings(), observation: str = "local",
+    def __init__(self, gridmap: GridMap | str, settings: Settings | None = None, observation: str = "local",
                  render_mode: str | None = None):
+        """Without `settings`, the map's (`cq_ros.settings.run_settings`)."""
         if observation not in ("local", "joint"):
             raise ValueError(f"observation must be 'local' or 'joint', got {observation!r}")
-        self.world = GridWorld(load_map(gridmap) if isinstance(gridmap, str) else gridmap, settings)
+        gridmap = load_map(gridmap) if isinstance(gridmap, str) else gridmap
+        self.world = GridWorld(gridmap, run_settings(gridmap) if settings is None else settings)
         self.observation = observation
         self.render_mode = render_mode
         self.possible_agents = list(self.world.agents)

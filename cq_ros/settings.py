@@ -2,14 +2,20 @@
 them, our choices where it does not (README, "Defaults"), each written into every result manifest.
 
 `Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
-parameters reach it, so a bad key or value is reported the same way everywhere.
+parameters reach it, so a bad key or value is reported the same way everywhere. `run_settings` is the one
+place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- the user's.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .gridmap import GridMap
 
 
 class SettingsError(ValueError):
@@ -41,6 +47,14 @@ class Settings:
     conf_down: float = 0.02
     conf_max: float = 10.0
     conf_drop: float = 0.0
+    # CQ's bootstrap (ours; 0 is the paper's): 0, every update bootstraps from Q_k of the next cell, since
+    # the agent cannot know yet whether it will act on a joint state there; 1, the update waits one step
+    # and bootstraps from the row the agent then acts on (Q^j where a joint state is met), so waiting in
+    # a joint state is valued as waiting, not as the free road Q_k of the same cell promises.
+    cq_bootstrap_acted: int = 1
+    # CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict
+    # is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is).
+    cq_mark_range: int = 2
     # LoC: active perception is TRUE when a peer is at most this many cells away (Manhattan), i.e.
     # close enough to collide this step; choosing COORDINATE costs this much of the learner's reward.
     loc_range: int = 2
@@ -64,6 +78,8 @@ class Settings:
                "not negative")
         _check(self.conf_drop < self.conf_init <= self.conf_max, "conf_drop < conf_init <= conf_max",
                (self.conf_drop, self.conf_init, self.conf_max), "ordered")
+        _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
+        _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
         _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
@@ -85,6 +101,13 @@ class Settings:
                 raise SettingsError(f"unknown setting {key!r}; settings are: {', '.join(sorted(types))}")
             changes[key] = _coerce(key, value, int if types[key] in ("int", int) else float)
         return dataclasses.replace(self, **changes)
+
+
+def run_settings(gridmap: "GridMap", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
+    """The settings of a run on `gridmap`: the defaults, then the map's (its `set` lines), then `overrides`
+    (`key=value` strings, or a dict such as a node's parameters that were given)."""
+    given = dict(overrides) if isinstance(overrides, Mapping) else dict(_split(p) for p in overrides)
+    return Settings().with_overrides({**gridmap.defaults, **given})
 
 
 def _split(pair: str) -> tuple[str, str]:

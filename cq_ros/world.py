@@ -87,6 +87,7 @@ class GridWorld:
     def reset_joint(self) -> list[int]:
         self.cells = list(self.map.starts)
         self.done = [c == g for c, g in zip(self.cells, self.map.goals)]
+        self.arrival = [0 if d else None for d in self.done]  # the step each agent reached its goal
         self.t = 0
         self.last_collisions = 0
         self.last_bumps = 0
@@ -95,8 +96,9 @@ class GridWorld:
     def step_joint(self, actions: list[int | None]) -> list[float]:
         """Apply one joint action (None for agents at their goals); return each agent's reward.
 
-        Afterwards `cells`, `done`, `t`, `last_collisions` (colliding pairs) and `last_bumps` describe
-        the new state; an agent already at its goal gets reward 0.
+        Afterwards `cells`, `done`, `arrival` (the step each agent reached its goal, None before), `t`,
+        `last_collisions` (colliding pairs) and `last_bumps` describe the new state; an agent already at
+        its goal gets reward 0.
         """
         cells, done, nbr, r = self.cells, self.done, self.map.neighbours, self.rewards
         targets = list(cells)
@@ -123,6 +125,7 @@ class GridWorld:
             elif final[i] == self.map.goals[i]:
                 rewards[i] = r.goal
                 done[i] = True
+                self.arrival[i] = self.t + 1
             else:
                 rewards[i] = r.step
         self.cells = final

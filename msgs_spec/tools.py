@@ -34,7 +34,7 @@ from .topics import TopicSpec, parse_topic
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
-    "run_node", "compatible_qos",
+    "run_node", "declare_parameters", "compatible_qos",
     "message_class", "echo", "topics", "nodes", "record",
 ]
 
@@ -152,6 +152,23 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def declare_parameters(node: Any, parameters: dict[str, tuple[Any, str]], unset: frozenset[str]) -> dict[str, Any]:
+    """Declare `parameters` (name -> (default, description)) read-only on `node` and return their values.
+
+    Those named in `unset` are declared with their default's type but no value, and are in the result only
+    when given (-p name:=value): the node then knows which were given, e.g. which settings override its map's
+    defaults (cq_ros.settings.run_settings). The default still documents them."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.parameter import Parameter
+
+    values = {}
+    for name, (default, description) in parameters.items():
+        descriptor = ParameterDescriptor(description=description, read_only=True)
+        value = Parameter.Type.from_parameter_value(default) if name in unset else default
+        values[name] = node.declare_parameter(name, value, descriptor).value
+    return {name: value for name, value in values.items() if not (name in unset and value is None)}
 
 
 def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float | None,

@@ -31,6 +31,21 @@ def test_show_draws_the_map(capsys):
     assert "9 cells, 2 agents" in out and "+-+-+-+" in out
 
 
+def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
+    walled = tmp_path / "walled.txt"  # agent 2 parked at 0,1 is in agent 1's only way to 0,2
+    walled.write_text("agent 1: start 1,0  goal 0,2\nagent 2: start 1,1  goal 0,1\n"
+                      "+-+-+-+\n|. . .|\n+ +-+-+\n|. . #\n+-+-+-+\n")
+    assert main(["show", str(walled)]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[-1] == ("walled in by an early arrival (agent: by the agent parked at its goal): "
+                                    "1: by 2 at 0,1")
+    for name in ("tunnel_to_goal", "warehouse_8"):
+        assert main(["show", name]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert lines[-1].endswith(": none")
+    assert "map defaults: reward_step=-1" in lines
+
+
 @pytest.mark.parametrize(
     "args, phrase",
     [

@@ -20,6 +20,7 @@ from agent_node.driver import (
 from cq_ros.engine import make_learner, run, world_seed
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner
+from cq_ros.parameters import SETTING_NAMES
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import Action, AgentStats, Feedback, Position, WorldStats, encode
@@ -361,6 +362,8 @@ def test_agent_config_checks_every_parameter():
     with pytest.raises(SettingsError, match="parameter agent_id: algo jsa runs one central node"):
         agent_config({**values, "algo": "jsa", "agent_id": 1})
     assert agent_config({**values, "algo": "jsa"}).agent == 0
+    unset = {k: v for k, v in values.items() if k not in SETTING_NAMES}  # settings not given: the map's
+    assert agent_config({**unset, "agent_id": 1, "map": "warehouse_8"}).settings == Settings(reward_step=-1.0)
     with pytest.raises(SettingsError, match="parameter algo: unknown algorithm 'sarsa'"):
         agent_config({**values, "algo": "sarsa", "agent_id": 1})
     with pytest.raises(SettingsError, match="parameter map: .*no such map"):

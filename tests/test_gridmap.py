@@ -1,4 +1,5 @@
-"""Tests of cq_ros.gridmap: the reference maps' shapes, move tables, parser errors and the warehouse generator."""
+"""Tests of cq_ros.gridmap: the reference maps' shapes, move tables, parser errors, map defaults (`set`
+lines) and reachability (unreachable goals rejected, agents walled in by an early arrival reported)."""
 
 import dataclasses
 from pathlib import Path
@@ -15,8 +16,6 @@ from cq_ros.gridmap import (
     load_map,
     map_text,
     parse_map,
-    warehouse_map,
-    warehouse_text,
 )
 
 NORTH, EAST, SOUTH, WEST = range(4)
@@ -48,7 +47,7 @@ def reparse_drawing(grid: GridMap) -> GridMap:
     ]
     plain = grid.draw(marks={i: "." for i in range(grid.n_cells)})
     parsed = parse_map("\n".join(agent_lines) + "\n\n" + plain)
-    return dataclasses.replace(parsed, name=grid.name, source=grid.source)
+    return dataclasses.replace(parsed, name=grid.name, source=grid.source, defaults=grid.defaults)
 
 
 # --- shipped maps ------------------------------------------------------------------------------------
@@ -67,7 +66,7 @@ def test_reference_map_sizes(name, n_cells):
 
 
 def test_available_maps_lists_the_shipped_maps():
-    assert available_maps() == sorted(REFERENCE_CELLS) + ["warehouse_8"]
+    assert available_maps() == sorted(REFERENCE_CELLS) + ["warehouse_16", "warehouse_32", "warehouse_8"]
 
 
 @pytest.mark.parametrize("name", available_maps())
@@ -213,6 +212,14 @@ def agents_with(old, new, drawing=OPEN):
         pytest.param(AGENTS, None, "no drawing", id="no-drawing"),
         pytest.param(agents_with("goal 1,2", "goal 0,1", SPLIT),
                      "2:26", "agent 2's goal 0,1 is unreachable", id="unreachable"),
+        pytest.param(AGENTS + "set alhpa=0.2\n" + OPEN, "3:5", "unknown setting 'alhpa'", id="set-unknown"),
+        pytest.param(AGENTS + "set  window = 2.5\n" + OPEN, "3:15", "window takes an integer", id="set-type"),
+        pytest.param(AGENTS + "set gamma=1.5\n" + OPEN, "3:11", "gamma must be in [0, 1)", id="set-range"),
+        pytest.param(AGENTS + "set gamma\n" + OPEN, "3:1", "expected 'set KEY=VALUE'", id="set-syntax"),
+        pytest.param(AGENTS + "set alpha=0.2 x\n" + OPEN, "3:1", "expected 'set KEY=VALUE'", id="set-trailing"),
+        pytest.param(AGENTS + "set alpha=0.2\nset alpha=0.3\n" + OPEN, "4:5", "alpha is set twice", id="set-twice"),
+        pytest.param(AGENTS + "set conf_init=20\n" + OPEN, "3:15", "conf_drop < conf_init <= conf_max",
+                     id="set-order"),
     ],
 )
 def test_parse_errors(text, where, phrase):
@@ -233,67 +240,50 @@ def test_good_texts_parse():
     assert parse_map(AGENTS.replace("\n", "\r\n") + OPEN).n_cells == 6
 
 
-# --- warehouse ---------------------------------------------------------------------------------------
+# --- map defaults ------------------------------------------------------------------------------------
 
 
-def check_warehouse(n_agents, aisles, aisle_length, seed):
-    text = warehouse_text(n_agents, aisles, aisle_length, seed)
-    grid = parse_map(text, name=f"warehouse_{n_agents}")
-    assert grid == warehouse_map(n_agents, aisles, aisle_length, seed)
-    assert grid.n_agents == n_agents
-    assert len(set(grid.starts)) == len(set(grid.goals)) == n_agents
-    assert reachable(grid, grid.starts[0]) == set(range(grid.n_cells))
-    drawing = grid.draw()
-    assert all("123456789abc"[k] in drawing for k in range(n_agents))
-    assert reparse_drawing(grid) == grid
-    # The file's drawing is the canonical one: draw() with every cell shown as '.'.
-    plain = grid.draw(marks={i: "." for i in range(grid.n_cells)})
-    assert text.endswith("\n\n" + plain + "\n")
-    return grid
+def test_set_lines_become_the_maps_defaults():
+    text = AGENTS + "set reward_step=-1\n# a comment\nset window = 30\nset conf_max=20\nset conf_init=15\n" + OPEN
+    grid = parse_map(text)
+    assert grid.defaults == {"reward_step": -1.0, "window": 30, "conf_max": 20.0, "conf_init": 15.0}
+    assert type(grid.defaults["window"]) is int and type(grid.defaults["reward_step"]) is float
+    assert parse_map(AGENTS + OPEN).defaults == {}
+    assert dataclasses.replace(grid, defaults={}) != grid  # the defaults are part of the map
 
 
-@pytest.mark.parametrize(("n_agents", "seed"), [(2, 0), (8, 0), (8, 1), (12, 7)])
-def test_warehouse_round_trip(n_agents, seed):
-    check_warehouse(n_agents, 4, 6, seed)
+@pytest.mark.parametrize("name", ["grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr", "cit", "cmu"])
+def test_the_papers_maps_carry_no_defaults(name):
+    assert load_map(name).defaults == {}
 
 
-@settings(max_examples=60, deadline=None)
-@given(
-    n_agents=st.integers(2, 12),
-    aisles=st.integers(2, 5),
-    aisle_length=st.integers(3, 8),
-    seed=st.integers(0, 2**32),
-)
-def test_warehouse_property(n_agents, aisles, aisle_length, seed):
-    check_warehouse(n_agents, aisles, aisle_length, seed)
+# --- reachability ------------------------------------------------------------------------------------
+
+# Agent 2 parked at its goal 0,1 is the only way from agent 1's start to agent 1's goal 0,2.
+CORNER = "+-+-+-+\n|. . .|\n+ +-+-+\n|. . #\n+-+-+-+\n"
+WALLED = "agent 1: start 1,0  goal 0,2\nagent 2: start 1,1  goal 0,1\n" + CORNER
 
 
-def test_warehouse_has_one_lane_corridors():
-    grid = warehouse_map()
-    # Row 1 holds only the corridors: one cell per aisle, walled on both sides.
-    corridors = [cell for cell in grid.cells if cell[0] == 1]
-    assert len(corridors) == 4
-    for row, col in corridors:
-        cell = grid.index(row, col)
-        assert grid.neighbours[cell][EAST] == grid.neighbours[cell][WEST] == cell
+def test_an_agent_walled_in_by_an_early_arrival_is_reported_not_rejected():
+    grid = parse_map(WALLED)
+    assert grid.walled_in() == [(0, 1)]
+    assert grid.goal_blocked_by_parked() == [0]
+    assert grid.reachable(grid.starts[0], frozenset({grid.goals[1]})) == {grid.index(1, 0), grid.index(1, 1),
+                                                                          grid.index(0, 0)}
 
 
-def test_warehouse_seed_decides_starts_and_goals():
-    assert warehouse_text(seed=3) == warehouse_text(seed=3)
-    assert warehouse_text(seed=3) != warehouse_text(seed=4)
+def test_agents_sharing_a_goal_do_not_wall_each_other_in():
+    shared = parse_map("agent 1: start 1,0  goal 0,2\nagent 2: start 1,1  goal 0,2\n" + CORNER)
+    assert shared.walled_in() == [] and shared.goal_blocked_by_parked() == []
+    for name in ("tunnel_to_goal", "tunnel_to_goal_3"):
+        grid = load_map(name)
+        assert grid.goals[0] == grid.goals[1] and grid.walled_in() == []
 
 
-def test_warehouse_rejects_what_does_not_fit():
-    with pytest.raises(ValueError, match="do not fit"):
-        warehouse_text(n_agents=3, aisles=1, aisle_length=1)
-    with pytest.raises(ValueError):
-        warehouse_text(n_agents=0)
-    with pytest.raises(ValueError):
-        warehouse_text(aisles=0)
-
-
-def test_shipped_warehouse_is_the_default_generated_one():
-    assert map_text("warehouse_8") == warehouse_text()
-    assert "warehouse_text(n_agents=8, aisles=4, aisle_length=6, seed=0)" in map_text("warehouse_8").splitlines()[1]
-    assert load_map("warehouse_8") == dataclasses.replace(warehouse_map(), source=load_map("warehouse_8").source)
-    assert Path(load_map("warehouse_8").source).name == "warehouse_8.txt"
+def test_walled_in_takes_one_parked_agent_at_a_time_the_generators_check_all_of_them():
+    # Two ways round the shelf to agent 1's goal 1,4; agents 2 and 3 each park on one of them.
+    ring = ("agent 1: start 1,0  goal 1,4\nagent 2: start 0,1  goal 0,2\nagent 3: start 2,1  goal 2,2\n"
+            "+-+-+-+-+-+\n|. . . . .|\n+ +-+-+-+ +\n|.|# # #|.|\n+ +-+-+-+ +\n|. . . . .|\n+-+-+-+-+-+\n")
+    grid = parse_map(ring)
+    assert grid.walled_in() == []
+    assert grid.goal_blocked_by_parked() == [0]

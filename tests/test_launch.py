@@ -23,8 +23,10 @@ from cq_ros.cli import main
 from cq_ros.engine import run
 from cq_ros.experiment import write_results
 from cq_ros.gridmap import load_map
-from cq_ros.settings import Settings
+from cq_ros.settings import Settings, run_settings
+from cq_ros.warehouse import warehouse_text
 from processes import alive_with
+from world_node.launch import node_commands
 
 LAUNCH_TIMEOUT_S = 120.0  # bound on one launch; each below takes about 10 s on 2 busy cores
 SEED = 1
@@ -228,6 +230,52 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
                      err.read_text())
     for log in (out / "logs").iterdir():  # each node ended through its own Ctrl-C path, not a crash
         assert "Traceback" not in log.read_text(), log.name
+
+
+def test_nodes_are_given_the_settings_that_differ_from_the_maps_own(tmp_path):
+    # warehouse_8 carries reward_step=-1: the nodes take it from the map unless the launch's differs.
+    def given(settings):
+        children = node_commands("warehouse_8", "cq", 5, 0, settings, "ns", 2.0, tmp_path)
+        return [{a.split(":=")[0] for a in c.command if ":=" in a} & set(Settings().as_dict()) for c in children]
+
+    gridmap = load_map("warehouse_8")
+    assert given(run_settings(gridmap)) == [set()] * 9
+    assert given(run_settings(gridmap, ["reward_step=0", "alpha=0.2"])) == [{"reward_step", "alpha"}] * 9
+    assert given(Settings()) == [{"reward_step"}] * 9
+
+
+def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_offline_run(tmp_path):
+    path = tmp_path / "w2.txt"
+    path.write_text(warehouse_text(2, aisles=1, aisle_length=2, seed=3))
+    sets, episodes = ("step_cap=60", "eval_episodes=1"), 4
+    out, namespace = tmp_path / "result", unique("warehouse")
+    done = subprocess.run(launch_command(out, namespace, str(path), "indep", episodes, sets),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    assert not alive_with(namespace)
+    settings = run_settings(load_map(path), list(sets))
+    assert settings.reward_step == -1.0
+    offline = run("indep", load_map(path), settings, SEED, 0, episodes)
+    np.testing.assert_array_equal(read_episodes(out), offline.episodes)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["settings"] == settings.as_dict() and manifest["settings_from_map"] == {"reward_step": -1.0}
+
+
+def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_included(tmp_path):
+    """Issue 11: CQ's AGVs over ROS on a generated warehouse, with a window short enough that an agent marks
+    a joint state and subscribes to a peer within the run, give the offline engine's episodes exactly."""
+    path = tmp_path / "w4.txt"
+    path.write_text(warehouse_text(4, aisles=2, aisle_length=2, seed=0))
+    sets, episodes = ("step_cap=100", "window=3", "eval_episodes=1"), 8
+    settings = run_settings(load_map(path), list(sets))
+    offline = run("cq", load_map(path), settings, SEED, 0, episodes)
+    assert offline.episodes[:, 2].sum() > 0  # the premise: some agent acted on a joint state
+    out, namespace = tmp_path / "result", unique("warehouse_cq")
+    done = subprocess.run(launch_command(out, namespace, str(path), "cq", episodes, sets),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    assert not alive_with(namespace)
+    np.testing.assert_array_equal(read_episodes(out), offline.episodes)
 
 
 @pytest.mark.parametrize("args, phrase", [

@@ -15,6 +15,7 @@ from cq_ros.learners.base import Learner
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import Action, Feedback, Position, WorldStats, encode
+from cq_ros.parameters import SETTING_NAMES
 from world_node.lockstep import PARAMETERS, Lockstep, world_config
 
 
@@ -278,3 +279,8 @@ def test_world_config_checks_every_parameter():
     with pytest.raises(SettingsError, match="setting alpha"):
         world_config({**values, "alpha": 2.0})
     assert world_config({**values, "reward_collision": -5.0}).settings.reward_collision == -5.0
+    # A setting left out (not given to the node) is the map's default; one given goes over it.
+    unset = {k: v for k, v in values.items() if k not in SETTING_NAMES}
+    assert world_config({**unset, "map": "warehouse_8"}).settings == Settings(reward_step=-1.0)
+    assert world_config({**unset, "map": "warehouse_8", "reward_step": 0.0}).settings == Settings()
+    assert world_config({**values, "map": "warehouse_8"}).settings == Settings()  # all given: the map's go under

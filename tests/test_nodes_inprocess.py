@@ -389,6 +389,19 @@ def test_bad_parameters_raise_one_line_naming_the_parameter(ros_context):
         AgentNode(context=ros_context, parameter_overrides=parameters(algo="jsa", agent_id=2))
 
 
+def test_a_node_started_by_hand_takes_the_maps_defaults_under_the_settings_it_is_given(ros_context):
+    # warehouse_8 carries `set reward_step=-1`; a setting given as a parameter goes over it, even a default one.
+    for node_class, extra in ((WorldNode, {}), (AgentNode, {"agent_id": 3})):
+        nodes = [node_class(context=ros_context, parameter_overrides=parameters(map="warehouse_8", **extra, **given))
+                 for given in ({}, {"reward_step": 0.0}, {"alpha": 0.5})]
+        try:
+            assert [n.config.settings.reward_step for n in nodes] == [-1.0, 0.0, -1.0]
+            assert nodes[2].config.settings == Settings(reward_step=-1.0, alpha=0.5)
+        finally:
+            for n in nodes:
+                n.destroy_node()
+
+
 @pytest.mark.parametrize("module,args,message", [
     ("world_node", ["-p", "map:=nowhere"], "parameter map: nowhere: no such map"),
     ("world_node", ["-p", "step_timeout:=-1.0"], "parameter step_timeout must be > 0"),

@@ -48,3 +48,8 @@ def test_render_draws_each_agent_at_its_cell():
     for i, cell in enumerate(env.world.cells):
         row, col = env.world.map.cells[cell]
         assert lines[2 * row + 1][2 * col + 1] == str(i + 1)
+
+
+def test_without_settings_the_env_takes_the_maps_defaults():
+    assert GridWorldEnv("warehouse_8").world.rewards.step == -1.0  # warehouse_8's `set reward_step=-1`
+    assert GridWorldEnv("warehouse_8", Settings()).world.rewards.step == 0.0

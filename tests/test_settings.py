@@ -1,11 +1,14 @@
-"""Tests of cq_ros.settings: defaults, and `with_overrides` as the CLI's `--set key=value` reaches it."""
+"""Tests of cq_ros.settings: defaults, `with_overrides` as the CLI's `--set key=value` reaches it, and
+`run_settings` (the map's defaults under the user's)."""
 
 import dataclasses
 import math
 
 import pytest
 
-from cq_ros.settings import Settings, SettingsError
+from cq_ros.experiment import manifest_for
+from cq_ros.gridmap import load_map, parse_map
+from cq_ros.settings import Settings, SettingsError, run_settings
 
 FIELDS = [f.name for f in dataclasses.fields(Settings)]
 INT_FIELDS = [f.name for f in dataclasses.fields(Settings) if f.type in ("int", int)]
@@ -135,3 +138,19 @@ def test_boundary_values_are_accepted():
         ["alpha=1", "epsilon=0", "window=2", "gamma=0", "slip=1", "loc_range=1", "step_cap=1", "epsilon=1"]
     )
     assert (s.alpha, s.epsilon, s.window, s.gamma, s.slip, s.loc_range, s.step_cap) == (1.0, 1.0, 2, 0.0, 1.0, 1, 1)
+
+
+def test_run_settings_puts_the_maps_defaults_under_the_users_overrides():
+    warehouse = parse_map("agent 1: start 0,0  goal 0,1\nset reward_step=-1\nset window=30\n+-+-+\n|. .|\n+-+-+\n")
+    assert run_settings(load_map("tunnel_to_goal")) == Settings()
+    assert run_settings(load_map("tunnel_to_goal"), ["alpha=0.2"]) == Settings(alpha=0.2)
+    assert run_settings(warehouse) == Settings(reward_step=-1.0, window=30)
+    assert run_settings(warehouse, ["reward_step=0", "alpha=0.2"]) == Settings(window=30, alpha=0.2)
+    assert run_settings(warehouse, {"window": 60}) == Settings(reward_step=-1.0)
+    with pytest.raises(SettingsError, match="unknown setting 'alhpa'"):
+        run_settings(warehouse, ["alhpa=1"])
+    # The manifest says which of the map's defaults the run used.
+    for overrides, from_map in (((), {"reward_step": -1.0, "window": 30}), (["window=10"], {"reward_step": -1.0})):
+        manifest = manifest_for(warehouse, ["cq"], 1, 1, 0, run_settings(warehouse, overrides), 0.0)
+        assert manifest["map_defaults"] == {"reward_step": -1.0, "window": 30}
+        assert manifest["settings_from_map"] == from_map

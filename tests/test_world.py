@@ -196,6 +196,20 @@ def test_agent_starting_at_its_goal_is_done_from_the_start():
     assert w.step_joint([EAST, EAST]) == [0.0, R.goal] and w.cells == [0, 3] and w.finished
 
 
+def test_arrival_is_the_step_each_agent_reached_its_goal():
+    w = world(ROW_4, ((0, 0), (0, 0)), ((0, 1), (0, 3)), ((0, 3), (0, 2)))
+    assert w.arrival == [0, None, None]  # agent 1 starts at its goal
+    w.step_joint([None, EAST, WEST])  # agents 2 and 3 both want (0, 2): they collide
+    assert w.arrival == [0, None, None]
+    w.step_joint([None, WEST, WEST])  # agent 2 into agent 1's goal: collides; agent 3 arrives at step 2
+    assert w.arrival == [0, None, 2]
+    w.step_joint([None, EAST, None])
+    w.step_joint([None, EAST, None])  # (0, 2) is agent 3's goal, not agent 2's: stays
+    assert w.arrival == [0, None, 2] and not w.finished
+    w.reset_joint()
+    assert w.arrival == [0, None, None]
+
+
 def test_truncation_at_step_cap():
     w = world(ROW_4, ((0, 0), (0, 3)), ((0, 2), (0, 1)), step_cap=3)
     for t in range(3):

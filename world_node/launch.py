@@ -56,7 +56,7 @@ from cq_ros.engine import RunResult, make_learner
 from cq_ros.experiment import manifest_for, prepare_output, write_results
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.settings import Settings
+from cq_ros.settings import Settings, run_settings
 from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
     agent_stats_topic, decode_agent_stats, decode_world_stats,
@@ -150,9 +150,10 @@ def _params(values: dict[str, Any]) -> list[str]:
 def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, namespace: str,
                   step_timeout: float, out: Path, peer_linger_steps: int | None = None) -> list[Child]:
     """The world and the agent node(s) of one launch, with the command lines fixed by world_node and
-    agent_node (__main__): every setting that differs from its default goes to both."""
+    agent_node (__main__): every setting that differs from its default on this map (Settings' or the map's
+    own) goes to both."""
     gridmap = load_map(map_name)
-    defaults = Settings()
+    defaults = run_settings(gridmap)
     changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
                if getattr(settings, f.name) != getattr(defaults, f.name)}
     common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0}
@@ -288,14 +289,16 @@ class _Progress:
 
 
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
-           settings: Settings = Settings(), *, domain_id: int | None = None, namespace: str | None = None,
+           settings: Settings | None = None, *, domain_id: int | None = None, namespace: str | None = None,
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, force: bool = False, figures: bool = True,
            progress: bool = True) -> LaunchResult:
-    """Run one (map, algorithm, seed) over ROS and write the result directory `out`.
+    """Run one (map, algorithm, seed) over ROS and write the result directory `out`. Without `settings`, the
+    run's are the map's (`cq_ros.settings.run_settings`).
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
     a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
     gridmap = load_map(map_name)
+    settings = run_settings(gridmap) if settings is None else settings
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child

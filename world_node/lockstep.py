@@ -37,7 +37,8 @@ from msgs_spec import (
 __all__ = ["PARAMETERS", "WorldConfig", "world_config", "Lockstep"]
 
 # Every parameter of the world node: name -> (default, description). The default also fixes the ROS type.
-# Every field of cq_ros.settings.Settings is a parameter too, with the same name and default.
+# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
+# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
 PARAMETERS: dict[str, tuple[Any, str]] = {
     "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
     "episodes": (500, "learning episodes; then eval_episodes more, where the agents play their greedy policy "
@@ -53,7 +54,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                                  "subscriptions (a recorder that must not miss an episode sets 1)"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (world dynamics use the rewards, "
-                                       "step_cap and slip)") for f in fields(Settings)})
+                                       "step_cap and slip); not given: the map's default, else this one")
+                   for f in fields(Settings)})
 
 
 @dataclass(frozen=True)

@@ -12,19 +12,20 @@ import time
 from functools import partial
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
 from cq_ros.engine import world_seed
+from cq_ros.parameters import SETTING_NAMES
 from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Position, WorldStats, action_topic,
     agent_namespace, encode, feedback_topic, position_topic,
 )
+from msgs_spec.tools import declare_parameters
 
 from .lockstep import PARAMETERS, Lockstep, world_config
 
@@ -41,9 +42,7 @@ class WorldNode(Node):
     def __init__(self, node_name: str = "world", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            for name, (default, description) in PARAMETERS.items():
-                self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True))
-            self.config = cfg = world_config({name: self.get_parameter(name).value for name in PARAMETERS})
+            self.config = cfg = world_config(declare_parameters(self, PARAMETERS, unset=SETTING_NAMES))
         except (SettingsError, ParameterException):
             self.destroy_node()
             raise

@@ -34,6 +34,7 @@ class CQLearner(Learner):
         self.windows = [RewardWindows(st.window) for _ in range(self.n_cells * N_MOVES)]  # W1, W2 per (s, a)
         self.test = ConflictTest(st.window, st.significance)
         self.conflict_at = None  # a cell whose conflict is marked as soon as the peers are seen
+        self.pending = None  # (row, action, reward, next_cell): an update waiting for the row acted on next
 
     def observe(self, cell):
         self.s = cell
@@ -47,6 +48,8 @@ class CQLearner(Learner):
             self.conflict_at = None
         self.js = self._meet(self.s, peer_cells) if self.s in self.marked else None
         row = self.q_local[self.s] if self.js is None else self.q_joint[self.js]
+        if self.pending is not None:
+            self._bootstrap(row)
         self.a = epsilon_greedy(row, self.epsilon, self.rng)
         return self.a
 
@@ -57,7 +60,18 @@ class CQLearner(Learner):
         w = self.windows[s * N_MOVES + a]
         if w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample):
             self.conflict_at = None if done else s
-        q_update(self.q_local[s] if self.js is None else self.q_joint[self.js], a, target, self.alpha)
+        row = self.q_local[s] if self.js is None else self.q_joint[self.js]
+        if self.settings.cq_bootstrap_acted and not done:
+            self.pending = (row, a, reward, next_cell)
+        else:
+            q_update(row, a, target, self.alpha)
+
+    def _bootstrap(self, next_row=None):
+        """The waiting update, from the row acted on now (Q_k of the next cell if the episode was cut)."""
+        row, a, reward, next_cell = self.pending
+        self.pending = None
+        best = max(self.q_local[next_cell] if next_row is None else next_row)
+        q_update(row, a, reward + self.gamma * best, self.alpha)
 
     @staticmethod
     def sample(reward, target):
@@ -67,6 +81,8 @@ class CQLearner(Learner):
     def end_episode(self):
         super().end_episode()
         self.conflict_at = None
+        if self.pending is not None:
+            self._bootstrap()
 
     def state_count(self):
         return self.n_cells + len(self.q_joint)
@@ -78,7 +94,10 @@ class CQLearner(Learner):
 
     def _mark(self, s, peer_cells):
         st = self.settings
+        near = st.cq_mark_range
         for j in self.peers:
+            if near and self.map.distance(s, peer_cells[j]) > near:
+                continue
             js = (s, j, peer_cells[j])
             if js in self.confidence:
                 self.confidence[js] = max(self.confidence[js], st.conf_init)

@@ -1,0 +1,151 @@
+"""Warehouse scaling: every learner on the 8-, 16- and 32-AGV warehouses, against a planner that is not learned.
+
+One row per map and algorithm, averaged over runs (each run in a fresh process, so its peak memory is its own):
+- home at ep: the first checkpoint (every --check-every learning episodes) at which the greedy policy brings
+  every AGV home with no collision ("-" if it never did);
+- greedy: the greedy policy at the end: runs that got all home with no collision, and its sum of costs
+  (the step each AGV arrived, summed; a stuck AGV counts the step cap) as a ratio to the planner's;
+- states/agent: local plus joint states each learner conditions on at the end (JSA: its one table);
+- peers/step: peer positions an agent needed per step of its own, over all learning;
+- steps/s: joint steps per second while learning; peak MiB: the run's peak resident memory.
+JSA stops where its joint actions (4^n) outgrow a table, and a run stops at --budget seconds of learning:
+the row says where.
+
+    python benchmarks/bench_warehouse.py [--maps warehouse_8,warehouse_16,warehouse_32]
+        [--algos indep,js,jsa,loc,cq] [--runs 3] [--episodes 2000] [--check-every 100] [--budget 600] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import platform
+import resource
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+
+from tqdm import tqdm
+
+from cq_ros.engine import Team, make_learners, world_seed
+from cq_ros.gridmap import load_map
+from cq_ros.learners import ALGORITHMS
+from cq_ros.learners.jsa import MAX_AGENTS
+from cq_ros.planner import plan
+from cq_ros.settings import run_settings
+from cq_ros.world import GridWorld
+
+GREEDY_CAP = 500  # steps a greedy check may take; a warehouse's plan takes a few dozen
+
+
+def greedy_play(team: Team) -> tuple[bool, int]:
+    """One greedy episode on a copy of the team: (every AGV home without collision, sum of costs)."""
+    greedy = copy.deepcopy(team)
+    greedy.world.step_cap = GREEDY_CAP
+    for learner in greedy.learners:
+        learner.epsilon = 0.0
+        learner.__dict__.pop("observe", None)  # the counting wrapper would call the original learner
+    episode = greedy.episode()
+    cost = sum(GREEDY_CAP if t is None else t for t in greedy.world.arrival)
+    return greedy.world.finished and episode.collisions == 0, cost
+
+
+def one_run(map_name: str, algo: str, run: int, episodes: int, check_every: int, budget: float, seed: int) -> dict:
+    gridmap = load_map(map_name)
+    if algo == "jsa" and gridmap.n_agents > MAX_AGENTS:
+        return {"stopped": f"4^{gridmap.n_agents} joint actions per joint state (at most {MAX_AGENTS} agents)"}
+    settings = run_settings(gridmap)
+    team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, run)),
+                make_learners(algo, gridmap, settings, seed, run))
+    looks = [0, 0]  # peer positions asked for, agent-steps
+
+    def counted(observe):
+        def observe_and_count(cell):
+            need = observe(cell)
+            looks[0] += len(need)
+            looks[1] += 1
+            return need
+        return observe_and_count
+
+    for learner in team.learners:
+        learner.observe = counted(learner.observe)
+    home_at, stopped, steps, learning = None, None, 0, 0.0
+    for episode in range(1, episodes + 1):
+        started = time.perf_counter()
+        steps += team.episode().steps
+        learning += time.perf_counter() - started
+        if home_at is None and episode % check_every == 0 and greedy_play(team)[0]:
+            home_at = episode
+        if learning > budget:
+            stopped = f"{budget:.0f} s budget at episode {episode}"
+            break
+    home, cost = greedy_play(team)
+    return {
+        "home_at": home_at, "home": home, "cost": cost, "stopped": stopped,
+        "states": sum(learner.state_count() for learner in team.learners) / len(team.learners),
+        "peers": looks[0] / max(1, looks[1]) if not team.central else gridmap.n_agents - 1,
+        "rate": steps / learning, "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def row(map_name: str, algo: str, results: list[dict], planned: int) -> str:
+    done = [r for r in results if "home" in r]
+    if not done:
+        return f"| {map_name} | {algo} | stopped: {results[0]['stopped']} | | | | | | |"
+    home_at = [r["home_at"] for r in done if r["home_at"] is not None]
+    stopped = [r["stopped"] for r in done if r["stopped"]]
+
+    def mean(key):
+        return sum(r[key] for r in done) / len(done)
+
+    home = f"{min(home_at)}-{max(home_at)}" if home_at else "never"
+    return (f"| {map_name} | {algo} | {home} ({len(home_at)}/{len(done)}) | {sum(r['home'] for r in done)}/{len(done)} "
+            f"| {mean('cost') / planned:.2f} | {mean('states'):,.0f} | {mean('peers'):.2f} "
+            f"| {mean('rate'):,.0f} | {max(r['peak_mib'] for r in done):.0f} |"
+            + (f" stopped: {stopped[0]}" if stopped else ""))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--maps", default="warehouse_8,warehouse_16,warehouse_32")
+    parser.add_argument("--algos", default=",".join(ALGORITHMS))
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--episodes", type=int, default=2000)
+    parser.add_argument("--check-every", type=int, default=100)
+    parser.add_argument("--budget", type=float, default=600.0, help="seconds of learning per run at most")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count())
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    maps, algos = args.maps.split(","), args.algos.split(",")
+
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
+          f"{args.runs} runs x {args.episodes} episodes, greedy checked every {args.check_every}")
+    planned = {}
+    for name in maps:
+        started = time.perf_counter()
+        the_plan = plan(load_map(name))
+        planned[name] = sum(the_plan.arrivals)
+        print(f"{name}: planner ({the_plan.method}) makespan {max(the_plan.arrivals)}, sum of costs "
+              f"{planned[name]} (at least {the_plan.lower_bound}), {time.perf_counter() - started:.1f} s")
+
+    jobs = [(m, a, r) for m in maps for a in algos for r in range(args.runs)]
+    results: dict[tuple[str, str], list[dict]] = {}
+    # a fresh process per run: its peak memory is its own
+    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
+        futures = {pool.submit(one_run, m, a, r, args.episodes, args.check_every, args.budget, args.seed): (m, a)
+                   for m, a, r in jobs}
+        for future in tqdm(as_completed(futures), total=len(jobs), desc="runs", file=sys.stderr):
+            results.setdefault(futures[future], []).append(future.result())
+
+    print("| map | algo | home at ep (runs) | greedy home | greedy cost / planner | states/agent | peers/step "
+          "| steps/s | peak MiB |")
+    print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for m in maps:
+        for a in algos:
+            print(row(m, a, results[(m, a)], planned[m]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,145 @@
+"""Generated warehouses in the map format of ``cq_ros.gridmap``: AGVs that start at docks on the cross-aisles
+and each bring a load to a pick station of its own.
+
+Laid out as real ones are (rows from the top)::
+
+    2 rows   top cross-aisle, two lanes, open between them: AGVs going opposite ways pass each other
+    1 row    one one-lane entrance per aisle (above its left lane): the paper's corridor-entrance conflict
+    L rows   the aisles, two lanes each, between shelf racks ('#'); pick stations are bays cut into the
+             racks, each a dead end open only to the lane beside it, so an AGV parked at its goal blocks nobody
+    1 row    one one-lane entrance per aisle (below its right lane): in at the top, down the left lane, up the
+             right lane and out at the bottom is right-hand traffic
+    2 rows   bottom cross-aisle, as the top one
+
+Each aisle has one bay per row, on its left rack in odd rows and its right rack in even ones (counted from
+the aisle's first row), so the rack between two aisles serves both without a bay open to both.
+Starts (distinct cross-aisle cells) and goals (distinct bays) are drawn by ``random.Random(seed)``, and the
+result is checked, not assumed: every agent reaches its goal from its start while every other agent stands
+parked at its own goal (``GridMap.goal_blocked_by_parked``).
+
+Generated maps carry ``set reward_step=-1`` (a map default, see ``cq_ros.gridmap``): with the paper's free
+steps, learners wander in the safe cross-aisles instead of crossing entrances where they have collided
+(issue 11's findings).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+from .gridmap import GridMap, _render, _STEPS, parse_map
+
+__all__ = ["DEFAULT_AISLE_LENGTH", "MAP_DEFAULTS", "default_aisles", "warehouse_command", "warehouse_map",
+           "warehouse_text"]
+
+DEFAULT_AISLE_LENGTH = 6
+MAP_DEFAULTS = {"reward_step": "-1"}
+
+Cell = tuple[int, int]
+
+
+def default_aisles(agents: int) -> int:
+    """Aisles when none are asked for: 2 + ceil(agents / 4), two to three AGVs per aisle (4 for 8 AGVs,
+    6 for 16, 10 for 32), so that conflicts stay at entrances and the map stays small for tabular learners."""
+    return 2 + math.ceil(agents / 4)
+
+
+def _layout(aisles: int, aisle_length: int) -> tuple[int, int, set[frozenset[Cell]], list[Cell], list[Cell]]:
+    """Height, width, the open passages (pairs of cells), the docks (cross-aisle cells) and the bays."""
+    height, width = aisle_length + 6, 3 * aisles + 1
+    first, last = 3, 3 + aisle_length - 1  # the aisles' rows
+    docks = [(row, col) for row in (0, 1, height - 2, height - 1) for col in range(width)]
+    passages: set[frozenset[Cell]] = set()
+
+    def join(a: Cell, b: Cell) -> None:
+        passages.add(frozenset((a, b)))
+
+    for top in (0, height - 2):  # each cross-aisle: two full rows, open everywhere between them
+        for col in range(width):
+            join((top, col), (top + 1, col))
+            if col + 1 < width:
+                join((top, col), (top, col + 1))
+                join((top + 1, col), (top + 1, col + 1))
+    bays = []
+    for aisle in range(aisles):
+        left, right = 3 * aisle + 1, 3 * aisle + 2
+        join((1, left), (2, left))  # the top entrance
+        join((2, left), (first, left))
+        join((last, right), (last + 1, right))  # the bottom entrance
+        join((last + 1, right), (height - 2, right))
+        for row in range(first, last + 1):
+            join((row, left), (row, right))
+            if row < last:
+                join((row, left), (row + 1, left))
+                join((row, right), (row + 1, right))
+            lane, rack = (left, left - 1) if (row - first) % 2 else (right, right + 1)
+            join((row, lane), (row, rack))
+            bays.append((row, rack))
+    return height, width, passages, docks, sorted(bays)
+
+
+def warehouse_command(agents: int, aisles: int, aisle_length: int, seed: int) -> str:
+    """The `cq-ros generate` command line that makes this warehouse (written in the map's header)."""
+    return f"cq-ros generate warehouse --agents {agents} --aisles {aisles} --aisle-length {aisle_length} --seed {seed}"
+
+
+def _sizes(agents: int, aisles: int | None, aisle_length: int | None) -> tuple[int, int]:
+    """(aisles, aisle_length) with the defaults filled in; ValueError for a size below 1."""
+    aisles = default_aisles(agents) if aisles is None else aisles
+    aisle_length = DEFAULT_AISLE_LENGTH if aisle_length is None else aisle_length
+    for name, value in (("agents", agents), ("aisles", aisles), ("aisle_length", aisle_length)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}")
+    return aisles, aisle_length
+
+
+def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | None = None, seed: int = 0) -> str:
+    """A generated warehouse as map text. ``aisles`` defaults to ``default_aisles(agents)``, ``aisle_length``
+    to DEFAULT_AISLE_LENGTH. ValueError names what does not fit (too few bays or docks for the agents)."""
+    aisles, aisle_length = _sizes(agents, aisles, aisle_length)
+    height, width, passages, docks, bays = _layout(aisles, aisle_length)
+    for what, places in (("pick stations (one per aisle row)", bays), ("dock cells on the cross-aisles", docks)):
+        if agents > len(places):
+            raise ValueError(f"{agents} agents do not fit: {aisles} aisles of length {aisle_length} have "
+                             f"{len(places)} {what}; give more aisles")
+    rng = random.Random(seed)
+    starts = rng.sample(docks, agents)
+    goals = rng.sample(bays, agents)
+
+    def is_open(row: int, col: int, action: int) -> bool:
+        d_row, d_col = _STEPS[action]
+        return frozenset(((row, col), (row + d_row, col + d_col))) in passages
+
+    world = {cell for pair in passages for cell in pair}
+    header = [
+        f"# Generated warehouse, {agents} AGVs: {aisles} two-lane aisles of {aisle_length} cells between shelf racks",
+        "# ('#'), each joined to the two-lane cross-aisles (top and bottom) by one-lane entrances.",
+        f"# Generated by: {warehouse_command(agents, aisles, aisle_length, seed)}",
+        "# Starts on the cross-aisles (docks); each goal is a bay cut into a rack (a pick station), open only to",
+        "# its aisle, where a parked AGV blocks nobody.",
+    ]
+    agent_lines = [f"agent {k}: start {s[0]},{s[1]}  goal {g[0]},{g[1]}"
+                   for k, (s, g) in enumerate(zip(starts, goals), start=1)]
+    set_lines = ["# Map defaults (`--set` overrides them): steps cost, or learners wander in the cross-aisles."]
+    set_lines += [f"set {key}={value}" for key, value in MAP_DEFAULTS.items()]
+    drawing = _render(height, width, dict.fromkeys(world, "."), is_open)
+    text = "\n".join(header + agent_lines + set_lines + [""] + drawing) + "\n"
+    _check_parked(parse_map(text, name="warehouse"), seed)
+    return text
+
+
+def _check_parked(gridmap: GridMap, seed: int) -> None:
+    """The generator's promise, checked on the parsed map (the layout makes it hold; this says so if not)."""
+    blocked = gridmap.goal_blocked_by_parked()
+    if blocked:
+        raise RuntimeError(f"generated warehouse (seed {seed}) breaks its promise: agent(s) "
+                           f"{', '.join(str(i + 1) for i in blocked)} cannot reach their goal with the others "
+                           "parked at theirs")
+
+
+def warehouse_map(agents: int, aisles: int | None = None, aisle_length: int | None = None, seed: int = 0,
+                  name: str | None = None) -> GridMap:
+    """The generated warehouse, parsed (named ``warehouse_<agents>`` unless ``name`` is given)."""
+    aisles, aisle_length = _sizes(agents, aisles, aisle_length)
+    return parse_map(warehouse_text(agents, aisles, aisle_length, seed), name=name or f"warehouse_{agents}",
+                     source=f"<{warehouse_command(agents, aisles, aisle_length, seed)}>")

@@ -1,0 +1,22 @@
+"""CQ-learning brings a small generated warehouse home (issue 11): after a short run, its greedy policy gets
+every AGV to its goal with no collision and no truncation, for consecutive seeds (map and learners alike),
+none chosen to pass. The 8- to 32-AGV figures are benchmarks (benchmarks/bench_warehouse.py), not tests."""
+
+import pytest
+
+from cq_ros import engine
+from cq_ros.settings import run_settings
+from cq_ros.warehouse import warehouse_map
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_cq_greedy_policy_brings_every_agv_of_a_small_warehouse_home(seed):
+    gridmap = warehouse_map(4, aisle_length=4, seed=seed)
+    settings = run_settings(gridmap, {"eval_episodes": 3, "step_cap": 1000})
+    result = engine.run("cq", gridmap, settings, seed=seed, run_index=0, episodes=600)
+    steps, collisions, truncated = result.greedy[:, 0], result.greedy[:, 1], result.greedy[:, 5]
+    assert not truncated.any(), f"greedy policy stuck at the step cap (seed {seed})"
+    assert not collisions.any()
+    # home by a route, not by a walk: within twice the longest shortest path of any AGV
+    longest = max(gridmap.distance(s, g) for s, g in zip(gridmap.starts, gridmap.goals))
+    assert steps.max() <= 2 * longest + 4
