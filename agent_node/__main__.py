@@ -4,7 +4,7 @@ Runs one agent node until its last episode. Parameters: agent_node.driver.PARAME
 cq_ros.settings.Settings included; one not given is the map's default, as in cq-ros experiment); for algo jsa
 leave agent_id out: one central node drives every AGV.
 --params-file, -r __ns:=/name and -r __node:=agvK work as for any ROS 2 node.
-Exit codes: 0 last episode played, 1 no feedback from the world for feedback_timeout, 2 a bad parameter
+Exit codes: 0 last episode played, 1 no valid message from the world for feedback_timeout, 2 a bad parameter
 or checkpoint (one line on stderr), 130 interrupted (Ctrl-C, SIGTERM).
 """
 

@@ -23,20 +23,42 @@ Greedy evaluation: after its `episodes` learning episodes a driver plays `eval_e
 on inside the copy), so its random stream continues exactly as the engine's copy does. The world plays
 them as ordinary episodes (episode indices episodes..episodes+eval_episodes-1) and the AgentStats go on.
 
+Catching up (`WorldLink`). Feedback is decoded without a sequence expectation and then judged: the expected
+(episode, step) is played; an older one is dropped and counted (`stale_*`); a later one means the world
+stepped on without us (a feedback lost, a restart, a world that ran ahead): the driver adopts it, as a
+restarted agent does, counts it (`caught_up`, and `missed_feedback`: the steps it never heard) and sends the
+AgentStats of every episode it left behind. Only a later stamp the world vouches for is adopted: with the
+run's key every message is the world's; without one, the world's heartbeat must have reached that stamp
+(else a forged far-future feedback would capture the agent), so a later stamp is held until it has, and
+dropped (`future_*`) if the expected one comes first. A node started without a checkpoint file starts a
+fresh learner wherever the world is.
+
+Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
+and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not.
+
+Positions (`PeerView`) are kept per stamp from the step the agent decides at onwards: an older one is dropped
+and counted (`stale_*`), a second one for a stamp already heard with another cell too (`conflicting`: the
+first writer wins), and at most `AHEAD` stamps are kept per peer (the farthest go first), so no burst of
+other positions can push out the world's.
+
 Checkpoints (`save_checkpoint`/`load_checkpoint`): a pickle of the learner and the last finished episode,
 written to a temporary file in the same directory and moved into place with os.replace, so a reader sees
 the old checkpoint or the new one, never half of one. Only learning episodes are checkpointed, so the last
 checkpoint holds the trained learner, not its greedy copy. A node restarted from one decodes its first
 feedback without an expected (episode, step) and resumes at whatever step the world is at (switching to
-the greedy copy first if the world is past the learning episodes).
+the greedy copy first if the world is past the learning episodes). Temporary files a save killed
+mid-write left behind are removed at start (`make_driver`); a checkpoint folder that is missing or not
+writable is a bad parameter.
 """
 
 from __future__ import annotations
 
 import copy
+import glob
 import os
 import pickle
 import tempfile
+import time
 from collections import deque
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Iterable, Mapping
@@ -47,14 +69,15 @@ from cq_ros.parameters import check_numbers, map_and_settings
 from cq_ros.learners import LEARNERS, Learner, decode_joint_action
 from cq_ros.settings import Settings, SettingsError
 from msgs_spec import (
-    Action, AgentStats, Bounds, DropCounter, MarkedJointState, WireError, decode_feedback, decode_position,
-    feedback_topic, position_topic,
+    HEARTBEAT_TOPIC, Action, AgentStats, Bounds, DropCounter, KeyFileError, MarkedJointState, WireError,
+    check_sequence, decode_feedback, decode_heartbeat, decode_position, feedback_topic, position_topic, read_key,
 )
 
 __all__ = [
     "PARAMETERS", "AgentConfig", "agent_config", "make_driver",
     "Subscribe", "Unsubscribe", "Send", "SaveCheckpoint", "Finish",
-    "PeerView", "AgentDriver", "CentralDriver", "save_checkpoint", "load_checkpoint", "state_counts",
+    "WorldLink", "PeerView", "AgentDriver", "CentralDriver", "save_checkpoint", "load_checkpoint",
+    "remove_stale_temporaries", "read_key_parameter", "state_counts",
 ]
 
 # Every parameter of the agent node: name -> (default, description). The default also fixes the ROS type.
@@ -75,13 +98,15 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                        "checkpoint_every episodes and after the last learning one (never in the greedy "
                        "episodes); empty: no checkpoints"),
     "checkpoint_every": (50, "episodes between checkpoints"),
-    "feedback_timeout": (30.0, "seconds without feedback from the world after which the node gives up "
-                               "(exit 1)"),
+    "feedback_timeout": (30.0, "seconds without a valid message from the world (feedback or heartbeat) after "
+                               "which the node gives up (exit 1)"),
     "peer_linger_steps": (0, "decision steps a peer subscription is kept after the learner last named the "
                              "peer (0: drop at the first step without need)"),
     "min_stats_subscribers": (0, "hold this node's agv<k>/stats messages until that many subscribers are "
                                  "matched, then send them in order (cq-ros launch: 1, so that it hears every "
                                  "episode); learning never waits for them, the exit at most 10 s"),
+    "key_file": ("", "file holding the run's key (as the world's key_file): key every action, drop feedback, "
+                     "positions and heartbeats without a matching MAC; empty: no authentication"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (learning settings and rewards, "
                                        "as the world's); not given: the map's default, else this one")
@@ -104,6 +129,7 @@ class AgentConfig:
     feedback_timeout: float
     peer_linger_steps: int
     min_stats_subscribers: int
+    key: bytes | None
 
 
 def agent_config(values: Mapping[str, Any]) -> AgentConfig:
@@ -125,13 +151,42 @@ def agent_config(values: Mapping[str, Any]) -> AgentConfig:
     elif not 1 <= agent <= gridmap.n_agents:
         raise SettingsError(f"parameter agent_id must be 1..{gridmap.n_agents} (the agents of map "
                             f"{gridmap.name}) for algo {algo}, got {agent}")
+    _check_checkpoint_folder(values["checkpoint"])
     return AgentConfig(gridmap, settings, algo, agent, values["episodes"], values["seed"], values["run"],
                        values["checkpoint"], values["checkpoint_every"], values["feedback_timeout"],
-                       values["peer_linger_steps"], values["min_stats_subscribers"])
+                       values["peer_linger_steps"], values["min_stats_subscribers"],
+                       read_key_parameter(values["key_file"]))
 
 
-def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None) -> "AgentDriver | CentralDriver":
+def read_key_parameter(path: str) -> bytes | None:
+    """The key in parameter key_file (None when empty); SettingsError naming the parameter otherwise."""
+    try:
+        return read_key(path) if path else None
+    except KeyFileError as e:
+        raise SettingsError(str(e)) from None
+
+
+def _check_checkpoint_folder(path: str) -> None:
+    """A checkpoint must be writable from the start, not found unwritable at the first save."""
+    if not path:
+        return
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise SettingsError(f"parameter checkpoint: {path!r}: folder {folder!r} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SettingsError(f"parameter checkpoint: {path!r}: folder {folder!r} is not writable")
+    if os.path.isdir(path):
+        raise SettingsError(f"parameter checkpoint: {path!r} is a folder, not a file")
+
+
+def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None,
+                clock: Callable[[], float] = time.monotonic) -> "AgentDriver | CentralDriver":
     """The driver of a node with this configuration: a fresh learner, or the one in cfg.checkpoint."""
+    if cfg.checkpoint:
+        removed = remove_stale_temporaries(cfg.checkpoint)
+        if removed and log:
+            log(f"removed {len(removed)} temporary checkpoint file(s) a save killed mid-write left: "
+                f"{', '.join(removed)}")
     resume = bool(cfg.checkpoint) and os.path.exists(cfg.checkpoint)
     if resume:
         learner, episode = load_checkpoint(cfg.checkpoint, cfg.algo, cfg.gridmap, max(cfg.agent - 1, 0))
@@ -146,9 +201,9 @@ def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None) -> "A
     greedy = cfg.settings.eval_episodes
     if learner.central:
         return CentralDriver(learner, cfg.episodes, eval_episodes=greedy, checkpoint_every=every, resync=resume,
-                             log=log)
+                             log=log, key=cfg.key, clock=clock)
     return AgentDriver(learner, cfg.agent, cfg.episodes, eval_episodes=greedy, linger=cfg.peer_linger_steps,
-                       checkpoint_every=every, resync=resume, log=log)
+                       checkpoint_every=every, resync=resume, log=log, key=cfg.key, clock=clock)
 
 
 # -- effects: what a driver asks its node to do, in order ------------------------------------------------
@@ -188,13 +243,18 @@ Effects = list  # of the effects above
 # -- checkpoints -----------------------------------------------------------------------------------------
 
 
+def _temporary_prefix(path: str) -> tuple[str, str]:
+    """(folder, name prefix) of the temporary files save_checkpoint writes for `path`."""
+    return os.path.dirname(os.path.abspath(path)), os.path.basename(path) + "."
+
+
 def save_checkpoint(path: str | os.PathLike, learner: Learner, episode: int) -> None:
     """Write learner and episode to path atomically: a temporary file beside it, fsync, os.replace."""
     path = os.fspath(path)
     state = {"format": _CHECKPOINT_FORMAT, "algo": learner.name, "map": learner.map.name,
              "agent": learner.agent, "episode": episode, "learner": learner}
-    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp",
-                               dir=os.path.dirname(os.path.abspath(path)))
+    folder, prefix = _temporary_prefix(path)
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=folder)
     try:
         with os.fdopen(fd, "wb") as f:
             pickle.dump(state, f, protocol=pickle.HIGHEST_PROTOCOL)
@@ -204,6 +264,20 @@ def save_checkpoint(path: str | os.PathLike, learner: Learner, episode: int) -> 
     except BaseException:
         os.unlink(tmp)
         raise
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
+    """Remove the temporary files of `path` a save killed mid-write left (a node starting with this checkpoint
+    path is its only writer); their names."""
+    folder, prefix = _temporary_prefix(os.fspath(path))
+    removed = []
+    for tmp in sorted(glob.glob(os.path.join(glob.escape(folder), glob.escape(prefix) + "*.tmp"))):
+        try:
+            os.unlink(tmp)
+            removed.append(os.path.basename(tmp))
+        except FileNotFoundError:
+            pass
+    return removed
 
 
 def load_checkpoint(path: str | os.PathLike, algo: str, gridmap: GridMap, agent: int) -> tuple[Learner, int]:
@@ -249,23 +323,133 @@ def _cell(gridmap: GridMap, drops: DropCounter, row: int, col: int, source: str)
         return None
 
 
-class PeerView:
-    """The peers an agent listens to: which position topics are subscribed, the newest position each has
-    delivered, and when to let a subscription go (after `linger` decision steps without need)."""
+AHEAD = 8  # stamps of positions kept per peer from the one the agent decides at
 
-    def __init__(self, gridmap: GridMap, drops: DropCounter, linger: int):
+
+def _record_sequence(drops: DropCounter, stamp: tuple[int, int], expected: tuple[int, int], source: str) -> None:
+    """Count a message stamped `stamp` where `expected` was due, as msgs_spec names the gap (stale_*, future_*)."""
+    try:
+        check_sequence(*stamp, *expected)
+    except WireError as e:
+        drops.record(e, source)
+
+
+class WorldLink:
+    """What a driver knows of the world beyond its own feedback: whether it is alive (when it last sent a valid
+    message), where it is (its last heartbeat), and so whether a later feedback stamp is the world's."""
+
+    def __init__(self, drops: DropCounter, key: bytes | None, clock: Callable[[], float]):
+        self.drops, self.key, self._clock = drops, key, clock
+        self.last_heard = clock()
+        self.beat = 0  # the last heartbeat's number
+        self.at = (0, 0)  # the world's (episode, step) by its last heartbeat
+        self.caught_up = 0  # times a later stamp was adopted
+        self.missed_feedback = 0  # feedback never heard, as far as the stamps tell
+        self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
+        # The earliest later feedback the world has not vouched for yet: (stamp, agent, feedback, cell, expected)
+        self.held: tuple | None = None
+
+    def heard(self) -> None:
+        self.last_heard = self._clock()
+
+    def silent_for(self) -> float:
+        """Seconds since the last valid message from the world (or since the start)."""
+        return self._clock() - self.last_heard
+
+    def on_heartbeat(self, msg: Any) -> bool:
+        """A message from world/heartbeat; True if it was valid and new."""
+        hb = self.drops.guard(decode_heartbeat, msg, after=self.beat, key=self.key, source=HEARTBEAT_TOPIC)
+        if hb is None:
+            return False
+        self.beat, self.at = hb.beat, (hb.episode, hb.step)
+        self.heard()
+        return True
+
+    def judge(self, agent: int, fb: Any, cell: int, expected: tuple[int, int] | None) -> str:
+        """'play' a feedback that is the expected one (or when none is), 'adopt' a later one the world vouches
+        for; '' for one dropped (counted) or held until the world vouches for it (`vouched`)."""
+        stamp = (fb.episode, fb.step)
+        if expected is None or stamp == expected:
+            self._drop_held()
+            return "play"
+        if stamp < expected:
+            _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
+            return ""
+        if self.vouches_for(stamp):
+            self._drop_held()
+            return "adopt"
+        if self.held is None or stamp < self.held[0]:
+            self._drop_held()
+            self.held = (stamp, agent, fb, cell, expected)
+        else:
+            _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
+        return ""
+
+    def vouches_for(self, stamp: tuple[int, int]) -> bool:
+        """Is a feedback stamped `stamp` the world's? Any is, with the run's key; without it, one the world's
+        heartbeat has reached."""
+        return self.key is not None or stamp <= self.at
+
+    def vouched(self) -> tuple | None:
+        """The held (agent, feedback, cell) once the world's heartbeat has reached its stamp (no longer held)."""
+        if self.held is None or not self.vouches_for(self.held[0]):
+            return None
+        _, agent, fb, cell, _ = self.held
+        self.held = None
+        return agent, fb, cell
+
+    def adopted(self, expected: tuple[int, int] | None, fb: Any) -> str:
+        """Count an adoption; a line for the log."""
+        self.caught_up += 1
+        if expected is None:
+            return f"joining the world at episode {fb.episode} step {fb.step}"
+        episode, step = expected
+        # the rest of the old episode is unknown: at least its last feedback
+        missed = fb.step - step if fb.episode == episode else fb.step + 1
+        self.missed_feedback += missed
+        return (f"the world is at episode {fb.episode} step {fb.step}, we expected episode {episode} step {step}: "
+                f"catching up (about {missed} feedback message(s) missed)")
+
+    def counters(self) -> dict[str, int]:
+        out = {"caught_up": self.caught_up, "missed_feedback": self.missed_feedback}
+        return {**{k: v for k, v in out.items() if v}, **self.extra_counters}
+
+    def _drop_held(self) -> None:
+        if self.held is not None:
+            stamp, agent, _, _, expected = self.held
+            _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
+            self.held = None
+
+
+class PeerView:
+    """The peers an agent listens to: which position topics are subscribed, the positions each has delivered
+    from the step the agent decides at (`floor`) on, and when to let a subscription go (after `linger`
+    decision steps without need)."""
+
+    def __init__(self, gridmap: GridMap, drops: DropCounter, linger: int, key: bytes | None = None):
         self.map = gridmap
         self.bounds = _bounds(gridmap)
         self.drops = drops
         self.linger = linger
+        self.key = key
         self.idle: dict[int, int] = {}  # subscribed peer -> decision steps since it was last needed
         self.created = 0  # subscriptions created since start (communication cost)
         self.messages = 0  # position messages received since start (communication cost)
-        self._seen: dict[int, tuple[int, int, int]] = {}  # peer -> (episode, step, cell) it last sent
+        self.floor = (0, 0)  # the (episode, step) the agent decides at: older positions are stale
+        self.between_episodes = False  # its episode is over: older positions are the others' traffic, not faults
+        self._seen: dict[int, dict[tuple[int, int], int]] = {}  # peer -> {(episode, step): cell} from floor on
 
     @property
     def subscribed(self) -> list[int]:
         return sorted(self.idle)
+
+    def advance(self, episode: int, step: int, between_episodes: bool = False) -> None:
+        """The agent decides at (episode, step) now, or (`between_episodes`) waits for that one, the first
+        of its next episode: forget every position stamped earlier."""
+        self.floor, self.between_episodes = (episode, step), between_episodes
+        for held in self._seen.values():
+            for stamp in [s for s in held if s < self.floor]:
+                del held[stamp]
 
     def need(self, peers: Iterable[int]) -> Effects:
         """A decision step needing `peers`: subscribe to the new ones, drop the ones idle too long."""
@@ -284,28 +468,43 @@ class PeerView:
         return out
 
     def on_position(self, peer: int, msg: Any) -> bool:
-        """A message from agv<peer>/position; True if it was a valid position of a subscribed peer."""
+        """A message from agv<peer>/position; True if it was a new valid position of a subscribed peer."""
         self.messages += 1
         if peer not in self.idle:  # delivered after the subscription was dropped
             return False
         source = position_topic(peer)
-        # No (episode, step) expectation: positions also arrive between two waits, and an older one while
-        # waiting means "not yet" (msgs_spec README), not a bad message; cells_at compares the stamps.
-        pos = self.drops.guard(decode_position, msg, bounds=self.bounds, agent=peer, source=source)
+        # No (episode, step) expectation: positions also arrive between two waits; the stamps are judged here.
+        pos = self.drops.guard(decode_position, msg, bounds=self.bounds, agent=peer, key=self.key, source=source)
         cell = pos and _cell(self.map, self.drops, pos.row, pos.col, source)
         if cell is None:
             return False
-        self._seen[peer] = (pos.episode, pos.step, cell)
+        stamp = (pos.episode, pos.step)
+        if stamp < self.floor:
+            if not self.between_episodes:  # a peer still playing the episode we are done with is no fault
+                _record_sequence(self.drops, stamp, self.floor, source)
+            return False
+        held = self._seen.setdefault(peer, {})
+        if stamp in held:
+            if held[stamp] != cell:  # the first writer wins: the world publishes before anyone could copy it
+                self.drops.record(WireError("conflicting", f"episode {stamp[0]} step {stamp[1]}: cell {pos.row},"
+                                            f"{pos.col} after {self.map.cells[held[stamp]]}"), source)
+            return False
+        held[stamp] = cell
+        if len(held) > AHEAD:  # the farthest goes: the world's next positions are the nearest
+            farthest = max(held)
+            del held[farthest]
+            _record_sequence(self.drops, farthest, self.floor, source)
+            return farthest != stamp
         return True
 
     def cells_at(self, episode: int, step: int, peers: Iterable[int]) -> dict[int, int] | None:
         """{peer: cell} stamped (episode, step) for every peer in `peers`, or None while one is missing."""
         cells = {}
         for j in peers:
-            seen = self._seen.get(j)
-            if seen is None or seen[:2] != (episode, step):
+            cell = self._seen.get(j, {}).get((episode, step))
+            if cell is None:
                 return None
-            cells[j] = seen[2]
+            cells[j] = cell
         return cells
 
 
@@ -316,7 +515,8 @@ class AgentDriver:
     """One decentralised learner (agent id `agent`, 1..N) in the lockstep protocol."""
 
     def __init__(self, learner: Learner, agent: int, episodes: int, *, eval_episodes: int = 0, linger: int,
-                 checkpoint_every: int = 0, resync: bool = False, log: Callable[[str], Any] | None = None):
+                 checkpoint_every: int = 0, resync: bool = False, log: Callable[[str], Any] | None = None,
+                 key: bytes | None = None, clock: Callable[[], float] = time.monotonic):
         self.learner = learner
         self.agent = agent
         self.agents = (agent,)  # whose feedback it hears and whose actions it sends
@@ -327,11 +527,13 @@ class AgentDriver:
         self.map = learner.map
         self.bounds = _bounds(self.map)
         self.drops = DropCounter(log)
-        self.peers = PeerView(self.map, self.drops, linger)
+        self.link = WorldLink(self.drops, key, clock)
+        self.peers = PeerView(self.map, self.drops, linger, key)
         self._log = log or (lambda _msg: None)
         self.expect: tuple[int, int] | None = None if resync else (0, 0)  # next feedback; None: any
         self.finished = False
         self.skipped_steps = 0  # steps the world took without our action (it timed us out)
+        self._played = False  # a feedback played: episodes left behind since get their statistics
         self._acted: tuple[int, int] | None = None  # (episode, step) of the action just sent
         self._pending: tuple[int, int, tuple[int, ...]] | None = None  # (episode, step, peers) awaiting positions
         self._plays_before = learner.joint_plays  # joint plays before the current episode
@@ -339,12 +541,47 @@ class AgentDriver:
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback (the node subscribes to its own agent's only)."""
         source = feedback_topic(agent)
-        episode, step = self.expect or (None, None)
-        fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, episode=episode, step=step,
+        fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, key=self.link.key,
                               source=source)
         cell = fb and _cell(self.map, self.drops, fb.row, fb.col, source)
         if cell is None:
             return []
+        verdict = self.link.judge(agent, fb, cell, self.expect)
+        if verdict == "adopt":
+            return self._catch_up(fb, cell)
+        return self._play(fb, cell) if verdict == "play" else []
+
+    def on_heartbeat(self, msg: Any) -> Effects:
+        """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
+        held = self.link.vouched() if self.link.on_heartbeat(msg) else None
+        return self._catch_up(*held[1:]) if held else []
+
+    def on_position(self, peer: int, msg: Any) -> Effects:
+        """A message from agv<peer>/position."""
+        return self._try_act() if self.peers.on_position(peer, msg) else []
+
+    def counters(self) -> dict[str, int]:
+        out = self.drops.as_counters()
+        if self.skipped_steps:
+            out["skipped_steps"] = self.skipped_steps
+        out.update(self.link.counters())
+        return out
+
+    def _catch_up(self, fb: Any, cell: int) -> Effects:
+        """Adopt the world's later (episode, step), as a restarted agent does: the episodes left behind end
+        here (with their statistics), and the feedback is played as a resumed agent's first."""
+        self._log(self.link.adopted(self.expect if self._played else None, fb))
+        out: Effects = []
+        if self._played:
+            for episode in range(self.expect[0], fb.episode):
+                out += self._end_episode(episode)
+                self._plays_before = self.learner.joint_plays
+        self.expect = None
+        return out if self.finished else out + self._play(fb, cell)
+
+    def _play(self, fb: Any, cell: int) -> Effects:
+        self.link.heard()
+        self._played = True
         if self._pending is not None:
             self.skipped_steps += 1
             self._log(f"episode {fb.episode}: the world stepped to {fb.step} before our action of step "
@@ -361,19 +598,10 @@ class AgentDriver:
         if fb.done or fb.truncated:
             return self._end_episode(fb.episode)
         self.expect = (fb.episode, fb.step + 1)
+        self.peers.advance(fb.episode, fb.step)
         need = tuple(j + 1 for j in self.learner.observe(cell))
         self._pending = (fb.episode, fb.step, need)
         return self.peers.need(need) + self._try_act()
-
-    def on_position(self, peer: int, msg: Any) -> Effects:
-        """A message from agv<peer>/position."""
-        return self._try_act() if self.peers.on_position(peer, msg) else []
-
-    def counters(self) -> dict[str, int]:
-        out = self.drops.as_counters()
-        if self.skipped_steps:
-            out["skipped_steps"] = self.skipped_steps
-        return out
 
     def _try_act(self) -> Effects:
         if self._pending is None:
@@ -390,6 +618,7 @@ class AgentDriver:
     def _end_episode(self, episode: int) -> Effects:
         self.learner.end_episode()
         self.expect = (episode + 1, 0)
+        self.peers.advance(episode + 1, 0, between_episodes=True)
         # Until its next episode the agent sees nobody, except a joint-state learner, which will need every
         # peer again at its first step (dropping would cost a new subscription every episode).
         out = self.peers.need([j + 1 for j in self.learner.peers] if self.learner.joint_state else ())
@@ -447,7 +676,8 @@ class CentralDriver:
     """
 
     def __init__(self, learner: Learner, episodes: int, *, eval_episodes: int = 0, checkpoint_every: int = 0,
-                 resync: bool = False, log: Callable[[str], Any] | None = None):
+                 resync: bool = False, log: Callable[[str], Any] | None = None, key: bytes | None = None,
+                 clock: Callable[[], float] = time.monotonic):
         self.learner = learner
         self.episodes = episodes  # learning episodes; then eval_episodes greedy ones
         self.eval_episodes = eval_episodes
@@ -457,8 +687,11 @@ class CentralDriver:
         self.n = self.map.n_agents
         self.bounds = _bounds(self.map)
         self.drops = DropCounter(log)
-        self.peers = PeerView(self.map, self.drops, linger=0)
+        self.link = WorldLink(self.drops, key, clock)
+        self.peers = PeerView(self.map, self.drops, linger=0, key=key)
+        self._log = log or (lambda _msg: None)
         self.finished = False
+        self._played = False  # a feedback played: episodes left behind since get their statistics
         self.agents = range(1, self.n + 1)  # whose feedback it hears and whose actions it sends
         self._cells = list(self.map.starts)
         self._done = [False] * self.n
@@ -472,14 +705,25 @@ class CentralDriver:
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback."""
         source = feedback_topic(agent)
-        episode, step = self.expect[agent] or (None, None)
-        fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, episode=episode, step=step,
+        fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, key=self.link.key,
                               source=source)
         cell = fb and _cell(self.map, self.drops, fb.row, fb.col, source)
         if cell is None:
             return []
+        if self._resync is not None:  # the positions decide; a later feedback moves the step they must show
+            if (fb.episode, fb.step) > self._resync and self.link.vouches_for((fb.episode, fb.step)):
+                self.link.heard()
+                return self._start_resync(fb)
+            return []
+        verdict = self.link.judge(agent, fb, cell, self.expect[agent])
+        if verdict == "adopt":
+            return self._catch_up(agent, fb)
+        if verdict != "play":
+            return []
+        self.link.heard()
+        self._played = True
         if self.expect[agent] is None:  # resuming: the first feedback says where the world is
-            return [] if self._resync else self._start_resync(fb)
+            return self._start_resync(fb)
         # An agent's next feedback follows from this one alone (an agent still acting cannot see its episode
         # finish), and may come before the step it belongs to is complete: the agents' feedback comes on
         # separate topics, in no fixed order, so an agent at its goal may hear of the next episode before
@@ -511,9 +755,32 @@ class CentralDriver:
         self._plays_before = self.learner.joint_plays
         return out + self._act(episode, step)
 
-    def counters(self) -> dict[str, int]:
-        return self.drops.as_counters()
+    def on_heartbeat(self, msg: Any) -> Effects:
+        """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
+        held = self.link.vouched() if self.link.on_heartbeat(msg) else None
+        return self._catch_up(held[0], held[1]) if held else []
 
+    def counters(self) -> dict[str, int]:
+        return {**self.drops.as_counters(), **self.link.counters()}
+
+    def _catch_up(self, agent: int, fb: Any) -> Effects:
+        """Adopt the world's later (episode, step), as a resumed node does (from the positions of that step);
+        the episodes left behind end here, with their statistics."""
+        expected = self.expect[agent]
+        self._log(self.link.adopted(expected if self._played else None, fb))
+        out: Effects = []
+        if self._played:
+            current = min(e for e, _ in filter(None, self.expect.values()))
+            for episode in range(current, fb.episode):
+                out += self._end_episode(episode)
+                self._plays_before = self.learner.joint_plays
+        self._played = True
+        self.link.heard()
+        for inbox in self._inbox.values():
+            inbox.clear()
+        self._acted = None
+        self.expect = dict.fromkeys(self.agents)
+        return out + self._start_resync(fb)
     def _joint_step(self) -> Effects:
         """Every acting agent's feedback of a step is in: learn, then end the episode or act."""
         for k in self._waiting:
@@ -532,9 +799,11 @@ class CentralDriver:
 
     def _start_resync(self, fb) -> Effects:
         if fb.truncated:  # the episode is over for everyone: start with the next
+            self._resync = None
             self.expect = dict.fromkeys(self.agents, (fb.episode + 1, 0))
-            return []
+            return self.peers.need(())
         self._resync = (fb.episode, fb.step)
+        self.peers.advance(*self._resync)
         return self.peers.need(self.agents)
 
     def _collect(self, agents: set[int]) -> None:

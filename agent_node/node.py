@@ -20,13 +20,16 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
-from cq_ros.parameters import SETTING_NAMES
+from cq_ros.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from msgs_spec import (
-    ACTION, AGENT_STATS, FEEDBACK, POSITION, Action, action_topic, agent_namespace, agent_stats_topic, encode,
-    feedback_topic, position_topic,
+    ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
+    agent_stats_topic, encode, feedback_topic, position_topic,
 )
-from msgs_spec.tools import declare_parameters
+from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
+from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
+
+from world_node.lockstep import PARAMETERS as WORLD_PARAMETERS
 
 from .driver import (
     PARAMETERS, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
@@ -49,8 +52,9 @@ class _HeldPublisher:
     action reader and the launcher's statistics readers do). With `latest_only` it holds the newest message
     alone (a stale action is worth nothing)."""
 
-    def __init__(self, node: Node, spec: Any, topic: str, min_matched: int, latest_only: bool = False):
-        self.min_matched, self.latest_only = min_matched, latest_only
+    def __init__(self, node: Node, spec: Any, topic: str, min_matched: int, latest_only: bool = False,
+                 key: bytes | None = None):
+        self.min_matched, self.latest_only, self.key = min_matched, latest_only, key
         self.held: list = []  # payloads not sent yet
         self.pub = node.create_publisher(spec.msg_type, topic, spec.qos,
                                          event_callbacks=PublisherEventCallbacks(matched=lambda _: self.flush()))
@@ -64,7 +68,7 @@ class _HeldPublisher:
     def flush(self) -> None:
         if self.held and self.pub.get_subscription_count() >= self.min_matched:
             for payload in self.held:
-                self.pub.publish(encode(payload))
+                self.pub.publish(encode(payload, key=self.key))
             self.held.clear()
 
 
@@ -79,28 +83,36 @@ class AgentNode(Node):
     def __init__(self, node_name: str = "agent", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            self.config = cfg = agent_config(declare_parameters(self, PARAMETERS, unset=SETTING_NAMES))
+            values = declare_parameters(self, PARAMETERS, unset=SETTING_NAMES)
+            check_names(undeclared_overrides(self), PARAMETERS, WORLD_PARAMETERS)
+            self.config = cfg = agent_config(values)
             self.driver = make_driver(cfg, log=self.get_logger().warning)
         except (SettingsError, ParameterException):
             self.destroy_node()
             raise
         agents = self.driver.agents
         # Feedback proves the world's action reader exists, not that our writer has matched it yet.
-        self._actions = {k: _HeldPublisher(self, ACTION, action_topic(k), 1, latest_only=True) for k in agents}
+        self._actions = {k: _HeldPublisher(self, ACTION, action_topic(k), 1, latest_only=True, key=cfg.key)
+                         for k in agents}
         self._stats = {k: _HeldPublisher(self, AGENT_STATS, agent_stats_topic(k), cfg.min_stats_subscribers)
                        for k in agents}
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
-                                                   partial(self._on_feedback, k), FEEDBACK.qos) for k in agents]
+                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos) for k in agents]
+        self._heartbeat = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
+                                                   lambda m: self._apply(self.driver.on_heartbeat(m)),
+                                                   HEARTBEAT.reader_qos)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
-        self._last_feedback = time.monotonic()
-        self._watchdog = self.create_timer(cfg.feedback_timeout / 4, self._check_world)
+        self._watchdog = self.create_timer(min(cfg.feedback_timeout / 10, 1.0), self._check_world)
+        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning, refuse=False)
+        self._graph_topics = [HEARTBEAT_TOPIC] + [position_topic(k) for k in range(1, cfg.gridmap.n_agents + 1)] + [
+            name(k) for k in agents for name in (feedback_topic, action_topic, agent_stats_topic)]
+        self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
         self.get_logger().info(f"{cfg.algo} learner for {', '.join(map(agent_namespace, agents))} on map "
                                f"{cfg.gridmap.name}, {cfg.episodes} episodes, then "
                                f"{cfg.settings.eval_episodes} greedy")
 
     def _on_feedback(self, agent: int, msg: Any) -> None:
-        self._last_feedback = time.monotonic()
         self._apply(self.driver.on_feedback(agent, msg))
 
     def _on_position(self, peer: int, msg: Any) -> None:
@@ -115,7 +127,8 @@ class AgentNode(Node):
                     self._stats[stats.agent].publish(stats)
                 case Subscribe(peer=peer):
                     self._positions[peer] = self.create_subscription(
-                        POSITION.msg_type, position_topic(peer), partial(self._on_position, peer), POSITION.qos)
+                        POSITION.msg_type, position_topic(peer), partial(self._on_position, peer),
+                        POSITION.reader_qos)
                 case Unsubscribe(peer=peer):
                     self.destroy_subscription(self._positions.pop(peer))
                 case SaveCheckpoint(episode=episode, learner=learner):
@@ -124,14 +137,19 @@ class AgentNode(Node):
                     self._finish(0)
 
     def _check_world(self) -> None:
-        silent = time.monotonic() - self._last_feedback
+        silent = self.driver.link.silent_for()
         if silent > self.config.feedback_timeout and not self.done.done():
-            self.get_logger().error(f"no feedback from the world for {silent:.1f} s "
+            self.get_logger().error(f"no valid message from the world (feedback or heartbeat) for {silent:.1f} s "
                                     f"(feedback_timeout={self.config.feedback_timeout}): giving up")
             self._finish(1)
 
+    def _check_graph(self) -> None:
+        watch_graph(self, self._graph, self._graph_topics)
+        self.driver.link.extra_counters.update(self._graph.counters())
+
     def _finish(self, code: int) -> None:
         self._watchdog.cancel()
+        self._graph_timer.cancel()
         if not any(pub.held for pub in self._stats.values()):
             self._close(code)
             return

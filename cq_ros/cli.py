@@ -66,9 +66,11 @@ def _algo(text: str) -> str:
     return text
 
 
-def _add_settings_options(p: argparse.ArgumentParser) -> None:
+def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="change a setting (repeatable); `cq-ros settings` lists them")
+                   help="change a setting (repeatable); `cq-ros settings` lists them" + (
+                       "; a node parameter too (e.g. feedback_timeout=60, heartbeat_period=0.5: the "
+                       "`PARAMETERS` of world_node/lockstep.py and agent_node/driver.py)" if nodes else ""))
     p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
 
 
@@ -107,7 +109,7 @@ def _add_ros_parsers(sub) -> None:
                    help="decision steps an agent keeps a peer subscription it no longer needs (default: the "
                         "agent node's, 0)")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
-    _add_settings_options(p)
+    _add_settings_options(p, nodes=True)
 
     p = sub.add_parser("echo", help="print the messages of a topic as YAML, like `ros2 topic echo`")
     p.add_argument("topic", help="topic name, e.g. /cq_1a2b3c4d/agv1/position")
@@ -151,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
             "pick stations in bays beside the aisles (cq_ros.warehouse)")
     p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
                          "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
-                         "goal with the others parked at theirs. The map carries `set reward_step=-1`.")
+                         "goal with the others parked at theirs. The map carries `set reward_step=-1` and `set gamma=0.98`.")
     p.add_argument("--agents", type=_positive, required=True, metavar="N", help="AGVs, each with its own goal")
     p.add_argument("--aisles", type=_positive, default=None, metavar="A",
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
@@ -231,7 +233,7 @@ def _dispatch(args) -> int:
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
     if args.command == "launch":
-        return _launch(args, run_settings(load_map(args.map), args.overrides))
+        return _launch(args)
     if args.command == "experiment":
         from .experiment import experiment
         from .summary import format_console_table, load_episodes
@@ -335,15 +337,17 @@ def _generate(args) -> int:
 # works without it.
 
 
-def _launch(args, settings: Settings) -> int:
-    from world_node.launch import Interrupted, LaunchError, launch
+def _launch(args) -> int:
+    from world_node.launch import Interrupted, LaunchError, launch, split_sets
 
     from .summary import format_console_table, load_episodes
 
+    # Settings fields (over the map's defaults) and node parameters alike
+    settings, node_parameters = split_sets(args.overrides, load_map(args.map))
     try:
         result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps,
+                        peer_linger_steps=args.peer_linger_steps, node_parameters=node_parameters,
                         force=args.force, figures=args.figures)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)

@@ -93,31 +93,33 @@ class Settings:
 
     def with_overrides(self, pairs: list[str] | dict) -> "Settings":
         """A copy with `key=value` strings (or a dict) applied; SettingsError names a bad key or value."""
-        items = pairs.items() if isinstance(pairs, dict) else (_split(p) for p in pairs)
+        items = pairs.items() if isinstance(pairs, dict) else (split_pair(p) for p in pairs)
         types = {f.name: f.type for f in fields(self)}
         changes = {}
         for key, value in items:
             if key not in types:
                 raise SettingsError(f"unknown setting {key!r}; settings are: {', '.join(sorted(types))}")
-            changes[key] = _coerce(key, value, int if types[key] in ("int", int) else float)
+            changes[key] = coerce(key, value, int if types[key] in ("int", int) else float)
         return dataclasses.replace(self, **changes)
 
 
 def run_settings(gridmap: "GridMap", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
     """The settings of a run on `gridmap`: the defaults, then the map's (its `set` lines), then `overrides`
     (`key=value` strings, or a dict such as a node's parameters that were given)."""
-    given = dict(overrides) if isinstance(overrides, Mapping) else dict(_split(p) for p in overrides)
+    given = dict(overrides) if isinstance(overrides, Mapping) else dict(split_pair(p) for p in overrides)
     return Settings().with_overrides({**gridmap.defaults, **given})
 
 
-def _split(pair: str) -> tuple[str, str]:
+def split_pair(pair: str) -> tuple[str, str]:
+    """'key=value' -> (key, value), stripped; SettingsError otherwise."""
     key, sep, value = pair.partition("=")
     if not sep or not key.strip():
         raise SettingsError(f"expected key=value, got {pair!r}")
     return key.strip(), value.strip()
 
 
-def _coerce(key: str, value, kind: type):
+def coerce(key: str, value, kind: type):
+    """`value` (a string from the command line, or a number) as an int or a float; SettingsError otherwise."""
     if isinstance(value, bool):
         raise SettingsError(f"setting {key} takes a number, got {value!r}")
     try:

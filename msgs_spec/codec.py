@@ -10,6 +10,12 @@ Array layouts (one dimension; its label lists the fields in order, so `ros2 topi
     Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated"
     Position  std_msgs/Int32MultiArray    label "agent,episode,step,row,col"
     Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
+    Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step"
+
+Keyed (msgs_spec.auth): with the run's key the label ends in ",mac0,mac1,mac2,mac3" and the data holds the
+MAC's four 32-bit words after the fields (as int32 in an Int32 array, as whole numbers in a Float64 one). A
+decoder given the key refuses any other message as `unauthenticated`; one without the key accepts both forms
+and checks no MAC (the tools, nodes started by hand without a key).
 
 Statistics: diagnostic_msgs/DiagnosticArray holding one DiagnosticStatus whose `values` are KeyValue pairs.
 """
@@ -19,6 +25,7 @@ from __future__ import annotations
 import math
 import operator
 import re
+import struct
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -26,17 +33,18 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
 
+from .auth import MAC_WORDS, mac_words
 from .errors import WireError
 from .payloads import (
-    INT32_MAX, Action, AgentStats, Bounds, Feedback, MarkedJointState, Position, WorldStats,
+    INT32_MAX, Action, AgentStats, Bounds, Feedback, Heartbeat, MarkedJointState, Position, WorldStats,
 )
 
 __all__ = [
-    "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "ARRAY_LAYOUTS",
+    "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "HEARTBEAT_LAYOUT", "ARRAY_LAYOUTS",
     "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
     "encode_feedback", "decode_feedback", "encode_position", "decode_position",
-    "encode_action", "decode_action", "encode_world_stats", "decode_world_stats",
-    "encode_agent_stats", "decode_agent_stats", "encode", "decode",
+    "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
+    "decode_world_stats", "encode_agent_stats", "decode_agent_stats", "encode", "decode",
 ]
 
 
@@ -61,6 +69,15 @@ class ArrayLayout:
     @property
     def size(self) -> int:
         return len(self.fields)
+
+    @property
+    def keyed_label(self) -> str:
+        """The label of the keyed form: the fields, then the MAC's words."""
+        return ",".join(self.fields + tuple(f"mac{i}" for i in range(MAC_WORDS)))
+
+    def pack(self, values) -> bytes:
+        """The field values as the MAC reads them (little-endian int32 or float64)."""
+        return struct.pack(f"<{self.size}{'i' if self.ros_type is Int32MultiArray else 'd'}", *values)
 
 
 FEEDBACK_LAYOUT = ArrayLayout(
@@ -95,9 +112,17 @@ ACTION_LAYOUT = ArrayLayout(
      "step of the feedback this action answers",
      "0 NORTH (row-1), 1 EAST (col+1), 2 SOUTH (row+1), 3 WEST (col-1)"),
 )
-ARRAY_LAYOUTS: tuple[ArrayLayout, ...] = (FEEDBACK_LAYOUT, POSITION_LAYOUT, ACTION_LAYOUT)
+HEARTBEAT_LAYOUT = ArrayLayout(
+    Heartbeat, Int32MultiArray,
+    ("beat", "episode", "step"),
+    ("int",) * 3,
+    ("heartbeat number, from 1, one more each heartbeat",
+     "episode the world is playing (0 before its first step)",
+     "step whose actions the world is collecting (0 before its first step)"),
+)
+ARRAY_LAYOUTS: tuple[ArrayLayout, ...] = (FEEDBACK_LAYOUT, POSITION_LAYOUT, ACTION_LAYOUT, HEARTBEAT_LAYOUT)
 _LAYOUT_BY_PAYLOAD = {lay.payload: lay for lay in ARRAY_LAYOUTS}
-_LAYOUT_BY_WIRE = {(lay.ros_type, lay.label): lay for lay in ARRAY_LAYOUTS}
+_LAYOUT_BY_WIRE = {(lay.ros_type, label): lay for lay in ARRAY_LAYOUTS for label in (lay.label, lay.keyed_label)}
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -168,7 +193,8 @@ def _check_cell(row: int, col: int, bounds: Bounds | None, what: str = "cell") -
         raise WireError("cell_out_of_range", f"{what} ({row}, {col}) outside the {grid} grid")
 
 
-def _check_sequence(ep: int, st: int | None, episode: int | None, step: int | None) -> None:
+def check_sequence(ep: int, st: int | None, episode: int | None, step: int | None) -> None:
+    """WireError stale_*/future_* when (ep, st) is not the expected (episode, step) (None: not checked)."""
     if episode is not None:
         if ep < episode:
             raise WireError("stale_episode", f"episode {ep}, expected {episode}")
@@ -183,9 +209,14 @@ def _check_sequence(ep: int, st: int | None, episode: int | None, step: int | No
 
 def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
               episode: int | None, step: int | None) -> None:
-    """Semantic checks shared by the three array payloads (values already typed)."""
+    """Semantic checks shared by the array payloads (values already typed)."""
     _check_nonneg("episode", payload.episode)
     _check_nonneg("step", payload.step)
+    if isinstance(payload, Heartbeat):
+        if payload.beat < 1:
+            raise WireError("out_of_range", f"beat = {payload.beat}, must be >= 1")
+        check_sequence(payload.episode, payload.step, episode, step)
+        return
     _check_agent(payload.agent, bounds, agent)
     if isinstance(payload, Action):
         if not 0 <= payload.action <= 3:
@@ -194,7 +225,7 @@ def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
         _check_cell(payload.row, payload.col, bounds)
     if isinstance(payload, Feedback) and payload.done and payload.truncated:
         raise WireError("malformed", "done and truncated both set")
-    _check_sequence(payload.episode, payload.step, episode, step)
+    check_sequence(payload.episode, payload.step, episode, step)
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -205,23 +236,33 @@ def _typed(layout: ArrayLayout, values) -> Any:
     return layout.payload(*(_CONVERT[k](n, v) for n, k, v in zip(layout.fields, layout.field_kinds, values)))
 
 
-def _encode_array(layout: ArrayLayout, payload: Any) -> Any:
+def _mac_data(layout: ArrayLayout, words: tuple[int, ...]) -> list:
+    """The MAC's words as the array's data holds them: int32 (two's complement) or whole float64."""
+    if layout.ros_type is Float64MultiArray:
+        return [float(w) for w in words]
+    return [w - (1 << 32) if w > INT32_MAX else w for w in words]
+
+
+def _encode_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) -> Any:
     if type(payload) is not layout.payload:
         raise WireError("wrong_type", f"expected {layout.payload.__name__}, got {type(payload).__name__}")
     typed = _typed(layout, (getattr(payload, f) for f in layout.fields))
     _validate(typed, None, None, None, None)
     msg = layout.ros_type()
-    msg.layout.dim = [MultiArrayDimension(label=layout.label, size=layout.size, stride=layout.size)]
+    convert = float if layout.ros_type is Float64MultiArray else int
+    data = [convert(getattr(typed, f)) for f in layout.fields]
+    label, size = layout.label, layout.size
+    if key is not None:
+        data += _mac_data(layout, mac_words(key, layout.label, layout.pack(data)))
+        label, size = layout.keyed_label, layout.size + MAC_WORDS
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
     msg.layout.data_offset = 0
-    if layout.ros_type is Float64MultiArray:
-        msg.data = [float(getattr(typed, f)) for f in layout.fields]
-    else:
-        msg.data = [int(getattr(typed, f)) for f in layout.fields]
+    msg.data = data
     return msg
 
 
 def _decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: int | None,
-                  episode: int | None, step: int | None) -> Any:
+                  episode: int | None, step: int | None, key: bytes | None = None) -> Any:
     if type(msg) is not layout.ros_type:
         raise WireError("wrong_type", f"expected {layout.ros_type.__name__}, got {type(msg).__name__}")
     try:
@@ -233,47 +274,73 @@ def _decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: i
     if len(dims) != 1:
         raise WireError("wrong_layout", f"{len(dims)} dims, expected 1 labelled {layout.label!r}")
     d = dims[0]
-    if d.label != layout.label:
+    keyed = d.label == layout.keyed_label
+    if not keyed and d.label != layout.label:
         raise WireError("wrong_layout", f"label {d.label!r}, expected {layout.label!r}")
-    if d.size != layout.size or d.stride != layout.size or offset != 0:
+    size = layout.size + MAC_WORDS if keyed else layout.size
+    if d.size != size or d.stride != size or offset != 0:
         raise WireError("wrong_layout", f"size {d.size} stride {d.stride} data_offset {offset}, "
-                                        f"expected {layout.size} {layout.size} 0")
-    if len(data) != layout.size:
-        raise WireError("wrong_length", f"{len(data)} values, expected {layout.size} ({layout.label})")
-    payload = _typed(layout, data)
+                                        f"expected {size} {size} 0")
+    if len(data) != size:
+        raise WireError("wrong_length", f"{len(data)} values, expected {size} ({d.label})")
+    if key is not None:
+        if not keyed:
+            raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
+        try:
+            expected = _mac_data(layout, mac_words(key, layout.label, layout.pack(data[:layout.size])))
+        except struct.error:  # a value the wire type cannot hold: no MAC was made over it
+            expected = None
+        if expected != data[layout.size:]:
+            raise WireError("unauthenticated", "the MAC does not match the run's key")
+    payload = _typed(layout, data[:layout.size])
     _validate(payload, bounds, agent, episode, step)
     return payload
 
 
-def encode_feedback(fb: Feedback) -> Float64MultiArray:
-    return _encode_array(FEEDBACK_LAYOUT, fb)
+def encode_feedback(fb: Feedback, *, key: bytes | None = None) -> Float64MultiArray:
+    return _encode_array(FEEDBACK_LAYOUT, fb, key)
 
 
 def decode_feedback(msg: Float64MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
-                    episode: int | None = None, step: int | None = None) -> Feedback:
+                    episode: int | None = None, step: int | None = None,
+                    key: bytes | None = None) -> Feedback:
     """Feedback from `msg`. `agent`: the topic's agent; `episode`/`step`: what the receiver waits for
     (None skips that check)."""
-    return _decode_array(FEEDBACK_LAYOUT, msg, bounds, agent, episode, step)
+    return _decode_array(FEEDBACK_LAYOUT, msg, bounds, agent, episode, step, key)
 
 
-def encode_position(pos: Position) -> Int32MultiArray:
-    return _encode_array(POSITION_LAYOUT, pos)
+def encode_position(pos: Position, *, key: bytes | None = None) -> Int32MultiArray:
+    return _encode_array(POSITION_LAYOUT, pos, key)
 
 
 def decode_position(msg: Int32MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
-                    episode: int | None = None, step: int | None = None) -> Position:
+                    episode: int | None = None, step: int | None = None,
+                    key: bytes | None = None) -> Position:
     """Position from `msg`. `agent`: the peer whose topic this is; `episode`/`step`: the step waited for."""
-    return _decode_array(POSITION_LAYOUT, msg, bounds, agent, episode, step)
+    return _decode_array(POSITION_LAYOUT, msg, bounds, agent, episode, step, key)
 
 
-def encode_action(act: Action) -> Int32MultiArray:
-    return _encode_array(ACTION_LAYOUT, act)
+def encode_action(act: Action, *, key: bytes | None = None) -> Int32MultiArray:
+    return _encode_array(ACTION_LAYOUT, act, key)
 
 
 def decode_action(msg: Int32MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
-                  episode: int | None = None, step: int | None = None) -> Action:
+                  episode: int | None = None, step: int | None = None,
+                  key: bytes | None = None) -> Action:
     """Action from `msg`. `agent`: the topic's agent; `episode`/`step`: the step the world is collecting."""
-    return _decode_array(ACTION_LAYOUT, msg, bounds, agent, episode, step)
+    return _decode_array(ACTION_LAYOUT, msg, bounds, agent, episode, step, key)
+
+
+def encode_heartbeat(hb: Heartbeat, *, key: bytes | None = None) -> Int32MultiArray:
+    return _encode_array(HEARTBEAT_LAYOUT, hb, key)
+
+
+def decode_heartbeat(msg: Int32MultiArray, *, after: int | None = None, key: bytes | None = None) -> Heartbeat:
+    """Heartbeat from `msg`. `after`: the last beat heard; a beat not above it is `replayed`."""
+    hb = _decode_array(HEARTBEAT_LAYOUT, msg, None, None, None, None, key)
+    if after is not None and hb.beat <= after:
+        raise WireError("replayed", f"beat {hb.beat}, the last one heard was {after}")
+    return hb
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -472,7 +539,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
                         f"returns for {n} agents, the world has {bounds.n_agents}")
     counters = _take_counters(values)
     _no_leftovers(values)
-    _check_sequence(ints["episode"], None, episode, None)
+    check_sequence(ints["episode"], None, episode, None)
     return WorldStats(episode=ints["episode"], steps=ints["steps"], truncated=truncated,
                       collisions=ints["collisions"], missed_actions=ints["missed_actions"],
                       returns=tuple(found[k] for k in range(1, n + 1)), duration_s=duration,
@@ -552,7 +619,7 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
         raise WireError("malformed", f"marked indices {sorted(found)}, expected 0..{len(found) - 1}")
     counters = _take_counters(values)
     _no_leftovers(values)
-    _check_sequence(ints["episode"], None, episode, None)
+    check_sequence(ints["episode"], None, episode, None)
     return AgentStats(agent=ints["agent"], episode=ints["episode"], algorithm=algorithm,
                       joint_plays=ints["joint_plays"], local_states=ints["local_states"],
                       joint_states=ints["joint_states"], subscriptions_created=ints["subscriptions_created"],
@@ -563,26 +630,26 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
 # --------------------------------------------------------------------------------------------------------
 # Generic entry points
 
-_ENCODERS: dict[type, Callable[..., Any]] = {
-    Feedback: encode_feedback, Position: encode_position, Action: encode_action,
-    WorldStats: encode_world_stats, AgentStats: encode_agent_stats,
-}
+_STATS_ENCODERS: dict[type, Callable[..., Any]] = {WorldStats: encode_world_stats, AgentStats: encode_agent_stats}
 
 
-def encode(payload: Any, **kwargs: Any) -> Any:
-    """The ROS message for any payload (kwargs: `stamp=` for statistics)."""
+def encode(payload: Any, *, key: bytes | None = None, stamp: Time | None = None) -> Any:
+    """The ROS message for any payload: `key` keys an array payload (msgs_spec.auth; statistics carry no MAC),
+    `stamp` is the header time of statistics."""
+    if type(payload) in _LAYOUT_BY_PAYLOAD:
+        return _encode_array(_LAYOUT_BY_PAYLOAD[type(payload)], payload, key)
     try:
-        enc = _ENCODERS[type(payload)]
+        enc = _STATS_ENCODERS[type(payload)]
     except KeyError:
         raise WireError("wrong_type", f"no wire encoding for {type(payload).__name__}") from None
-    return enc(payload, **kwargs)
+    return enc(payload, stamp=stamp)
 
 
 def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
-           episode: int | None = None, step: int | None = None) -> Any:
+           episode: int | None = None, step: int | None = None, key: bytes | None = None) -> Any:
     """Decode any project message, recognising the payload from the ROS type and the layout label or status
     name (messages are self-describing). Expectations that do not apply to the payload are ignored
-    (`step` for statistics, `agent` for world statistics)."""
+    (`step` for statistics, `agent` for world statistics; `key` for statistics, which carry no MAC)."""
     t = type(msg)
     if t is DiagnosticArray:
         try:
@@ -600,5 +667,5 @@ def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
         layout = _LAYOUT_BY_WIRE.get((t, label))
         if layout is None:
             raise WireError("wrong_layout", f"{t.__name__} with label {label!r} is no project payload")
-        return _decode_array(layout, msg, bounds, agent, episode, step)
+        return _decode_array(layout, msg, bounds, agent, episode, step, key)
     raise WireError("wrong_type", f"{t.__module__}.{t.__name__} is no project message type")

@@ -14,7 +14,7 @@ from typing import Any
 
 from . import codec
 from .errors import KINDS
-from .payloads import Action, AgentStats, Feedback, MarkedJointState, Position, WorldStats
+from .payloads import Action, AgentStats, Feedback, Heartbeat, MarkedJointState, Position, WorldStats
 from .topics import TOPICS, qos_summary
 
 __all__ = ["README_PATH", "BEGIN", "END", "render_spec", "readme_generated_block", "to_yaml", "EXAMPLES"]
@@ -28,6 +28,7 @@ EXAMPLES: dict[str, Any] = {
     "feedback": Feedback(agent=1, episode=3, step=7, row=2, col=4, reward=-1.0, done=False, truncated=False),
     "position": Position(agent=2, episode=3, step=7, row=2, col=5),
     "action": Action(agent=1, episode=3, step=7, action=1),
+    "heartbeat": Heartbeat(beat=42, episode=3, step=7),
     "agent_stats": AgentStats(agent=1, episode=3, algorithm="cq", joint_plays=2, local_states=55,
                               joint_states=1, subscriptions_created=4, subscriptions_active=0,
                               peer_messages=9, marked=(MarkedJointState(2, 3, 2, 2, 4, 0.75),),
@@ -58,7 +59,8 @@ def render_spec() -> str:
         wire = "int32" if lay.ros_type.__name__.startswith("Int32") else "float64"
         lines += ["", f"### `{lay.payload.__name__}` as `std_msgs/msg/{lay.ros_type.__name__}`", "",
                   f"`layout.dim = [{{label: \"{lay.label}\", size: {lay.size}, stride: {lay.size}}}]`, "
-                  f"`layout.data_offset = 0`, `data` holds exactly {lay.size} values:", ""]
+                  f"`layout.data_offset = 0`, `data` holds exactly {lay.size} values (keyed, msgs_spec.auth: label "
+                  f"`{lay.keyed_label}`, then the MAC's 4 words):", ""]
         lines += _table(["index", "field", "on the wire", "meaning"],
                         [[str(i), f"`{f}`", f"{wire} ({k})", m] for i, (f, k, m) in
                          enumerate(zip(lay.fields, lay.field_kinds, lay.meanings))])

@@ -26,6 +26,10 @@ KINDS: Mapping[str, str] = {
     "future_episode": "episode index higher than the one the receiver expects",
     "stale_step": "right episode, step index lower than the one the receiver expects",
     "future_step": "right episode, step index higher than the one the receiver expects",
+    "unauthenticated": "the receiver holds the run's key and the message carries no MAC, or one that does not "
+    "match (a writer without the key)",
+    "replayed": "a heartbeat whose beat is not above the last one heard (a replay, or a second world)",
+    "conflicting": "a position for a step already heard from that peer, with another cell (a second writer)",
 }
 
 

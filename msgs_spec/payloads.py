@@ -11,7 +11,7 @@ from typing import Mapping
 
 __all__ = [
     "NORTH", "EAST", "SOUTH", "WEST", "ACTIONS", "ACTION_NAMES", "INT32_MAX",
-    "Bounds", "Feedback", "Position", "Action", "MarkedJointState", "AgentStats", "WorldStats",
+    "Bounds", "Feedback", "Position", "Action", "Heartbeat", "MarkedJointState", "AgentStats", "WorldStats",
 ]
 
 NORTH, EAST, SOUTH, WEST = 0, 1, 2, 3
@@ -69,6 +69,17 @@ class Action:
     episode: int
     step: int
     action: int  # 0..3 = NORTH, EAST, SOUTH, WEST
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """World -> agents, every heartbeat_period whether or not anyone acts: the world is alive, and collects the
+    actions of (episode, step) (0, 0 before its first step). `beat` counts up from 1, so a replayed or second
+    world's heartbeat shows (it does not count up from the last one heard)."""
+
+    beat: int
+    episode: int
+    step: int
 
 
 @dataclass(frozen=True, slots=True)

@@ -34,7 +34,7 @@ from .topics import TopicSpec, parse_topic
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
-    "run_node", "declare_parameters", "compatible_qos",
+    "run_node", "declare_parameters", "compatible_qos", "undeclared_overrides", "watch_graph",
     "message_class", "echo", "topics", "nodes", "record",
 ]
 
@@ -127,7 +127,15 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
     from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
 
-    rclpy.init(args=sys.argv)
+    missing = _missing_params_files(sys.argv)
+    if missing:
+        print(f"{program}: --params-file {missing}: no such file", file=sys.stderr)
+        return 2
+    try:
+        rclpy.init(args=sys.argv)
+    except RuntimeError as e:  # rcl refused the arguments (e.g. a parameters file it cannot parse)
+        print(f"{program}: bad ROS arguments: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 2
     node = executor = None
     code = 130
     try:
@@ -169,6 +177,29 @@ def declare_parameters(node: Any, parameters: dict[str, tuple[Any, str]], unset:
         value = Parameter.Type.from_parameter_value(default) if name in unset else default
         values[name] = node.declare_parameter(name, value, descriptor).value
     return {name: value for name, value in values.items() if not (name in unset and value is None)}
+
+
+def _missing_params_files(argv: list[str]) -> str | None:
+    """The first `--params-file PATH` after --ros-args that names no readable file."""
+    for flag, path in zip(argv, argv[1:]):
+        if flag == "--params-file" and not os.access(path, os.R_OK):
+            return path
+    return None
+
+
+def undeclared_overrides(node: Any) -> list[str]:
+    """Parameter names given to `node` (command line, parameters file, parameter_overrides) that it did not
+    declare: rclpy ignores them silently, so a typo would run with the default."""
+    # rclpy keeps the overrides in a private dict, the only place they are listed (rclpy 7.1.6).
+    return sorted(set(node._parameter_overrides) - set(node._parameters))
+
+
+def watch_graph(node: Any, watch: Any, topics: list[str]) -> str | None:
+    """Hand the graph around `node` (its peers' names, every writer of `topics`) to a msgs_spec.graph.GraphWatch;
+    its answer: a line to refuse with, or None."""
+    writers = {node.resolve_topic_name(t): [(p.node_name, p.node_namespace, p.endpoint_gid)
+                                            for p in node.get_publishers_info_by_topic(t)] for t in topics}
+    return watch.check(node.get_node_names_and_namespaces(), writers)
 
 
 def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float | None,

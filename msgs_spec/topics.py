@@ -16,12 +16,12 @@ from std_msgs.msg import Float64MultiArray, Int32MultiArray
 
 from . import codec
 from .errors import WireError
-from .payloads import Action, AgentStats, Feedback, Position, WorldStats
+from .payloads import Action, AgentStats, Feedback, Heartbeat, Position, WorldStats
 
 __all__ = [
     "AGENT_PREFIX", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
-    "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "AGENT_STATS", "WORLD_STATS", "TOPICS",
-    "WORLD_STATS_TOPIC", "agent_namespace", "feedback_topic", "position_topic", "action_topic",
+    "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "HEARTBEAT", "AGENT_STATS", "WORLD_STATS", "TOPICS",
+    "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic", "action_topic",
     "agent_stats_topic", "agent_topics", "parse_topic", "qos_summary", "type_name",
 ]
 
@@ -40,6 +40,12 @@ QOS_POSITION = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=Dur
                           history=HistoryPolicy.KEEP_LAST, depth=1)
 QOS_STATS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                        history=HistoryPolicy.KEEP_LAST, depth=100)
+QOS_HEARTBEAT = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                           history=HistoryPolicy.KEEP_LAST, depth=1)
+# A reader's history is shared by every writer of its topic (DDS keeps it per instance; our topics have
+# one): at depth 10 a burst of a dozen messages from anyone else evicts the world's before the callback
+# takes it. The nodes read the lockstep topics at this depth, so a burst of a few hundred cannot.
+READER_DEPTH = 1000
 
 
 def type_name(msg_type: type) -> str:
@@ -70,6 +76,13 @@ class TopicSpec:
     publisher: str
     subscribers: str
     fields: str  # the field mapping, one line (the README gives the details)
+    reader_depth: int | None = None  # the nodes' subscriptions keep this many (None: as qos)
+
+    @property
+    def reader_qos(self) -> QoSProfile:
+        """The profile the nodes subscribe with: qos, deeper where `reader_depth` says (compatible: a reader's
+        depth is its own)."""
+        return self.qos if self.reader_depth is None else replace_depth(self.qos, self.reader_depth)
 
     @property
     def per_agent(self) -> bool:
@@ -102,6 +115,10 @@ class TopicSpec:
         return _DECODERS[self.key](msg, bounds=bounds, agent=agent, episode=episode, step=step)
 
 
+def replace_depth(qos: QoSProfile, depth: int) -> QoSProfile:
+    return QoSProfile(reliability=qos.reliability, durability=qos.durability, history=qos.history, depth=depth)
+
+
 def _agent_id(agent: Any) -> int:
     if isinstance(agent, bool) or not isinstance(agent, int) or agent < 1:
         raise WireError("unknown_agent", f"agent id {agent!r}, must be an int >= 1")
@@ -114,17 +131,27 @@ FEEDBACK = TopicSpec(
     "feedback", _NS + "feedback", Float64MultiArray, QOS_FEEDBACK, Feedback,
     "world", "agent k (the JSA central node: every agent's)",
     "data = [agent, episode, step, row, col, reward, done, truncated] (float64; flags 0/1)",
+    READER_DEPTH,
 )
 POSITION = TopicSpec(
     "position", _NS + "position", Int32MultiArray, QOS_POSITION, Position,
     "world (every agent, every step, before any feedback of that step)",
     "peers of k while they need k (CQ: in a conflict state; JS: always; LoC: on COORDINATE); tools",
     "data = [agent, episode, step, row, col] (int32)",
+    READER_DEPTH,
 )
 ACTION = TopicSpec(
     "action", _NS + "action", Int32MultiArray, QOS_ACTION, Action,
     "agent k (the JSA central node: every agent's)", "world",
     "data = [agent, episode, step, action] (int32; action 0..3 = N, E, S, W)",
+    READER_DEPTH,
+)
+HEARTBEAT = TopicSpec(
+    "heartbeat", "world/heartbeat", Int32MultiArray, QOS_HEARTBEAT, Heartbeat,
+    "world, every heartbeat_period from its start, whether or not anyone acts",
+    "agents (the world is alive; where it is, to catch up without a key); tools",
+    "data = [beat, episode, step] (int32)",
+    READER_DEPTH,
 )
 AGENT_STATS = TopicSpec(
     "agent_stats", _NS + "stats", DiagnosticArray, QOS_STATS, AgentStats,
@@ -137,13 +164,15 @@ WORLD_STATS = TopicSpec(
     "one DiagnosticStatus, name 'world/stats', values: KeyValue pairs (see below)",
 )
 
-TOPICS: tuple[TopicSpec, ...] = (FEEDBACK, POSITION, ACTION, AGENT_STATS, WORLD_STATS)
+TOPICS: tuple[TopicSpec, ...] = (FEEDBACK, POSITION, ACTION, HEARTBEAT, AGENT_STATS, WORLD_STATS)
 WORLD_STATS_TOPIC = WORLD_STATS.pattern
+HEARTBEAT_TOPIC = HEARTBEAT.pattern
 
 # Every decoder takes the same expectations here; those that do not apply to a payload are ignored
 # (statistics have no step; world statistics belong to no agent), as in codec.decode().
 _DECODERS = {
     "feedback": codec.decode_feedback, "position": codec.decode_position, "action": codec.decode_action,
+    "heartbeat": lambda m, bounds=None, agent=None, episode=None, step=None: codec.decode_heartbeat(m),
     "agent_stats": lambda m, bounds=None, agent=None, episode=None, step=None:
         codec.decode_agent_stats(m, bounds=bounds, agent=agent, episode=episode),
     "world_stats": lambda m, bounds=None, agent=None, episode=None, step=None:
@@ -183,7 +212,7 @@ def agent_topics(n_agents: int) -> list[tuple[str, TopicSpec, int | None]]:
     return out
 
 
-_TOPIC_RE = re.compile(rf"(?:^|/)(?:{AGENT_PREFIX}([1-9][0-9]*)/(feedback|position|action|stats)|world/stats)$")
+_TOPIC_RE = re.compile(rf"(?:^|/)(?:{AGENT_PREFIX}([1-9][0-9]*)/(feedback|position|action|stats)|world/(stats|heartbeat))$")
 _BY_SUFFIX = {"feedback": FEEDBACK, "position": POSITION, "action": ACTION, "stats": AGENT_STATS}
 
 
@@ -194,5 +223,5 @@ def parse_topic(name: str) -> tuple[TopicSpec, int | None]:
     if not m:
         raise ValueError(f"{name!r} is not a cq_ros topic")
     if m.group(1) is None:
-        return WORLD_STATS, None
+        return (WORLD_STATS if m.group(3) == "stats" else HEARTBEAT), None
     return _BY_SUFFIX[m.group(2)], int(m.group(1))

@@ -23,7 +23,7 @@ from cq_ros.learners.base import Learner
 from cq_ros.parameters import SETTING_NAMES
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
-from msgs_spec import Action, AgentStats, Feedback, Position, WorldStats, encode
+from msgs_spec import Action, AgentStats, Feedback, Heartbeat, Position, WorldStats, encode
 from world_node.lockstep import Lockstep
 
 THREE = parse_map("""agent 1: start 0,0  goal 0,3
@@ -165,9 +165,10 @@ def test_bad_feedback_is_counted_and_dropped():
     for msg in (nan, fb(1, 0, 0, 0, 1), fb(1, 0, 2, 0, 1), fb(1, 1, 1, 0, 1), fb(2, 0, 1, 0, 1),
                 fb(1, 0, 1, 9, 9)):
         assert d.on_feedback(1, msg) == []
+    # the later ones the world has not vouched for are held until the expected one comes, then dropped
+    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
     assert d.drops.counts == {"not_finite": 1, "stale_step": 1, "future_step": 1, "future_episode": 1,
                               "wrong_agent": 1, "cell_out_of_range": 1}
-    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
 
 
 def test_a_square_outside_the_world_is_refused_like_one_outside_the_grid():
@@ -363,7 +364,7 @@ def test_agent_config_checks_every_parameter():
         agent_config({**values, "algo": "jsa", "agent_id": 1})
     assert agent_config({**values, "algo": "jsa"}).agent == 0
     unset = {k: v for k, v in values.items() if k not in SETTING_NAMES}  # settings not given: the map's
-    assert agent_config({**unset, "agent_id": 1, "map": "warehouse_8"}).settings == Settings(reward_step=-1.0)
+    assert agent_config({**unset, "agent_id": 1, "map": "warehouse_8"}).settings == Settings(reward_step=-1.0, gamma=0.98)
     with pytest.raises(SettingsError, match="parameter algo: unknown algorithm 'sarsa'"):
         agent_config({**values, "algo": "sarsa", "agent_id": 1})
     with pytest.raises(SettingsError, match="parameter map: .*no such map"):
@@ -501,3 +502,164 @@ def test_a_whole_run_without_ros_equals_the_offline_engine(algo, map_name, seed,
         assert all(s[-1].subscriptions_created == 0 for s in per_agent)
     if algo == "js":
         assert all(s[-1].subscriptions_created == 1 for s in per_agent)  # one peer, kept all along
+
+
+# -- faults: catching up, liveness, positions per stamp, keys, checkpoints --------------------------------
+
+KEY = bytes(range(32))
+
+
+class Clock:
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+
+def kfb(agent, episode, step, row, col, reward=0.0, done=False, truncated=False):
+    return encode(Feedback(agent, episode, step, row, col, reward, done, truncated), key=KEY)
+
+
+def beat(n, episode, step, key=None):
+    return encode(Heartbeat(n, episode, step), key=key)
+
+
+def test_a_later_keyed_feedback_is_adopted_at_once_and_the_gap_counted():
+    learner = Stub()
+    d = AgentDriver(learner, 1, episodes=5, linger=0, key=KEY)
+    d.on_feedback(1, kfb(1, 0, 0, 0, 0))
+    d.on_feedback(1, kfb(1, 0, 1, 0, 1))  # acted at step 1; its feedback of step 2 is lost
+    assert sent(d.on_feedback(1, kfb(1, 0, 3, 0, 2))) == [Action(1, 0, 3, 1)]
+    assert d.expect == (0, 4) and d.counters() == {"caught_up": 1, "missed_feedback": 1}
+    assert [c for c in learner.calls if c[0] == "learn"] == [("learn", 0.0, THREE.index(0, 1), False)]
+
+
+def test_without_a_key_a_later_feedback_waits_for_the_worlds_heartbeat():
+    d = AgentDriver(Stub(), 1, episodes=5, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    assert d.on_feedback(1, fb(1, 0, 5, 0, 2)) == []  # held: a forger could have sent it
+    assert d.on_heartbeat(beat(1, 0, 4)) == []  # the world is not there yet
+    assert sent(d.on_heartbeat(beat(2, 0, 5))) == [Action(1, 0, 5, 1)]
+    assert d.counters() == {"caught_up": 1, "missed_feedback": 4}
+
+
+def test_a_forged_far_future_feedback_never_captures_an_agent_without_a_key():
+    d = AgentDriver(Stub(), 1, episodes=5, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    for forged in (fb(1, 0, 10_000, 0, 2), fb(1, 3, 0, 0, 2)):
+        assert d.on_feedback(1, forged) == []
+    d.on_heartbeat(beat(1, 0, 1))
+    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]  # the world's, as expected
+    assert d.drops.counts == {"future_step": 1, "future_episode": 1} and "caught_up" not in d.counters()
+
+
+def test_catching_up_across_episodes_sends_the_statistics_of_every_episode_left_behind():
+    d = AgentDriver(Stub(), 1, episodes=10, linger=0, checkpoint_every=3, key=KEY)
+    d.on_feedback(1, kfb(1, 2, 0, 0, 0))  # a fresh driver joins at episode 2: nothing left behind
+    assert d.counters() == {"caught_up": 1}
+    d.on_feedback(1, kfb(1, 2, 1, 0, 1))
+    effects = d.on_feedback(1, kfb(1, 5, 1, 0, 1))
+    assert [s.episode for s in sent(effects, AgentStats)] == [2, 3, 4]
+    assert [e.episode for e in effects if isinstance(e, SaveCheckpoint)] == [2]
+    assert sent(effects) == [Action(1, 5, 1, 1)] and d.expect == (5, 2)
+
+
+def test_a_restart_without_a_checkpoint_starts_a_fresh_learner_at_the_worlds_step(tmp_path):
+    values = {name: default for name, (default, _) in PARAMETERS.items()}
+    cfg = agent_config({**values, "agent_id": 1, "checkpoint": str(tmp_path / "none_yet.pkl")})
+    d = make_driver(cfg)
+    assert d.expect == (0, 0)
+    assert d.on_feedback(1, fb(1, 7, 12, 0, 2)) == []  # held until the world's heartbeat vouches for it
+    effects = d.on_heartbeat(beat(1, 7, 12))
+    assert [(a.episode, a.step) for a in sent(effects)] == [(7, 12)] and not sent(effects, AgentStats)
+    assert d.expect == (7, 13) and d.link.caught_up == 1 and d.link.missed_feedback == 0
+
+
+def test_only_valid_new_messages_from_the_world_count_as_alive():
+    clock = Clock()
+    d = AgentDriver(Stub(), 1, episodes=5, linger=0, key=KEY, clock=clock)
+    clock.now = 10.0
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))  # no MAC
+    d.on_feedback(1, encode(Feedback(1, 0, 0, 9, 9, 0.0)))
+    d.on_heartbeat(beat(1, 0, 0))  # no MAC
+    assert d.link.silent_for() == 10.0 and d.drops["unauthenticated"] == 3
+    d.on_heartbeat(beat(1, 0, 0, key=KEY))
+    assert d.link.silent_for() == 0.0
+    clock.now = 20.0
+    d.on_heartbeat(beat(1, 0, 0, key=KEY))  # a replay
+    assert d.link.silent_for() == 10.0 and d.drops["replayed"] == 1
+    d.on_feedback(1, kfb(1, 0, 0, 0, 0))
+    assert d.link.silent_for() == 0.0
+
+
+def test_positions_are_judged_by_their_stamp():
+    d = AgentDriver(Stub(needs=[(1,), (1,)]), 1, episodes=1, linger=5)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    d.on_position(2, pos(2, 0, 0, 1, 0))
+    d.on_feedback(1, fb(1, 0, 1, 0, 1))
+    assert d.on_position(2, pos(2, 0, 0, 1, 3)) == []  # stamped with the previous step: stale
+    for step in range(2, 60):  # a burst of later positions from another writer
+        d.on_position(2, pos(2, 0, step, 1, 2))
+    effects = d.on_position(2, pos(2, 0, 1, 1, 2))  # the world's, after the burst: not pushed out
+    assert sent(effects) == [Action(1, 0, 1, 1)] and d.learner.calls[-1] == ("act", {1: THREE.index(1, 2)})
+    assert d.on_position(2, pos(2, 0, 1, 1, 1)) == [] and d.drops["conflicting"] == 1  # the first writer wins
+    assert d.drops["stale_step"] == 1 and d.drops["future_step"] == 51  # the burst beyond AHEAD stamps
+
+
+def test_a_central_driver_catches_up_from_the_positions_of_the_worlds_step():
+    learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
+    d = CentralDriver(learner, episodes=5, key=KEY)
+    for k in (1, 2, 3):
+        d.on_feedback(k, kfb(k, 0, 0, k - 1, 0))
+    effects = d.on_feedback(2, kfb(2, 0, 2, 1, 1))  # its step-1 feedback was lost
+    assert effects == [Subscribe(1), Subscribe(2), Subscribe(3)] and d.link.caught_up == 1
+    for k in (1, 2, 3):
+        effects = d.on_position(k, encode(Position(k, 0, 2, k - 1, 1), key=KEY))
+    assert [(a.agent, a.episode, a.step) for a in sent(effects)] == [(1, 0, 2), (2, 0, 2), (3, 0, 2)]
+
+
+def test_the_checkpoint_folder_must_exist_and_be_writable(tmp_path, monkeypatch):
+    values = {**{name: default for name, (default, _) in PARAMETERS.items()}, "agent_id": 1}
+    with pytest.raises(SettingsError, match="parameter checkpoint: .*does not exist"):
+        agent_config({**values, "checkpoint": str(tmp_path / "no" / "such" / "x.pkl")})
+    with pytest.raises(SettingsError, match="parameter checkpoint: .*is a folder"):
+        agent_config({**values, "checkpoint": str(tmp_path)})
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    # root may write anywhere (the tests may run as root): the check asks os.access, as the kernel would answer
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(locked) else real_access(p, mode))
+    with pytest.raises(SettingsError, match="parameter checkpoint: .*not writable"):
+        agent_config({**values, "checkpoint": str(locked / "x.pkl")})
+
+
+def test_make_driver_removes_the_temporary_files_of_a_save_killed_mid_write(tmp_path):
+    path = tmp_path / "agv1.pkl"
+    for name in ("agv1.pkl.abc123.tmp", "agv1.pkl.zz.tmp", "agv2.pkl.abc.tmp", "other.tmp"):
+        (tmp_path / name).write_bytes(b"half a pickle")
+    logs = []
+    values = {name: default for name, (default, _) in PARAMETERS.items()}
+    make_driver(agent_config({**values, "agent_id": 1, "checkpoint": str(path)}), log=logs.append)
+    assert sorted(os.listdir(tmp_path)) == ["agv2.pkl.abc.tmp", "other.tmp"] and "removed 2" in logs[0]
+
+
+@pytest.mark.parametrize("name", [n for n, (d, _) in PARAMETERS.items() if isinstance(d, float)])
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_agent_config_refuses_nan_and_inf_for_every_number(name, bad):
+    values = {**{n: d for n, (d, _) in PARAMETERS.items()}, "agent_id": 1}
+    with pytest.raises(SettingsError, match=name):
+        agent_config({**values, name: bad})
+
+
+def test_a_key_file_must_be_the_users_alone(tmp_path):
+    from msgs_spec import new_key_file
+
+    values = {**{n: d for n, (d, _) in PARAMETERS.items()}, "agent_id": 1}
+    path = new_key_file(tmp_path)
+    assert agent_config({**values, "key_file": str(path)}).key == bytes.fromhex(path.read_text())
+    path.chmod(0o644)
+    with pytest.raises(SettingsError, match="parameter key_file: .* accessible to others"):
+        agent_config({**values, "key_file": str(path)})
+    with pytest.raises(SettingsError, match="parameter key_file: cannot read"):
+        agent_config({**values, "key_file": str(tmp_path / "nothing")})

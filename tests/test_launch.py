@@ -233,7 +233,7 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
 
 
 def test_nodes_are_given_the_settings_that_differ_from_the_maps_own(tmp_path):
-    # warehouse_8 carries reward_step=-1: the nodes take it from the map unless the launch's differs.
+    # warehouse_8 carries reward_step=-1 and gamma=0.98: the nodes take them from the map unless the launch's differ.
     def given(settings):
         children = node_commands("warehouse_8", "cq", 5, 0, settings, "ns", 2.0, tmp_path)
         return [{a.split(":=")[0] for a in c.command if ":=" in a} & set(Settings().as_dict()) for c in children]
@@ -241,7 +241,7 @@ def test_nodes_are_given_the_settings_that_differ_from_the_maps_own(tmp_path):
     gridmap = load_map("warehouse_8")
     assert given(run_settings(gridmap)) == [set()] * 9
     assert given(run_settings(gridmap, ["reward_step=0", "alpha=0.2"])) == [{"reward_step", "alpha"}] * 9
-    assert given(Settings()) == [{"reward_step"}] * 9
+    assert given(Settings()) == [{"reward_step", "gamma"}] * 9
 
 
 def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_offline_run(tmp_path):
@@ -258,7 +258,8 @@ def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_of
     offline = run("indep", load_map(path), settings, SEED, 0, episodes)
     np.testing.assert_array_equal(read_episodes(out), offline.episodes)
     manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["settings"] == settings.as_dict() and manifest["settings_from_map"] == {"reward_step": -1.0}
+    assert manifest["settings"] == settings.as_dict()
+    assert manifest["settings_from_map"] == {"reward_step": -1.0, "gamma": 0.98}
 
 
 def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_included(tmp_path):
@@ -266,7 +267,7 @@ def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_inc
     a joint state and subscribes to a peer within the run, give the offline engine's episodes exactly."""
     path = tmp_path / "w4.txt"
     path.write_text(warehouse_text(4, aisles=2, aisle_length=2, seed=0))
-    sets, episodes = ("step_cap=100", "window=3", "eval_episodes=1"), 8
+    sets, episodes = ("step_cap=100", "window=2", "eval_episodes=1"), 8
     settings = run_settings(load_map(path), list(sets))
     offline = run("cq", load_map(path), settings, SEED, 0, episodes)
     assert offline.episodes[:, 2].sum() > 0  # the premise: some agent acted on a joint state

@@ -14,7 +14,7 @@ from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
-from msgs_spec import Action, Feedback, Position, WorldStats, encode
+from msgs_spec import Action, Feedback, Heartbeat, Position, WorldStats, encode
 from cq_ros.parameters import SETTING_NAMES
 from world_node.lockstep import PARAMETERS, Lockstep, world_config
 
@@ -281,6 +281,47 @@ def test_world_config_checks_every_parameter():
     assert world_config({**values, "reward_collision": -5.0}).settings.reward_collision == -5.0
     # A setting left out (not given to the node) is the map's default; one given goes over it.
     unset = {k: v for k, v in values.items() if k not in SETTING_NAMES}
-    assert world_config({**unset, "map": "warehouse_8"}).settings == Settings(reward_step=-1.0)
-    assert world_config({**unset, "map": "warehouse_8", "reward_step": 0.0}).settings == Settings()
+    assert world_config({**unset, "map": "warehouse_8"}).settings == Settings(reward_step=-1.0, gamma=0.98)
+    assert world_config({**unset, "map": "warehouse_8", "reward_step": 0.0}).settings == Settings(gamma=0.98)
     assert world_config({**values, "map": "warehouse_8"}).settings == Settings()  # all given: the map's go under
+
+
+@pytest.mark.parametrize("name", [n for n, (d, _) in PARAMETERS.items() if isinstance(d, float)])
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_world_config_refuses_nan_and_inf_for_every_number(name, bad):
+    values = {n: d for n, (d, _) in PARAMETERS.items()}
+    with pytest.raises(SettingsError, match=f"{name}"):
+        world_config({**values, name: bad})
+
+
+def test_the_wait_for_a_missing_agent_is_step_timeout_to_a_tick():
+    logs = []
+    core, clock = lockstep(CORRIDOR, timeout=2.0, log=logs.append)
+    assert core.tick_period <= 2.0 / 20
+    core.begin()
+    clock.now = 2.0 - 1e-9
+    assert core.on_tick() == []
+    clock.now = 2.0 + core.tick_period  # the node ticks every tick_period: it notices by then
+    assert core.on_tick() and core.missed_actions == 2
+    assert "within step_timeout=2.0 s (waited 2.05 s)" in logs[-1]
+
+
+def test_heartbeats_count_up_and_say_where_the_world_is():
+    core, _ = lockstep(CORRIDOR)
+    assert core.heartbeat() == Heartbeat(1, 0, 0)  # before the first step
+    core.begin()
+    core.on_action(1, act(1, 0, 0, EAST))
+    core.on_action(2, act(2, 0, 0, EAST))
+    assert core.heartbeat() == Heartbeat(2, 0, 1)
+
+
+def test_with_a_key_only_actions_carrying_its_mac_count():
+    key = bytes(range(32))
+    clock = Clock()
+    core = Lockstep(GridWorld(CORRIDOR, Settings()), 1, 1.0, clock=clock, key=key)
+    core.begin()
+    assert core.on_action(1, act(1, 0, 0, EAST)) == []  # no MAC: a writer without the key
+    assert core.on_action(1, encode(Action(1, 0, 0, EAST), key=b"other key, same length, 32 bytes")) == []
+    assert core.drops["unauthenticated"] == 2 and core.waiting == {1, 2}
+    core.on_action(1, encode(Action(1, 0, 0, EAST), key=key))
+    assert core.waiting == {2}

@@ -65,16 +65,18 @@ def parameters(**values) -> list[Parameter]:
 
 
 def start_system(ctx, algo, map_name, seed, episodes, settings=(), *, world_extra=None,
-                 agent_extra=None) -> System:
+                 agent_extra=None, common_extra=None, agent_class=None) -> System:
     """A world and its agents as a launcher starts them, and a probe recording every statistics message:
     the world waits for the probe's world/stats subscription and each agent holds its statistics until the
-    probe's agv<k>/stats subscription has matched (min_stats_subscribers=1 for both)."""
-    common = {"map": map_name, "episodes": episodes, "seed": seed, **dict(settings)}
+    probe's agv<k>/stats subscription has matched (min_stats_subscribers=1 for both). `common_extra` goes
+    to every node, `agent_class` (agent id -> class) replaces AgentNode for some."""
+    common = {"map": map_name, "episodes": episodes, "seed": seed, **dict(settings), **(common_extra or {})}
     world = WorldNode(context=ctx, parameter_overrides=parameters(
         **{**common, "step_timeout": 30.0, "min_stats_subscribers": 1, **(world_extra or {})}))
     n = load_map(map_name).n_agents
     ids = [0] if algo == "jsa" else range(1, n + 1)
-    agents = [AgentNode(f"agv{k}" if k else "central", context=ctx, parameter_overrides=parameters(
+    agents = [(agent_class or {}).get(k, AgentNode)(f"agv{k}" if k else "central", context=ctx,
+                                                    parameter_overrides=parameters(
         **common, algo=algo, agent_id=k, min_stats_subscribers=1, **(agent_extra or {}).get(k, {})))
         for k in ids]
     system = System(world, agents, SingleThreadedExecutor(context=ctx))
@@ -396,7 +398,7 @@ def test_a_node_started_by_hand_takes_the_maps_defaults_under_the_settings_it_is
                  for given in ({}, {"reward_step": 0.0}, {"alpha": 0.5})]
         try:
             assert [n.config.settings.reward_step for n in nodes] == [-1.0, 0.0, -1.0]
-            assert nodes[2].config.settings == Settings(reward_step=-1.0, alpha=0.5)
+            assert nodes[2].config.settings == Settings(reward_step=-1.0, gamma=0.98, alpha=0.5)
         finally:
             for n in nodes:
                 n.destroy_node()

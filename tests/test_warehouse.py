@@ -36,7 +36,7 @@ def check_warehouse(agents, aisles, aisle_length, seed):
         assert 3 <= grid.cells[goal][0] < 3 + aisle_length and len(moves(grid, goal)) == 1
     # The promise, and its pairwise form that `cq-ros show` reports.
     assert grid.goal_blocked_by_parked() == [] and grid.walled_in() == []
-    assert grid.defaults == {"reward_step": -1.0}
+    assert grid.defaults == {"reward_step": -1.0, "gamma": 0.98}
     # The file's drawing is the canonical one: draw() with every cell shown as '.'.
     assert text.endswith("\n\n" + grid.draw(marks={i: "." for i in range(grid.n_cells)}) + "\n")
     return grid
@@ -173,11 +173,12 @@ def test_a_generated_warehouse_file_runs_in_cq_ros_experiment(tmp_path, capsys):
                  "--out", str(path)]) == 0
     out = tmp_path / "run"
     assert main(["experiment", "--map", str(path), "--algo", "indep,cq", "--runs", "1", "--episodes", "15",
-                 "--jobs", "1", "--out", str(out), "--no-figures", "--set", "step_cap=200"]) == 0
+                 "--jobs", "1", "--out", str(out), "--no-figures", "--set", "step_cap=200", "--set", "gamma=0.9"]) == 0
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["map"] == "small" and manifest["n_agents"] == 3
     # The map's default reached the run; the user's --set went on top of it.
     assert manifest["settings"]["reward_step"] == -1.0 and manifest["settings"]["step_cap"] == 200
-    assert manifest["map_defaults"] == manifest["settings_from_map"] == {"reward_step": -1.0}
+    assert manifest["map_defaults"] == {"reward_step": -1.0, "gamma": 0.98}
+    assert manifest["settings_from_map"] == {"reward_step": -1.0}  # --set gamma=0.9 went over the map's
     rows = (out / "episodes.csv").read_text().splitlines()
     assert len(rows) == 1 + 2 * 15 and rows[1].startswith("small,indep,0,1,")

@@ -4,7 +4,8 @@ Runs the world node until its last episode. Parameters: world_node.lockstep.PARA
 cq_ros.settings.Settings included; one not given is the map's default, as in cq-ros experiment); --params-file
 and -r __ns:=/name work as for any ROS 2 node.
 Exit codes: 0 all episodes played, 1 the agents never all connected (startup_timeout), 2 a bad parameter
-(one line on stderr), 130 interrupted (Ctrl-C, SIGTERM).
+(one line on stderr) or another world in the same namespace and domain at start, 130 interrupted (Ctrl-C,
+SIGTERM).
 """
 
 import sys

@@ -14,6 +14,12 @@ subscription) and so does every agent (it holds its statistics until its own pub
 listener, and waits for that before it exits; only the publisher's side of a match says that a message will
 arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
 
+Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
+for a run (timeouts, heartbeat, linger, checkpoints: `SETTABLE`), checked by the nodes' own rules before
+anything starts. Each launch writes a fresh key to a file only the user can read (msgs_spec.auth) and hands
+every node its path (`key_file`): a writer outside the launch cannot steer the run; the file is removed at
+the end.
+
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
 SIGINT, then SIGTERM after 3 s, then SIGKILL after 2 more. Children run in sessions of their own, so a
@@ -52,18 +58,24 @@ import numpy as np
 from tqdm import tqdm
 
 from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
+from agent_node.driver import agent_config
 from cq_ros.engine import RunResult, make_learner
 from cq_ros.experiment import manifest_for, prepare_output, write_results
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.settings import Settings, run_settings
+from cq_ros.parameters import check_names
+from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
 from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
-    agent_stats_topic, decode_agent_stats, decode_world_stats,
+    agent_stats_topic, decode_agent_stats, decode_world_stats, new_key_file,
 )
 from msgs_spec.tools import StopSignals, ros_session, spin_until
 
-__all__ = ["DOMAIN_IDS", "LaunchError", "Interrupted", "LaunchResult", "Child", "node_commands", "launch"]
+from .lockstep import PARAMETERS as WORLD_PARAMETERS
+from .lockstep import world_config
+
+__all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
+           "node_commands", "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -72,6 +84,13 @@ AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world fi
 DRAIN_S = 5.0  # after the last child exits, how long to wait for statistics still in the listener's queue
 STOP_GRACE_S = ((signal.SIGINT, 3.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0))
 NAMESPACE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+# Node parameters the launcher fixes itself (from its own options, or as its children need them).
+LAUNCHER_OWNS = {"map", "episodes", "seed", "run", "algo", "agent_id", "checkpoint", "min_stats_subscribers",
+                 "key_file"}
+_SETTINGS = {f.name for f in fields(Settings)}
+# name -> default: the node parameters `--set` may change, beside the Settings fields.
+SETTABLE = {name: default for params in (WORLD_PARAMETERS, AGENT_PARAMETERS)
+            for name, (default, _) in params.items() if name not in LAUNCHER_OWNS | _SETTINGS}
 
 
 class LaunchError(RuntimeError):
@@ -138,6 +157,34 @@ class Child:
         return f"{self.name} (pid {self.process.pid}) exited with code {code}{how}"
 
 
+def split_sets(pairs: list[str], gridmap: GridMap) -> tuple[Settings, dict[str, Any]]:
+    """`--set key=value` pairs -> (the run's Settings on `gridmap`, node parameter -> typed value); SettingsError
+    names a bad one (an unknown key with the closest known one)."""
+    settings, node = [], {}
+    for pair in pairs:
+        key, value = split_pair(pair)
+        if key in _SETTINGS:
+            settings.append(pair)
+        elif key in SETTABLE:
+            default = SETTABLE[key]
+            node[key] = value if isinstance(default, str) else coerce(key, value, type(default))
+        elif key in LAUNCHER_OWNS:
+            raise SettingsError(f"setting {key} is fixed by cq-ros launch (see cq-ros launch --help)")
+        else:
+            check_names([key], _SETTINGS | SETTABLE.keys(), what="setting")
+    return run_settings(gridmap, settings), node
+
+
+def _check_node_parameters(map_name: str, algo: str, settings: Settings, node: dict[str, Any]) -> None:
+    """The nodes' own checks on what a launch hands them, before any process starts."""
+    common = {"map": str(map_name), **settings.as_dict(), **node}
+    world_config({**{k: d for k, (d, _) in WORLD_PARAMETERS.items()},
+                  **{k: v for k, v in common.items() if k in WORLD_PARAMETERS}})
+    agent_config({**{k: d for k, (d, _) in AGENT_PARAMETERS.items()}, "algo": algo,
+                  "agent_id": 0 if LEARNERS[algo].central else 1,
+                  **{k: v for k, v in common.items() if k in AGENT_PARAMETERS}})
+
+
 def _param(value: Any) -> str:
     """A parameter value as ROS parses it back into the declared type: floats always with a point or exponent."""
     return repr(float(value)) if isinstance(value, float) else str(value)
@@ -148,21 +195,26 @@ def _params(values: dict[str, Any]) -> list[str]:
 
 
 def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, namespace: str,
-                  step_timeout: float, out: Path, peer_linger_steps: int | None = None) -> list[Child]:
+                  step_timeout: float, out: Path, peer_linger_steps: int | None = None,
+                  node_parameters: dict[str, Any] | None = None, key_file: Path | None = None) -> list[Child]:
     """The world and the agent node(s) of one launch, with the command lines fixed by world_node and
     agent_node (__main__): every setting that differs from its default on this map (Settings' or the map's
-    own) goes to both."""
+    own) goes to both, every node parameter (`node_parameters`, from `--set`) to the nodes that take it."""
     gridmap = load_map(map_name)
     defaults = run_settings(gridmap)
     changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
                if getattr(settings, f.name) != getattr(defaults, f.name)}
-    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0}
+    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0,
+              **({"key_file": str(key_file)} if key_file else {})}
+    node_parameters = node_parameters or {}
+    to_world = {k: v for k, v in node_parameters.items() if k in WORLD_PARAMETERS}
+    to_agents = {k: v for k, v in node_parameters.items() if k in AGENT_PARAMETERS}
     ros = [sys.executable, "-m"]
     # File logging off: each child's console output is its log (DIR/logs/<node>.log), in one place.
     args = ["--ros-args", "--disable-external-lib-logs", "-r", f"__ns:=/{namespace}"]
     world = Child("world", [*ros, "world_node", *args, *_params({
         **common, "step_timeout": float(step_timeout), "startup_timeout": STARTUP_TIMEOUT_S,
-        "min_stats_subscribers": 1, **changed})], out / "logs" / "world.log")
+        "min_stats_subscribers": 1, **to_world, **changed})], out / "logs" / "world.log")
     if LEARNERS[algo].central:
         agents = [("jsa", {})]  # one node moves every AGV; agent_id stays 0
     else:
@@ -172,7 +224,7 @@ def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: 
     for name, ident in agents:
         children.append(Child(name, [*ros, "agent_node", *args, "-r", f"__node:={name}", *_params({
             **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
-            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **changed})],
+            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **to_agents, **changed})],
             out / "logs" / f"{name}.log"))
     return children
 
@@ -291,7 +343,7 @@ class _Progress:
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
            settings: Settings | None = None, *, domain_id: int | None = None, namespace: str | None = None,
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, force: bool = False, figures: bool = True,
-           progress: bool = True) -> LaunchResult:
+           progress: bool = True, node_parameters: dict[str, Any] | None = None) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`. Without `settings`, the
     run's are the map's (`cq_ros.settings.run_settings`).
 
@@ -302,6 +354,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
+    node_parameters = {"step_timeout": float(step_timeout),
+                       **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
+                       **(node_parameters or {})}
+    _check_node_parameters(map_name, algo, settings, node_parameters)
     given = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
     namespace = given.removeprefix("/")  # "/demo" and "demo" name one namespace, as they do for ROS
     if not NAMESPACE.fullmatch(namespace):
@@ -311,10 +367,9 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     out = prepare_output(Path(out), force)
     for sub in ("logs", "checkpoints"):
         (out / sub).mkdir(exist_ok=True)
-    if peer_linger_steps is not None and peer_linger_steps < 0:
-        raise ValueError(f"peer_linger_steps must be >= 0, got {peer_linger_steps}")
+    key_file = new_key_file()
     children = node_commands(map_name, algo, episodes, seed, settings, namespace, step_timeout, out,
-                             peer_linger_steps)
+                             peer_linger_steps, node_parameters, key_file)
     for child in children:  # a fresh run: a checkpoint left by an earlier result would be resumed from
         (out / "checkpoints" / f"{child.name}.pkl").unlink(missing_ok=True)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
@@ -345,11 +400,13 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                           f"(logs in {out / 'logs'})") from None
         finally:
             _stop(children)
+            key_file.unlink(missing_ok=True)
             bar.close()
 
-    run_info = dict(mode="ros", domain_id=domain_id, namespace=f"/{namespace}", step_timeout_s=step_timeout,
-                    peer_linger_steps=AGENT_PARAMETERS["peer_linger_steps"][0] if peer_linger_steps is None
-                    else peer_linger_steps)
+    run_info = dict(mode="ros", domain_id=domain_id, namespace=f"/{namespace}",
+                    step_timeout_s=node_parameters["step_timeout"],
+                    peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
+                    node_parameters=node_parameters, authenticated=True)
     result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
                     learners, children, run_info)
     if figures:

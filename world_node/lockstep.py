@@ -10,7 +10,12 @@ messages between ROS and this object, so the protocol is tested without a ROS gr
 A missing action past `step_timeout`: the agent stays where it is, for that step only, and is treated as
 parked: anyone moving into its cell collides (and gets the collision penalty, counted in the episode's
 collisions), it bumps no wall and gets `reward_step`, the reward of a step that changed nothing for it.
-The warning is logged and the miss counted (`WorldStats.missed_actions`).
+The warning is logged and the miss counted (`WorldStats.missed_actions`). The wait is `step_timeout` from the
+moment the step's feedback went out: the node ticks every `tick_period` (a twentieth of it, at most 50 ms).
+
+Every `heartbeat_period` the world sends a `Heartbeat` (`heartbeat()`), whether or not anyone acts, so an
+agent waiting at its goal for the episode's end knows the world is alive. With a `key_file` every message
+that steers the run is keyed and every action checked (msgs_spec.auth).
 
 `world_config` turns the node's parameters into a checked `WorldConfig`; a bad value raises `SettingsError`
 with one line naming the parameter. The node plays `episodes + eval_episodes` episodes: the agents learn
@@ -30,8 +35,9 @@ from cq_ros.gridmap import GridMap
 from cq_ros.parameters import check_numbers, map_and_settings
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
+from agent_node.driver import read_key_parameter
 from msgs_spec import (
-    Bounds, DropCounter, Feedback, Position, WorldStats, action_topic, agent_namespace, decode_action,
+    Bounds, DropCounter, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace, decode_action,
 )
 
 __all__ = ["PARAMETERS", "WorldConfig", "world_config", "Lockstep"]
@@ -52,6 +58,11 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                               "feedback topics are matched; past it the node exits 1"),
     "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
                                  "subscriptions (a recorder that must not miss an episode sets 1)"),
+    "heartbeat_period": (1.0, "seconds between two world/heartbeat messages (sent from the start, whether or "
+                              "not anyone acts); keep it well below the agents' feedback_timeout"),
+    "key_file": ("", "file holding the run's key (hex, readable by its owner only; cq-ros launch writes one): "
+                     "key every message that steers the run and drop actions without a matching MAC; empty: "
+                     "no authentication"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (world dynamics use the rewards, "
                                        "step_cap and slip); not given: the map's default, else this one")
@@ -68,6 +79,8 @@ class WorldConfig:
     step_timeout: float
     startup_timeout: float
     min_stats_subscribers: int
+    heartbeat_period: float
+    key: bytes | None
 
     @property
     def total_episodes(self) -> int:
@@ -78,10 +91,13 @@ class WorldConfig:
 def world_config(values: Mapping[str, Any]) -> WorldConfig:
     """Check the node's parameter values (name -> value, already of the declared ROS type)."""
     check_numbers(values, (("episodes", 1, False), ("seed", 0, False), ("run", 0, False), ("step_timeout", 0, True),
-                           ("startup_timeout", 0, True), ("min_stats_subscribers", 0, False)))
+                           ("startup_timeout", 0, True), ("min_stats_subscribers", 0, False),
+                           ("heartbeat_period", 0, True)))
     gridmap, settings = map_and_settings(values)
     return WorldConfig(gridmap, settings, values["episodes"], values["seed"], values["run"],
-                       values["step_timeout"], values["startup_timeout"], values["min_stats_subscribers"])
+                       values["step_timeout"], values["startup_timeout"], values["min_stats_subscribers"],
+                       values["heartbeat_period"], read_key_parameter(values["key_file"]))
+
 
 
 Outbox = list  # of Position | Feedback | WorldStats, to publish in this order
@@ -97,8 +113,11 @@ class Lockstep:
     """
 
     def __init__(self, world: GridWorld, episodes: int, step_timeout: float, *,
-                 log: Callable[[str], Any] | None = None, clock: Callable[[], float] = time.monotonic):
+                 log: Callable[[str], Any] | None = None, clock: Callable[[], float] = time.monotonic,
+                 key: bytes | None = None):
         self.world = world
+        self.key = key  # the run's key: actions must carry its MAC (None: no authentication)
+        self.beats = 0  # heartbeats sent
         self.bounds = Bounds(world.n, world.map.height, world.map.width)
         self.episodes = episodes
         self.step_timeout = step_timeout
@@ -111,6 +130,7 @@ class Lockstep:
         self.unexpected_actions = 0  # valid, but from an agent not asked (done, or a second answer)
         self.collisions = self.missed_actions = 0  # in the current episode so far
         self.returns: list[float] = []  # of each agent in the current episode so far
+        self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
         self._actions: list[int | None] = []
 
     @property
@@ -124,7 +144,7 @@ class Lockstep:
     def on_action(self, agent: int, msg: Any) -> Outbox:
         """A message from agv<agent>/action; the step's outcome once it was the last action missing."""
         action = self.drops.guard(decode_action, msg, bounds=self.bounds, agent=agent, episode=self.episode,
-                                  step=self.step, source=action_topic(agent))
+                                  step=self.step, key=self.key, source=action_topic(agent))
         if action is None:
             return []
         if agent not in self.waiting:
@@ -137,23 +157,36 @@ class Lockstep:
         self.waiting.discard(agent)
         return [] if self.waiting else self._advance()
 
+    @property
+    def tick_period(self) -> float:
+        """How often to call on_tick: a step times out at most this late."""
+        return min(self.step_timeout / 20, 0.05)
+
     def on_tick(self) -> Outbox:
-        """Call periodically: past `step_timeout` the agents still missing stay, and the world steps."""
-        if not self.waiting or self._clock() - self._step_started < self.step_timeout:
+        """Call every `tick_period`: past `step_timeout` the agents still missing stay, and the world steps."""
+        waited = self._clock() - self._step_started if self.waiting else 0.0
+        if waited < self.step_timeout:
             return []
         missing = sorted(self.waiting)
         self.missed_actions += len(missing)
         self._log(f"episode {self.episode} step {self.step}: no action from "
-                  f"{', '.join(agent_namespace(k) for k in missing)} within {self.step_timeout} s; "
-                  "they stay for this step")
+                  f"{', '.join(agent_namespace(k) for k in missing)} within step_timeout={self.step_timeout} s "
+                  f"(waited {waited:.2f} s); they stay for this step")
         self.waiting.clear()
         return self._advance()
 
+    def heartbeat(self) -> Heartbeat:
+        """The next heartbeat: where the world is (episode 0, step 0 before the first step)."""
+        self.beats += 1
+        return Heartbeat(self.beats, max(self.episode, 0), self.step if self.episode >= 0 else 0)
+
     def counters(self) -> dict[str, int]:
-        """Monotonic counters for WorldStats: messages dropped by kind, actions ignored."""
+        """Monotonic counters for WorldStats: messages dropped by kind, actions ignored, and `extra` (the
+        node's: second writers seen in the graph)."""
         out = self.drops.as_counters()
         if self.unexpected_actions:
             out["ignored.unexpected_action"] = self.unexpected_actions
+        out.update(self.extra_counters)
         return out
 
     # -- the steps of the protocol ---------------------------------------------------------------------

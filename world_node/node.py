@@ -17,15 +17,17 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
+from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
 from cq_ros.engine import world_seed
-from cq_ros.parameters import SETTING_NAMES
+from cq_ros.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    ACTION, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Position, WorldStats, action_topic,
-    agent_namespace, encode, feedback_topic, position_topic,
+    ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
+    Position, WorldStats, action_topic, agent_namespace, encode, feedback_topic, position_topic,
 )
-from msgs_spec.tools import declare_parameters
+from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
+from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
 
 from .lockstep import PARAMETERS, Lockstep, world_config
 
@@ -42,12 +44,15 @@ class WorldNode(Node):
     def __init__(self, node_name: str = "world", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            self.config = cfg = world_config(declare_parameters(self, PARAMETERS, unset=SETTING_NAMES))
+            values = declare_parameters(self, PARAMETERS, unset=SETTING_NAMES)
+            check_names(undeclared_overrides(self), PARAMETERS, AGENT_PARAMETERS)
+            self.config = cfg = world_config(values)
         except (SettingsError, ParameterException):
             self.destroy_node()
             raise
         world = GridWorld(cfg.gridmap, cfg.settings, seed=world_seed(cfg.seed, cfg.run))
-        self.core = Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=self.get_logger().warning)
+        self.core = Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=self.get_logger().warning,
+                             key=cfg.key)
         agents = range(1, world.n + 1)
         self._outputs = {
             Position: {k: self.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in agents},
@@ -55,7 +60,13 @@ class WorldNode(Node):
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
-                                                     ACTION.qos) for k in agents}
+                                                     ACTION.reader_qos) for k in agents}
+        self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
+        self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
+        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
+        self._graph_topics = [HEARTBEAT_TOPIC, WORLD_STATS_TOPIC] + [
+            name(k) for k in agents for name in (position_topic, feedback_topic, action_topic)]
+        self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
         self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
         self._deadline = time.monotonic() + cfg.startup_timeout
         self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
@@ -74,7 +85,7 @@ class WorldNode(Node):
     def _wait_for_agents(self) -> None:
         missing = self._missing()
         if not missing:
-            self._replace_timer(self.config.step_timeout / 4, self._tick)  # timeouts are noticed within 25%
+            self._replace_timer(self.core.tick_period, self._tick)
             self.get_logger().info("every agent is connected: stepping")
             self._publish(self.core.begin())
         elif time.monotonic() > self._deadline:
@@ -88,10 +99,23 @@ class WorldNode(Node):
     def _tick(self) -> None:
         self._publish(self.core.on_tick())
 
-    def _publish(self, out: list) -> None:
+    def _check_graph(self) -> None:
+        refusal = watch_graph(self, self._graph, self._graph_topics)
+        self.core.extra_counters.update(self._graph.counters())
+        if refusal and not self.done.done():
+            self.get_logger().error(refusal)
+            self._finish(2)
+
+    def _send(self, out: list) -> None:
         for payload in out:
-            pub = self._stats if isinstance(payload, WorldStats) else self._outputs[type(payload)][payload.agent]
-            pub.publish(encode(payload))
+            if isinstance(payload, (WorldStats, Heartbeat)):
+                pub = self._stats if isinstance(payload, WorldStats) else self._heartbeat
+            else:
+                pub = self._outputs[type(payload)][payload.agent]
+            pub.publish(encode(payload, key=self.config.key))
+
+    def _publish(self, out: list) -> None:
+        self._send(out)
         if self.core.finished and not self.done.done():
             self.get_logger().info(f"all {self.config.total_episodes} episodes played ({self.config.episodes} "
                                    f"learning, {self.config.settings.eval_episodes} greedy)")
@@ -104,6 +128,8 @@ class WorldNode(Node):
 
     def _finish(self, code: int) -> None:
         self._timer.cancel()
+        self._heartbeat_timer.cancel()
+        self._graph_timer.cancel()
         # Reliable messages still in flight go with the process: give the readers a bounded moment to
         # acknowledge the last feedback and statistics (an exited agent's reader is no longer waited for).
         end = time.monotonic() + FLUSH_TIMEOUT_S

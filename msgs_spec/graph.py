@@ -1,0 +1,68 @@
+"""What a node makes of the ROS graph around it, without ROS: second writers on its topics, a second system.
+
+rclpy 7.1.6's message info names no publisher, so a second writer cannot be told apart message by message;
+the graph (`get_publishers_info_by_topic`) does list every writer. Every topic of ours has one rightful
+writer (the world, or one agent node), so more than one writer on a topic is logged, once per new set of
+writers, and counted (`second_writers` in the node's statistics).
+
+A second system on the same ROS_DOMAIN_ID and namespace shows as a second world node in our namespace. A
+world that sees a twin within `REFUSE_WITHIN_S` of its start refuses to run (the node exits 2 with the
+line `check` returns); one that has run longer keeps running and logs it: the newcomer refuses. Discovery
+of a new process takes 0.05-2.8 s here (DESIGN.md field notes), hence the window. Agents only log a twin:
+a killed process stays in the graph until its DDS lease runs out (about 20 s), so an agent restarted
+after a crash would see its own ghost.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable, Iterable, Mapping
+
+__all__ = ["REFUSE_WITHIN_S", "GraphWatch"]
+
+REFUSE_WITHIN_S = 5.0
+CHECK_PERIOD_S = 1.0  # how often a node looks at the graph
+
+
+class GraphWatch:
+    """Feed it the graph now and then (`check`); it logs and counts, and says when to refuse."""
+
+    def __init__(self, name: str, namespace: str, log: Callable[[str], Any] | None = None,
+                 clock: Callable[[], float] = time.monotonic, refuse_within_s: float = REFUSE_WITHIN_S,
+                 refuse: bool = True):
+        self.name, self.namespace, self.refuse = name, namespace, refuse
+        self._log = log or (lambda _msg: None)
+        self._clock = clock
+        self._refuse_until = clock() + refuse_within_s
+        self._seen: dict[str, frozenset] = {}  # topic -> the set of writers last logged
+        self.second_writers = 0  # times a topic was seen with a new set of more than one writer
+        self._twin_logged = False
+
+    def check(self, nodes: Iterable[tuple[str, str]], writers: Mapping[str, list[tuple[str, str, Any]]]) -> str | None:
+        """`nodes`: (name, namespace) of every node in the graph; `writers`: topic -> (node name, namespace,
+        endpoint gid) of each of its publishers. Returns the line to refuse with, or None to go on."""
+        twins = sum(1 for n in nodes if tuple(n) == (self.name, self.namespace))
+        if twins > 1:
+            fq = f"{self.namespace.rstrip('/')}/{self.name}"
+            if self.refuse and self._clock() < self._refuse_until:
+                return (f"another node named {fq} is on this ROS_DOMAIN_ID: a second system in namespace "
+                        f"{self.namespace} (or one killed less than about 20 s ago)? refusing to start; give this "
+                        "one another namespace or domain id")
+            if not self._twin_logged:
+                self._twin_logged = True
+                self._log(f"a second node named {fq} is on this ROS_DOMAIN_ID (a second system in our namespace, "
+                          "or a restarted node's ghost)")
+        for topic, pubs in writers.items():
+            if len(pubs) <= 1:
+                continue
+            who = frozenset((n, ns, bytes(gid)) for n, ns, gid in pubs)
+            if who != self._seen.get(topic):
+                self._seen[topic] = who
+                self.second_writers += 1
+                names = ", ".join(sorted(f"{ns.rstrip('/')}/{n}" for n, ns, _ in who))
+                self._log(f"{len(pubs)} writers on {topic} ({names}): it has one rightful writer; messages "
+                          "of the others are dropped only if they fail the checks (a key makes sure they do)")
+        return None
+
+    def counters(self) -> dict[str, int]:
+        return {"second_writers": self.second_writers} if self.second_writers else {}

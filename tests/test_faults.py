@@ -1,0 +1,316 @@
+"""Faults on the wire, driven for real on rclpy (issue 9): a restart without a checkpoint, one dropped
+feedback, bursts of junk on every topic, a second writer of positions and actions without the run's key,
+stale positions, an agent waiting at its goal for longer than its timeout, a second system in the same
+namespace, and every bad parameter. A run finishes with exactly the offline engine's episodes wherever no
+real message was lost, and with the loss counted where one was.
+
+The systems run in one process, on one executor, as tests/test_nodes_inprocess.py runs them; the bad
+parameters run as `python -m world_node|agent_node` processes, as a user starts them."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+import rclpy
+from std_msgs.msg import MultiArrayDimension
+
+from agent_node import AgentNode
+from msgs_spec import (
+    ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, Feedback, Heartbeat, Position, action_topic,
+    encode, feedback_topic, new_key_file, position_topic,
+)
+from test_nodes_inprocess import GRID, RUN_TIMEOUT_S, finish, offline_rows, parameters, system_in  # noqa: F401 (a fixture)
+from world_node import WorldNode
+
+
+# grid_game_2 as the in-process tests run it, with a step cap: a barely trained greedy policy may loop to it.
+CASE = (GRID[0], GRID[1], (*GRID[2], ("step_cap", 200)))
+
+
+def steps_and_collisions(system):
+    return [(s.steps, s.collisions, s.truncated) for s in system.world_stats]
+
+
+def offline_steps_and_collisions(algo, case, episodes):
+    return [(int(e[0]), int(e[1]), bool(e[5])) for e in offline_rows(algo, case[0], case[1], episodes, case[2])]
+
+
+def counters(system, agent):
+    return system.agent_stats[agent][-1].counters
+
+
+@pytest.fixture
+def key_file(tmp_path):
+    return str(new_key_file(tmp_path))
+
+
+class Deaf(AgentNode):
+    """An agent node that never hears some of its feedback messages (numbered from 1 as they arrive): as if
+    DDS had lost them."""
+
+    deaf_to: range = range(0)
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.heard = 0
+
+    def _on_feedback(self, agent, msg):
+        self.heard += 1
+        if self.heard not in self.deaf_to:
+            super()._on_feedback(agent, msg)
+
+
+def test_a_restart_without_a_checkpoint_joins_the_world_where_it_is(system_in, ros_context, spin_until, key_file):
+    """agv2 dies mid-run and comes back with a fresh learner: it adopts the world's (episode, step) at once
+    (the run is keyed, as a launch is) and the run ends with every episode."""
+    settings = {**dict(CASE[2]), "eval_episodes": 1}
+    system = system_in("cq", *CASE[:2], 20, settings, world_extra={"step_timeout": 0.3},
+                       common_extra={"key_file": key_file})
+    world, agent2 = system.world, system.agents[1]
+    assert spin_until(system.executor, lambda: world.core.episode >= 5, RUN_TIMEOUT_S)
+    system.executor.remove_node(agent2)
+    agent2.destroy_node()
+    assert spin_until(system.executor, lambda: world.core.missed_actions > 0, 5.0)
+    restarted = AgentNode("agv2", context=ros_context, parameter_overrides=parameters(
+        map=CASE[0], episodes=20, seed=CASE[1], algo="cq", agent_id=2, key_file=key_file, **settings))
+    system.agents[1] = restarted
+    system.executor.add_node(restarted)
+    # the dead agv2's last statistics may have died with it: the restarted one's are checked
+    assert spin_until(system.executor, system.finished, RUN_TIMEOUT_S)
+    assert system.world.done.result() == 0 and all(a.done.result() == 0 for a in system.agents)
+    assert spin_until(system.executor, lambda: len(system.world_stats) == 21, 5.0)
+    assert sum(s.missed_actions for s in system.world_stats) >= 1
+    assert restarted.driver.link.caught_up == 1 and restarted.driver.drops.total == 0
+    assert spin_until(system.executor, lambda: {s.episode for s in system.agent_stats[2]} >= set(range(5, 21)), 5.0)
+
+
+def test_one_dropped_feedback_costs_one_step_timeout_and_is_counted(system_in, spin_until):
+    """Without a key: agv1 never hears one feedback; the world times it out once, agv1 takes the next one
+    when the world's heartbeat vouches for it. Every episode before the loss is the engine's."""
+    Deaf.deaf_to = range(40, 41)
+    episodes = 30
+    system = system_in("cq", CASE[0], CASE[1], episodes, CASE[2], world_extra={"step_timeout": 0.3},
+                       common_extra={"heartbeat_period": 0.2}, agent_class={1: Deaf})
+    finish(system, spin_until)
+    assert sum(s.missed_actions for s in system.world_stats) == 1
+    assert counters(system, 1)["caught_up"] == 1 and counters(system, 1)["missed_feedback"] == 1
+    lost_in = next(s.episode for s in system.world_stats if s.missed_actions)
+    clean = offline_steps_and_collisions("cq", CASE, episodes)
+    assert steps_and_collisions(system)[:lost_in] == clean[:lost_in]
+    assert len(system.world_stats) == len(clean)
+
+
+def junk_layout(msg_type, label, data):
+    msg = msg_type()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=len(data), stride=len(data))]
+    msg.data = data
+    return msg
+
+
+def test_junk_bursts_of_100_messages_per_step_on_every_topic_change_nothing(system_in, ros_context, spin_until,
+                                                                             key_file):
+    """With the run's key, 100 messages per step on every topic (feedback, positions, actions, heartbeat):
+    valid-looking ones stamped with the very step, far-future ones and malformed ones. The run is the
+    engine's, every junk message is counted where it was dropped."""
+    algo, episodes = "cq", 3  # about 70 steps: some 50,000 junk messages
+    case = (*CASE[:2], (*CASE[2], ("eval_episodes", 0)))
+    system = system_in(algo, case[0], case[1], episodes, case[2], common_extra={"key_file": key_file})
+    world = system.world
+    injector = system.add(rclpy.create_node("injector", context=ros_context))
+    pubs = [(kind, k, spec.msg_type, injector.create_publisher(spec.msg_type, topic(k), spec.qos))
+            for kind, spec, topic in (("feedback", FEEDBACK, feedback_topic), ("position", POSITION, position_topic),
+                                      ("action", ACTION, action_topic)) for k in (1, 2)]
+    beat = injector.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
+    done = set()
+
+    def junk(kind, k, msg_type, e, s, i):
+        forged = {"feedback": lambda: encode(Feedback(k, e, s + i % 3, 0, 0, 10.0, done=i % 2 == 0)),
+                  "position": lambda: encode(Position(k, e, s + i % 3, 0, 0)),
+                  "action": lambda: encode(Action(k, e, s, i % 4))}[kind]
+        return forged() if i % 3 else junk_layout(msg_type, "junk", [i, e, s])
+
+    def burst():
+        stamp = (world.core.episode, world.core.step)
+        if world.core.episode < 0 or world.core.finished or stamp in done:
+            return
+        done.add(stamp)
+        for i in range(100):
+            for kind, k, msg_type, pub in pubs:
+                pub.publish(junk(kind, k, msg_type, *stamp, i))
+            beat.publish(encode(Heartbeat(10**6 + i, *stamp)))
+    injector.create_timer(0.002, burst)
+    finish(system, spin_until)
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
+    assert all(s.missed_actions == 0 for s in system.world_stats)
+    world_counts = system.world_stats[-1].counters
+    assert world_counts["dropped.unauthenticated"] >= 100 * 2 * len(done) * 2 // 3 * 0.9
+    assert world_counts["dropped.wrong_layout"] >= 100 * 2 * len(done) // 3 * 0.9
+    assert world_counts["second_writers"] >= 1
+    for k in (1, 2):
+        assert counters(system, k)["dropped.unauthenticated"] > 0 and counters(system, k)["second_writers"] >= 1
+        assert "caught_up" not in counters(system, k)
+
+
+def test_a_second_writer_of_positions_and_actions_without_the_key_is_dropped(system_in, ros_context, spin_until,
+                                                                              key_file):
+    """Another node answers for agv2 before agv2 does, and publishes agv1's position stamped with the step
+    at another cell, 40 messages a second each: with the key neither steers the run."""
+    algo, episodes = "js", 20
+    system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], common_extra={"key_file": key_file})
+    world = system.world
+    intruder = system.add(rclpy.create_node("intruder", context=ros_context))
+    actions = intruder.create_publisher(ACTION.msg_type, action_topic(2), ACTION.qos)
+    positions = intruder.create_publisher(POSITION.msg_type, position_topic(1), POSITION.qos)
+
+    def intrude():
+        if world.core.episode >= 0 and not world.core.finished:
+            actions.publish(encode(Action(2, world.core.episode, world.core.step, 0)))
+            positions.publish(encode(Position(1, world.core.episode, world.core.step, 1, 0)))
+    intruder.create_timer(0.025, intrude)
+    finish(system, spin_until)
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
+    assert system.world_stats[-1].counters["dropped.unauthenticated"] > 0
+    assert system.world_stats[-1].counters["second_writers"] >= 1
+    assert counters(system, 2)["dropped.unauthenticated"] > 0  # agv2 listens to agv1 (JS: always)
+
+
+def test_stale_positions_are_dropped_and_counted(system_in, ros_context, spin_until):
+    """Without a key: valid positions of every agent stamped with the previous step, 40 a second. An agent
+    keeps the positions of the step it decides at, so the run is the engine's; the stale ones are counted."""
+    algo, episodes = "js", 20
+    system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2])
+    world = system.world
+    intruder = system.add(rclpy.create_node("stale", context=ros_context))
+    pubs = {k: intruder.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in (1, 2)}
+
+    def stale():
+        e, s = world.core.episode, world.core.step
+        if e >= 0 and s > 0 and not world.core.finished:
+            for k, pub in pubs.items():
+                pub.publish(encode(Position(k, e, s - 1, 0, 0)))
+    intruder.create_timer(0.025, stale)
+    finish(system, spin_until)
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
+    assert sum(counters(system, k).get("dropped.stale_step", 0) for k in (1, 2)) > 0
+
+
+def test_an_agent_waiting_at_its_goal_longer_than_its_timeout_stays(system_in, spin_until):
+    """agv1 reaches its goal; agv2 then stalls for 3 s (its node not spun), three times agv1's
+    feedback_timeout. agv1 hears only the world's heartbeat meanwhile and stays; the run is the engine's."""
+    algo, episodes = "cq", 20
+    system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], world_extra={"step_timeout": 10.0},
+                       common_extra={"heartbeat_period": 0.2}, agent_extra={1: {"feedback_timeout": 1.0}})
+    world, agent2 = system.world, system.agents[1]
+    w = world.core.world
+    assert spin_until(system.executor, lambda: world.core.episode >= 2 and w.done[0] and not w.done[1],
+                      RUN_TIMEOUT_S), "agv1 never waited at its goal for agv2"
+    system.executor.remove_node(agent2)
+    assert not spin_until(system.executor, lambda: system.agents[0].done.done(), 3.0)
+    system.executor.add_node(agent2)
+    finish(system, spin_until)
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
+    assert all(s.missed_actions == 0 for s in system.world_stats)
+
+
+def test_a_second_system_on_the_same_domain_and_namespace_is_refused(ros_domain_id, spin_until):
+    """Two worlds in one namespace: the one started second exits 2 with one line, the first goes on."""
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    contexts, nodes = [], []
+    executor = None
+    try:
+        for _ in range(2):
+            ctx = Context()
+            rclpy.init(context=ctx, domain_id=ros_domain_id)
+            contexts.append(ctx)
+        first = WorldNode(context=contexts[0], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
+        nodes.append(first)
+        executor = SingleThreadedExecutor(context=contexts[0])
+        executor.add_node(first)
+        spin_until(executor, lambda: False, 5.5)  # past its own start
+        second = WorldNode(context=contexts[1], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
+        nodes.append(second)
+        other = SingleThreadedExecutor(context=contexts[1])
+        other.add_node(second)
+        deadline = 10.0
+        while deadline > 0 and not second.done.done():
+            executor.spin_once(timeout_sec=0.02)
+            other.spin_once(timeout_sec=0.02)
+            deadline -= 0.04
+        assert second.done.done() and second.done.result() == 2
+        assert not first.done.done()
+        other.shutdown()
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        for ctx in contexts:
+            rclpy.try_shutdown(context=ctx)
+
+
+def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_path):
+    (tmp_path / "agv1.pkl.x1y2z3.tmp").write_bytes(b"a save killed mid-write")
+    node = AgentNode(context=ros_context, parameter_overrides=parameters(
+        agent_id=1, checkpoint=str(tmp_path / "agv1.pkl")))
+    node.destroy_node()
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("module,args,message", [
+    ("world_node", ["-p", "step_timout:=1.0"], "unknown parameter 'step_timout'; did you mean 'step_timeout'?"),
+    ("world_node", ["-p", "startup_timeout:=nan"], "parameter startup_timeout must be a finite number, got nan"),
+    ("agent_node", ["--params-file", "/no/such/params.yaml"], "--params-file /no/such/params.yaml: no such file"),
+    ("agent_node", ["-p", "agent_id:=1", "-p", "checkpoint:=/no/such/dir/x.pkl"],
+     "parameter checkpoint: '/no/such/dir/x.pkl': folder '/no/such/dir' does not exist"),
+])
+def test_bad_parameters_on_the_command_line_are_one_line_and_exit_2(module, args, message):
+    done = subprocess.run([sys.executable, "-m", module, "--ros-args", *args], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize("node_class,values,message", [
+    (WorldNode, {"bogus": 3}, "unknown parameter 'bogus'"),
+    (AgentNode, {"agent_id": 1, "feedback_timout": 9.0}, "did you mean 'feedback_timeout'?"),
+    (WorldNode, {"step_timeout": math.nan}, "parameter step_timeout must be a finite number, got nan"),
+    (WorldNode, {"heartbeat_period": math.inf}, "parameter heartbeat_period must be a finite number"),
+    (AgentNode, {"agent_id": 1, "feedback_timeout": -math.inf}, "parameter feedback_timeout must be a finite"),
+    (AgentNode, {"agent_id": 1, "alpha": math.nan}, "parameter alpha must be a finite number"),
+    (AgentNode, {"agent_id": 1, "key_file": "/no/such/key"}, "parameter key_file: cannot read"),
+], ids=["unknown", "closest", "nan", "inf", "minus-inf", "nan-setting", "key-file"])
+def test_every_bad_parameter_raises_one_line_naming_it(ros_context, node_class, values, message):
+    from cq_ros.settings import SettingsError
+
+    with pytest.raises(SettingsError) as e:
+        node_class(context=ros_context, parameter_overrides=parameters(**values))
+    assert message in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_parameter_of_the_other_node_is_no_typo(ros_context):
+    """One parameters file may serve the whole system: the world takes agent parameters without using them."""
+    node = WorldNode(context=ros_context, parameter_overrides=parameters(feedback_timeout=5.0, algo="js"))
+    node.destroy_node()
+    assert math.isfinite(node.config.step_timeout)
+
+
+def test_bad_node_parameters_through_launch_exit_2_before_anything_starts(tmp_path, capsys):
+    from cq_ros.cli import main
+
+    for sets, phrase in ((["feedbak_timeout=3"], "did you mean 'feedback_timeout'?"),
+                         (["step_timeout=nan"], "step_timeout must be a finite number"),
+                         (["key_file=/tmp/k"], "fixed by cq-ros launch")):
+        with pytest.raises(SystemExit) as exit_:
+            main(["launch", "--map", "grid_game_2", "--algo", "cq", "--out", str(tmp_path / "X"),
+                  *itertools.chain.from_iterable(("--set", s) for s in sets)])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert phrase in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "X").exists()
