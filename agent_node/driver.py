@@ -107,6 +107,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
                                  "episode); learning never waits for them, the exit at most 10 s"),
     "key_file": ("", "file holding the run's key (as the world's key_file): key every action, drop feedback, "
                      "positions and heartbeats without a matching MAC; empty: no authentication"),
+    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
+                          "agv<k>/looks at every decision; false: not even the publishers"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (learning settings and rewards, "
                                        "as the world's); not given: the map's default, else this one")

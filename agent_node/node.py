@@ -35,6 +35,7 @@ from .driver import (
     PARAMETERS, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
     save_checkpoint,
 )
+from .viz import AgentView
 
 __all__ = ["AgentNode"]
 
@@ -102,6 +103,7 @@ class AgentNode(Node):
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
                                                    HEARTBEAT.reader_qos)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
+        self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._watchdog = self.create_timer(min(cfg.feedback_timeout / 10, 1.0), self._check_world)
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning, refuse=False)
@@ -123,8 +125,12 @@ class AgentNode(Node):
             match effect:
                 case Send(payload=Action() as action):
                     self._actions[action.agent].publish(action)
+                    if self._view is not None:
+                        self._view.on_action(action)
                 case Send(payload=stats):
                     self._stats[stats.agent].publish(stats)
+                    if self._view is not None:
+                        self._view.on_stats(stats)
                 case Subscribe(peer=peer):
                     self._positions[peer] = self.create_subscription(
                         POSITION.msg_type, position_topic(peer), partial(self._on_position, peer),

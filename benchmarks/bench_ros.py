@@ -1,15 +1,17 @@
 #!/usr/bin/env python3
-"""ROS mode speed: lockstep steps per second of `cq-ros launch` (one world process and one process per AGV)
-for 2 agents (tunnel_to_goal: indep, cq, js, and cq with its peer subscriptions kept 3 steps longer) and
-8 agents (warehouse_8: indep, cq), beside the rclpy round trip between two processes measured in the same
-run (a lockstep step is at least one round trip: feedback out, action back), the step rate that round trip
-allows (1 / median) and the ratio; then CQ's step rate and communication against JS's on tunnel_to_goal.
+"""ROS mode speed: lockstep steps per second of `cq-ros launch`, a process per node against every node composed
+in one process (`--compose`), side by side, beside the rclpy round trip between two processes measured in the
+same run (a lockstep step across processes is at least one round trip: feedback out, action back), the step
+rate that round trip allows (1 / median) and the ratio; then the executors (EventsExecutor against
+SingleThreadedExecutor) in both modes, markers on with nobody subscribed against markers off, and CQ's
+communication against JS's.
 
-    python benchmarks/bench_ros.py [--tunnel-episodes 300] [--warehouse-episodes 10] [--warehouse-step-cap 300]
+    python benchmarks/bench_ros.py [--tunnel-episodes 200] [--warehouse warehouse_16] [--warehouse-episodes 5]
+                                   [--warehouse-step-cap 300]
 
 Steps per second are the world's: steps over the summed wall-clock length of its episodes (WorldStats
 duration_s), so process start-up and discovery are left out; the wall time of each launch is shown beside.
-warehouse_8's episodes are capped (every early episode would run to the 5000-step cap).
+The warehouse's episodes are capped (every early episode would run to the 5000-step cap).
 """
 
 from __future__ import annotations
@@ -22,19 +24,21 @@ from pathlib import Path
 
 from bench_roundtrip import measure_roundtrip
 
+from cq_ros.gridmap import available_maps
 from cq_ros.settings import Settings
 from world_node.launch import launch
 
 
 def lockstep(map_name: str, algo: str, episodes: int, settings: Settings, linger: int | None = None,
-             seed: int = 0) -> dict:
+             seed: int = 0, compose: bool = False, executor: str = "events", markers: bool = True) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_ros_") as tmp:
         result = launch(map_name, algo, episodes, seed, Path(tmp) / "out", settings, peer_linger_steps=linger,
-                        figures=False, progress=False)
+                        compose=compose, executor=executor, markers=markers, figures=False, progress=False)
     m = result.manifest
     steps = int(result.episodes[:, 0].sum())
     comm = m["communication"].values()
-    return {"map": map_name, "agents": m["n_agents"], "algo": algo, "linger": m["peer_linger_steps"],
+    return {"map": m["map"], "agents": m["n_agents"], "algo": algo, "linger": m["peer_linger_steps"],
+            "mode": "composed" if compose else "processes", "executor": executor, "markers": markers,
             "episodes": episodes, "steps": steps,
             "stepping_s": m["world"]["stepping_s"], "steps_per_s": steps / m["world"]["stepping_s"],
             "wall_s": m["wall_time_s"], "peer_messages": sum(c["peer_messages"] for c in comm),
@@ -42,10 +46,28 @@ def lockstep(map_name: str, algo: str, episodes: int, settings: Settings, linger
             "missed_actions": m["world"]["missed_actions"]}
 
 
+def subscription_check_us(n: int = 20000) -> float:
+    """Microseconds of one get_subscription_count() on a publisher nobody subscribes to: what an unwatched node
+    pays a step for its markers (the world once, each agent once a decision)."""
+    import time
+
+    from msgs_spec.tools import ros_session
+    from msgs_spec.viz import SCENE, SCENE_TOPIC
+
+    with ros_session("bench_markers") as (node, _):
+        pub = node.create_publisher(SCENE.msg_type, SCENE_TOPIC, SCENE.qos)
+        start = time.perf_counter()
+        for _ in range(n):
+            pub.get_subscription_count()
+        return (time.perf_counter() - start) / n * 1e6
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tunnel-episodes", type=int, default=300)
-    parser.add_argument("--warehouse-episodes", type=int, default=10)
+    parser.add_argument("--tunnel-episodes", type=int, default=200)
+    parser.add_argument("--warehouse", default="warehouse_16" if "warehouse_16" in available_maps() else "warehouse_8",
+                        help="the many-AGV map (default warehouse_16 where it is shipped, else warehouse_8)")
+    parser.add_argument("--warehouse-episodes", type=int, default=5)
     parser.add_argument("--warehouse-step-cap", type=int, default=300)
     parser.add_argument("--pings", type=int, default=2000, help="round trips to time (default 2000)")
     args = parser.parse_args()
@@ -59,25 +81,52 @@ def main() -> None:
     # Learning episodes only: the greedy evaluation would add episodes of another kind.
     tunnel = Settings().with_overrides({"eval_episodes": 0})
     warehouse = tunnel.with_overrides({"step_cap": args.warehouse_step_cap})
-    cases = [("tunnel_to_goal", a, args.tunnel_episodes, tunnel, None) for a in ("indep", "cq", "js")]
-    cases += [("tunnel_to_goal", "cq", args.tunnel_episodes, tunnel, 3)]  # subscriptions kept 3 steps longer
-    cases += [("warehouse_8", a, args.warehouse_episodes, warehouse, None) for a in ("indep", "cq")]
-    print(f"{'map':<15} {'agent procs':>11} {'algo':<6} {'linger':>6} {'episodes':>8} {'steps':>7} {'steps/s':>8} "
-          f"{'of round-trip rate':>18} {'wall s':>7} {'peer msgs':>9} {'subs made':>9} {'missed':>6}")
+    t, w = ("tunnel_to_goal", args.tunnel_episodes, tunnel), (args.warehouse, args.warehouse_episodes, warehouse)
+    print(f"{'map':<15} {'agents':>6} {'algo':<6} {'linger':>6} {'mode':<9} {'executor':<8} {'markers':<7} "
+          f"{'episodes':>8} {'steps':>7} {'steps/s':>8} {'of round-trip rate':>18} {'wall s':>7} {'peer msgs':>9} "
+          f"{'subs made':>9} {'missed':>6}")
     rows = {}
-    for map_name, algo, episodes, settings, linger in cases:
-        r = rows[map_name, algo, linger] = lockstep(map_name, algo, episodes, settings, linger)
-        print(f"{map_name:<15} {r['agents']:>11} {algo:<6} {r['linger']:>6} {episodes:>8} {r['steps']:>7} "
-              f"{r['steps_per_s']:>8,.0f} {r['steps_per_s'] / allowed:>18.0%} {r['wall_s']:>7.1f} "
-              f"{r['peer_messages']:>9} {r['subscriptions']:>9} {r['missed_actions']:>6}", flush=True)
 
-    cq, js = rows["tunnel_to_goal", "cq", None], rows["tunnel_to_goal", "js", None]
-    print(f"tunnel_to_goal, CQ against JS over {args.tunnel_episodes} episodes: "
-          f"{cq['steps_per_s']:,.0f} vs {js['steps_per_s']:,.0f} steps/s "
-          f"({cq['steps_per_s'] / js['steps_per_s']:.2f}x); peer messages {cq['peer_messages']} vs "
-          f"{js['peer_messages']} (JS/CQ {js['peer_messages'] / cq['peer_messages']:.1f}x; "
-          f"{cq['peer_messages'] / cq['steps']:.3f} vs {js['peer_messages'] / js['steps']:.3f} "
-          f"per step); peer subscriptions made {cq['subscriptions']} vs {js['subscriptions']}")
+    def row(where, algo, linger=None, **how) -> dict:
+        map_name, episodes, settings = where
+        r = lockstep(map_name, algo, episodes, settings, linger, **how)
+        rows[r["map"], algo, linger, r["mode"], r["executor"], r["markers"]] = r
+        print(f"{r['map']:<15} {r['agents']:>6} {algo:<6} {r['linger']:>6} {r['mode']:<9} {r['executor']:<8} "
+              f"{'on' if r['markers'] else 'off':<7} {episodes:>8} {r['steps']:>7} {r['steps_per_s']:>8,.0f} "
+              f"{r['steps_per_s'] / allowed:>18.0%} {r['wall_s']:>7.1f} {r['peer_messages']:>9} "
+              f"{r['subscriptions']:>9} {r['missed_actions']:>6}", flush=True)
+        return r
+
+    side_by_side = []
+    for where, algos in ((t, ("indep", "cq")), (w, ("indep", "cq"))):
+        for algo in algos:
+            apart, composed = row(where, algo), row(where, algo, compose=True)
+            side_by_side.append((apart, composed))
+    row(t, "cq", 3)  # subscriptions kept 3 steps longer
+    js = row(t, "js")
+    for compose in (False, True):  # the executors, in both modes
+        row(t, "indep", compose=compose, executor="single")
+    markers_off = row(t, "indep", compose=True, markers=False)
+
+    print(f"\ncomposed against a process per node, side by side (round trip allows {allowed:,.0f} steps/s):")
+    for apart, composed in side_by_side:
+        print(f"  {apart['map']:<15} {apart['agents']:>2} agents {apart['algo']:<6} processes "
+              f"{apart['steps_per_s']:>6,.0f} steps/s ({apart['steps_per_s'] / allowed:.0%} of the round-trip rate), "
+              f"composed {composed['steps_per_s']:>6,.0f} ({composed['steps_per_s'] / apart['steps_per_s']:.1f}x)")
+    for compose, mode in ((False, "processes"), (True, "composed")):
+        events = rows["tunnel_to_goal", "indep", None, mode, "events", True]
+        single = rows["tunnel_to_goal", "indep", None, mode, "single", True]
+        print(f"  executors, tunnel_to_goal indep, {mode}: EventsExecutor {events['steps_per_s']:,.0f} steps/s, "
+              f"SingleThreadedExecutor {single['steps_per_s']:,.0f} ({events['steps_per_s'] / single['steps_per_s']:.1f}x)")
+    on = rows["tunnel_to_goal", "indep", None, "composed", "events", True]
+    print(f"  markers with nobody subscribed, tunnel_to_goal indep composed: on {on['steps_per_s']:,.0f} steps/s, "
+          f"off {markers_off['steps_per_s']:,.0f} ({on['steps_per_s'] / markers_off['steps_per_s'] - 1:+.1%}); "
+          f"the check they cost, get_subscription_count(): {subscription_check_us():.1f} us")
+    cq = rows["tunnel_to_goal", "cq", None, "processes", "events", True]
+    print(f"  tunnel_to_goal, CQ against JS, processes: {cq['steps_per_s']:,.0f} vs {js['steps_per_s']:,.0f} steps/s; "
+          f"peer messages {cq['peer_messages']} vs {js['peer_messages']} "
+          f"({cq['peer_messages'] / cq['steps']:.3f} vs {js['peer_messages'] / js['steps']:.3f} per step); "
+          f"peer subscriptions made {cq['subscriptions']} vs {js['subscriptions']}")
 
 
 if __name__ == "__main__":

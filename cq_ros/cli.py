@@ -6,6 +6,7 @@ Bad arguments print one line naming what is wrong and exit with code 2, as argpa
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -108,8 +109,26 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--peer-linger-steps", type=_number(0, kind=int), default=None, metavar="N",
                    help="decision steps an agent keeps a peer subscription it no longer needs (default: the "
                         "agent node's, 0)")
+    p.add_argument("--compose", action="store_true",
+                   help="run every node in one process on one executor (a component container) instead of a "
+                        "process per node")
+    p.add_argument("--executor", choices=("events", "single"), default=None,
+                   help="the nodes' executor: rclpy's EventsExecutor (default) or the SingleThreadedExecutor")
+    p.add_argument("--hosts", default=None, metavar="PREFIX",
+                   help="run each node on its own host made by `cq-ros hosts up` (root; re-runs itself on the "
+                        "world's host)")
+    p.add_argument("--discovery", choices=("subnet", "static"), default="subnet",
+                   help="with --hosts: multicast discovery on the subnet, or unicast to ROS_STATIC_PEERS only")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_settings_options(p, nodes=True)
+
+    p = sub.add_parser("hosts", help="make or remove hosts for --hosts: network namespaces joined by a bridge, "
+                                     "addresses from 198.18.0.0/15 (root)")
+    p.add_argument("action", choices=("up", "down", "list"),
+                   help="up: make a world host and one per AGV; down: remove them; list: the sets there are")
+    p.add_argument("--agents", type=_positive, default=2, help="up: AGV hosts (default 2)")
+    p.add_argument("--prefix", default=None,
+                   help="the set's name: cqr and up to 8 letters or digits (up: default random; down: required)")
 
     p = sub.add_parser("echo", help="print the messages of a topic as YAML, like `ros2 topic echo`")
     p.add_argument("topic", help="topic name, e.g. /cq_1a2b3c4d/agv1/position")
@@ -136,6 +155,22 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--count", type=_positive, default=None, metavar="N", help="stop after N messages")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage plugin (default mcap)")
     _add_domain_option(p)
+
+    p = sub.add_parser("render", help="draw one episode as an animated GIF (or MP4 where ffmpeg is installed): "
+                                      "the map, the AGVs, their goals and whom each agent looks at; from the "
+                                      "offline engine (--map, --algo) or from a bag of `cq-ros record` (--bag)")
+    p.add_argument("--out", type=Path, required=True, help="the animation to write: NAME.gif, or NAME.mp4 (ffmpeg)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--map", help="run the offline engine on this map (a shipped name or a path)")
+    source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
+    p.add_argument("--algo", type=_algo, default="cq", help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
+    p.add_argument("--episodes", type=_positive, default=100, help="with --map: episodes to learn (default 100)")
+    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="with --map: master seed (default 0)")
+    p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
+                   help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+    p.add_argument("--fps", type=_seconds, default=4.0, help="frames (steps) per second (default 4)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --map: change a setting (repeatable)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -196,6 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
         return _dispatch(args)
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
@@ -232,8 +268,12 @@ def _dispatch(args) -> int:
         return _plan(args)
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
+    if args.command == "render":
+        return _render(args)
     if args.command == "launch":
         return _launch(args)
+    if args.command == "hosts":
+        return _hosts(args)
     if args.command == "experiment":
         from .experiment import experiment
         from .summary import format_console_table, load_episodes
@@ -337,18 +377,51 @@ def _generate(args) -> int:
 # works without it.
 
 
+def _hosts(args) -> int:
+    from world_node.hosts import HostsError, existing_prefixes, hosts_down, hosts_up
+
+    try:
+        if args.action == "up":
+            print(hosts_up(args.agents, args.prefix).describe())
+        elif args.action == "down":
+            if args.prefix is None:
+                raise HostsError("down needs --prefix (`cq-ros hosts list` shows the sets)")
+            gone = hosts_down(args.prefix)
+            print(f"removed {', '.join(gone)}" if gone else f"no hosts {args.prefix}: nothing to remove")
+        else:
+            for prefix, names in existing_prefixes().items():
+                print(f"{prefix}: {', '.join(names)}")
+    except HostsError as e:
+        print(f"cq-ros hosts: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def _launch(args) -> int:
-    from world_node.launch import Interrupted, LaunchError, launch, split_sets
+    from world_node.hosts import HostsError, check_can_make_hosts, find_hosts
+    from world_node.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
 
     from .summary import format_console_table, load_episodes
 
     # Settings fields (over the map's defaults) and node parameters alike
     settings, node_parameters = split_sets(args.overrides, load_map(args.map))
+    hosts = None
+    if args.hosts is not None:
+        try:
+            check_can_make_hosts()
+            hosts = find_hosts(args.hosts)
+        except HostsError as e:
+            raise ValueError(e) from None
+        check_hosts(hosts, load_map(args.map), args.algo, args.discovery)
+        if hosts.current_host() != "world":  # the launcher listens on the world's host: run there
+            sys.stdout.flush()
+            os.execvp("ip", [*hosts.exec_on("world"), sys.executable, "-m", "cq_ros.cli", *args.argv])
     try:
         result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps, node_parameters=node_parameters,
-                        force=args.force, figures=args.figures)
+                        peer_linger_steps=args.peer_linger_steps, compose=args.compose,
+                        executor=args.executor, node_parameters=node_parameters, force=args.force,
+                        figures=args.figures, hosts=hosts, discovery=args.discovery)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)
         return 130
@@ -365,6 +438,62 @@ def _launch(args) -> int:
               f"{cost['subscriptions_created']} subscriptions created")
     print(f"results: {result.out}")
     return 0
+
+
+def _render(args) -> int:
+    from .render import check_output, engine_frames, frames_from, lattice, write_animation
+
+    check_output(args.out)
+    if args.map is not None:
+        gridmap = load_map(args.map)
+        settings = run_settings(gridmap, args.overrides)
+        occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
+        title = f"{gridmap.name} {args.algo}"
+        _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
+        frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode,
+                               _every_30_s("episode {} learnt"))
+    else:
+        from msgs_spec import tools
+
+        if args.overrides:
+            raise ValueError("--set applies to --map (the offline engine), not to a bag")
+        try:
+            occupancy, scenes, looks = tools.read_view_bag(args.bag)
+        except tools.ToolError as e:
+            print(f"cq-ros render: error: {e}", file=sys.stderr)
+            return 1
+        if occupancy is None or not scenes:
+            print(f"cq-ros render: error: {args.bag} holds no {'world/map' if occupancy is None else 'world/markers'}"
+                  " message (record while the run starts, with markers on)", file=sys.stderr)
+            return 1
+        episodes = sorted({s.episode for s in scenes})
+        episode = episodes[-1] if args.episode is None else args.episode
+        if episode not in episodes:
+            raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
+        frames = frames_from([s for s in scenes if s.episode == episode], looks)
+        occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
+    _note(f"drawing {len(frames)} steps to {args.out}")
+    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps,
+                          progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
+    return 0
+
+
+def _every_30_s(line: str):
+    """A progress callback for render's long loops: `line` (with the 1-based count) at most every 30 s."""
+    shown = time.monotonic()
+
+    def progress(i: int) -> None:
+        nonlocal shown
+        if time.monotonic() - shown >= 30:
+            shown = time.monotonic()
+            _note(line.format(i + 1))
+
+    return progress
+
+
+def _note(line: str) -> None:
+    print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
 
 
 def _ros_tool(args) -> int:

@@ -55,6 +55,10 @@ class Settings:
     # CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict
     # is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is).
     cq_mark_range: int = 2
+    # Several marked joint states of one cell met at once (three or more agents; the paper is silent): 1, the
+    # agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and updates
+    # the most confident alone, which is blind to the peers the others name.
+    cq_all_met: int = 1
     # LoC: active perception is TRUE when a peer is at most this many cells away (Manhattan), i.e.
     # close enough to collide this step; choosing COORDINATE costs this much of the learner's reward.
     loc_range: int = 2
@@ -79,6 +83,7 @@ class Settings:
         _check(self.conf_drop < self.conf_init <= self.conf_max, "conf_drop < conf_init <= conf_max",
                (self.conf_drop, self.conf_init, self.conf_max), "ordered")
         _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
+        _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")

@@ -12,7 +12,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
-from . import codec
+from . import codec, viz
 from .errors import KINDS
 from .payloads import Action, AgentStats, Feedback, Heartbeat, MarkedJointState, Position, WorldStats
 from .topics import TOPICS, qos_summary
@@ -75,6 +75,14 @@ def render_spec() -> str:
         lines += _table(["key", "value", "meaning"], [[f"`{k}`", kind, m] for k, (kind, m) in keys.items()])
     lines += ["", "### Rejection kinds (`WireError.kind`)", ""]
     lines += _table(["kind", "meaning"], [[f"`{k}`", v] for k, v in KINDS.items()])
+    lines += ["", "### Topics for viewers (msgs_spec/viz.py)", "",
+              f"In frame `{viz.FRAME_ID}`: cell (row, col) is centred at x = col + 0.5, y = -(row + 0.5) (metres); "
+              "the map is published once (latched), the markers only while someone subscribes; node "
+              "parameter `markers` false turns them all off.", ""]
+    lines += _table(
+        ["topic (relative)", "type", "QoS", "publisher", "subscribers", "payload", "content"],
+        [[f"`{t.pattern.replace('{agent}', '<k>')}`", f"`{t.type_name}`", qos_summary(t.qos), t.publisher,
+          t.subscribers, f"`{t.payload.__name__}`", t.fields] for t in viz.VIEW_TOPICS])
     lines += ["", "### What `ros2 topic echo` shows", ""]
     for t in TOPICS:
         example = EXAMPLES[t.key]

@@ -29,13 +29,15 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from .doc import to_yaml
-from .errors import WireError
+from .errors import DropCounter, WireError
 from .topics import TopicSpec, parse_topic
+from .viz import LOOKS, MAP, SCENE, parse_view_topic
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
-    "run_node", "declare_parameters", "compatible_qos", "undeclared_overrides", "watch_graph",
-    "message_class", "echo", "topics", "nodes", "record",
+    "EXECUTORS", "EXECUTOR_ENV", "executor_kind", "make_executor", "spin_nodes", "run_node", "declare_parameters",
+    "compatible_qos", "undeclared_overrides", "watch_graph", "message_class", "echo", "topics", "nodes", "record",
+    "read_view_bag",
 ]
 
 # A new process shows up in the graph 0.05-2.8 s after it starts (DESIGN.md field notes): the default wait.
@@ -120,30 +122,84 @@ def ros_session(name: str, *, domain_id: int | None = None, namespace: str | Non
         rclpy.try_shutdown(context=ctx)
 
 
+# The executors a node process can spin on (`$CQ_ROS_EXECUTOR`, `cq-ros launch --executor`). rclpy's
+# EventsExecutor is the default: lockstep in one process ran 4.5x as fast on it as on the
+# SingleThreadedExecutor, and never slower across processes (benchmarks/bench_ros.py --executors).
+EXECUTORS = ("events", "single")
+EXECUTOR_ENV = "CQ_ROS_EXECUTOR"
+SPIN_S = 0.05  # the longest a node process sleeps in one spin_once before it looks at its nodes again
+# Fast DDS protocol timers for node processes (the file says why): a new peer subscription gets its first
+# sample in a few ms instead of up to 70 ms.
+FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
+FASTDDS_PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+
+
+def executor_kind(kind: str | None = None) -> str:
+    """`kind`, else $CQ_ROS_EXECUTOR, else "events"; ValueError (one line) if it is not one of EXECUTORS."""
+    kind = kind or os.environ.get(EXECUTOR_ENV) or EXECUTORS[0]
+    if kind not in EXECUTORS:
+        raise ValueError(f"executor {kind!r} (${EXECUTOR_ENV} or --executor): choose from {', '.join(EXECUTORS)}")
+    return kind
+
+
+def make_executor(kind: str | None = None, context: Context | None = None) -> Any:
+    """A new executor of `executor_kind(kind)` on `context` (None: the default, initialised already).
+
+    Spin it with spin_once in a loop (`spin_nodes`), never spin(): the EventsExecutor's spin() in rclpy 7.1.6
+    busy-loops and ignores signals (DESIGN.md field notes)."""
+    if executor_kind(kind) == "single":
+        return SingleThreadedExecutor(context=context)
+    from rclpy.experimental import EventsExecutor
+
+    return EventsExecutor(context=context)
+
+
+def spin_nodes(executor: Any, nodes: list[Any], stop: Callable[[], bool] = lambda: False) -> int | None:
+    """Spin until every node's `done` Future holds its exit code (then the largest of them), or until their
+    context is shut down (a signal, under rclpy's handlers) or stop() turns true: None."""
+    context = nodes[0].context
+    while not all(node.done.done() for node in nodes):
+        if not context.ok() or stop():
+            return None
+        executor.spin_once(timeout_sec=SPIN_S)
+    return max(node.done.result() for node in nodes)
+
+
 def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[Exception], ...]) -> int:
-    """The `python -m world_node|agent_node` main: spin the node made by make_node() on the default context
-    until its `done` Future holds the exit code. A bad parameter (an exception in bad_input) is one line on
-    stderr and exit code 2; Ctrl-C or SIGTERM exit code 130."""
+    """The `python -m world_node|agent_node|world_node.compose` main: spin the node, or the list of nodes,
+    made by make_node() on the default context, on one executor (`make_executor`), until every `done`
+    Future holds its exit code; the process exits with the largest. A bad parameter (an exception in
+    bad_input) is one line on stderr and exit code 2; Ctrl-C or SIGTERM exit code 130. make_node() must
+    destroy what it made before it raises. Fast DDS reads FASTDDS_PROFILE unless $FASTRTPS_DEFAULT_PROFILES_FILE
+    names another file."""
     from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
 
+    try:
+        kind = executor_kind()
+    except ValueError as e:
+        print(f"{program}: {e}", file=sys.stderr)
+        return 2
     missing = _missing_params_files(sys.argv)
     if missing:
         print(f"{program}: --params-file {missing}: no such file", file=sys.stderr)
         return 2
+    os.environ.setdefault(FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))  # read when rclpy.init makes the participant
     try:
         rclpy.init(args=sys.argv)
     except RuntimeError as e:  # rcl refused the arguments (e.g. a parameters file it cannot parse)
         print(f"{program}: bad ROS arguments: {str(e).splitlines()[0]}", file=sys.stderr)
         return 2
-    node = executor = None
+    executor = make_executor(kind)
+    nodes: list[Any] = []
     code = 130
     try:
-        executor = SingleThreadedExecutor()
-        node = make_node()
-        executor.add_node(node)
-        executor.spin_until_future_complete(node.done)
-        code = node.done.result() if node.done.done() else 130  # else: shut down by a signal
+        made = make_node()
+        nodes = made if isinstance(made, list) else [made]
+        for node in nodes:
+            executor.add_node(node)
+        finished = spin_nodes(executor, nodes)
+        code = 130 if finished is None else finished  # None: shut down by a signal
     except (*bad_input, ParameterException) as e:
         print(f"{program}: {e}", file=sys.stderr)
         code = 2
@@ -153,10 +209,9 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
         if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
             raise
     finally:
-        # Jazzy order (DESIGN.md field notes): executor, then node, then the context.
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
+        # Jazzy order (DESIGN.md field notes): executor, then nodes, then the context.
+        executor.shutdown()
+        for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
     return code
@@ -240,10 +295,13 @@ def message_class(type_name: str) -> type:
 
 
 def _project_spec(name: str) -> tuple[TopicSpec, int | None] | None:
-    try:
-        return parse_topic(name)
-    except ValueError:
-        return None
+    """The spec of a project topic, the lockstep's or a viewer's (msgs_spec.viz), or None."""
+    for parse in (parse_topic, parse_view_topic):
+        try:
+            return parse(name)
+        except ValueError:
+            pass
+    return None
 
 
 def _graph_types(node: Any, name: str) -> list[str]:
@@ -443,3 +501,35 @@ def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_
         err.write(f"cq-ros record: never saw a publisher on {', '.join(missing)}\n")
     out.write(f"recorded {written} messages on {len(connections)} topics to {bag} ({storage})\n")
     return written
+
+
+def read_view_bag(bag: str | os.PathLike, *, err: TextIO = sys.stderr) -> tuple[Any, list[Any], list[Any]]:
+    """What a viewer would have seen of a recorded run: (the map's Occupancy or None, every Scene and every
+    Looks, in the bag's order), decoded through the contract from the bag's world/map, world/markers and
+    agv<k>/looks topics (under any namespace). A message that breaks the contract is skipped and counted on
+    `err`; ToolError if the bag cannot be read."""
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Reader
+
+    occupancy, scenes, looks = None, [], []
+    drops = DropCounter(lambda line: err.write(f"cq-ros render: {line}\n"))
+    try:
+        reader = Reader(Path(bag))
+        reader.open()
+    except Exception as e:  # rosbags raises its own errors for a missing or broken bag
+        raise ToolError(f"cannot read the bag {bag}: {e}") from None
+    try:
+        wanted = [c for c in reader.connections if (_project_spec(c.topic) or (None,))[0] in (MAP, SCENE, LOOKS)]
+        for connection, _, raw in reader.messages(connections=wanted):
+            spec, agent = _project_spec(connection.topic)
+            msg = deserialize_message(raw, spec.msg_type)
+            payload = drops.guard(spec.decode, msg, agent=agent, source=connection.topic)
+            if payload is None:
+                continue
+            if spec is MAP:
+                occupancy = payload
+            else:
+                (scenes if spec is SCENE else looks).append(payload)
+    finally:
+        reader.close()
+    return occupancy, scenes, looks

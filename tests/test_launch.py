@@ -26,7 +26,7 @@ from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
 from cq_ros.warehouse import warehouse_text
 from processes import alive_with
-from world_node.launch import node_commands
+from world_node.launch import node_commands, node_specs
 
 LAUNCH_TIMEOUT_S = 120.0  # bound on one launch; each below takes about 10 s on 2 busy cores
 SEED = 1
@@ -235,7 +235,7 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
 def test_nodes_are_given_the_settings_that_differ_from_the_maps_own(tmp_path):
     # warehouse_8 carries reward_step=-1 and gamma=0.98: the nodes take them from the map unless the launch's differ.
     def given(settings):
-        children = node_commands("warehouse_8", "cq", 5, 0, settings, "ns", 2.0, tmp_path)
+        children = node_commands(node_specs("warehouse_8", "cq", 5, 0, settings, tmp_path, 2.0), "ns", tmp_path)
         return [{a.split(":=")[0] for a in c.command if ":=" in a} & set(Settings().as_dict()) for c in children]
 
     gridmap = load_map("warehouse_8")

@@ -47,7 +47,7 @@ ROW3 = make_map(6, ((0, 0), (0, 5)), ((0, 3), (0, 0)), ((0, 5), (0, 1)))
 ROW2 = make_map(6, ((0, 0), (0, 5)), ((0, 5), (0, 0)))
 
 
-PAPER_CQ = dict(cq_bootstrap_acted=0, cq_mark_range=0)  # the paper's rules, where ours differ
+PAPER_CQ = dict(cq_bootstrap_acted=0, cq_mark_range=0, cq_all_met=0)  # the paper's rules (or our first reading)
 
 
 def cq(gridmap=ROW3, **overrides):
@@ -208,7 +208,8 @@ def test_cq_bootstrap_acted_waits_for_the_row_acted_on_next():
     learner.observe(0)
     learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3) and meets one of them
     js = learner.js
-    learner.q_joint[js] = [-8.0, -6.0, -9.0, -7.0]  # in this joint state the best row value is -6
+    for row in learner.q_joint.values():  # in these joint states the best row value is -6
+        row[:] = [-8.0, -6.0, -9.0, -7.0]
     learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]  # alone, the road is free: best is 5
     learner.learn(-1.0, 0, False)  # a wall bump: it stays at cell 0
     assert learner.q_joint[js] == [-8.0, -6.0, -9.0, -7.0]  # nothing applied yet
@@ -233,6 +234,27 @@ def test_cq_bootstrap_acted_applies_at_once_on_arrival_and_from_q_local_when_the
     learner.end_episode()  # ... until the episode is cut: Q_k of the next cell, the only row known
     assert learner.q_local[0][EAST] == pytest.approx(before + s.alpha * (-1.0 + s.gamma * 3.0 - before))
     assert learner.pending is None
+
+
+def test_cq_all_met_acts_on_the_most_wary_of_the_joint_states_met_and_updates_each():
+    s = Settings(**GREEDY, window=5)
+    learner = cq_with_conflict(cq_all_met=1)
+    learner.observe(0)
+    learner.act({1: 1, 2: 3})  # marks and meets (0, 1, 1) and (0, 2, 3)
+    learner.learn(0.0, 0, False)
+    learner.q_joint[(0, 1, 1)][:] = [-5.0, 4.0, -5.0, 1.0]  # peer 1's joint state: EAST is fine
+    learner.q_joint[(0, 2, 3)][:] = [-5.0, -9.0, -5.0, 0.0]  # peer 2's: EAST collides
+    learner.confidence[(0, 1, 1)] = 9.0  # and peer 1's is the more confident
+    learner.observe(0)
+    assert learner.act({1: 1, 2: 3}) == WEST  # min of the rows: [-5, -9, -5, 0]
+    assert learner.js == (0, 1, 1)  # the most confident is still the one named
+    learner.learn(-1.0, 1, True)
+    assert learner.q_joint[(0, 1, 1)][WEST] == pytest.approx(1.0 + s.alpha * (-1.0 - 1.0))
+    assert learner.q_joint[(0, 2, 3)][WEST] == pytest.approx(0.0 + s.alpha * (-1.0 - 0.0))
+    # the rule of 0: the most confident alone, blind to peer 2
+    learner.settings = Settings(**GREEDY, window=5, cq_all_met=0)
+    learner.observe(0)
+    assert learner.act({1: 1, 2: 3}) == EAST
 
 
 def test_cq_mark_range_marks_only_the_peers_near_the_conflict():
@@ -394,8 +416,8 @@ def test_cq_never_asks_for_peers_before_its_first_conflict():
     assert any(met), met
 
 
-def test_cq_acts_on_the_most_confident_of_several_joint_states_met_at_once():
-    learner = cq_with_conflict()
+def test_cq_acts_on_the_most_confident_of_several_joint_states_met_at_once_with_cq_all_met_0():
+    learner = cq_with_conflict(cq_all_met=0)
     learner.observe(1)
     learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3)
     learner.learn(0.0, 0, False)

@@ -13,6 +13,8 @@ the world runs with min_stats_subscribers:=1 (its first step waits for the liste
 subscription) and so does every agent (it holds its statistics until its own publisher has matched the
 listener, and waits for that before it exits; only the publisher's side of a match says that a message will
 arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
+With `--compose` the one child is a container (world_node.compose) holding every node, each reading its
+parameters under its own name in DIR/params.yaml; the nodes and the protocol are the same.
 
 Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
 for a run (timeouts, heartbeat, linger, checkpoints: `SETTABLE`), checked by the nodes' own rules before
@@ -26,6 +28,10 @@ SIGINT, then SIGTERM after 3 s, then SIGKILL after 2 more. Children run in sessi
 terminal's Ctrl-C reaches the launcher only and it stops them in that order, and the kernel sends them SIGTERM
 if the launcher itself dies (PR_SET_PDEATHSIG on Linux): none outlives it. Each child's output goes to
 DIR/logs/<node>.log (ROS file logging is off: the console output is the log).
+
+Hosts. With `hosts` (world_node.hosts: network namespaces joined by a bridge), the launcher runs on the world's
+host and starts each node on its own (`ip netns exec`), all over UDP, discovering each other on the subnet or
+through ROS_STATIC_PEERS only; `cq-ros launch --hosts PREFIX` enters the world's host itself.
 
 Results. The nodes play `episodes` learning episodes, then `eval_episodes` greedy ones (the agents on a copy
 of their learner at epsilon 0, as `cq_ros.engine.greedy_episodes`). Per episode, steps, collisions,
@@ -49,12 +55,13 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from tqdm import tqdm
 
 from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
@@ -69,13 +76,14 @@ from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
     agent_stats_topic, decode_agent_stats, decode_world_stats, new_key_file,
 )
-from msgs_spec.tools import StopSignals, ros_session, spin_until
+from msgs_spec.tools import EXECUTOR_ENV, StopSignals, environment, executor_kind, ros_session, spin_until
 
+from .hosts import Hosts
 from .lockstep import PARAMETERS as WORLD_PARAMETERS
 from .lockstep import world_config
 
 __all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
-           "node_commands", "launch"]
+           "node_specs", "node_commands", "compose_command", "check_hosts", "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -130,12 +138,13 @@ class Child:
     command: list[str]
     log: Path
     process: subprocess.Popen | None = None
+    env: dict[str, str] = field(default_factory=dict)  # its own, over the launch's
 
     def start(self, env: dict[str, str]) -> None:
         with open(self.log, "wb") as log:  # the child keeps its own copy of the descriptor
             self.process = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, stdout=log,
-                                            stderr=subprocess.STDOUT, env=env, start_new_session=True,
-                                            preexec_fn=_die_with_launcher)
+                                            stderr=subprocess.STDOUT, env={**env, **self.env},
+                                            start_new_session=True, preexec_fn=_die_with_launcher)
 
     @property
     def exit_code(self) -> int | None:
@@ -167,7 +176,12 @@ def split_sets(pairs: list[str], gridmap: GridMap) -> tuple[Settings, dict[str, 
             settings.append(pair)
         elif key in SETTABLE:
             default = SETTABLE[key]
-            node[key] = value if isinstance(default, str) else coerce(key, value, type(default))
+            if isinstance(default, bool):  # markers=false
+                if value.lower() not in ("true", "false"):
+                    raise SettingsError(f"setting {key} takes true or false, got {value!r}")
+                node[key] = value.lower() == "true"
+            else:
+                node[key] = value if isinstance(default, str) else coerce(key, value, type(default))
         elif key in LAUNCHER_OWNS:
             raise SettingsError(f"setting {key} is fixed by cq-ros launch (see cq-ros launch --help)")
         else:
@@ -187,6 +201,8 @@ def _check_node_parameters(map_name: str, algo: str, settings: Settings, node: d
 
 def _param(value: Any) -> str:
     """A parameter value as ROS parses it back into the declared type: floats always with a point or exponent."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
@@ -194,12 +210,13 @@ def _params(values: dict[str, Any]) -> list[str]:
     return [arg for k, v in values.items() for arg in ("-p", f"{k}:={_param(v)}")]
 
 
-def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, namespace: str,
-                  step_timeout: float, out: Path, peer_linger_steps: int | None = None,
-                  node_parameters: dict[str, Any] | None = None, key_file: Path | None = None) -> list[Child]:
-    """The world and the agent node(s) of one launch, with the command lines fixed by world_node and
-    agent_node (__main__): every setting that differs from its default on this map (Settings' or the map's
-    own) goes to both, every node parameter (`node_parameters`, from `--set`) to the nodes that take it."""
+def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
+               step_timeout: float, peer_linger_steps: int | None = None,
+               node_parameters: dict[str, Any] | None = None,
+               key_file: Path | None = None) -> dict[str, tuple[str, dict[str, Any]]]:
+    """The nodes of one launch: node name -> (its module, its parameters), the world first, then the agent
+    node(s). Every setting that differs from its default on this map (Settings' or the map's own) goes to
+    both, every node parameter (`node_parameters`, from `--set`) to the nodes that take it."""
     gridmap = load_map(map_name)
     defaults = run_settings(gridmap)
     changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
@@ -209,24 +226,45 @@ def node_commands(map_name: str, algo: str, episodes: int, seed: int, settings: 
     node_parameters = node_parameters or {}
     to_world = {k: v for k, v in node_parameters.items() if k in WORLD_PARAMETERS}
     to_agents = {k: v for k, v in node_parameters.items() if k in AGENT_PARAMETERS}
-    ros = [sys.executable, "-m"]
-    # File logging off: each child's console output is its log (DIR/logs/<node>.log), in one place.
-    args = ["--ros-args", "--disable-external-lib-logs", "-r", f"__ns:=/{namespace}"]
-    world = Child("world", [*ros, "world_node", *args, *_params({
-        **common, "step_timeout": float(step_timeout), "startup_timeout": STARTUP_TIMEOUT_S,
-        "min_stats_subscribers": 1, **to_world, **changed})], out / "logs" / "world.log")
+    nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
+                                      "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1,
+                                      **to_world, **changed})}
     if LEARNERS[algo].central:
         agents = [("jsa", {})]  # one node moves every AGV; agent_id stays 0
     else:
         agents = [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
     linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
-    children = [world]
     for name, ident in agents:
-        children.append(Child(name, [*ros, "agent_node", *args, "-r", f"__node:={name}", *_params({
+        nodes[name] = ("agent_node", {
             **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
-            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **to_agents, **changed})],
-            out / "logs" / f"{name}.log"))
+            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **to_agents, **changed})
+    return nodes
+
+
+# File logging off: each child's console output is its log (DIR/logs/<node>.log), in one place.
+def _ros_args(namespace: str) -> list[str]:
+    return ["--ros-args", "--disable-external-lib-logs", "-r", f"__ns:=/{namespace}"]
+
+
+def node_commands(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path) -> list[Child]:
+    """A process per node (`python -m world_node|agent_node`), the world first, with the command lines fixed
+    by world_node and agent_node (__main__)."""
+    children = []
+    for name, (module, params) in nodes.items():
+        rename = [] if module == "world_node" else ["-r", f"__node:={name}"]
+        children.append(Child(name, [sys.executable, "-m", module, *_ros_args(namespace), *rename, *_params(params)],
+                              out / "logs" / f"{name}.log"))
     return children
+
+
+def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path) -> Child:
+    """Every node in one process (`python -m world_node.compose`), each reading its parameters under its own
+    name in DIR/params.yaml (written here)."""
+    params = {f"/{namespace}/{name}": {"ros__parameters": values} for name, (_, values) in nodes.items()}
+    path = out / "params.yaml"
+    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    return Child("container", [sys.executable, "-m", "world_node.compose", *nodes, *_ros_args(namespace),
+                               "--params-file", str(path)], out / "logs" / "container.log")
 
 
 def _stop(children: list[Child]) -> None:
@@ -340,12 +378,29 @@ class _Progress:
 # -- one launch --------------------------------------------------------------------------------------------
 
 
+def check_hosts(hosts: Hosts, gridmap: GridMap, algo: str, discovery: str) -> None:
+    """ValueError unless a launch of `algo` on `gridmap` can run on these hosts: one per agent node."""
+    if LEARNERS[algo].central:
+        raise ValueError(f"{algo} is one central node: hosts run one agent node per AGV")
+    if hosts.agents != gridmap.n_agents:
+        raise ValueError(f"hosts {hosts.prefix} have {hosts.agents} AGV hosts, map {gridmap.name} has "
+                         f"{gridmap.n_agents} agents")
+    hosts.discovery_env("world", discovery)  # a bad discovery fails here
+
+
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
            settings: Settings | None = None, *, domain_id: int | None = None, namespace: str | None = None,
-           step_timeout: float = 2.0, peer_linger_steps: int | None = None, force: bool = False, figures: bool = True,
-           progress: bool = True, node_parameters: dict[str, Any] | None = None) -> LaunchResult:
-    """Run one (map, algorithm, seed) over ROS and write the result directory `out`. Without `settings`, the
-    run's are the map's (`cq_ros.settings.run_settings`).
+           step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
+           executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
+           progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
+           discovery: str = "subnet") -> LaunchResult:
+    """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
+    with `compose` every node in one process (world_node.compose), spinning on `executor` (EXECUTORS; None:
+    the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
+    Without `settings`, the run's are the map's (`cq_ros.settings.run_settings`).
+
+    With `hosts` (world_node.hosts, one per AGV of the map), each node runs on its own host, found by
+    `discovery` ("subnet" or "static", see world_node.hosts.DISCOVERY); the launcher must run on the world's.
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
     a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
@@ -354,31 +409,46 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
+    executor_name = executor_kind(executor)
     node_parameters = {"step_timeout": float(step_timeout),
                        **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
-                       **(node_parameters or {})}
+                       **({} if markers else {"markers": False}), **(node_parameters or {})}
     _check_node_parameters(map_name, algo, settings, node_parameters)
     given = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
     namespace = given.removeprefix("/")  # "/demo" and "demo" name one namespace, as they do for ROS
     if not NAMESPACE.fullmatch(namespace):
         raise ValueError(f"namespace {given!r} is not a ROS name (letters, digits, _; not starting with a digit)")
+    if hosts is not None:
+        if compose:
+            raise ValueError("--compose runs every node in one process, --hosts each on its own host: choose one")
+        check_hosts(hosts, gridmap, algo, discovery)
+        if hosts.current_host() != "world":
+            raise ValueError(f"the launcher must run on the world's host: ip netns exec {hosts.namespace('world')} ...")
     if domain_id is None:
         domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
     out = prepare_output(Path(out), force)
     for sub in ("logs", "checkpoints"):
         (out / sub).mkdir(exist_ok=True)
     key_file = new_key_file()
-    children = node_commands(map_name, algo, episodes, seed, settings, namespace, step_timeout, out,
-                             peer_linger_steps, node_parameters, key_file)
-    for child in children:  # a fresh run: a checkpoint left by an earlier result would be resumed from
-        (out / "checkpoints" / f"{child.name}.pkl").unlink(missing_ok=True)
+    nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
+                       node_parameters, key_file)
+    children = [compose_command(nodes, namespace, out)] if compose else node_commands(nodes, namespace, out)
+    for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
+        (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-           "PYTHONUNBUFFERED": "1"}
+           "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
+    listener_env: dict[str, str] = {}
+    if hosts is not None:
+        for child in children:
+            child.command = [*hosts.exec_on(child.name), *child.command]
+            child.env = hosts.discovery_env(child.name, discovery)
+        listener_env = hosts.discovery_env("world", discovery)
     learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
     started = time.perf_counter()
 
-    with StopSignals() as stop, ros_session("launch", domain_id=domain_id, namespace=f"/{namespace}",
-                                            localhost_only=True, hidden=False) as (node, executor):
+    with StopSignals() as stop, environment(**listener_env), ros_session(
+            "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
+            hidden=False) as (node, executor):
         listener = StatsListener(node, gridmap, episodes + settings.eval_episodes)
         bar = _Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
         try:
@@ -403,21 +473,25 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             key_file.unlink(missing_ok=True)
             bar.close()
 
-    run_info = dict(mode="ros", domain_id=domain_id, namespace=f"/{namespace}",
-                    step_timeout_s=node_parameters["step_timeout"],
+    on_hosts = {} if hosts is None else {"hosts": {"prefix": hosts.prefix, "discovery": discovery,
+                                                   "addresses": {h: hosts.address(h) for h in hosts.names}}}
+    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
+                    domain_id=domain_id, namespace=f"/{namespace}",
+                    step_timeout_s=node_parameters["step_timeout"], **on_hosts,
                     peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
     result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
-                    learners, children, run_info)
+                    learners, list(nodes)[1:], children, run_info)
     if figures:
         from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
 
-        write_figures(out)
+        write_figures(out, map_loader=lambda _name: gridmap)  # a map file is known by its name only here
     return result
 
 
 def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings, wall: float,
-           listener: StatsListener, learners: list[int], children: list[Child], run_info: dict) -> LaunchResult:
+           listener: StatsListener, learners: list[int], learner_nodes: list[str], children: list[Child],
+           run_info: dict) -> LaunchResult:
     """episodes.csv, observe.csv, greedy.csv and manifest.json from the statistics heard: the first `episodes`
     (learning) and the greedy ones after them (see the module docstring for what comes from where)."""
     played = range(listener.episodes)
@@ -434,11 +508,10 @@ def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, set
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
         nodes={c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
                for c in children},
-        # children[1:] are the learners' nodes, in the order of `learners`
-        communication={child.name: {"subscriptions_created": s.subscriptions_created,
-                                    "subscriptions_active": s.subscriptions_active,
-                                    "peer_messages": s.peer_messages, "counters": dict(s.counters)}
-                       for child, s in zip(children[1:], final)},
+        communication={name: {"subscriptions_created": s.subscriptions_created,
+                              "subscriptions_active": s.subscriptions_active,
+                              "peer_messages": s.peer_messages, "counters": dict(s.counters)}
+                       for name, s in zip(learner_nodes, final)},
         world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher={"dropped": listener.drops.as_counters()})

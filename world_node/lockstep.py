@@ -63,6 +63,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "key_file": ("", "file holding the run's key (hex, readable by its owner only; cq-ros launch writes one): "
                      "key every message that steers the run and drop actions without a matching MAC; empty: "
                      "no authentication"),
+    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
+                          "world/map (latched) and world/markers every step; false: not even the publishers"),
 }
 PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (world dynamics use the rewards, "
                                        "step_cap and slip); not given: the map's default, else this one")

@@ -30,6 +30,7 @@ from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
 from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
 
 from .lockstep import PARAMETERS, Lockstep, world_config
+from .viz import WorldView
 
 __all__ = ["WorldNode"]
 
@@ -59,6 +60,7 @@ class WorldNode(Node):
             Feedback: {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents},
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+        self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
                                                      ACTION.reader_qos) for k in agents}
         self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
@@ -116,6 +118,8 @@ class WorldNode(Node):
 
     def _publish(self, out: list) -> None:
         self._send(out)
+        if self._view is not None:
+            self._view.publish(out)
         if self.core.finished and not self.done.done():
             self.get_logger().info(f"all {self.config.total_episodes} episodes played ({self.config.episodes} "
                                    f"learning, {self.config.settings.eval_episodes} greedy)")

@@ -34,7 +34,8 @@ class CQLearner(Learner):
         self.windows = [RewardWindows(st.window) for _ in range(self.n_cells * N_MOVES)]  # W1, W2 per (s, a)
         self.test = ConflictTest(st.window, st.significance)
         self.conflict_at = None  # a cell whose conflict is marked as soon as the peers are seen
-        self.pending = None  # (row, action, reward, next_cell): an update waiting for the row acted on next
+        self.rows: list[list[float]] = []  # the rows acted on: Q_k of the cell, or Q^j of the joint states met
+        self.pending = None  # (rows, action, reward, next_cell): an update waiting for the row acted on next
 
     def observe(self, cell):
         self.s = cell
@@ -46,8 +47,14 @@ class CQLearner(Learner):
         if self.conflict_at is not None:
             self._mark(self.conflict_at, peer_cells)
             self.conflict_at = None
-        self.js = self._meet(self.s, peer_cells) if self.s in self.marked else None
-        row = self.q_local[self.s] if self.js is None else self.q_joint[self.js]
+        met = self._meet(self.s, peer_cells) if self.s in self.marked else []
+        self.js = met[0] if met else None
+        if not met:
+            self.rows = [self.q_local[self.s]]
+        else:
+            self.rows = [self.q_joint[js] for js in (met if self.settings.cq_all_met else met[:1])]
+        # several joint states met at once: an action is worth what the most wary of them says
+        row = self.rows[0] if len(self.rows) == 1 else [min(q) for q in zip(*self.rows)]
         if self.pending is not None:
             self._bootstrap(row)
         self.a = epsilon_greedy(row, self.epsilon, self.rng)
@@ -60,18 +67,19 @@ class CQLearner(Learner):
         w = self.windows[s * N_MOVES + a]
         if w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample):
             self.conflict_at = None if done else s
-        row = self.q_local[s] if self.js is None else self.q_joint[self.js]
         if self.settings.cq_bootstrap_acted and not done:
-            self.pending = (row, a, reward, next_cell)
+            self.pending = (self.rows, a, reward, next_cell)
         else:
-            q_update(row, a, target, self.alpha)
+            for row in self.rows:
+                q_update(row, a, target, self.alpha)
 
     def _bootstrap(self, next_row=None):
         """The waiting update, from the row acted on now (Q_k of the next cell if the episode was cut)."""
-        row, a, reward, next_cell = self.pending
+        rows, a, reward, next_cell = self.pending
         self.pending = None
         best = max(self.q_local[next_cell] if next_row is None else next_row)
-        q_update(row, a, reward + self.gamma * best, self.alpha)
+        for row in rows:
+            q_update(row, a, reward + self.gamma * best, self.alpha)
 
     @staticmethod
     def sample(reward, target):
@@ -108,22 +116,21 @@ class CQLearner(Learner):
         self._rewatch(s)
 
     def _meet(self, s, peer_cells):
-        """The joint state of cell s met now (the most confident, if several), or None."""
+        """The joint states of cell s met now, the most confident first (the first marked among equals)."""
         st = self.settings
-        met = None
+        met = []
         for js in list(self.marked[s]):
             _, j, c = js
             if peer_cells[j] == c:
                 self.confidence[js] = min(st.conf_max, self.confidence[js] + st.conf_up)
-                if met is None or self.confidence[js] > self.confidence[met]:
-                    met = js
+                met.append(js)
             else:
                 self.confidence[js] -= st.conf_down
                 if self.confidence[js] < st.conf_drop:
                     self._forget(js)
-        if met is not None:
+        if met:
             self.joint_plays += 1
-        return met
+        return sorted(met, key=lambda js: -self.confidence[js])
 
     def _forget(self, js):
         s = js[0]

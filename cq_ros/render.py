@@ -1,0 +1,200 @@
+"""An episode as an animation: the map, the AGVs and their goals, and a line from each agent to every peer it
+looks at to choose its move (CQ's sparse attention), step by step, as an animated GIF (matplotlib's
+animation writers: Pillow for GIF, ffmpeg for MP4 where it is installed).
+
+The same picture as a ROS viewer gets from the world's and the agents' markers (msgs_spec/viz.py), with the
+same geometry (cell (row, col) centred at x = col + 0.5, y = -(row + 0.5)), the same map lattice and the same
+colours (matplotlib's tab10). Frames come from the offline engine (`engine_frames`, which films one episode
+of `cq_ros.engine.run` without changing it) or from a recorded bag (`frames_from`, given the decoded
+messages). No ROS import here.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from .engine import Team, make_learners, world_seed
+from .gridmap import GridMap
+from .settings import Settings
+from .world import GridWorld
+
+__all__ = ["Frame", "lattice", "engine_frames", "frames_from", "check_output", "write_animation", "FORMATS"]
+
+FORMATS = {".gif": "pillow", ".mp4": "ffmpeg"}  # output suffix -> matplotlib animation writer
+CELL_INCHES = 0.6
+DPI = 72
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One step of an episode: where each AGV is (agent k at index k-1) and, for each agent that chose a move
+    at this step, the (peer, row, col) of every peer it looked at (agents 1-based; none at the last step)."""
+
+    episode: int
+    step: int
+    cells: tuple[tuple[int, int], ...]
+    looks: dict[int, tuple[tuple[int, int, int], ...]] = field(default_factory=dict)
+
+
+def lattice(gridmap: GridMap) -> tuple[tuple[bool, ...], ...]:
+    """The map's occupancy lattice, True = occupied: (2H+1) x (2W+1) elements, cell (row, col) at
+    (2 row + 1, 2 col + 1), the edge between two cells between them (free where an agent can cross it), and
+    a corner free only where the four edges around it are."""
+    rows, cols = 2 * gridmap.height + 1, 2 * gridmap.width + 1
+    occupied = [[True] * cols for _ in range(rows)]
+    for index, (row, col) in enumerate(gridmap.cells):
+        occupied[2 * row + 1][2 * col + 1] = False
+        moves = gridmap.neighbours[index]
+        if moves[1] != index:  # EAST leads on: the edge to the right is open
+            occupied[2 * row + 1][2 * col + 2] = False
+        if moves[2] != index:  # SOUTH
+            occupied[2 * row + 2][2 * col + 1] = False
+    for i in range(2, rows - 1, 2):
+        for j in range(2, cols - 1, 2):
+            occupied[i][j] = any(occupied[i + di][j + dj] for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)))
+    return tuple(map(tuple, occupied))
+
+
+class _FilmedWorld:
+    """The engine's world, recording a Frame before every joint step (with the looks its learners reported
+    while choosing) and one after the last."""
+
+    def __init__(self, world: GridWorld, episode: int):
+        self._world, self.episode = world, episode
+        self.frames: list[Frame] = []
+        self.looks: dict[int, tuple[tuple[int, int, int], ...]] = {}
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._world, name)
+
+    def shoot(self) -> None:
+        w = self._world
+        self.frames.append(Frame(self.episode, w.t, tuple(w.map.cells[c] for c in w.cells), self.looks))
+        self.looks = {}
+
+    def step_joint(self, actions: list[int | None]) -> list[float]:
+        self.shoot()
+        return self._world.step_joint(actions)
+
+
+class _FilmedLearner:
+    """A learner reporting to the filmed world whom it looks at: the peers its observe() names (for the
+    central JSA learner, every other acting agent: it chooses on the joint state)."""
+
+    def __init__(self, learner: Any, world: _FilmedWorld):
+        self._learner, self._world = learner, world
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._learner, name)
+
+    def observe(self, cell: Any) -> tuple[int, ...]:
+        need = self._learner.observe(cell)
+        w = self._world._world
+        cells = [w.map.cells[c] for c in w.cells]
+        acting = [i for i in range(w.n) if not w.done[i]]
+        looking = acting if self._learner.central else [self._learner.agent]
+        for i in looking:
+            peers = [j for j in acting if j != i] if self._learner.central else need
+            if peers:
+                self._world.looks[i + 1] = tuple((j + 1, *cells[j]) for j in peers)
+        return need
+
+
+def engine_frames(gridmap: GridMap, algo: str, settings: Settings, seed: int, episodes: int,
+                  episode: int | None = None, progress: Callable[[int], Any] | None = None) -> list[Frame]:
+    """The frames of learning episode `episode` (0-based; None: the last of `episodes`) of the offline run
+    `cq_ros.engine.run(algo, gridmap, settings, seed, 0, episodes)`: every step from 0 to the last.
+    `progress(e)` is called after each episode e played before it."""
+    episode = episodes - 1 if episode is None else episode
+    if not 0 <= episode < episodes:
+        raise ValueError(f"episode {episode} is not one of the {episodes} episodes (0..{episodes - 1})")
+    world = GridWorld(gridmap, settings, seed=world_seed(seed, 0))
+    team = Team(world, make_learners(algo, gridmap, settings, seed, 0))
+    for e in range(episode):
+        team.episode()
+        if progress is not None:
+            progress(e)
+    filmed = _FilmedWorld(world, episode)
+    team.world, team.learners = filmed, [_FilmedLearner(learner, filmed) for learner in team.learners]
+    team.episode()
+    filmed.shoot()
+    return filmed.frames
+
+
+def frames_from(scenes: Iterable[Any], looks: Iterable[Any]) -> list[Frame]:
+    """Frames from what a ROS run published: each scene (.episode, .step, .cells) with the looks (.agent,
+    .episode, .step, .peers) stamped with its step; a look with no peers draws nothing."""
+    by_step: dict[tuple[int, int], dict[int, tuple]] = {}
+    for look in looks:
+        if look.peers:
+            by_step.setdefault((look.episode, look.step), {})[look.agent] = tuple(look.peers)
+    return [Frame(s.episode, s.step, tuple(s.cells), by_step.get((s.episode, s.step), {})) for s in scenes]
+
+
+def check_output(path: Path) -> str:
+    """The matplotlib writer for `path`; ValueError (one line) for a suffix we cannot write here."""
+    from matplotlib import animation
+
+    writer_name = FORMATS.get(path.suffix.lower())
+    if writer_name is None:
+        raise ValueError(f"{path}: the animation's file name must end in {' or '.join(FORMATS)}")
+    if not animation.writers.is_available(writer_name):
+        raise ValueError(f"{path}: writing {path.suffix} needs {writer_name}, which is not installed here")
+    return writer_name
+
+
+def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], ...],
+                    goals: tuple[tuple[int, int], ...], frames: list[Frame], *, title: str = "",
+                    fps: float = 4.0, progress: Callable[[int], Any] | None = None) -> Path:
+    """Write `frames` as an animation to `path` (.gif with Pillow, .mp4 with ffmpeg); ValueError for another
+    suffix, an empty episode or a missing ffmpeg. `progress(i)` is called after frame i is drawn."""
+    from matplotlib import animation, colormaps
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
+    path = Path(path)
+    writer_name = check_output(path)
+    if not frames:
+        raise ValueError("no frames to draw: the episode is empty")
+    height, width = (len(occupancy) - 1) // 2, (len(occupancy[0]) - 1) // 2
+    colours = colormaps["tab10"].colors
+    colour = [colours[k % len(colours)] for k in range(len(goals))]
+
+    fig = Figure(figsize=(max(3.0, width * CELL_INCHES), max(2.5, height * CELL_INCHES + 0.5)))
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.02, 0.02, 0.96, 0.86))
+    ax.set_axis_off()
+    ax.imshow([[0.25 if v else 1.0 for v in row] for row in occupancy], cmap="gray", vmin=0, vmax=1,
+              extent=(-0.25, width + 0.25, -(height + 0.25), 0.25), interpolation="nearest")
+    for k, (row, col) in enumerate(goals):
+        ax.add_patch(Rectangle((col + 0.05, -(row + 0.95)), 0.9, 0.9, color=colour[k], alpha=0.35, lw=0))
+    ax.set_xlim(-0.25, width + 0.25)
+    ax.set_ylim(-(height + 0.25), 0.25)
+    lines = ax.add_collection(LineCollection([], linewidths=2.0, zorder=2))
+    agvs = ax.scatter([0] * len(goals), [0] * len(goals), s=(72 * 0.6 * CELL_INCHES) ** 2, c=colour, zorder=3,
+                      edgecolors="black", linewidths=0.8)
+    labels = [ax.text(0, 0, str(k + 1), ha="center", va="center", fontsize=7, color="white", zorder=4,
+                      fontweight="bold") for k in range(len(goals))]
+    heading = fig.suptitle("", fontsize=9)
+
+    writer = animation.writers[writer_name](fps=fps)
+    with writer.saving(fig, str(path), dpi=DPI):
+        for i, frame in enumerate(frames):
+            xy = [(col + 0.5, -(row + 0.5)) for row, col in frame.cells]
+            agvs.set_offsets(xy)
+            for label, (x, y) in zip(labels, xy):
+                label.set_position((x, y))
+            segments = [(xy[k - 1], (col + 0.5, -(row + 0.5))) for k, peers in sorted(frame.looks.items())
+                        for _, row, col in peers]
+            lines.set_segments(segments)
+            lines.set_color([colour[k - 1] for k, peers in sorted(frame.looks.items()) for _ in peers])
+            heading.set_text(f"{title}  episode {frame.episode}, step {frame.step}".strip())
+            writer.grab_frame()
+            if progress is not None:
+                progress(i)
+    return path

@@ -1,0 +1,157 @@
+"""Composed mode: the world and every agent node in one process on one EventsExecutor (world_node.compose, as
+`cq-ros launch --compose` runs it, each node reading its parameters under its own name from the params file)
+give exactly the offline engine's episodes for all five algorithms' kinds of node on two maps; the launch
+writes the same results as a process per node; a bad parameter, a bad node name and Ctrl-C end it cleanly."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+
+from cq_ros.engine import run
+from cq_ros.gridmap import load_map
+from cq_ros.settings import Settings
+from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
+    decode_world_stats
+from msgs_spec.tools import make_executor, spin_nodes
+from processes import alive_with
+from world_node.compose import make_nodes
+from world_node.launch import compose_command, node_specs
+
+RUN_TIMEOUT_S = 60.0  # a bound for one composed run; each below takes a second or two
+# Short runs: on grid_game_2 CQ marks joint states (and so subscribes to its peer) within 30 episodes;
+# tunnel_to_goal's early episodes run to the step cap. A greedy episode or two after the learning ones.
+CASES = {"grid_game_2": (30, {"window": 5, "eval_episodes": 2}),
+         "tunnel_to_goal": (6, {"step_cap": 100, "eval_episodes": 1})}
+ALGOS = ("cq", "js", "loc", "jsa", "indep")
+SEED = 1
+
+
+def composed_run(map_name: str, algo: str, tmp_path: Path, domain_id: int) -> tuple[list, dict]:
+    """Run the nodes of a launch of (map, algo) composed in this process, as the container does; return
+    (WorldStats by episode, {agent: AgentStats by episode}) heard by a probe node beside them."""
+    episodes, overrides = CASES[map_name]
+    nodes = node_specs(map_name, algo, episodes, SEED, Settings().with_overrides(overrides), tmp_path,
+                       step_timeout=30.0)
+    (tmp_path / "checkpoints").mkdir()
+    command = compose_command(nodes, "composed", tmp_path).command
+    ctx = Context()  # the container's arguments: its namespace and the params file with every node's parameters
+    rclpy.init(context=ctx, domain_id=domain_id, args=["container", *command[command.index("--ros-args"):]])
+    n = load_map(map_name).n_agents
+    world_stats, agent_stats = [], {k: [] for k in range(1, n + 1)}
+    probe = rclpy.create_node("probe", context=ctx)
+    probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
+                              lambda m: world_stats.append(decode_world_stats(m)), WORLD_STATS.qos)
+    for k in agent_stats:
+        probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
+                                  lambda m, k=k: agent_stats[k].append(decode_agent_stats(m)), AGENT_STATS.qos)
+    executor = make_executor("events", ctx)
+    composed = []
+    try:
+        composed = make_nodes(list(nodes), context=ctx)
+        for node in (*composed, probe):
+            executor.add_node(node)
+        deadline = time.monotonic() + RUN_TIMEOUT_S
+        assert spin_nodes(executor, composed, lambda: time.monotonic() > deadline) == 0
+        total = episodes + overrides["eval_episodes"]
+        end = time.monotonic() + 5.0
+        while min(len(world_stats), *map(len, agent_stats.values())) < total and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.shutdown()
+        for node in (*composed, probe):
+            node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    return world_stats, agent_stats
+
+
+@pytest.mark.parametrize("map_name", list(CASES))
+@pytest.mark.parametrize("algo", ALGOS)
+def test_composed_nodes_give_exactly_the_offline_engines_episodes(map_name, algo, tmp_path, ros_domain_id):
+    episodes, overrides = CASES[map_name]
+    world_stats, agent_stats = composed_run(map_name, algo, tmp_path, ros_domain_id)
+    offline = run(algo, load_map(map_name), Settings().with_overrides(overrides), SEED, 0, episodes)
+    table = np.vstack([offline.episodes, offline.greedy])
+    assert [(s.episode, s.steps, s.collisions, s.truncated) for s in world_stats] == \
+        [(e, int(r[0]), int(r[1]), bool(r[5])) for e, r in enumerate(table)]
+    assert all(s.missed_actions == 0 and not s.counters for s in world_stats)
+    reporters = [1] if algo == "jsa" else list(agent_stats)  # the central node reports alike on every agv<k>
+    assert all(len(agent_stats[k]) == len(table) for k in agent_stats)
+    assert [(sum(agent_stats[k][e].joint_plays for k in reporters),
+             sum(agent_stats[k][e].local_states + agent_stats[k][e].joint_states for k in reporters))
+            for e in range(len(table))] == [(int(r[2]), int(r[3])) for r in table]
+    if (map_name, algo) == ("grid_game_2", "cq"):  # its peer subscriptions come and go under this executor
+        assert all(agent_stats[k][-1].subscriptions_created > 0 for k in agent_stats)
+
+
+def launch_command(out: Path, namespace: str, episodes: int, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "cq_ros.cli", "launch", "--compose", "--map", "grid_game_2", "--algo", "cq",
+            "--episodes", str(episodes), "--seed", str(SEED), "--out", str(out), "--namespace", namespace,
+            "--set", "window=5", *extra]
+
+
+def test_a_composed_launch_writes_the_offline_engines_episodes_from_one_process(tmp_path):
+    out, namespace = tmp_path / "result", f"composed_{uuid.uuid4().hex[:8]}"
+    done = subprocess.run(launch_command(out, namespace, 30, "--set", "eval_episodes=2", "--no-figures"),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert not alive_with(namespace)
+    offline = run("cq", load_map("grid_game_2"), Settings().with_overrides({"window": 5, "eval_episodes": 2}),
+                  SEED, 0, 30)
+    with open(out / "episodes.csv", newline="") as f:
+        rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
+    assert rows == [(int(e[0]), int(e[1]), int(e[2])) for e in offline.episodes]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["composed"] is True and manifest["executor"] == "events"
+    assert set(manifest["nodes"]) == {"container"} and manifest["nodes"]["container"]["exit_code"] == 0
+    assert set(manifest["communication"]) == {"agv1", "agv2"}  # still one node per AGV, each its own counts
+    assert all(c["subscriptions_created"] > 0 for c in manifest["communication"].values())
+    log = (out / "logs" / "container.log").read_text()
+    assert all(f"[{namespace}.{node}]" in log for node in ("world", "agv1", "agv2"))
+
+
+def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):
+    out, namespace, err = tmp_path / "result", f"stopme_{uuid.uuid4().hex[:8]}", tmp_path / "launch.stderr"
+    with open(err, "wb") as f:
+        launcher = subprocess.Popen(launch_command(out, namespace, 100_000), stdout=subprocess.DEVNULL, stderr=f)
+    try:
+        log = out / "logs" / "container.log"
+        deadline = time.monotonic() + 60
+        while not (log.exists() and "stepping" in log.read_text()):
+            assert time.monotonic() < deadline and launcher.poll() is None, err.read_text()
+            time.sleep(0.1)
+        launcher.send_signal(signal.SIGINT)
+        assert launcher.wait(timeout=30) == 130
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait(timeout=30)
+    assert not alive_with(namespace)
+    assert re.search(r"interrupted by SIGINT after \d+/100020 episodes; stopped container", err.read_text())
+    assert "Traceback" not in log.read_text()  # the container ended through its own Ctrl-C path
+
+
+@pytest.mark.parametrize("args, message", [
+    (["world", "agv1", "--ros-args", "-p", "map:=nowhere"], "parameter map: nowhere: no such map"),
+    (["world", "world"], "node names must be distinct, repeated: world"),
+    (["world", "agv-1"], "node name 'agv-1'"),
+    ([], "no node names"),
+])
+def test_the_container_exits_2_with_one_line_for_bad_input(args, message):
+    done = subprocess.run([sys.executable, "-m", "world_node.compose", *args], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
+

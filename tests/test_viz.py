@@ -1,0 +1,156 @@
+"""A run you can watch: the world's map (OccupancyGrid) and markers and each agent's looks (MarkerArray),
+decoded from a live run and from a bag of `cq-ros record`, show exactly what the offline engine's episode shows
+(where every AGV is, whom each agent looks at); nothing is built while nobody watches; `cq-ros render` draws
+an episode as a GIF with one frame per step, from the engine or from the bag."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from PIL import Image
+
+from cq_ros.engine import run
+from cq_ros.gridmap import load_map
+from cq_ros.render import CELL_INCHES, DPI, engine_frames, frames_from, lattice
+from cq_ros.settings import Settings
+from msgs_spec import Bounds
+from msgs_spec import viz
+from msgs_spec.tools import read_view_bag
+from test_nodes_inprocess import finish, system_in  # noqa: F401 (system_in: a fixture)
+
+GRID = ("grid_game_2", 1, (("window", 5), ("eval_episodes", 0)))
+EPISODES = 30  # CQ marks joint states by then, so its agents look at each other now and then
+WAIT_S = 20.0  # bound on a subscription's match
+
+
+def offline_frames(algo: str, episode: int) -> list:
+    map_name, seed, settings = GRID
+    return engine_frames(load_map(map_name), algo, Settings().with_overrides(dict(settings)), seed, EPISODES,
+                         episode)
+
+
+def watch(ctx, system) -> dict:
+    """Subscribe a viewer to the map, the scene and every agent's looks (decoded as they come)."""
+    import rclpy
+
+    gridmap = load_map(GRID[0])
+    bounds = Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
+    seen = {"map": [], "scenes": [], "looks": []}
+    viewer = system.add(rclpy.create_node("viewer", context=ctx))
+    viewer.create_subscription(viz.MAP.msg_type, viz.MAP_TOPIC,
+                               lambda m: seen["map"].append(viz.MAP.decode(m)), viz.MAP.qos)
+    viewer.create_subscription(viz.SCENE.msg_type, viz.SCENE_TOPIC,
+                               lambda m: seen["scenes"].append(viz.SCENE.decode(m, bounds=bounds)), viz.SCENE.qos)
+    for k in range(1, gridmap.n_agents + 1):
+        viewer.create_subscription(viz.LOOKS.msg_type, viz.looks_topic(k), lambda m, k=k: seen["looks"].append(
+            viz.LOOKS.decode(m, bounds=bounds, agent=k)), viz.LOOKS.qos)
+    return seen
+
+
+def matched(system, stats_subscribers: int) -> bool:
+    """Every viewer publication of the system has a subscriber, and world/stats `stats_subscribers` (asking
+    needs no spinning)."""
+    pubs = [system.world._view.scene] + [p for a in system.agents for p in a._view.pubs.values()]
+    return (all(p.get_subscription_count() >= 1 for p in pubs)
+            and system.world._stats.get_subscription_count() >= stats_subscribers)
+
+
+def wait_matched(system, stats_subscribers: int = 1) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not matched(system, stats_subscribers):
+        assert time.monotonic() < deadline, "the viewer's subscriptions never matched"
+        time.sleep(0.02)
+
+
+@pytest.mark.parametrize("algo", ["cq", "jsa"])  # decentralised looks, and the central node's for every AGV
+def test_a_live_run_shows_what_the_offline_episode_shows(system_in, ros_context, spin_until, algo):
+    map_name, seed, settings = GRID
+    system = system_in(algo, map_name, seed, EPISODES, settings)
+    seen = watch(ros_context, system)
+    wait_matched(system)  # before the first step: the world steps only once it is spun
+    finish(system, spin_until)
+    assert spin_until(system.executor, lambda: seen["map"] and {s.episode for s in seen["scenes"]} >= {EPISODES - 1}
+                      and len(seen["scenes"]) == sum(s.steps + 1 for s in system.world_stats), 5.0)
+    assert [m.lattice for m in seen["map"]] == [lattice(load_map(map_name))]
+    frames = frames_from(seen["scenes"], seen["looks"])
+    for episode in (0, EPISODES - 1):
+        assert [f for f in frames if f.episode == episode] == offline_frames(algo, episode)
+    assert any(f.looks for f in frames)
+    goals = load_map(map_name)
+    assert all(s.goals == tuple(goals.cells[g] for g in goals.goals) for s in seen["scenes"])
+
+
+def test_nothing_is_built_for_viewers_while_nobody_subscribes(system_in, ros_context, spin_until, monkeypatch):
+    built = {payload: 0 for payload in viz._ENCODERS}
+    for payload, encode in list(viz._ENCODERS.items()):
+        monkeypatch.setitem(viz._ENCODERS, payload,
+                            lambda p, _encode=encode, **kw: (built.__setitem__(type(p), built[type(p)] + 1),
+                                                             _encode(p, **kw))[1])
+    map_name, seed, settings = GRID
+    system = finish(system_in("cq", map_name, seed, 10, settings), spin_until)
+    assert built == {viz.Occupancy: 1, viz.Scene: 0, viz.Looks: 0}  # the latched map, once
+
+
+def test_markers_false_creates_no_publisher_for_viewers(system_in, spin_until):
+    map_name, seed, settings = GRID
+    off = system_in("indep", map_name, seed, 2, settings, world_extra={"markers": False},
+                    agent_extra={k: {"markers": False} for k in (1, 2)})
+    node = off.world
+    assert off.world._view is None and all(a._view is None for a in off.agents)
+    assert node.count_publishers(viz.SCENE_TOPIC) == node.count_publishers(viz.MAP_TOPIC) == 0
+    finish(off, spin_until)
+
+
+def test_a_recorded_bag_replays_the_run_and_renders_as_a_gif(system_in, tmp_path, spin_until, ros_domain_id):
+    bag, gif = tmp_path / "bag", tmp_path / "episode.gif"
+    env = {**os.environ, "ROS_DOMAIN_ID": str(ros_domain_id)}
+    recorder = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "record", "--out", str(bag), "--duration", "90"],
+                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        map_name, seed, settings = GRID
+        system = system_in("cq", map_name, seed, EPISODES, settings)
+        wait_matched(system, stats_subscribers=2)  # the probe's statistics subscription, and the recorder's
+        finish(system, spin_until)
+        time.sleep(0.5)  # the recorder's last messages
+        recorder.send_signal(signal.SIGINT)
+        out, err = recorder.communicate(timeout=30)
+        assert recorder.returncode == 0, err
+    finally:
+        if recorder.poll() is None:
+            recorder.kill()
+            recorder.wait(timeout=30)
+    occupancy, scenes, looks = read_view_bag(bag)
+    assert occupancy.lattice == lattice(load_map(map_name))
+    frames = frames_from(scenes, looks)
+    last = offline_frames("cq", EPISODES - 1)
+    for episode in (0, EPISODES - 1):
+        assert [f for f in frames if f.episode == episode] == offline_frames("cq", episode)
+
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", "--bag", str(bag), "--out", str(gif)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    with Image.open(gif) as image:  # one frame per step of the last episode, at the size the map asks
+        assert image.format == "GIF" and image.n_frames == len(last)
+        gridmap = load_map(map_name)
+        assert image.size == (round(max(3.0, gridmap.width * CELL_INCHES) * DPI),
+                              round(max(2.5, gridmap.height * CELL_INCHES + 0.5) * DPI))
+
+
+def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
+    gif = tmp_path / "tunnel.gif"
+    args = ["--map", "tunnel_to_goal", "--algo", "cq", "--episodes", "20", "--seed", "3", "--set", "step_cap=60"]
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--episode", "4", "--out", str(gif)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    steps = run("cq", load_map("tunnel_to_goal"), Settings().with_overrides({"step_cap": 60}), 3, 0, 20).episodes[4, 0]
+    with Image.open(gif) as image:
+        assert image.n_frames == int(steps) + 1 and min(image.size) >= 150
+    bad = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--episode", "20", "--out",
+                          str(tmp_path / "x.gif")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "episode 20 is not one of the 20 episodes" in bad.stderr
+    assert not (tmp_path / "x.gif").exists()
