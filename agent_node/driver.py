@@ -14,14 +14,9 @@ Peer subscriptions (`PeerView`): a peer the learner names is subscribed at once;
 dropped after `linger` decision steps without need (the end of the agent's episode counts as one, except
 for JS, which needs every peer at every step). The
 default, 0, is the design's rule: an agent listens to a peer only while it stands in a state that names it.
-A new subscription waits for the match and the reliable handshake before the latched sample arrives
-(measured here: 12 ms median across processes; in one process 9 ms median but 75 ms for one in ten), while a
-kept one costs a message a step. CQ on tunnel_to_goal over `cq-ros launch` (seed 0, default settings, 300
-episodes: 20,778 joint steps; two agent processes, 2 cores) received 2,218 peer messages with linger 0 over
-1,159 subscriptions, 2,853 over 509 with linger 1 and 3,784 over 437 with linger 3, at 556, 674 and 668
-steps/s; JS in the same run received 27,421 (12.4x, 9.6x and 7.2x CQ's) at 451 steps/s. Lingering saves
-subscriptions, not messages; LoC, which re-decides COORDINATE every step, gains most from it
-(`--peer-linger-steps 3`; grid_game_2: 53 subscriptions instead of 167, 320-335 steps/s instead of 170-205).
+A new subscription waits for the match and the reliable handshake before the latched sample arrives, while
+a kept one costs a message a step: lingering saves subscriptions, not messages, and LoC, which re-decides
+COORDINATE every step, gains most from it. The measured costs are in the README ("Who listens to whom").
 
 Greedy evaluation: after its `episodes` learning episodes a driver plays `eval_episodes` more, as
 `cq_ros.engine.greedy_episodes` does after `run`: on a deep copy of the learner with epsilon 0 (learning goes

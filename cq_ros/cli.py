@@ -103,7 +103,7 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--seed", type=_number(0, kind=int), default=0, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
-    p.add_argument("--namespace", default=None, help="ROS namespace of the run (default: random cq_<hex>)")
+    p.add_argument("--namespace", default=None, help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
     p.add_argument("--step-timeout", type=_seconds, default=2.0, metavar="S",
                    help="seconds the world waits for an action before the agent stays (default 2)")
     p.add_argument("--peer-linger-steps", type=_number(0, kind=int), default=None, metavar="N",

@@ -12,6 +12,7 @@ with slip > 0) from `world_seed(seed, r)`: the same seed gives the same run, off
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import astuple, dataclass
 
 import numpy as np
@@ -128,10 +129,17 @@ class RunResult:
     greedy: np.ndarray  # (eval_episodes, 6): the same columns for the greedy policy at the end
 
 
-def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int) -> RunResult:
-    """Play `episodes` episodes of one algorithm with fresh learners; the per-episode records."""
+def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int,
+        on_episode: Callable[[], None] | None = None) -> RunResult:
+    """Play `episodes` episodes of one algorithm with fresh learners; the per-episode records.
+    `on_episode` is called after each learning episode (progress)."""
     world = GridWorld(gridmap, settings, seed=world_seed(seed, run_index))
     team = Team(world, make_learners(algo, gridmap, settings, seed, run_index))
-    table = np.array([astuple(team.episode()) for _ in range(episodes)], dtype=float)
+    rows = []
+    for _ in range(episodes):
+        rows.append(astuple(team.episode()))
+        if on_episode is not None:
+            on_episode()
+    table = np.array(rows, dtype=float)
     kept = [(learner.agent, *js) for learner in team.learners for js in learner.joint_states()]
     return RunResult(algo, run_index, table, kept, greedy_episodes(team, settings.eval_episodes))

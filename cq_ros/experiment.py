@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import csv
 import json
+import multiprocessing
 import os
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from importlib import metadata
@@ -48,35 +50,87 @@ class Job:
     settings: Settings = field(default_factory=Settings)
 
 
-def _play(job: Job) -> tuple[Job, RunResult, float]:
+class Progress:
+    """Episodes and runs done, with the rate and the time left, on stderr: a tqdm bar on a terminal;
+    elsewhere (a log, CI, a pipe) a plain line at the start, then every `interval` seconds, and at the end."""
+
+    def __init__(self, label: str, episodes: int, runs: int, interval: float = 30.0):
+        self.label, self.episodes, self.runs, self.interval = label, episodes, runs, interval
+        self.tty = sys.stderr.isatty()
+        self.bar = tqdm(total=episodes, desc=label, unit="episode", disable=not self.tty)
+        self.started = self.shown_at = time.monotonic()
+        self.done = self.runs_done = 0
+        if not self.tty:
+            self._line()
+
+    def update(self, episodes_done: int, runs_done: int) -> None:
+        if self.tty:
+            self.bar.set_postfix_str(f"runs {runs_done}/{self.runs}", refresh=False)
+            self.bar.update(episodes_done - self.done)
+        self.done, self.runs_done = episodes_done, runs_done
+        if not self.tty and time.monotonic() - self.shown_at >= self.interval:
+            self._line()
+
+    def close(self) -> None:
+        self.bar.close()
+        if not self.tty:
+            self._line()
+
+    def _line(self) -> None:
+        now = time.monotonic()
+        self.shown_at, elapsed = now, now - self.started
+        rate = self.done / elapsed if elapsed > 0 else 0.0
+        left = f"{(self.episodes - self.done) / rate:.0f} s left" if rate > 0 else "time left unknown"
+        print(f"{self.label}: runs {self.runs_done}/{self.runs}, episodes {self.done:,}/{self.episodes:,}, "
+              f"{rate:,.0f} episodes/s, {elapsed:.0f} s elapsed, {left}", file=sys.stderr, flush=True)
+
+
+# In a worker process: the episodes played by every worker, shared with the parent for its progress.
+_episodes_played = None
+
+
+def _count_in(counter) -> None:
+    global _episodes_played
+    _episodes_played = counter
+
+
+def _count_episode() -> None:
+    with _episodes_played.get_lock():
+        _episodes_played.value += 1
+
+
+def _play(job: Job, on_episode: Callable[[], None] = _count_episode) -> tuple[Job, RunResult, float]:
     started = time.perf_counter()
-    result = run(job.algo, load_map(job.map_name), job.settings, job.seed, job.run, job.episodes)
+    result = run(job.algo, load_map(job.map_name), job.settings, job.seed, job.run, job.episodes, on_episode)
     return job, result, time.perf_counter() - started
 
 
-def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs") -> dict[Job, RunResult]:
-    """Play every job, in parallel where there is more than one core; a progress bar on a terminal,
-    one plain line per finished run otherwise."""
+def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs",
+             progress_interval: float = 30.0) -> dict[Job, RunResult]:
+    """Play every job, in parallel where there is more than one core, showing progress (see Progress).
+    Each worker counts its episodes in one shared counter, which the parent reads while it waits."""
     workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     results: dict[Job, RunResult] = {}
-    on_terminal = sys.stderr.isatty()
-    bar = tqdm(total=len(jobs), desc=label, unit="run", disable=not on_terminal)
-
-    def finished(job, result, seconds):
-        results[job] = result
-        bar.update()
-        if not on_terminal:
-            print(f"{label}: {job.map_name} {job.algo} run {job.run} done in {seconds:.1f} s "
-                  f"({len(results)}/{len(jobs)})", file=sys.stderr, flush=True)
-
+    progress = Progress(label, sum(job.episodes for job in jobs), len(jobs), progress_interval)
     if workers == 1:
+        def played_one() -> None:
+            progress.update(progress.done + 1, len(results))
+
         for job in jobs:
-            finished(*_play(job))
+            job, result, _ = _play(job, played_one)
+            results[job] = result
+            progress.update(progress.done, len(results))
     else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for future in as_completed([pool.submit(_play, job) for job in jobs]):
-                finished(*future.result())
-    bar.close()
+        counter = multiprocessing.Value("q", 0)
+        with ProcessPoolExecutor(max_workers=workers, initializer=_count_in, initargs=(counter,)) as pool:
+            pending = {pool.submit(_play, job) for job in jobs}
+            while pending:
+                done, pending = wait(pending, timeout=min(1.0, progress_interval), return_when=FIRST_COMPLETED)
+                for future in done:
+                    job, result, _ = future.result()
+                    results[job] = result
+                progress.update(counter.value, len(results))
+    progress.close()
     return results
 
 
@@ -122,7 +176,7 @@ def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, s
                  wall_time: float, **extra) -> dict:
     return {
         "map": gridmap.name,
-        "map_source": str(gridmap.source),
+        "map_source": str(Path(gridmap.source).resolve()) if Path(gridmap.source).is_file() else gridmap.source,
         "n_agents": gridmap.n_agents,
         "n_cells": gridmap.n_cells,
         "algos": list(algos),

@@ -244,7 +244,7 @@ def _split(text: str, source: str) -> tuple[list[_AgentLine], dict[str, int | fl
             raise _error(source, "a second drawing starts here (a map has one drawing, without blank lines)", number, 1)
         if not drawing:
             first_line = number
-        drawing.append(line.rstrip())
+        drawing.append(line)
     return agents, defaults, drawing, first_line
 
 
@@ -281,7 +281,8 @@ def _parse_set_line(line: str, number: int, source: str, earlier: Mapping[str, i
     return {key: getattr(settings, key)}
 
 
-def _read_drawing(lines: list[str], first_line: int, source: str) -> _Drawing:
+def _read_drawing(raw: list[str], first_line: int, source: str) -> _Drawing:
+    lines = [line.rstrip() for line in raw]  # trailing spaces are open edges: they count for the length only
     last_line = first_line + len(lines) - 1
     if len(lines) % 2 == 0:
         raise _error(source, f"the drawing has an even number of lines ({len(lines)}); it needs 2*H+1", last_line)
@@ -295,7 +296,28 @@ def _read_drawing(lines: list[str], first_line: int, source: str) -> _Drawing:
         )
     for offset, line in enumerate(lines):
         _check_drawing_line(line, full, first_line + offset, offset, source)
-    return _Drawing(tuple(line.ljust(full) for line in lines), len(lines) // 2, full // 2)
+    drawing = _Drawing(tuple(line.ljust(full) for line in lines), len(lines) // 2, full // 2)
+    for offset, line in enumerate(raw):
+        _check_not_cut_off(drawing, len(line), first_line + offset, offset, source)
+    return drawing
+
+
+def _check_not_cut_off(drawing: _Drawing, length: int, number: int, offset: int, source: str) -> None:
+    """A line may end early only beside '#' cells and the outside: cut off next to a cell of the world, it
+    would be a ragged border read as if the missing part were there."""
+    for col in range(length, len(drawing.lines[0])):
+        rows = {offset // 2} if offset % 2 else {offset // 2 - 1, offset // 2}
+        cols = {col // 2} if col % 2 else {col // 2 - 1, col // 2}
+        for row, cell_col in sorted((r, c) for r in rows for c in cols):
+            if 0 <= row < drawing.height and 0 <= cell_col < drawing.width and drawing.is_world(row, cell_col):
+                if offset % 2 == 0 and col % 2:
+                    what = f"the wall {'below' if row < offset // 2 else 'above'} cell {row},{cell_col}"
+                elif offset % 2:
+                    what = f"the wall {'right' if cell_col < col // 2 else 'left'} of cell {row},{cell_col}"
+                else:
+                    what = f"the corner next to cell {row},{cell_col}"
+                raise _error(source, f"line too short: it ends before {what} (draw the border in full)", number,
+                             col + 1)
 
 
 def _check_drawing_line(line: str, full: int, number: int, offset: int, source: str) -> None:

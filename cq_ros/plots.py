@@ -1,6 +1,7 @@
 """The paper's figures, drawn from an experiment's result directory as PNGs a person can put in a paper.
 
-Fig. 3 collisions per episode, Fig. 4 joint plays (CQ, LoC), Fig. 5a CQ's state space per agent against
+Fig. 3 collisions per episode (on a linear axis, as the paper draws it, and on a linear-then-log axis that
+shows late fractions of a collision beside early hundreds), Fig. 4 joint plays (CQ, LoC), Fig. 5a CQ's state space per agent against
 the local and the joint state space, Fig. 5b where each CQ agent observes its peers and how confidently,
 plus steps (and return) per episode. Every curve is the mean over runs with a band of one standard
 deviation over runs, each run first smoothed by a trailing moving average (``summary.moving_average``).
@@ -53,12 +54,13 @@ _SIZE = (7.0, 4.2)  # inches; 1050 x 630 pixels at DPI
 
 
 def plot_collisions(
-    data: Episodes, out_png: str | os.PathLike, map_name: str | None = None, smooth: int = 100
+    data: Episodes, out_png: str | os.PathLike, map_name: str | None = None, smooth: int = 100, log: bool = False
 ) -> Path:
-    """Fig. 3: collisions per episode, one line per algorithm."""
+    """Fig. 3: collisions per episode, one line per algorithm; on a linear axis, or with ``log`` on the
+    linear-then-log count axis."""
     name, by_algo = _one_map(data, map_name)
     values = {algo: runs["collisions"] for algo, runs in by_algo.items()}
-    return _count_figure(name, "collisions", values, smooth, out_png)
+    return _count_figure(name, "collisions", values, smooth, out_png, log)
 
 
 def plot_joint_plays(
@@ -73,11 +75,14 @@ def plot_joint_plays(
     return _count_figure(name, "joint plays", values, smooth, out_png)
 
 
-def _count_figure(name: str, what: str, values: dict[str, np.ndarray], smooth: int, out_png) -> Path:
-    """A count per episode, one curve per algorithm, on the linear-then-log count axis."""
+def _count_figure(name: str, what: str, values: dict[str, np.ndarray], smooth: int, out_png, log: bool = True) -> Path:
+    """A count per episode, one curve per algorithm, on the linear-then-log count axis (or a linear one)."""
     fig, ax = _figure()
     _curves(ax, values, smooth)
-    _count_axis(ax)
+    if log:
+        _count_axis(ax)
+    else:
+        ax.set_ylim(0, None)
     _finish(ax, f"{name}: {what} per episode", _y_label(f"{what} per episode", smooth), values)
     return _save(fig, out_png)
 
@@ -350,16 +355,17 @@ def _mark_starts_and_goals(ax: Axes, gridmap: GridMap) -> None:
 def write_figures(
     result_dir: str | os.PathLike,
     smooth: int | None = None,
-    map_loader: Callable[[str], GridMap] = load_map,
+    map_loader: Callable[[str], GridMap] | None = None,
 ) -> list[Path]:
     """Draw every figure of a result directory into it and return their paths.
 
-    Reads ``episodes.csv``, ``manifest.json`` and, if present, ``observe.csv``. Writes collisions.png,
-    steps.png, joint_plays.png (if LoC or CQ ran), state_space.png (if CQ ran) and observe_map.png (if the
+    Reads ``episodes.csv``, ``manifest.json`` and, if present, ``observe.csv``. Writes collisions.png
+    (linear axis), collisions_log.png (linear-then-log axis), steps.png, joint_plays.png (if LoC or CQ ran), state_space.png (if CQ ran) and observe_map.png (if the
     directory has an observe.csv; other algorithms found there get observe_map_<algo>.png). A directory
     holding several maps gets one set per map, each file name prefixed with ``<map>_``. ``smooth`` is
     the moving-average window of the per-episode curves, by default 1% of the episodes. ``map_loader``
-    turns a map name into a GridMap, for the observe map and for maps the manifest does not describe.
+    turns a map name into a GridMap, for the observe map and for maps the manifest does not describe; by
+    default the manifest's map is read from the file it was read from (``map_source``), any other by name.
     """
     result_dir = Path(result_dir)
     data = load_episodes(result_dir / "episodes.csv")
@@ -367,12 +373,14 @@ def write_figures(
     manifest = json.loads(manifest_path.read_text(encoding="utf-8")) if manifest_path.exists() else {}
     observe_path = result_dir / "observe.csv"
     observations = load_observations(observe_path) if observe_path.exists() else None
+    map_loader = map_loader or _manifest_map_loader(manifest)
     maps = by_map(data)
     written = []
     for name, by_algo in maps.items():
         prefix = f"{name}_" if len(maps) > 1 else ""
         window = smooth or max(1, next(iter(by_algo.values()))["collisions"].shape[1] // 100)
         written.append(plot_collisions(data, result_dir / f"{prefix}collisions.png", name, window))
+        written.append(plot_collisions(data, result_dir / f"{prefix}collisions_log.png", name, window, log=True))
         if any(algo in JOINT_PLAY_ALGOS for algo in by_algo):
             written.append(plot_joint_plays(data, result_dir / f"{prefix}joint_plays.png", name, window))
         if any(algo in STATE_SPACE_ALGOS for algo in by_algo):
@@ -383,6 +391,16 @@ def write_figures(
             written.extend(_observe_maps(observations, name, by_algo, map_loader, result_dir, prefix))
         written.append(plot_steps(data, result_dir / f"{prefix}steps.png", name, window))
     return written
+
+
+def _manifest_map_loader(manifest: dict) -> Callable[[str], GridMap]:
+    # A map given as a path has a name (its file's stem) that no shipped map need have.
+    source = Path(manifest.get("map_source", ""))
+
+    def load(name: str) -> GridMap:
+        return load_map(source) if manifest.get("map") == name and source.is_file() else load_map(name)
+
+    return load
 
 
 def _map_sizes(name: str, manifest: dict, map_loader: Callable[[str], GridMap]) -> tuple[int, int]:

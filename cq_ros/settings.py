@@ -27,6 +27,9 @@ class Settings:
     # The paper's: learning rate, fixed epsilon-greedy exploration, CQ's window size.
     alpha: float = 0.1
     epsilon: float = 0.1
+    # Not in the paper: 0 keeps epsilon fixed (the paper's); N > 0 lowers it linearly from `epsilon` after
+    # each episode, to 0 from episode N on, so that exploration stops.
+    epsilon_decay_episodes: int = 0
     window: int = 60
     # Not in the paper: discount, significance of both t-tests.
     gamma: float = 0.9
@@ -71,6 +74,7 @@ class Settings:
     def __post_init__(self):
         _check(0.0 < self.alpha <= 1.0, "alpha", self.alpha, "in (0, 1]")
         _check(0.0 <= self.epsilon <= 1.0, "epsilon", self.epsilon, "in [0, 1]")
+        _check(self.epsilon_decay_episodes >= 0, "epsilon_decay_episodes", self.epsilon_decay_episodes, "at least 0")
         _check(self.window >= 2, "window", self.window, "at least 2")
         _check(0.0 <= self.gamma < 1.0, "gamma", self.gamma, "in [0, 1)")
         _check(0.0 < self.significance < 0.5, "significance", self.significance, "in (0, 0.5)")

@@ -6,10 +6,12 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from cq_ros.cli import main
+from cq_ros.gridmap import load_map
 
 
 def run_cli(*args):
@@ -106,10 +108,57 @@ def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_t
 
 
 def test_reproduce_small_grid_writes_a_report_with_every_claim(tmp_path):
-    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "30", "--no-sweep"]) == 0
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "30", "--no-sweep",
+                 "--set", "step_cap=300"]) == 0
     report = (tmp_path / "r" / "REPORT.md").read_text()
     for n in range(1, 8):
         assert f"\n{n}. *" in report
     assert "holds" in report
-    for m in ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr"):
-        assert (tmp_path / "r" / m / "episodes.csv").exists()
+    for claim in (1, 2):  # at both thresholds, with fixed and with decaying exploration
+        section = report.split(f"\n{claim}. *")[1].split(f"\n{claim + 1}. *")[0]
+        assert section.count("below 0.05: **") == section.count("below 0.1: **") == 2
+        assert "epsilon 0.1 fixed" in section and "epsilon falling to 0 by episode 15" in section
+    assert "## In short\n\n- **" in report
+    for where in ("", "decay/"):
+        for m in ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr"):
+            assert (tmp_path / "r" / where / m / "episodes.csv").exists()
+            assert (tmp_path / "r" / where / m / "collisions_log.png").exists()
+    decay = json.loads((tmp_path / "r" / "decay" / "isr" / "manifest.json").read_text())["settings"]
+    assert decay["epsilon_decay_episodes"] == 15 and decay["step_cap"] == 300  # at most 500
+
+
+def test_every_command_taking_a_map_accepts_a_path_to_a_copied_map(tmp_path, capsys):
+    """The map given is the map used, to the last figure: a copy named unlike any shipped map."""
+    copied = tmp_path / "my" / "mymap.txt"
+    copied.parent.mkdir()
+    copied.write_text(Path(load_map("tunnel_to_goal").source).read_text())
+    assert main(["show", str(copied)]) == 0
+    assert "mymap: 25 cells, 2 agents" in capsys.readouterr().out
+
+    out = tmp_path / "result"
+    assert main(["experiment", "--map", str(copied), "--algo", "cq,loc", "--runs", "1", "--episodes", "30",
+                 "--set", "window=10", "--jobs", "1", "--out", str(out)]) == 0
+    assert json.loads((out / "manifest.json").read_text())["map_source"] == str(copied.resolve())
+    for png in ("collisions.png", "joint_plays.png", "state_space.png", "observe_map.png", "steps.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", png
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
+    """Not on a terminal: a plain line at the start, then at most every interval (here 0.05 s), and at the
+    end, with runs and episodes done, the rate and the time left; the counts come from the workers."""
+    from cq_ros.experiment import Job, run_jobs
+    from cq_ros.settings import Settings
+
+    jobs = [Job("grid_game_2", "cq", r, 150, 0, Settings(eval_episodes=0)) for r in range(3)]
+    results = run_jobs(jobs, workers=workers, label="test", progress_interval=0.05)
+    assert len(results) == 3
+    lines = capsys.readouterr().err.splitlines()
+    pattern = re.compile(r"test: runs (\d)/3, episodes ([\d,]+)/450, [\d,]+ episodes/s, \d+ s elapsed, "
+                         r"(\d+ s left|time left unknown)")
+    parsed = [pattern.fullmatch(line) for line in lines]
+    assert all(parsed), lines
+    episodes = [int(m.group(2).replace(",", "")) for m in parsed]
+    assert episodes[0] == 0 and episodes[-1] == 450 and parsed[-1].group(1) == "3"
+    assert episodes == sorted(episodes)
+    assert any(0 < e < 450 for e in episodes), lines  # lines while the runs were going, not only at the ends

@@ -189,6 +189,12 @@ def agents_with(old, new, drawing=OPEN):
         pytest.param(drawing_with("+ + + +", "+ +|+ +"), "5:4", "between up/down", id="misplaced-wall"),
         pytest.param(drawing_with(ROW_0, "|. .\n+ +"), "4:6", "too short: it ends before cell 0,2", id="short"),
         pytest.param(drawing_with("+ + + +", "+ + + + +"), "5:8", "longer than", id="long"),
+        pytest.param(AGENTS + OPEN.rsplit("+-+-+-+", 1)[0] + "+-+-+\n", "7:6",
+                     "too short: it ends before the wall below cell 1,2", id="ragged-bottom-border"),
+        pytest.param(AGENTS + OPEN.rsplit("+-+-+-+", 1)[0] + "+-+-+-\n", "7:7",
+                     "too short: it ends before the corner", id="ragged-bottom-corner"),
+        pytest.param(drawing_with(ROW_0, "|. . .\n+ +"), "4:7", "too short: it ends before the wall right of cell 0,2",
+                     id="ragged-right-border"),
         pytest.param(AGENTS + OPEN.rsplit("+-+-+-+", 1)[0], "6", "even number of lines", id="even-lines"),
         pytest.param(drawing_with("+-+-+-+", "+-+-+-"), "3", "drawing size inconsistent", id="even-width"),
         pytest.param(AGENTS + "+-+-+-+\n", "3", "drawing size inconsistent", id="one-line"),
@@ -227,8 +233,10 @@ def test_parse_errors(text, where, phrase):
 def test_good_texts_parse():
     for drawing in (OPEN, HOLE):
         assert parse_map(AGENTS + drawing).n_agents == 2
-    trimmed = "+-+-+-+\n|. . .|\n+ + + +\n|. . .|\n+-+-+-+".replace("|\n", "\n")  # east edge wall cut
-    assert parse_map("# c\n" + AGENTS + "\n" + trimmed + "\n\n").n_cells == 6
+    open_edge = "+-+-+-+\n|. . .|\n+ + + +\n|. . .|\n+-+-+-+".replace("|\n", " \n")  # east edge drawn open
+    assert parse_map("# c\n" + AGENTS + "\n" + open_edge + "\n\n").n_cells == 6
+    # A line may end early beside '#' cells and the outside only (cit's right edge): here, above a '#' cell.
+    assert parse_map(AGENTS.replace("goal 1,2", "goal 1,1") + "+-+-+-+\n|. . .|\n+ + + +\n|. .|#\n+-+-+\n").n_cells == 5
     assert parse_map(AGENTS.replace("\n", "\r\n") + OPEN).n_cells == 6
 
 

@@ -118,6 +118,28 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it(tmp_path):
+    """--map a path (named unlike any shipped map) is the map used to the last figure; --namespace /name is
+    the namespace name, as `-r __ns:=/name` is for a node. Exploration falls to 0 on the nodes' schedule as it
+    does offline."""
+    copied = tmp_path / "my" / "mymap.txt"
+    copied.parent.mkdir()
+    copied.write_text(Path(load_map("tunnel_to_goal").source).read_text())
+    episodes, sets = CASES["tunnel_to_goal", "cq"]
+    sets = (*sets, "epsilon_decay_episodes=10")
+    out, namespace = tmp_path / "result", unique("slash")
+    done = subprocess.run(launch_command(out, f"/{namespace}", str(copied), "cq", episodes, sets),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    assert not alive_with(namespace)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["namespace"] == f"/{namespace}" and manifest["map"] == "mymap"
+    offline = run("cq", load_map(copied), Settings().with_overrides(list(sets)), SEED, 0, episodes)
+    np.testing.assert_array_equal(read_episodes(out), offline.episodes)
+    for png in ("collisions.png", "joint_plays.png", "state_space.png", "observe_map.png", "steps.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", png
+
+
 def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(capsys):
     from world_node.launch import _Progress
 

@@ -244,13 +244,16 @@ def test_tables_have_a_row_per_algorithm(tmp_path):
 def test_write_figures_draws_every_figure_of_a_result_directory(tmp_path):
     directory = write_result(tmp_path / "result")
     paths = plots.write_figures(directory, map_loader=lambda name: FakeMap(name=name))
-    names = ["collisions.png", "joint_plays.png", "state_space.png", "observe_map.png", "steps.png"]
+    names = ["collisions.png", "collisions_log.png", "joint_plays.png", "state_space.png", "observe_map.png",
+             "steps.png"]
     assert sorted(path.name for path in paths) == sorted(names)
     for path in paths:
         assert path.parent == directory
         width, height = png_size(path)
         assert width >= 700 and height >= 400
     assert png_size(directory / "collisions.png") == (1050, 630)  # 7 x 4.2 inches at 150 dpi
+    # Fig. 3 twice: on the paper's linear axis, and on the linear-then-log one
+    assert (directory / "collisions.png").read_bytes() != (directory / "collisions_log.png").read_bytes()
 
 
 def test_write_figures_for_several_maps_prefixes_each_set(tmp_path):
@@ -258,7 +261,7 @@ def test_write_figures_for_several_maps_prefixes_each_set(tmp_path):
     loaded = []
     paths = plots.write_figures(directory, map_loader=lambda name: loaded.append(name) or FakeMap(name=name))
     # Without CQ or LoC there are no joint plays or state space; observe.csv still holds CQ rows.
-    expected = {f"{m}_{figure}.png" for m in ("alpha", "beta") for figure in ("collisions", "observe_map", "steps")}
+    expected = {f"{m}_{figure}.png" for m in ("alpha", "beta") for figure in ("collisions", "collisions_log", "observe_map", "steps")}
     assert {path.name for path in paths} == expected
     assert loaded == ["alpha", "beta"]
     assert all(path.read_bytes()[:8] == PNG_MAGIC for path in paths)

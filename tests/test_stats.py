@@ -380,3 +380,28 @@ def test_no_scipy_call_in_the_per_step_path(monkeypatch):
     # the per-step path really was patched: a fresh critical value (not cached) would call scipy
     with pytest.raises(AssertionError, match="per-step"):
         critical_t(0.0123, 77)
+
+
+# Rewards spread by 1e-3..1e-5 of their size: a sum of squared deviations 1e-6..1e-10 of the sum of squares,
+# far above the running sums' rounding noise (stats._ROUNDING) yet far below any game reward's spread.
+@pytest.mark.parametrize("relative", [1e-3, 1e-4, 1e-5])
+def test_near_constant_windows_are_not_taken_for_constant_ones(relative):
+    """Rewards a tiny but real spread apart are windows with a spread: our decisions are scipy's, both ways,
+    not those of a zero-spread window (where any difference of means is an infinite t)."""
+    rng = np.random.default_rng(7)
+    n, level = 60, -1.0
+    decided = {True: 0, False: 0}
+    for trial in range(24):
+        w1 = level + relative * rng.normal(0, 1, n)
+        # W2 a little lower than W1: by a tenth of the spread up to a few spreads, so both decisions occur
+        w2 = level + relative * (rng.normal(0, 1, n) - rng.uniform(0.0, 3.0) / math.sqrt(n) * (trial % 2) * 5)
+        w, _ = feed(np.concatenate([w1, w2]), n)
+        _, p, _ = scipy_drop(w1, w2)
+        r = float(w2.mean() + relative * rng.normal(0, 1) / math.sqrt(n))
+        _, p1, _ = scipy_above(w2, r)
+        for sig in SIGNIFICANCES:
+            ct = ConflictTest(n, sig)
+            assert ct.rewards_dropped(w) == (p < sig), (relative, trial, sig, p)
+            assert ct.reward_above_recent(w, r) == (p1 < sig), (relative, trial, sig, p1)
+            decided[p < sig] += 1
+    assert min(decided.values()) >= 10, decided

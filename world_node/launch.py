@@ -414,9 +414,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                        **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
                        **({} if markers else {"markers": False}), **(node_parameters or {})}
     _check_node_parameters(map_name, algo, settings, node_parameters)
-    namespace = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
+    given = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
+    namespace = given.removeprefix("/")  # "/demo" and "demo" name one namespace, as they do for ROS
     if not NAMESPACE.fullmatch(namespace):
-        raise ValueError(f"namespace {namespace!r} is not a ROS name (letters, digits, _; not starting with a digit)")
+        raise ValueError(f"namespace {given!r} is not a ROS name (letters, digits, _; not starting with a digit)")
     if hosts is not None:
         if compose:
             raise ValueError("--compose runs every node in one process, --hosts each on its own host: choose one")

@@ -62,6 +62,7 @@ class Learner:
         self.rng = random.Random(seed)
         self.peers = tuple(j for j in range(n_agents) if j != agent)
         self.joint_plays = 0  # times this learner acted on information about its peers
+        self.episodes_played = 0
 
     def observe(self, cell: Hashable) -> tuple[int, ...]:
         raise NotImplementedError
@@ -73,7 +74,12 @@ class Learner:
         raise NotImplementedError
 
     def end_episode(self) -> None:
-        """Forget what only made sense inside the episode (nothing, for most learners)."""
+        """Forget what only made sense inside the episode (subclasses add theirs) and lower epsilon on its
+        schedule (settings.epsilon_decay_episodes). Epsilon never rises: a greedy copy stays at 0."""
+        self.episodes_played += 1
+        decay = self.settings.epsilon_decay_episodes
+        if decay:
+            self.epsilon = min(self.epsilon, self.settings.epsilon * max(0.0, 1.0 - self.episodes_played / decay))
 
     def state_count(self) -> int:
         """The size of the state space this learner conditions on now (local plus joint)."""

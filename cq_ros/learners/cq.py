@@ -87,6 +87,7 @@ class CQLearner(Learner):
         return reward
 
     def end_episode(self):
+        super().end_episode()
         self.conflict_at = None
         if self.pending is not None:
             self._bootstrap()

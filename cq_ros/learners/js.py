@@ -42,6 +42,7 @@ class JointStateQ(Learner):
             self.pending = (self.row, self.a, reward)
 
     def end_episode(self):
+        super().end_episode()
         self.pending = None
 
     def state_count(self):

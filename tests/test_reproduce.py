@@ -1,0 +1,81 @@
+"""The verdicts of `cq-ros reproduce`, computed on synthetic results where each claim is known to hold and
+known not to hold: claims 1 and 2 at both thresholds, and where CQ keeps its joint states (claim 6)."""
+
+import csv
+
+import numpy as np
+
+from cq_ros.experiment import OBSERVE_COLUMNS
+from cq_ros.learners import ALGORITHMS
+from cq_ros.reproduce import (
+    PAPER_MAPS,
+    claim_collision_free,
+    _claim_entrance,
+    entrance_share,
+    settled_at,
+    sooner_than_cq,
+)
+
+EPISODES = 1000
+
+
+def collisions_until(episode: int | None, after: float = 0.0, runs: int = 3) -> dict:
+    """Runs that collide twice per episode, then `after` per episode from `episode` on (None: never calm)."""
+    values = np.full((runs, EPISODES), 2.0)
+    if episode is not None:
+        values[:, episode - 1:] = after
+    return {"collisions": values}
+
+
+def grid(cq: int | None, others: dict[str, int | None], cq_after: float = 0.0) -> dict:
+    """Every paper map alike: CQ calm from `cq`, each baseline from its episode in `others` (default never)."""
+    return {(m, a): collisions_until(cq, cq_after) if a == "cq" else collisions_until(others.get(a))
+            for m in PAPER_MAPS for a in ALGORITHMS}
+
+
+def test_claims_1_and_2_hold_when_cq_is_calm_first_on_every_map():
+    settled = settled_at(grid(200, {"js": 400, "jsa": 600}), 0.05)
+    assert claim_collision_free(settled)
+    assert sooner_than_cq(settled) == []
+
+
+def test_claim_2_fails_naming_each_baseline_calm_before_cq():
+    settled = settled_at(grid(400, {"js": 150, "jsa": 600}), 0.05)
+    assert claim_collision_free(settled)
+    rows = sooner_than_cq(settled)
+    assert [(algo, m) for algo, m, _, _ in rows] == [("js", m) for m in PAPER_MAPS]
+    assert all(other < mine for _, _, other, mine in rows)
+
+
+def test_claim_2_fails_when_a_baseline_is_calm_and_cq_never_is():
+    data = grid(200, {"js": 300})
+    data[("isr", "cq")] = collisions_until(None)
+    settled = settled_at(data, 0.05)
+    assert not claim_collision_free(settled)
+    assert [(algo, m, mine) for algo, m, _, mine in sooner_than_cq(settled)] == [("js", "isr", None)]
+
+
+def test_claim_1_depends_on_the_threshold_a_reader_of_fig_3_means():
+    data = grid(300, {}, cq_after=0.07)  # CQ settles at 0.07 collisions per episode
+    assert not claim_collision_free(settled_at(data, 0.05))
+    assert claim_collision_free(settled_at(data, 0.1))
+
+
+def write_observations(out, cells_and_confidence):
+    where = out / "tunnel_to_goal_3"
+    where.mkdir(parents=True)
+    with open(where / "observe.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(OBSERVE_COLUMNS)
+        for (row, col), conf in cells_and_confidence:
+            w.writerow(("tunnel_to_goal_3", "cq", 0, 1, row, col, 2, row + 1, col, conf))
+
+
+def test_claim_6_share_of_joint_states_at_the_tunnel_entrance(tmp_path):
+    # the tunnel of tunnel_to_goal_3 opens at row 2, column 4
+    write_observations(tmp_path / "near", [((2, 4), 5.0), ((1, 4), 3.0), ((2, 5), 2.0)])
+    assert entrance_share(tmp_path / "near")[0] == 1.0
+    assert "**holds**. 100% " in _claim_entrance(tmp_path / "near")
+    write_observations(tmp_path / "far", [((0, 10), 5.0), ((4, 9), 4.0), ((2, 4), 1.0)])
+    assert entrance_share(tmp_path / "far")[0] == 0.1
+    assert "**does not hold**. 10% " in _claim_entrance(tmp_path / "far")
