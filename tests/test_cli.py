@@ -145,20 +145,21 @@ def test_every_command_taking_a_map_accepts_a_path_to_a_copied_map(tmp_path, cap
 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
-    """Not on a terminal: a plain line at the start, then at most every interval (here 0.05 s), and at the
+    """Not on a terminal: a plain line at the start, then at most every interval (here 0.02 s), and at the
     end, with runs and episodes done, the rate and the time left; the counts come from the workers."""
     from cq_ros.experiment import Job, run_jobs
     from cq_ros.settings import Settings
 
-    jobs = [Job("grid_game_2", "cq", r, 150, 0, Settings(eval_episodes=0)) for r in range(3)]
-    results = run_jobs(jobs, workers=workers, label="test", progress_interval=0.05)
+    # enough episodes (about half a second at ~8,000 a second) that the runs cannot end within one interval
+    jobs = [Job("grid_game_2", "cq", r, 1500, 0, Settings(eval_episodes=0)) for r in range(3)]
+    results = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
     assert len(results) == 3
     lines = capsys.readouterr().err.splitlines()
-    pattern = re.compile(r"test: runs (\d)/3, episodes ([\d,]+)/450, [\d,]+ episodes/s, \d+ s elapsed, "
+    pattern = re.compile(r"test: runs (\d)/3, episodes ([\d,]+)/4,500, [\d,]+ episodes/s, \d+ s elapsed, "
                          r"(\d+ s left|time left unknown)")
     parsed = [pattern.fullmatch(line) for line in lines]
     assert all(parsed), lines
     episodes = [int(m.group(2).replace(",", "")) for m in parsed]
-    assert episodes[0] == 0 and episodes[-1] == 450 and parsed[-1].group(1) == "3"
+    assert episodes[0] == 0 and episodes[-1] == 4500 and parsed[-1].group(1) == "3"
     assert episodes == sorted(episodes)
-    assert any(0 < e < 450 for e in episodes), lines  # lines while the runs were going, not only at the ends
+    assert any(0 < e < 4500 for e in episodes), lines  # lines while the runs were going, not only at the ends
