@@ -24,7 +24,7 @@ from cq_ros.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
-    agent_stats_topic, encode, feedback_topic, position_topic,
+    agent_stats_topic, feedback_topic, position_topic, serialize,
 )
 from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
 from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
@@ -69,7 +69,7 @@ class _HeldPublisher:
     def flush(self) -> None:
         if self.held and self.pub.get_subscription_count() >= self.min_matched:
             for payload in self.held:
-                self.pub.publish(encode(payload, key=self.key))
+                self.pub.publish(serialize(payload, key=self.key))
             self.held.clear()
 
 
@@ -97,11 +97,13 @@ class AgentNode(Node):
                          for k in agents}
         self._stats = {k: _HeldPublisher(self, AGENT_STATS, agent_stats_topic(k), cfg.min_stats_subscribers)
                        for k in agents}
+        # Raw: the driver decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
-                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos) for k in agents]
+                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos, raw=True)
+                          for k in agents]
         self._heartbeat = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
-                                                   HEARTBEAT.reader_qos)
+                                                   HEARTBEAT.reader_qos, raw=True)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
@@ -134,7 +136,7 @@ class AgentNode(Node):
                 case Subscribe(peer=peer):
                     self._positions[peer] = self.create_subscription(
                         POSITION.msg_type, position_topic(peer), partial(self._on_position, peer),
-                        POSITION.reader_qos)
+                        POSITION.reader_qos, raw=True)
                 case Unsubscribe(peer=peer):
                     self.destroy_subscription(self._positions.pop(peer))
                 case SaveCheckpoint(episode=episode, learner=learner):
