@@ -19,7 +19,7 @@ and checks no MAC (the tools, nodes started by hand without a key).
 
 Statistics: diagnostic_msgs/DiagnosticArray holding one DiagnosticStatus whose `values` are KeyValue pairs.
 
-Nodes publish `serialize(payload)`: for an array payload the very bytes rclpy would make of `encode(payload)`,
+Nodes publish `serialize(payload)`: for an array payload the bytes rclpy would make of `encode(payload)`,
 built without a message object; they read with raw subscriptions, and every array decoder takes a message or
 its serialized bytes alike.
 """
@@ -98,14 +98,15 @@ class ArrayLayout:
         """The field values as the MAC reads them (little-endian int32 or float64)."""
         return self._struct.pack(*values)
 
-    def frame(self, keyed: bool) -> tuple[bytes, struct.Struct]:
-        """The serialized form of this layout's messages (keyed or not) as (the bytes before the values, the
-        values' Struct): everything but the values is the same in every message of one form. Derived from
-        rclpy's own serialization of one message, and checked against it."""
+    def frame(self, keyed: bool) -> tuple[bytes, int, struct.Struct]:
+        """The serialized form of this layout's messages (keyed or not): (the bytes before the values up to the
+        data's length, the alignment bytes after it, the values' Struct). All but the values and the alignment
+        bytes (which the serializer leaves as they were in memory) is the same in every message of one form.
+        Derived from rclpy's own serialization of one message, and checked against it."""
         return self._frames[keyed]
 
     @cached_property
-    def _frames(self) -> dict[bool, tuple[bytes, struct.Struct]]:
+    def _frames(self) -> dict[bool, tuple[bytes, int, struct.Struct]]:
         from rclpy.serialization import serialize_message
 
         frames = {}
@@ -117,11 +118,13 @@ class ArrayLayout:
                                                   stride=size)]
             msg.data = sample = [(i + 1) * 7 for i in range(size)]  # distinct values, to see where they lie
             raw = serialize_message(msg)
-            prefix = raw[:len(raw) - values.size]
-            if prefix + values.pack(*sample) != raw:
+            start = len(raw) - values.size
+            length = struct.pack("<I", size)  # the data's length, just before the values or their alignment
+            pad = next((p for p in (0, 4) if raw[start - p - 4:start - p] == length), None)
+            if pad is None or raw[start:] != values.pack(*sample):
                 raise RuntimeError(f"{self.ros_type.__name__} {self.label}: its serialization does not end in "
-                                   "its values")
-            frames[keyed] = prefix, values
+                                   "its length and values")
+            frames[keyed] = raw[:start - pad], pad, values
         return frames
 
 
@@ -337,9 +340,9 @@ def _raw_data(layout: ArrayLayout, raw: bytes) -> tuple[bool, list]:
     are in one of the layout's two forms (`ArrayLayout.frame`), else deserialized and checked as a message,
     so that anything else is refused exactly as the message would be."""
     for keyed in (True, False):
-        prefix, values = layout.frame(keyed)
-        if len(raw) == len(prefix) + values.size and raw.startswith(prefix):
-            return keyed, list(values.unpack_from(raw, len(prefix)))
+        head, pad, values = layout.frame(keyed)
+        if len(raw) == len(head) + pad + values.size and raw.startswith(head):
+            return keyed, list(values.unpack_from(raw, len(head) + pad))
     from rclpy.serialization import deserialize_message
 
     try:
@@ -724,13 +727,13 @@ def encode(payload: Any, *, key: bytes | None = None, stamp: Time | None = None)
 
 def serialize(payload: Any, *, key: bytes | None = None) -> Any:
     """What a node publishes for `payload` (rclpy's Publisher.publish takes either): for an array payload the
-    bytes rclpy would serialize `encode(payload, key=key)` to, built without a message object (a third of the
-    cost); for statistics the message. Either way the same bytes go on the wire."""
+    bytes rclpy would serialize `encode(payload, key=key)` to (alignment bytes zero), built without a message
+    object; for statistics the message. Either way the same message goes on the wire."""
     layout = _LAYOUT_BY_PAYLOAD.get(type(payload))
     if layout is None:
         return encode(payload, key=key)
-    prefix, values = layout.frame(key is not None)
-    return prefix + values.pack(*_wire_values(layout, payload, key))
+    head, pad, values = layout.frame(key is not None)
+    return head + bytes(pad) + values.pack(*_wire_values(layout, payload, key))
 
 
 def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
