@@ -14,7 +14,6 @@ import time
 from functools import partial
 from typing import Any
 
-from rclpy.duration import Duration
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
@@ -26,8 +25,8 @@ from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
     agent_stats_topic, feedback_topic, position_topic, serialize,
 )
-from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
-from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
+from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch, Matched
+from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph, when_acked
 
 from world_node.lockstep import PARAMETERS as WORLD_PARAMETERS
 
@@ -57,8 +56,9 @@ class _HeldPublisher:
                  key: bytes | None = None):
         self.min_matched, self.latest_only, self.key = min_matched, latest_only, key
         self.held: list = []  # payloads not sent yet
+        self.matched = Matched(then=self.flush)
         self.pub = node.create_publisher(spec.msg_type, topic, spec.qos,
-                                         event_callbacks=PublisherEventCallbacks(matched=lambda _: self.flush()))
+                                         event_callbacks=PublisherEventCallbacks(matched=self.matched))
 
     def publish(self, payload: Any) -> None:
         if self.latest_only:
@@ -67,7 +67,9 @@ class _HeldPublisher:
         self.flush()
 
     def flush(self) -> None:
-        if self.held and self.pub.get_subscription_count() >= self.min_matched:
+        # The matched events say so at no cost once matched; before, ask the graph (the event may lag it).
+        if self.held and (self.matched.count >= self.min_matched
+                          or self.pub.get_subscription_count() >= self.min_matched):
             for payload in self.held:
                 self.pub.publish(serialize(payload, key=self.key))
             self.held.clear()
@@ -177,7 +179,5 @@ class AgentNode(Node):
         self._close(code)
 
     def _close(self, code: int) -> None:
-        end = time.monotonic() + FLUSH_TIMEOUT_S
-        for stats in self._stats.values():
-            stats.pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
-        self.done.set_result(code)
+        when_acked(self, [stats.pub for stats in self._stats.values()], FLUSH_TIMEOUT_S,
+                   lambda: self.done.set_result(code))

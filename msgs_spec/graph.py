@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Iterable, Mapping
 
-__all__ = ["REFUSE_WITHIN_S", "GraphWatch"]
+__all__ = ["REFUSE_WITHIN_S", "GraphWatch", "Matched"]
 
 REFUSE_WITHIN_S = 5.0
 CHECK_PERIOD_S = 1.0  # how often a node looks at the graph
@@ -66,3 +66,19 @@ class GraphWatch:
 
     def counters(self) -> dict[str, int]:
         return {"second_writers": self.second_writers} if self.second_writers else {}
+
+
+class Matched:
+    """How many subscriptions a publisher has matched, as its matched events tell: give it as the publisher's
+    `PublisherEventCallbacks(matched=...)`. Reading `count` costs nothing, where get_subscription_count() asks
+    the graph each time: what a node checks every step (is anyone watching?) reads this. It lags the graph
+    until the executor has handled the event; `then` is called after each change."""
+
+    def __init__(self, then: Callable[[], Any] | None = None):
+        self.count = 0
+        self._then = then
+
+    def __call__(self, info: Any) -> None:
+        self.count = info.current_count
+        if self._then is not None:
+            self._then()

@@ -12,7 +12,6 @@ import time
 from functools import partial
 from typing import Any
 
-from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
@@ -27,7 +26,7 @@ from msgs_spec import (
     Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic, serialize,
 )
 from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
-from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
+from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph, when_acked
 
 from .lockstep import PARAMETERS, Lockstep, world_config
 from .viz import WorldView
@@ -71,6 +70,7 @@ class WorldNode(Node):
             name(k) for k in agents for name in (position_topic, feedback_topic, action_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
         self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
+        self._finishing = False  # _finish was called: done holds the code once the last messages are acknowledged
         self._deadline = time.monotonic() + cfg.startup_timeout
         self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
         self.get_logger().info(f"map {cfg.gridmap.name}, {world.n} agents, {cfg.episodes} episodes and "
@@ -105,7 +105,7 @@ class WorldNode(Node):
     def _check_graph(self) -> None:
         refusal = watch_graph(self, self._graph, self._graph_topics)
         self.core.extra_counters.update(self._graph.counters())
-        if refusal and not self.done.done():
+        if refusal and not self._finishing:
             self.get_logger().error(refusal)
             self._finish(2)
 
@@ -121,7 +121,7 @@ class WorldNode(Node):
         self._send(out)
         if self._view is not None:
             self._view.publish(out)
-        if self.core.finished and not self.done.done():
+        if self.core.finished and not self._finishing:
             self.get_logger().info(f"all {self.config.total_episodes} episodes played ({self.config.episodes} "
                                    f"learning, {self.config.settings.eval_episodes} greedy)")
             self._finish(0)
@@ -132,12 +132,13 @@ class WorldNode(Node):
         self._timer = self.create_timer(period, callback)
 
     def _finish(self, code: int) -> None:
+        if self._finishing:
+            return
+        self._finishing = True
         self._timer.cancel()
         self._heartbeat_timer.cancel()
         self._graph_timer.cancel()
         # Reliable messages still in flight go with the process: give the readers a bounded moment to
         # acknowledge the last feedback and statistics (an exited agent's reader is no longer waited for).
-        end = time.monotonic() + FLUSH_TIMEOUT_S
-        for pub in [self._stats, *self._outputs[Feedback].values()]:
-            pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
-        self.done.set_result(code)
+        when_acked(self, [self._stats, *self._outputs[Feedback].values()], FLUSH_TIMEOUT_S,
+                   lambda: self.done.set_result(code))
