@@ -20,19 +20,16 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
-from cq_ros.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
     agent_stats_topic, encode, feedback_topic, position_topic,
 )
-from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
-from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
-
-from world_node.lockstep import PARAMETERS as WORLD_PARAMETERS
+from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
+from node_runtime.parameters import declare_node_parameters
 
 from .driver import (
-    PARAMETERS, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
+    Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
     save_checkpoint,
 )
 from .viz import AgentView
@@ -74,7 +71,7 @@ class _HeldPublisher:
 
 
 class AgentNode(Node):
-    """Parameters: see agent_node.driver.PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
+    """Parameters: node_runtime.parameters.AGENT_PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
     rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter).
 
     The node is named `agent` unless given another name; a launcher starting several gives each its own
@@ -84,8 +81,7 @@ class AgentNode(Node):
     def __init__(self, node_name: str = "agent", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            values = declare_parameters(self, PARAMETERS, unset=SETTING_NAMES)
-            check_names(undeclared_overrides(self), PARAMETERS, WORLD_PARAMETERS)
+            values = declare_node_parameters(self, "agent")
             self.config = cfg = agent_config(values)
             self.driver = make_driver(cfg, log=self.get_logger().warning)
         except (SettingsError, ParameterException):

@@ -1,4 +1,4 @@
-"""Composed mode: the world and every agent node in one process on one EventsExecutor (world_node.compose, as
+"""Composed mode: the world and every agent node in one process on one EventsExecutor (ros_tools.compose, as
 `cq-ros launch --compose` runs it, each node reading its parameters under its own name from the params file)
 give exactly the offline engine's episodes for all five algorithms' kinds of node on two maps; the launch
 writes the same results as a process per node; a bad parameter, a bad node name and Ctrl-C end it cleanly."""
@@ -25,10 +25,10 @@ from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
     decode_world_stats
-from msgs_spec.tools import make_executor, spin_nodes
+from node_runtime.run import make_executor, spin_nodes
 from processes import alive_with
-from world_node.compose import make_nodes
-from world_node.launch import compose_command, node_specs
+from ros_tools.compose import make_nodes
+from ros_tools.launch import compose_command, node_specs
 
 RUN_TIMEOUT_S = 60.0  # a bound for one composed run; each below takes a second or two
 # Short runs: on grid_game_2 CQ marks joint states (and so subscribes to its peer) within 30 episodes;
@@ -150,7 +150,7 @@ def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):
     ([], "no node names"),
 ])
 def test_the_container_exits_2_with_one_line_for_bad_input(args, message):
-    done = subprocess.run([sys.executable, "-m", "world_node.compose", *args], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-m", "ros_tools.compose", *args], capture_output=True, text=True,
                           timeout=60)
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr

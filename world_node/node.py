@@ -17,19 +17,17 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
-from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
 from cq_ros.engine import world_seed
-from cq_ros.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
     Position, WorldStats, action_topic, agent_namespace, encode, feedback_topic, position_topic,
 )
-from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
-from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph
+from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
+from node_runtime.parameters import declare_node_parameters
 
-from .lockstep import PARAMETERS, Lockstep, world_config
+from .lockstep import Lockstep, world_config
 from .viz import WorldView
 
 __all__ = ["WorldNode"]
@@ -39,14 +37,13 @@ FLUSH_TIMEOUT_S = 2.0  # at the end, how long to wait for subscribers to acknowl
 
 
 class WorldNode(Node):
-    """Parameters: see world_node.lockstep.PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
+    """Parameters: node_runtime.parameters.WORLD_PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
     rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter)."""
 
     def __init__(self, node_name: str = "world", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            values = declare_parameters(self, PARAMETERS, unset=SETTING_NAMES)
-            check_names(undeclared_overrides(self), PARAMETERS, AGENT_PARAMETERS)
+            values = declare_node_parameters(self, "world")
             self.config = cfg = world_config(values)
         except (SettingsError, ParameterException):
             self.destroy_node()
