@@ -458,6 +458,10 @@ class PeerView:
             return farthest != stamp
         return True
 
+    def missing(self, episode: int, step: int, peers: Iterable[int]) -> set[tuple[int, int, int]]:
+        """(peer, episode, step) for every peer in `peers` whose position stamped (episode, step) has not come."""
+        return {(j, episode, step) for j in peers if (episode, step) not in self._seen.get(j, {})}
+
     def cells_at(self, episode: int, step: int, peers: Iterable[int]) -> dict[int, int] | None:
         """{peer: cell} stamped (episode, step) for every peer in `peers`, or None while one is missing."""
         cells = {}
@@ -520,6 +524,13 @@ class AgentDriver:
     def on_position(self, peer: int, msg: Any) -> Effects:
         """A message from agv<peer>/position."""
         return self._try_act() if self.peers.on_position(peer, msg) else []
+
+    def waiting_for(self) -> set[tuple[int, int, int]]:
+        """(peer, episode, step) of every position the agent waits for before it can act (none: it is not
+        waiting for peers)."""
+        if self._pending is None:
+            return set()
+        return self.peers.missing(*self._pending)
 
     def counters(self) -> dict[str, int]:
         out = self.drops.as_counters()
@@ -721,6 +732,15 @@ class CentralDriver:
         held = self.link.vouched() if self.link.on_heartbeat(msg) else None
         return self._catch_up(held[0], held[1]) if held else []
 
+    @property
+    def acting(self) -> list[int]:
+        """The agents still acting in the current episode (not at their goals)."""
+        return [k for k in self.agents if not self._done[k - 1]]
+
+    def waiting_for(self) -> set[tuple[int, int, int]]:
+        """(agent, episode, step) of every position the node waits for (only while resuming)."""
+        return set() if self._resync is None else self.peers.missing(*self._resync, self.agents)
+
     def counters(self) -> dict[str, int]:
         return {**self.drops.as_counters(), **self.link.counters()}
 
@@ -778,7 +798,7 @@ class CentralDriver:
         _greedy_from(self, episode)
         self.learner.observe(tuple(self._cells))
         joint = decode_joint_action(self.learner.act({}), self.n)
-        acting = [k for k in self.agents if not self._done[k - 1]]
+        acting = self.acting
         self._acted = (episode, step)
         self._collect(set(acting))
         return [Send(Action(k, episode, step, joint[k - 1])) for k in acting]

@@ -21,10 +21,18 @@ from msgs_spec import KeyFileError, read_key
 __all__ = ["WORLD_PARAMETERS", "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters",
            "undeclared_overrides", "read_key_parameter"]
 
+
+def _with_settings(use: str, table: dict[str, tuple[Any, str]]) -> dict[str, tuple[Any, str]]:
+    """`table` and every field of Settings as a parameter of the same name and type (`use`: what the node
+    makes of them)."""
+    return {**table, **{f.name: (f.default, f"cq_ros.settings.Settings.{f.name} ({use}); not given: the map's "
+                                            "default, else this one") for f in fields(Settings)}}
+
+
 # Every parameter of the world node: name -> (default, description). The default also fixes the ROS type.
 # Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
 # the map's default (its `set` lines) or Settings' (cq_ros.parameters).
-WORLD_PARAMETERS: dict[str, tuple[Any, str]] = {
+WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("world dynamics use the rewards, step_cap and slip", {
     "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
     "episodes": (500, "learning episodes; then eval_episodes more, where the agents play their greedy policy "
                       "(cq_ros.engine.greedy_episodes); the node exits 0 after the last of all"),
@@ -44,15 +52,12 @@ WORLD_PARAMETERS: dict[str, tuple[Any, str]] = {
                      "no authentication"),
     "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
                           "world/map (latched) and world/markers every step; false: not even the publishers"),
-}
-WORLD_PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (world dynamics use the rewards, "
-                                       "step_cap and slip); not given: the map's default, else this one")
-                   for f in fields(Settings)})
+})
 
 # Every parameter of the agent node: name -> (default, description). The default also fixes the ROS type.
 # Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
 # the map's default (its `set` lines) or Settings' (cq_ros.parameters).
-AGENT_PARAMETERS: dict[str, tuple[Any, str]] = {
+AGENT_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("learning settings and rewards, as the world's", {
     "agent_id": (0, "the AGV this node drives, 1..N as numbered in the map; leave 0 for algo jsa, whose "
                     "one central node drives every AGV"),
     "algo": ("cq", f"learner: {', '.join(LEARNERS)} (cq_ros.learners)"),
@@ -78,10 +83,7 @@ AGENT_PARAMETERS: dict[str, tuple[Any, str]] = {
                      "positions and heartbeats without a matching MAC; empty: no authentication"),
     "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
                           "agv<k>/looks at every decision; false: not even the publishers"),
-}
-AGENT_PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (learning settings and rewards, "
-                                       "as the world's); not given: the map's default, else this one")
-                   for f in fields(Settings)})
+})
 
 # node kind -> its parameters
 PARAMETERS: dict[str, dict[str, tuple[Any, str]]] = {"world": WORLD_PARAMETERS, "agent": AGENT_PARAMETERS}

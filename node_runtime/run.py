@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -17,7 +18,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 __all__ = ["EXECUTORS", "EXECUTOR_ENV", "SPIN_S", "FASTDDS_PROFILE", "FASTDDS_PROFILE_ENV", "executor_kind",
-           "make_executor", "spin_nodes", "run_node"]
+           "make_executor", "spin_nodes", "run_node", "POLL_S", "when", "all_acked"]
 
 
 # The executors a node process can spin on (`$CQ_ROS_EXECUTOR`, `cq-ros launch --executor`). rclpy's
@@ -121,3 +122,33 @@ def _missing_params_files(argv: list[str]) -> str | None:
         if flag == "--params-file" and not os.access(path, os.R_OK):
             return path
     return None
+
+
+POLL_S = 0.05  # how often `when` looks again
+
+
+def when(node: Any, ready: Callable[[], bool], timeout_s: float, then: Callable[[bool], Any]) -> None:
+    """then(True) as soon as ready() holds (looked at now, then every POLL_S on a timer of `node`), or
+    then(False) once timeout_s has passed; the executor runs on meanwhile. A node must never wait inside a
+    callback: in a composed process it would stall every other node (an agent's blocking wait for the
+    acknowledgement of its last statistics took up to 2 s, and the world timed out agents still playing)."""
+    if ready():
+        then(True)
+        return
+    deadline = time.monotonic() + timeout_s
+
+    def look() -> None:
+        done = ready()
+        if done or time.monotonic() >= deadline:
+            timer.cancel()
+            node.destroy_timer(timer)
+            then(done)
+
+    timer = node.create_timer(POLL_S, look)
+
+
+def all_acked(publishers: list[Any]) -> Callable[[], bool]:
+    """A `when` condition: every matched reader of these publishers has acknowledged all they sent."""
+    from rclpy.duration import Duration
+
+    return lambda: all(pub.wait_for_all_acked(Duration(seconds=0)) for pub in publishers)

@@ -22,7 +22,7 @@ from rclpy.context import Context
 
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
-from cq_ros.settings import Settings
+from cq_ros.settings import Settings, run_settings
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
     decode_world_stats
 from node_runtime.run import make_executor, spin_nodes
@@ -120,6 +120,27 @@ def test_a_composed_launch_writes_the_offline_engines_episodes_from_one_process(
     assert all(c["subscriptions_created"] > 0 for c in manifest["communication"].values())
     log = (out / "logs" / "container.log").read_text()
     assert all(f"[{namespace}.{node}]" in log for node in ("world", "agv1", "agv2"))
+
+
+def test_nodes_done_in_a_composed_launch_never_stall_the_agents_still_playing(tmp_path):
+    """A node that has played its last episode gives its last messages up to 2 s to be acknowledged, on a
+    timer: waiting inside its callback stalled the whole container, and the world timed out the agents
+    still playing (warehouse_8's last greedy episode, issue 10). The AGVs here reach their goals at
+    different steps of the last episode, the others subscribing to a peer whenever one is close (LoC), and
+    the world gives an action 1 s."""
+    out, namespace = tmp_path / "result", f"ending_{uuid.uuid4().hex[:8]}"
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", "--compose", "--map", "warehouse_8",
+                           "--algo", "loc", "--episodes", "1", "--seed", str(SEED), "--out", str(out),
+                           "--namespace", namespace, "--set", "eval_episodes=0", "--set", "step_timeout=1.0",
+                           "--no-figures"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["world"]["missed_actions"] == 0
+    gridmap = load_map("warehouse_8")
+    offline = run("loc", gridmap, run_settings(gridmap, ["eval_episodes=0"]), SEED, 0, 1)  # the map's `set` lines
+    with open(out / "episodes.csv", newline="") as f:
+        assert [(int(r["steps"]), int(r["collisions"])) for r in csv.DictReader(f)] == \
+            [(int(e[0]), int(e[1])) for e in offline.episodes]
 
 
 def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):

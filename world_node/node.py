@@ -12,7 +12,6 @@ import time
 from functools import partial
 from typing import Any
 
-from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
@@ -26,6 +25,7 @@ from msgs_spec import (
 )
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
 from node_runtime.parameters import declare_node_parameters
+from node_runtime.run import all_acked, when
 
 from .lockstep import Lockstep, world_config
 from .viz import WorldView
@@ -67,6 +67,7 @@ class WorldNode(Node):
             name(k) for k in agents for name in (position_topic, feedback_topic, action_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
         self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
+        self._closing = False  # finishing: flushing the last messages before `done`
         self._deadline = time.monotonic() + cfg.startup_timeout
         self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
         self.get_logger().info(f"map {cfg.gridmap.name}, {world.n} agents, {cfg.episodes} episodes and "
@@ -128,12 +129,13 @@ class WorldNode(Node):
         self._timer = self.create_timer(period, callback)
 
     def _finish(self, code: int) -> None:
+        if self._closing:
+            return
+        self._closing = True
         self._timer.cancel()
         self._heartbeat_timer.cancel()
         self._graph_timer.cancel()
         # Reliable messages still in flight go with the process: give the readers a bounded moment to
         # acknowledge the last feedback and statistics (an exited agent's reader is no longer waited for).
-        end = time.monotonic() + FLUSH_TIMEOUT_S
-        for pub in [self._stats, *self._outputs[Feedback].values()]:
-            pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
-        self.done.set_result(code)
+        when(self, all_acked([self._stats, *self._outputs[Feedback].values()]), FLUSH_TIMEOUT_S,
+             lambda _acked: self.done.set_result(code))
