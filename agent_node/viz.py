@@ -41,7 +41,7 @@ class AgentView:
         cells = driver.map.cells
         if driver.learner.central:  # its state is every agent's cell
             joint = [cells[c] for c in driver.learner.s]
-            others = [j for j in driver.agents if j != action.agent and not driver._done[j - 1]]
+            others = [j for j in driver.acting if j != action.agent]
             return Looks(action.agent, action.episode, action.step, *joint[action.agent - 1],
                          tuple((j, *joint[j - 1]) for j in others))
         # The peers needed at this decision are those PeerView has just (re)marked as needed (idle 0).

@@ -26,7 +26,7 @@ from bench_roundtrip import measure_roundtrip
 
 from cq_ros.gridmap import available_maps
 from cq_ros.settings import Settings
-from world_node.launch import launch
+from ros_tools.launch import launch
 
 
 def lockstep(map_name: str, algo: str, episodes: int, settings: Settings, linger: int | None = None,
@@ -51,7 +51,7 @@ def subscription_check_us(n: int = 20000) -> float:
     pays a step for its markers (the world once, each agent once a decision)."""
     import time
 
-    from msgs_spec.tools import ros_session
+    from ros_tools.commands import ros_session
     from msgs_spec.viz import SCENE, SCENE_TOPIC
 
     with ros_session("bench_markers") as (node, _):
