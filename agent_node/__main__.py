@@ -1,6 +1,6 @@
 """python -m agent_node --ros-args -p agent_id:=K -p algo:=cq -p map:=NAME [-p <parameter>:=VALUE ...]
 
-Runs one agent node until its last episode. Parameters: agent_node.driver.PARAMETERS (every field of
+Runs one agent node until its last episode. Parameters: node_runtime.parameters.AGENT_PARAMETERS (every field of
 cq_ros.settings.Settings included; one not given is the map's default, as in cq-ros experiment); for algo jsa
 leave agent_id out: one central node drives every AGV.
 --params-file, -r __ns:=/name and -r __node:=agvK work as for any ROS 2 node.
@@ -11,7 +11,7 @@ or checkpoint (one line on stderr), 130 interrupted (Ctrl-C, SIGTERM).
 import sys
 
 from cq_ros.settings import SettingsError
-from msgs_spec.tools import run_node
+from node_runtime.run import run_node
 
 from .node import AgentNode
 

@@ -60,7 +60,7 @@ import pickle
 import tempfile
 import time
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping
 
 from cq_ros.engine import make_learner
@@ -69,50 +69,17 @@ from cq_ros.parameters import check_numbers, map_and_settings
 from cq_ros.learners import LEARNERS, Learner, decode_joint_action
 from cq_ros.settings import Settings, SettingsError
 from msgs_spec import (
-    HEARTBEAT_TOPIC, Action, AgentStats, Bounds, DropCounter, KeyFileError, MarkedJointState, WireError,
-    check_sequence, decode_feedback, decode_heartbeat, decode_position, feedback_topic, position_topic, read_key,
+    HEARTBEAT_TOPIC, Action, AgentStats, Bounds, DropCounter, MarkedJointState, WireError, check_sequence,
+    decode_feedback, decode_heartbeat, decode_position, feedback_topic, position_topic,
 )
+from node_runtime.parameters import read_key_parameter
 
 __all__ = [
-    "PARAMETERS", "AgentConfig", "agent_config", "make_driver",
+    "AgentConfig", "agent_config", "make_driver",
     "Subscribe", "Unsubscribe", "Send", "SaveCheckpoint", "Finish",
     "WorldLink", "PeerView", "AgentDriver", "CentralDriver", "save_checkpoint", "load_checkpoint",
-    "remove_stale_temporaries", "read_key_parameter", "state_counts",
+    "remove_stale_temporaries", "state_counts",
 ]
-
-# Every parameter of the agent node: name -> (default, description). The default also fixes the ROS type.
-# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
-# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    "agent_id": (0, "the AGV this node drives, 1..N as numbered in the map; leave 0 for algo jsa, whose "
-                    "one central node drives every AGV"),
-    "algo": ("cq", f"learner: {', '.join(LEARNERS)} (cq_ros.learners)"),
-    "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file; "
-                              "the same as the world's"),
-    "episodes": (500, "learning episodes (the same as the world's); then eval_episodes greedy ones (epsilon 0, "
-                      "on a copy of the learner, as cq_ros.engine.greedy_episodes); the node exits 0 after the "
-                      "last of all"),
-    "seed": (0, "experiment seed; with run and the agent it seeds the learner (cq_ros.engine.learner_seed)"),
-    "run": (0, "run index (cq_ros.engine.learner_seed)"),
-    "checkpoint": ("", "learner checkpoint file: loaded at start when it exists (resume), written every "
-                       "checkpoint_every episodes and after the last learning one (never in the greedy "
-                       "episodes); empty: no checkpoints"),
-    "checkpoint_every": (50, "episodes between checkpoints"),
-    "feedback_timeout": (30.0, "seconds without a valid message from the world (feedback or heartbeat) after "
-                               "which the node gives up (exit 1)"),
-    "peer_linger_steps": (0, "decision steps a peer subscription is kept after the learner last named the "
-                             "peer (0: drop at the first step without need)"),
-    "min_stats_subscribers": (0, "hold this node's agv<k>/stats messages until that many subscribers are "
-                                 "matched, then send them in order (cq-ros launch: 1, so that it hears every "
-                                 "episode); learning never waits for them, the exit at most 10 s"),
-    "key_file": ("", "file holding the run's key (as the world's key_file): key every action, drop feedback, "
-                     "positions and heartbeats without a matching MAC; empty: no authentication"),
-    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
-                          "agv<k>/looks at every decision; false: not even the publishers"),
-}
-PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (learning settings and rewards, "
-                                       "as the world's); not given: the map's default, else this one")
-                   for f in fields(Settings)})
 
 _CHECKPOINT_FORMAT = 1
 
@@ -158,14 +125,6 @@ def agent_config(values: Mapping[str, Any]) -> AgentConfig:
                        values["checkpoint"], values["checkpoint_every"], values["feedback_timeout"],
                        values["peer_linger_steps"], values["min_stats_subscribers"],
                        read_key_parameter(values["key_file"]))
-
-
-def read_key_parameter(path: str) -> bytes | None:
-    """The key in parameter key_file (None when empty); SettingsError naming the parameter otherwise."""
-    try:
-        return read_key(path) if path else None
-    except KeyFileError as e:
-        raise SettingsError(str(e)) from None
 
 
 def _check_checkpoint_folder(path: str) -> None:
@@ -499,6 +458,10 @@ class PeerView:
             return farthest != stamp
         return True
 
+    def missing(self, episode: int, step: int, peers: Iterable[int]) -> set[tuple[int, int, int]]:
+        """(peer, episode, step) for every peer in `peers` whose position stamped (episode, step) has not come."""
+        return {(j, episode, step) for j in peers if (episode, step) not in self._seen.get(j, {})}
+
     def cells_at(self, episode: int, step: int, peers: Iterable[int]) -> dict[int, int] | None:
         """{peer: cell} stamped (episode, step) for every peer in `peers`, or None while one is missing."""
         cells = {}
@@ -561,6 +524,13 @@ class AgentDriver:
     def on_position(self, peer: int, msg: Any) -> Effects:
         """A message from agv<peer>/position."""
         return self._try_act() if self.peers.on_position(peer, msg) else []
+
+    def waiting_for(self) -> set[tuple[int, int, int]]:
+        """(peer, episode, step) of every position the agent waits for before it can act (none: it is not
+        waiting for peers)."""
+        if self._pending is None:
+            return set()
+        return self.peers.missing(*self._pending)
 
     def counters(self) -> dict[str, int]:
         out = self.drops.as_counters()
@@ -762,6 +732,15 @@ class CentralDriver:
         held = self.link.vouched() if self.link.on_heartbeat(msg) else None
         return self._catch_up(held[0], held[1]) if held else []
 
+    @property
+    def acting(self) -> list[int]:
+        """The agents still acting in the current episode (not at their goals)."""
+        return [k for k in self.agents if not self._done[k - 1]]
+
+    def waiting_for(self) -> set[tuple[int, int, int]]:
+        """(agent, episode, step) of every position the node waits for (only while resuming)."""
+        return set() if self._resync is None else self.peers.missing(*self._resync, self.agents)
+
     def counters(self) -> dict[str, int]:
         return {**self.drops.as_counters(), **self.link.counters()}
 
@@ -819,7 +798,7 @@ class CentralDriver:
         _greedy_from(self, episode)
         self.learner.observe(tuple(self._cells))
         joint = decode_joint_action(self.learner.act({}), self.n)
-        acting = [k for k in self.agents if not self._done[k - 1]]
+        acting = self.acting
         self._acted = (episode, step)
         self._collect(set(acting))
         return [Send(Action(k, episode, step, joint[k - 1])) for k in acting]

@@ -10,8 +10,8 @@ from typing import Any
 from rclpy.event_handler import PublisherEventCallbacks
 
 from msgs_spec import Action, AgentStats
-from msgs_spec.graph import Matched
 from msgs_spec.viz import LOOKS, Looks, looks_topic
+from node_runtime.graph import Matched
 
 __all__ = ["AgentView"]
 
@@ -47,7 +47,7 @@ class AgentView:
         cells = driver.map.cells
         if driver.learner.central:  # its state is every agent's cell
             joint = [cells[c] for c in driver.learner.s]
-            others = [j for j in driver.agents if j != action.agent and not driver._done[j - 1]]
+            others = [j for j in driver.acting if j != action.agent]
             return Looks(action.agent, action.episode, action.step, *joint[action.agent - 1],
                          tuple((j, *joint[j - 1]) for j in others))
         # The peers needed at this decision are those PeerView has just (re)marked as needed (idle 0).

@@ -28,7 +28,7 @@ from bench_roundtrip import measure_roundtrip
 
 from cq_ros.gridmap import available_maps
 from cq_ros.settings import Settings
-from world_node.launch import launch
+from ros_tools.launch import launch
 
 
 def lockstep(map_name: str, algo: str, episodes: int, settings: Settings, linger: int | None = None,

@@ -1,6 +1,9 @@
 """Why learners still collide late in learning: each colliding pair of the last 10% of episodes, classified by
 whether either agent's move was an exploratory one (epsilon-greedy's random branch) or both were greedy,
-and whether one of them stood parked at its goal. A floor that exploration sets cannot be learnt away.
+whether either saw the other when it chose (a peer it was given by `observe`), and by the pair's geometry:
+a swap, a merge into one cell, a rear-end (one moves into the cell of one that stays: waiting by bumping a
+wall, or parked at its goal) or a chain (sent back by another collision). A floor that exploration sets
+cannot be learnt away; greedy collisions between agents that saw each other are coordination CQ failed at.
 
     python benchmarks/warehouse_collisions.py [--map warehouse_8] [--algos indep,cq] [--runs 3] [--episodes 2000]
 """
@@ -21,6 +24,7 @@ from cq_ros.settings import run_settings
 from cq_ros.world import GridWorld, resolve_moves
 
 explored: set[int] = set()  # ids of the rngs that took the random branch this step
+seen: dict[int, set[int]] = {}  # agent -> the peers it was given to choose this step
 
 
 def epsilon_greedy_told(row, epsilon, rng):
@@ -29,6 +33,23 @@ def epsilon_greedy_told(row, epsilon, rng):
         explored.add(id(rng))
         return int(rng.random() * len(row))
     return base.greedy(row, rng)
+
+
+def telling_act(act, agent):
+    """A learner's act that also records which peers it was given."""
+    def told(peer_cells):
+        seen[agent] = set(peer_cells)
+        return act(peer_cells)
+    return told
+
+
+def geometry(before, targets, actions, i, j) -> str:
+    if targets[i] == before[j] and targets[j] == before[i]:
+        return "swap"
+    for mover, stayer in ((i, j), (j, i)):
+        if targets[mover] == before[stayer] == targets[stayer]:
+            return "rear-end, " + ("parked" if actions[stayer] is None else "waiting")
+    return "merge" if targets[i] == targets[j] else "chain"
 
 
 def classify(map_name: str, algo: str, runs: int, episodes: int) -> Counter:
@@ -41,11 +62,14 @@ def classify(map_name: str, algo: str, runs: int, episodes: int) -> Counter:
     for run in tqdm(range(runs), desc=f"{map_name} {algo}", file=sys.stderr):
         world = GridWorld(gridmap, settings, seed=world_seed(0, run))
         team = Team(world, make_learners(algo, gridmap, settings, 0, run))
+        for i, learner in enumerate(team.learners):
+            learner.act = telling_act(learner.act, i)
         for episode in range(episodes):
             late = episode >= 0.9 * episodes
             world.reset_joint()
             while not world.finished and world.t < world.step_cap:
                 explored.clear()
+                seen.clear()
                 before = list(world.cells)
                 actions = team.choose()
                 rngs = [id(learner.rng) in explored for learner in team.learners]
@@ -55,7 +79,8 @@ def classify(map_name: str, algo: str, runs: int, episodes: int) -> Counter:
                     for i, j in resolve_moves(before, targets, gridmap.goals)[1]:
                         kind = "both explored" if rngs[i] and rngs[j] else "one explored" if rngs[i] or rngs[j] \
                             else "both greedy"
-                        kinds[kind + (", one parked" if None in (actions[i], actions[j]) else "")] += 1
+                        saw = "saw" if j in seen.get(i, ()) or i in seen.get(j, ()) else "unseen"
+                        kinds[(kind, saw, geometry(before, targets, actions, i, j))] += 1
                 team.learn(actions, rewards)
             for learner in team.learners:
                 learner.end_episode()
@@ -73,8 +98,14 @@ def main() -> None:
     for algo in args.algos.split(","):
         kinds = classify(args.map, algo, args.runs, args.episodes)
         total = sum(kinds.values())
-        print(f"{args.map} {algo}: {total / late_episodes:.2f} collisions per episode over the last 10%; "
-              + ", ".join(f"{k}: {n} ({n / total:.0%})" for k, n in sorted(kinds.items())))
+        print(f"{args.map} {algo}: {total / late_episodes:.2f} colliding pairs per episode over the last 10% "
+              f"({total} pairs in {late_episodes} episodes)")
+        for group in (0, 1, 2):
+            sums = Counter()
+            for key, n in kinds.items():
+                sums[key[group]] += n
+            print("  " + ", ".join(f"{k} {n / late_episodes:.2f} ({n / total:.0%})" for k, n in sums.most_common()))
+        print("  " + "; ".join(f"{', '.join(k)} {n / late_episodes:.2f}" for k, n in kinds.most_common(6)))
 
 
 if __name__ == "__main__":

@@ -71,7 +71,7 @@ def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> No
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="change a setting (repeatable); `cq-ros settings` lists them" + (
                        "; a node parameter too (e.g. feedback_timeout=60, heartbeat_period=0.5: the "
-                       "`PARAMETERS` of world_node/lockstep.py and agent_node/driver.py)" if nodes else ""))
+                       "tables in node_runtime/parameters.py)" if nodes else ""))
     p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
 
 
@@ -378,12 +378,12 @@ def _generate(args) -> int:
     return 0
 
 
-# The ROS commands import rclpy (through world_node and msgs_spec) only when they run: the rest of cq_ros
+# The ROS commands import rclpy (through ros_tools) only when they run: the rest of cq_ros
 # works without it.
 
 
 def _hosts(args) -> int:
-    from world_node.hosts import HostsError, existing_prefixes, hosts_down, hosts_up
+    from ros_tools.hosts import HostsError, existing_prefixes, hosts_down, hosts_up
 
     try:
         if args.action == "up":
@@ -403,8 +403,8 @@ def _hosts(args) -> int:
 
 
 def _launch(args) -> int:
-    from world_node.hosts import HostsError, check_can_make_hosts, find_hosts
-    from world_node.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
+    from ros_tools.hosts import HostsError, check_can_make_hosts, find_hosts
+    from ros_tools.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
 
     from .summary import format_console_table, load_episodes
 
@@ -460,7 +460,7 @@ def _render(args) -> int:
         frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode,
                                _every_30_s("episode {} learnt"), greedy=args.greedy)
     else:
-        from msgs_spec import tools
+        from ros_tools import commands as tools
 
         if args.overrides or args.greedy:
             raise ValueError(f"{'--set' if args.overrides else '--greedy'} applies to --map (the offline engine), "
@@ -505,7 +505,7 @@ def _note(line: str) -> None:
 
 
 def _ros_tool(args) -> int:
-    from msgs_spec import tools
+    from ros_tools import commands as tools
 
     try:
         if args.command == "echo":

@@ -1,4 +1,4 @@
-"""Composed mode: the world and every agent node in one process on one EventsExecutor (world_node.compose, as
+"""Composed mode: the world and every agent node in one process on one EventsExecutor (ros_tools.compose, as
 `cq-ros launch --compose` runs it, each node reading its parameters under its own name from the params file)
 give exactly the offline engine's episodes for all five algorithms' kinds of node on two maps; the launch
 writes the same results as a process per node; a bad parameter, a bad node name and Ctrl-C end it cleanly."""
@@ -22,13 +22,13 @@ from rclpy.context import Context
 
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
-from cq_ros.settings import Settings
+from cq_ros.settings import Settings, run_settings
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
     decode_world_stats
-from msgs_spec.tools import make_executor, spin_nodes
+from node_runtime.run import make_executor, spin_nodes
 from processes import alive_with
-from world_node.compose import make_nodes
-from world_node.launch import compose_command, node_specs
+from ros_tools.compose import make_nodes
+from ros_tools.launch import compose_command, node_specs
 
 RUN_TIMEOUT_S = 60.0  # a bound for one composed run; each below takes a second or two
 # Short runs: on grid_game_2 CQ marks joint states (and so subscribes to its peer) within 30 episodes;
@@ -122,6 +122,27 @@ def test_a_composed_launch_writes_the_offline_engines_episodes_from_one_process(
     assert all(f"[{namespace}.{node}]" in log for node in ("world", "agv1", "agv2"))
 
 
+def test_nodes_done_in_a_composed_launch_never_stall_the_agents_still_playing(tmp_path):
+    """A node that has played its last episode gives its last messages up to 2 s to be acknowledged, on a
+    timer: waiting inside its callback stalled the whole container, and the world timed out the agents
+    still playing (warehouse_8's last greedy episode, issue 10). The AGVs here reach their goals at
+    different steps of the last episode, the others subscribing to a peer whenever one is close (LoC), and
+    the world gives an action 1 s."""
+    out, namespace = tmp_path / "result", f"ending_{uuid.uuid4().hex[:8]}"
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", "--compose", "--map", "warehouse_8",
+                           "--algo", "loc", "--episodes", "1", "--seed", str(SEED), "--out", str(out),
+                           "--namespace", namespace, "--set", "eval_episodes=0", "--set", "step_timeout=1.0",
+                           "--no-figures"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["world"]["missed_actions"] == 0
+    gridmap = load_map("warehouse_8")
+    offline = run("loc", gridmap, run_settings(gridmap, ["eval_episodes=0"]), SEED, 0, 1)  # the map's `set` lines
+    with open(out / "episodes.csv", newline="") as f:
+        assert [(int(r["steps"]), int(r["collisions"])) for r in csv.DictReader(f)] == \
+            [(int(e[0]), int(e[1])) for e in offline.episodes]
+
+
 def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):
     out, namespace, err = tmp_path / "result", f"stopme_{uuid.uuid4().hex[:8]}", tmp_path / "launch.stderr"
     with open(err, "wb") as f:
@@ -150,7 +171,7 @@ def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):
     ([], "no node names"),
 ])
 def test_the_container_exits_2_with_one_line_for_bad_input(args, message):
-    done = subprocess.run([sys.executable, "-m", "world_node.compose", *args], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-m", "ros_tools.compose", *args], capture_output=True, text=True,
                           timeout=60)
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from agent_node.driver import (
-    PARAMETERS, AgentDriver, CentralDriver, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe,
+    AgentDriver, CentralDriver, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe,
     agent_config, load_checkpoint, make_driver, save_checkpoint,
 )
 from cq_ros.engine import make_learner, run, world_seed
@@ -24,6 +24,7 @@ from cq_ros.parameters import SETTING_NAMES
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import Action, AgentStats, Feedback, Heartbeat, Position, WorldStats, encode
+from node_runtime.parameters import AGENT_PARAMETERS as PARAMETERS
 from world_node.lockstep import Lockstep
 
 THREE = parse_map("""agent 1: start 0,0  goal 0,3

@@ -1,5 +1,5 @@
 """Several hosts, for real: the world and each AGV in a network namespace of its own, joined by a bridge, with
-addresses from 198.18.0.0/15 (`cq-ros hosts`, world_node/hosts.py), and `cq-ros launch --hosts` across them.
+addresses from 198.18.0.0/15 (`cq-ros hosts`, ros_tools/hosts.py), and `cq-ros launch --hosts` across them.
 The run equals the offline engine's with discovery on the subnet and with unicast to ROS_STATIC_PEERS only; a
 link down for 2 s costs a few counted misses and the agent is back in step; a host cut for good ends the run as
 a lost agent does, with what was written before intact. Every namespace made is removed, even on failure, and
@@ -28,7 +28,7 @@ from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings
 from test_launch import SEED, launch_command, read_episodes, unique
-from world_node.hosts import HostsError, check_can_make_hosts, existing_prefixes, hosts_up, hosts_down
+from ros_tools.hosts import HostsError, check_can_make_hosts, existing_prefixes, hosts_up, hosts_down
 
 
 
@@ -111,7 +111,7 @@ def test_hosts_up_and_down_make_and_remove_namespaces_only(hosts, capsys):
 
 
 def test_a_failed_up_removes_what_it_made(monkeypatch):
-    from world_node import hosts as module
+    from ros_tools import hosts as module
 
     real = module._ip
     calls = []

@@ -26,7 +26,7 @@ from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
 from cq_ros.warehouse import warehouse_text
 from processes import alive_with
-from world_node.launch import node_commands, node_specs
+from ros_tools.launch import node_commands, node_specs
 
 LAUNCH_TIMEOUT_S = 120.0  # bound on one launch; each below takes about 10 s on 2 busy cores
 SEED = 1
@@ -141,7 +141,7 @@ def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it
 
 
 def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(capsys):
-    from world_node.launch import _Progress
+    from ros_tools.launch import _Progress
 
     bar = _Progress("tunnel_to_goal cq", episodes=6, learning=4, enabled=True)  # stderr is not a terminal here
     for done in range(1, 7):

@@ -16,7 +16,8 @@ from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import Action, Feedback, Heartbeat, Position, WorldStats, encode
 from cq_ros.parameters import SETTING_NAMES
-from world_node.lockstep import PARAMETERS, Lockstep, world_config
+from node_runtime.parameters import WORLD_PARAMETERS as PARAMETERS
+from world_node.lockstep import Lockstep, world_config
 
 
 class Clock:

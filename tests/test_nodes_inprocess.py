@@ -27,7 +27,7 @@ from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    ACTION, AGENT_STATS, FEEDBACK, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
+    ACTION, AGENT_STATS, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
     agent_stats_topic, decode_action, decode_agent_stats, decode_world_stats, encode, feedback_topic,
 )
 from world_node import WorldNode
@@ -258,7 +258,54 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
     assert {f"dropped.{k}" for k in bad_actions} <= world_counts.keys(), world_counts
     agent_counts = system.agent_stats[1][-1].counters
     assert {f"dropped.{k}" for k in bad_feedback} <= agent_counts.keys(), agent_counts
-    assert system.agent_stats[2][-1].counters == {}
+    # agv2 was sent nothing bad: it counts no drop (a position taken unannounced, AgentNode._take_unannounced,
+    # is the middleware's race recovered, which this run's timing hits now and then)
+    assert {k: v for k, v in system.agent_stats[2][-1].counters.items() if k != "unannounced_positions"} == {}
+
+
+class UnannouncedPositions(AgentNode):
+    """An agent node whose peer position subscriptions the executor never hears of: they are made on a node
+    that no executor spins, so every position waits in its reader unannounced, as a latched sample does when
+    the middleware drops the announcement of a new subscription's first sample (issue 10, composed mode)."""
+
+    def __init__(self, node_name: str, **kwargs):
+        self._hidden = rclpy.create_node(f"{node_name}_hidden", context=kwargs["context"])
+        self._hidden_subs: set = set()
+        super().__init__(node_name, **kwargs)
+
+    def create_subscription(self, msg_type, topic, callback, qos, **kwargs):
+        if msg_type is not POSITION.msg_type or not topic.endswith("/position"):
+            return super().create_subscription(msg_type, topic, callback, qos, **kwargs)
+        sub = self._hidden.create_subscription(msg_type, topic, callback, qos, **kwargs)
+        self._hidden_subs.add(sub)
+        return sub
+
+    def destroy_subscription(self, sub) -> bool:
+        if sub in self._hidden_subs:
+            self._hidden_subs.discard(sub)
+            return self._hidden.destroy_subscription(sub)
+        return super().destroy_subscription(sub)
+
+    def destroy_node(self) -> None:
+        super().destroy_node()
+        self._hidden.destroy_node()
+
+
+def test_a_peer_position_the_executor_never_announces_is_taken_from_its_reader(system_in, spin_until):
+    """A position that sits in its reader unannounced is taken within a check period or two, so the run
+    still equals the offline engine's with no action missed; before, the agent waited past step_timeout
+    and the run left the engine's episodes (warehouse_8, composed: 4 misses in about 98,000 steps)."""
+    algo, (map_name, seed, settings), episodes = "cq", GRID, 40
+    system = system_in(algo, map_name, seed, episodes, settings, world_extra={"step_timeout": 1.0},
+                       agent_class={1: UnannouncedPositions, 2: UnannouncedPositions})
+    finish(system, spin_until)
+    table = offline_rows(algo, map_name, seed, episodes, settings)
+    assert [(s.steps, s.collisions, s.truncated) for s in system.world_stats] == \
+        [(int(e[0]), int(e[1]), bool(e[5])) for e in table]
+    assert all(s.missed_actions == 0 for s in system.world_stats)
+    for k in (1, 2):  # every position it heard was taken unannounced, and counted
+        last = system.agent_stats[k][-1]
+        assert last.peer_messages > 0 and last.counters == {"unannounced_positions": last.peer_messages}
 
 
 def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(system_in, tmp_path, spin_until,

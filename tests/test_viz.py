@@ -20,7 +20,7 @@ from cq_ros.render import CELL_INCHES, DPI, engine_frames, frames_from, lattice
 from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz
-from msgs_spec.tools import read_view_bag
+from ros_tools.commands import read_view_bag
 from test_nodes_inprocess import finish, system_in  # noqa: F401 (system_in: a fixture)
 
 GRID = ("grid_game_2", 1, (("window", 5), ("eval_episodes", 0)))

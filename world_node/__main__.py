@@ -1,6 +1,6 @@
 """python -m world_node --ros-args -p map:=NAME -p episodes:=N [-p <parameter>:=VALUE ...]
 
-Runs the world node until its last episode. Parameters: world_node.lockstep.PARAMETERS (every field of
+Runs the world node until its last episode. Parameters: node_runtime.parameters.WORLD_PARAMETERS (every field of
 cq_ros.settings.Settings included; one not given is the map's default, as in cq-ros experiment); --params-file
 and -r __ns:=/name work as for any ROS 2 node.
 Exit codes: 0 all episodes played, 1 the agents never all connected (startup_timeout), 2 a bad parameter
@@ -11,7 +11,7 @@ SIGTERM).
 import sys
 
 from cq_ros.settings import SettingsError
-from msgs_spec.tools import run_node
+from node_runtime.run import run_node
 
 from .node import WorldNode
 

@@ -28,47 +28,19 @@ again, going on with the one world is the same.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from cq_ros.gridmap import GridMap
 from cq_ros.parameters import check_numbers, map_and_settings
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
-from agent_node.driver import read_key_parameter
 from msgs_spec import (
     Bounds, DropCounter, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace, decode_action,
 )
+from node_runtime.parameters import read_key_parameter
 
-__all__ = ["PARAMETERS", "WorldConfig", "world_config", "Lockstep"]
-
-# Every parameter of the world node: name -> (default, description). The default also fixes the ROS type.
-# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
-# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
-    "episodes": (500, "learning episodes; then eval_episodes more, where the agents play their greedy policy "
-                      "(cq_ros.engine.greedy_episodes); the node exits 0 after the last of all"),
-    "seed": (0, "experiment seed; with run it seeds the world's RNG (used only when slip > 0), "
-                "as cq_ros.engine.world_seed"),
-    "run": (0, "run index (cq_ros.engine.world_seed)"),
-    "step_timeout": (2.0, "seconds to wait for an acting agent's action; past it the agent stays for "
-                          "that step (warned and counted as missed_actions)"),
-    "startup_timeout": (30.0, "seconds to wait before the first step until every agent's action and "
-                              "feedback topics are matched; past it the node exits 1"),
-    "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
-                                 "subscriptions (a recorder that must not miss an episode sets 1)"),
-    "heartbeat_period": (1.0, "seconds between two world/heartbeat messages (sent from the start, whether or "
-                              "not anyone acts); keep it well below the agents' feedback_timeout"),
-    "key_file": ("", "file holding the run's key (hex, readable by its owner only; cq-ros launch writes one): "
-                     "key every message that steers the run and drop actions without a matching MAC; empty: "
-                     "no authentication"),
-    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
-                          "world/map (latched) and world/markers every step; false: not even the publishers"),
-}
-PARAMETERS.update({f.name: (f.default, f"cq_ros.settings.Settings.{f.name} (world dynamics use the rewards, "
-                                       "step_cap and slip); not given: the map's default, else this one")
-                   for f in fields(Settings)})
+__all__ = ["WorldConfig", "world_config", "Lockstep"]
 
 
 @dataclass(frozen=True)

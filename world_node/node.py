@@ -16,19 +16,18 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
-from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
 from cq_ros.engine import world_seed
-from cq_ros.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
     Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic, serialize,
 )
-from msgs_spec.graph import CHECK_PERIOD_S, GraphWatch
-from msgs_spec.tools import declare_parameters, undeclared_overrides, watch_graph, when_acked
+from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
+from node_runtime.parameters import declare_node_parameters
+from node_runtime.run import all_acked, when
 
-from .lockstep import PARAMETERS, Lockstep, world_config
+from .lockstep import Lockstep, world_config
 from .viz import WorldView
 
 __all__ = ["WorldNode"]
@@ -38,14 +37,13 @@ FLUSH_TIMEOUT_S = 2.0  # at the end, how long to wait for subscribers to acknowl
 
 
 class WorldNode(Node):
-    """Parameters: see world_node.lockstep.PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
+    """Parameters: node_runtime.parameters.WORLD_PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
     rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter)."""
 
     def __init__(self, node_name: str = "world", **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
-            values = declare_parameters(self, PARAMETERS, unset=SETTING_NAMES)
-            check_names(undeclared_overrides(self), PARAMETERS, AGENT_PARAMETERS)
+            values = declare_node_parameters(self, "world")
             self.config = cfg = world_config(values)
         except (SettingsError, ParameterException):
             self.destroy_node()
@@ -70,7 +68,7 @@ class WorldNode(Node):
             name(k) for k in agents for name in (position_topic, feedback_topic, action_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
         self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
-        self._finishing = False  # _finish was called: done holds the code once the last messages are acknowledged
+        self._closing = False  # finishing: flushing the last messages before `done`
         self._deadline = time.monotonic() + cfg.startup_timeout
         self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
         self.get_logger().info(f"map {cfg.gridmap.name}, {world.n} agents, {cfg.episodes} episodes and "
@@ -105,7 +103,7 @@ class WorldNode(Node):
     def _check_graph(self) -> None:
         refusal = watch_graph(self, self._graph, self._graph_topics)
         self.core.extra_counters.update(self._graph.counters())
-        if refusal and not self._finishing:
+        if refusal and not self.done.done():
             self.get_logger().error(refusal)
             self._finish(2)
 
@@ -121,7 +119,7 @@ class WorldNode(Node):
         self._send(out)
         if self._view is not None:
             self._view.publish(out)
-        if self.core.finished and not self._finishing:
+        if self.core.finished and not self.done.done():
             self.get_logger().info(f"all {self.config.total_episodes} episodes played ({self.config.episodes} "
                                    f"learning, {self.config.settings.eval_episodes} greedy)")
             self._finish(0)
@@ -132,13 +130,13 @@ class WorldNode(Node):
         self._timer = self.create_timer(period, callback)
 
     def _finish(self, code: int) -> None:
-        if self._finishing:
+        if self._closing:
             return
-        self._finishing = True
+        self._closing = True
         self._timer.cancel()
         self._heartbeat_timer.cancel()
         self._graph_timer.cancel()
         # Reliable messages still in flight go with the process: give the readers a bounded moment to
         # acknowledge the last feedback and statistics (an exited agent's reader is no longer waited for).
-        when_acked(self, [self._stats, *self._outputs[Feedback].values()], FLUSH_TIMEOUT_S,
-                   lambda: self.done.set_result(code))
+        when(self, all_acked([self._stats, *self._outputs[Feedback].values()]), FLUSH_TIMEOUT_S,
+             lambda _acked: self.done.set_result(code))

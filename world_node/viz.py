@@ -11,8 +11,8 @@ from rclpy.event_handler import PublisherEventCallbacks
 from cq_ros.gridmap import GridMap
 from cq_ros.render import lattice
 from msgs_spec import Position
-from msgs_spec.graph import Matched
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene
+from node_runtime.graph import Matched
 
 __all__ = ["WorldView"]
 

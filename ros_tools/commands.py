@@ -4,9 +4,10 @@ Thin equivalents of `ros2 topic echo`, `ros2 topic list -t`, `ros2 node list` an
 which is on pip), built on rclpy; `cq-ros echo|topics|nodes|record` calls them (cq_ros/cli.py). They work on
 any topic of standard type; on a project topic (`parse_topic` knows it) echo also checks every message
 against the contract and says on stderr when one breaks it, and record picks the project topics by default.
+`read_view_bag` reads back what a viewer would have seen of a recorded run (`cq-ros render --bag`).
 
 Every wait is bounded or ends on Ctrl-C/SIGTERM (`StopSignals`); every tool runs in its own rclpy Context
-(`ros_session`), which the launcher (world_node/launch.py) uses too. Failures raise `ToolError`, one line
+(`ros_session`), which the launcher (ros_tools/launch.py) uses too. Failures raise `ToolError`, one line
 for the user.
 """
 
@@ -28,16 +29,13 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from .doc import to_yaml
-from .errors import DropCounter, WireError
-from .topics import TopicSpec, parse_topic
-from .viz import LOOKS, MAP, SCENE, parse_view_topic
+from msgs_spec import DropCounter, TopicSpec, WireError, parse_topic
+from msgs_spec.doc import to_yaml
+from msgs_spec.viz import LOOKS, MAP, SCENE, parse_view_topic
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
-    "EXECUTORS", "EXECUTOR_ENV", "executor_kind", "make_executor", "spin_nodes", "run_node", "declare_parameters",
-    "compatible_qos", "undeclared_overrides", "watch_graph", "message_class", "echo", "topics", "nodes", "record",
-    "read_view_bag",
+    "compatible_qos", "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
 ]
 
 # A new process shows up in the graph 0.05-2.8 s after it starts (DESIGN.md field notes): the default wait.
@@ -120,173 +118,6 @@ def ros_session(name: str, *, domain_id: int | None = None, namespace: str | Non
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=ctx)
-
-
-# The executors a node process can spin on (`$CQ_ROS_EXECUTOR`, `cq-ros launch --executor`). rclpy's
-# EventsExecutor is the default: lockstep in one process ran 4.5x as fast on it as on the
-# SingleThreadedExecutor, and never slower across processes (benchmarks/bench_ros.py --executors).
-EXECUTORS = ("events", "single")
-EXECUTOR_ENV = "CQ_ROS_EXECUTOR"
-SPIN_S = 0.05  # the longest a node process sleeps in one spin_once before it looks at its nodes again
-# Fast DDS protocol timers for node processes (the file says why): a new peer subscription gets its first
-# sample in a few ms instead of up to 70 ms.
-FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
-FASTDDS_PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
-
-
-def executor_kind(kind: str | None = None) -> str:
-    """`kind`, else $CQ_ROS_EXECUTOR, else "events"; ValueError (one line) if it is not one of EXECUTORS."""
-    kind = kind or os.environ.get(EXECUTOR_ENV) or EXECUTORS[0]
-    if kind not in EXECUTORS:
-        raise ValueError(f"executor {kind!r} (${EXECUTOR_ENV} or --executor): choose from {', '.join(EXECUTORS)}")
-    return kind
-
-
-def make_executor(kind: str | None = None, context: Context | None = None) -> Any:
-    """A new executor of `executor_kind(kind)` on `context` (None: the default, initialised already).
-
-    Spin it with spin_once in a loop (`spin_nodes`), never spin(): the EventsExecutor's spin() in rclpy 7.1.6
-    busy-loops and ignores signals (DESIGN.md field notes)."""
-    if executor_kind(kind) == "single":
-        return SingleThreadedExecutor(context=context)
-    from rclpy.experimental import EventsExecutor
-
-    return EventsExecutor(context=context)
-
-
-def spin_nodes(executor: Any, nodes: list[Any], stop: Callable[[], bool] = lambda: False) -> int | None:
-    """Spin until every node's `done` Future holds its exit code (then the largest of them), or until their
-    context is shut down (a signal, under rclpy's handlers) or stop() turns true: None."""
-    context = nodes[0].context
-    pending = list(nodes)  # one node looked at per spin: a composed warehouse spins dozens of times a step
-    look_at = 0.0  # when to look at the context and stop() again: every SPIN_S, not every spin
-    while pending:
-        if pending[-1].done.done():
-            pending.pop()
-            continue
-        if time.monotonic() >= look_at:
-            if not context.ok() or stop():
-                return None
-            look_at = time.monotonic() + SPIN_S
-        executor.spin_once(timeout_sec=SPIN_S)
-    return max(node.done.result() for node in nodes)
-
-
-def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[Exception], ...]) -> int:
-    """The `python -m world_node|agent_node|world_node.compose` main: spin the node, or the list of nodes,
-    made by make_node() on the default context, on one executor (`make_executor`), until every `done`
-    Future holds its exit code; the process exits with the largest. A bad parameter (an exception in
-    bad_input) is one line on stderr and exit code 2; Ctrl-C or SIGTERM exit code 130. make_node() must
-    destroy what it made before it raises. Fast DDS reads FASTDDS_PROFILE unless $FASTRTPS_DEFAULT_PROFILES_FILE
-    names another file."""
-    from rclpy.exceptions import ParameterException
-    from rclpy.executors import ExternalShutdownException
-
-    try:
-        kind = executor_kind()
-    except ValueError as e:
-        print(f"{program}: {e}", file=sys.stderr)
-        return 2
-    missing = _missing_params_files(sys.argv)
-    if missing:
-        print(f"{program}: --params-file {missing}: no such file", file=sys.stderr)
-        return 2
-    os.environ.setdefault(FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))  # read when rclpy.init makes the participant
-    try:
-        rclpy.init(args=sys.argv)
-    except RuntimeError as e:  # rcl refused the arguments (e.g. a parameters file it cannot parse)
-        print(f"{program}: bad ROS arguments: {str(e).splitlines()[0]}", file=sys.stderr)
-        return 2
-    executor = make_executor(kind)
-    nodes: list[Any] = []
-    code = 130
-    try:
-        made = make_node()
-        nodes = made if isinstance(made, list) else [made]
-        for node in nodes:
-            executor.add_node(node)
-        finished = spin_nodes(executor, nodes)
-        code = 130 if finished is None else finished  # None: shut down by a signal
-    except (*bad_input, ParameterException) as e:
-        print(f"{program}: {e}", file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
-            raise
-    finally:
-        # Jazzy order (DESIGN.md field notes): executor, then nodes, then the context.
-        executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
-
-
-def declare_parameters(node: Any, parameters: dict[str, tuple[Any, str]], unset: frozenset[str]) -> dict[str, Any]:
-    """Declare `parameters` (name -> (default, description)) read-only on `node` and return their values.
-
-    Those named in `unset` are declared with their default's type but no value, and are in the result only
-    when given (-p name:=value): the node then knows which were given, e.g. which settings override its map's
-    defaults (cq_ros.settings.run_settings). The default still documents them."""
-    from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.parameter import Parameter
-
-    values = {}
-    for name, (default, description) in parameters.items():
-        descriptor = ParameterDescriptor(description=description, read_only=True)
-        value = Parameter.Type.from_parameter_value(default) if name in unset else default
-        values[name] = node.declare_parameter(name, value, descriptor).value
-    return {name: value for name, value in values.items() if not (name in unset and value is None)}
-
-
-def _missing_params_files(argv: list[str]) -> str | None:
-    """The first `--params-file PATH` after --ros-args that names no readable file."""
-    for flag, path in zip(argv, argv[1:]):
-        if flag == "--params-file" and not os.access(path, os.R_OK):
-            return path
-    return None
-
-
-def undeclared_overrides(node: Any) -> list[str]:
-    """Parameter names given to `node` (command line, parameters file, parameter_overrides) that it did not
-    declare: rclpy ignores them silently, so a typo would run with the default."""
-    # rclpy keeps the overrides in a private dict, the only place they are listed (rclpy 7.1.6).
-    return sorted(set(node._parameter_overrides) - set(node._parameters))
-
-
-def watch_graph(node: Any, watch: Any, topics: list[str]) -> str | None:
-    """Hand the graph around `node` (its peers' names, every writer of `topics`) to a msgs_spec.graph.GraphWatch;
-    its answer: a line to refuse with, or None."""
-    # Only a topic with a second writer has anything to tell, and counting is cheap where listing each writer
-    # is not (every node of a composed warehouse looks at dozens of topics each second).
-    writers = {node.resolve_topic_name(t): [(p.node_name, p.node_namespace, p.endpoint_gid)
-                                            for p in node.get_publishers_info_by_topic(t)]
-               for t in topics if node.count_publishers(t) > 1}
-    return watch.check(node.get_node_names_and_namespaces(), writers)
-
-
-ACK_POLL_S = 0.02  # how often when_acked looks
-
-
-def when_acked(node: Any, publishers: list[Any], timeout_s: float, then: Callable[[], None]) -> None:
-    """Call then() once the readers of every one of `publishers` have acknowledged all it sent, or after
-    timeout_s, looking from a timer of `node`. Unlike wait_for_all_acked(timeout) it never blocks the executor,
-    so the nodes of one process wait side by side, not one after another (16 composed agents waiting 2 s each
-    for a reader in another process took 30 s)."""
-    from rclpy.duration import Duration
-
-    deadline = time.monotonic() + timeout_s
-    now = Duration(seconds=0)
-
-    def look() -> None:
-        if time.monotonic() < deadline and not all(pub.wait_for_all_acked(now) for pub in publishers):
-            return
-        timer.cancel()
-        then()
-
-    timer = node.create_timer(ACK_POLL_S, look)
 
 
 def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float | None,

@@ -13,7 +13,7 @@ the world runs with min_stats_subscribers:=1 (its first step waits for the liste
 subscription) and so does every agent (it holds its statistics until its own publisher has matched the
 listener, and waits for that before it exits; only the publisher's side of a match says that a message will
 arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
-With `--compose` the one child is a container (world_node.compose) holding every node, each reading its
+With `--compose` the one child is a container (ros_tools.compose) holding every node, each reading its
 parameters under its own name in DIR/params.yaml; the nodes and the protocol are the same.
 
 Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
@@ -29,7 +29,7 @@ terminal's Ctrl-C reaches the launcher only and it stops them in that order, and
 if the launcher itself dies (PR_SET_PDEATHSIG on Linux): none outlives it. Each child's output goes to
 DIR/logs/<node>.log (ROS file logging is off: the console output is the log).
 
-Hosts. With `hosts` (world_node.hosts: network namespaces joined by a bridge), the launcher runs on the world's
+Hosts. With `hosts` (ros_tools.hosts: network namespaces joined by a bridge), the launcher runs on the world's
 host and starts each node on its own (`ip netns exec`), all over UDP, discovering each other on the subnet or
 through ROS_STATIC_PEERS only; `cq-ros launch --hosts PREFIX` enters the world's host itself.
 
@@ -64,7 +64,6 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from agent_node.driver import PARAMETERS as AGENT_PARAMETERS
 from agent_node.driver import agent_config
 from cq_ros.engine import RunResult, make_learner
 from cq_ros.experiment import manifest_for, prepare_output, write_results
@@ -76,11 +75,12 @@ from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
     agent_stats_topic, decode_agent_stats, decode_world_stats, new_key_file,
 )
-from msgs_spec.tools import EXECUTOR_ENV, StopSignals, environment, executor_kind, ros_session, spin_until
+from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS
+from node_runtime.run import EXECUTOR_ENV, executor_kind
+from world_node.lockstep import world_config
 
+from .commands import StopSignals, environment, ros_session, spin_until
 from .hosts import Hosts
-from .lockstep import PARAMETERS as WORLD_PARAMETERS
-from .lockstep import world_config
 
 __all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
            "node_specs", "node_commands", "compose_command", "check_hosts", "launch"]
@@ -258,12 +258,12 @@ def node_commands(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, 
 
 
 def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path) -> Child:
-    """Every node in one process (`python -m world_node.compose`), each reading its parameters under its own
+    """Every node in one process (`python -m ros_tools.compose`), each reading its parameters under its own
     name in DIR/params.yaml (written here)."""
     params = {f"/{namespace}/{name}": {"ros__parameters": values} for name, (_, values) in nodes.items()}
     path = out / "params.yaml"
     path.write_text(yaml.safe_dump(params, sort_keys=False))
-    return Child("container", [sys.executable, "-m", "world_node.compose", *nodes, *_ros_args(namespace),
+    return Child("container", [sys.executable, "-m", "ros_tools.compose", *nodes, *_ros_args(namespace),
                                "--params-file", str(path)], out / "logs" / "container.log")
 
 
@@ -395,12 +395,12 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
            discovery: str = "subnet") -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
-    with `compose` every node in one process (world_node.compose), spinning on `executor` (EXECUTORS; None:
+    with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
     Without `settings`, the run's are the map's (`cq_ros.settings.run_settings`).
 
-    With `hosts` (world_node.hosts, one per AGV of the map), each node runs on its own host, found by
-    `discovery` ("subnet" or "static", see world_node.hosts.DISCOVERY); the launcher must run on the world's.
+    With `hosts` (ros_tools.hosts, one per AGV of the map), each node runs on its own host, found by
+    `discovery` ("subnet" or "static", see ros_tools.hosts.DISCOVERY); the launcher must run on the world's.
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
     a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""

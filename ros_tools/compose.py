@@ -1,13 +1,13 @@
 """A component container: the world node and agent nodes in ONE process, on one executor.
 
-    python -m world_node.compose world agv1 agv2 --ros-args -r __ns:=/run1 --params-file params.yaml
+    python -m ros_tools.compose world agv1 agv2 --ros-args -r __ns:=/run1 --params-file params.yaml
 
 As a ROS 2 component container holds several nodes, this process holds one `WorldNode` (the name `world`)
 and one `AgentNode` per other name given (`agv<k>`, or `jsa` for the central node), each a node of its own
 with its own subscriptions, parameters and statistics, exactly as in a process per node; only the
 transport between them stays inside the process. Each node reads its parameters under its fully qualified
 name in the params file (`/run1/agv1: {ros__parameters: {...}}`, or `/**` for all), as
-`cq-ros launch --compose` writes it. They spin on one executor (`msgs_spec.tools.make_executor`: the
+`cq-ros launch --compose` writes it. They spin on one executor (`node_runtime.run.make_executor`: the
 EventsExecutor unless $CQ_ROS_EXECUTOR says `single`) until every node is done; the exit code is the
 largest of theirs (0 every node finished its last episode, 1 one gave up, 2 a bad parameter or node name,
 130 Ctrl-C or SIGTERM). An exception in any node's callback ends the process with its traceback after the
@@ -22,11 +22,10 @@ from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 from rclpy.validate_node_name import validate_node_name
 
-from agent_node.node import AgentNode
+from agent_node import AgentNode
 from cq_ros.settings import SettingsError
-from msgs_spec.tools import run_node
-
-from .node import WorldNode
+from node_runtime.run import run_node
+from world_node import WorldNode
 
 __all__ = ["WORLD", "check_names", "make_nodes", "main"]
 
@@ -67,9 +66,9 @@ def main() -> int:
     try:
         check_names(names)
     except ValueError as e:
-        print(f"world_node.compose: {e}", file=sys.stderr)
+        print(f"ros_tools.compose: {e}", file=sys.stderr)
         return 2
-    return run_node(lambda: make_nodes(names), "world_node.compose", (SettingsError,))
+    return run_node(lambda: make_nodes(names), "ros_tools.compose", (SettingsError,))
 
 
 if __name__ == "__main__":

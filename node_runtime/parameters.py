@@ -1,0 +1,131 @@
+"""The parameters of the node kinds (`world`, `agent`) and how a node declares them: read-only, with their
+descriptions (`ros2 param describe`), strictly checked.
+
+One table per kind: name -> (default, description); the default also fixes the ROS type. Every field of
+cq_ros.settings.Settings is a parameter of both, declared without a value (cq_ros.parameters.SETTING_NAMES): one
+not given is the map's default (its `set` lines) or Settings'. Both tables live here, below both node packages,
+because each node accepts the names the other takes (one `--params-file` serves the whole system) and the
+launcher sends each node only its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Any
+
+from cq_ros.learners import LEARNERS
+from cq_ros.parameters import SETTING_NAMES, check_names
+from cq_ros.settings import Settings, SettingsError
+from msgs_spec import KeyFileError, read_key
+
+__all__ = ["WORLD_PARAMETERS", "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters",
+           "undeclared_overrides", "read_key_parameter"]
+
+
+def _with_settings(use: str, table: dict[str, tuple[Any, str]]) -> dict[str, tuple[Any, str]]:
+    """`table` and every field of Settings as a parameter of the same name and type (`use`: what the node
+    makes of them)."""
+    return {**table, **{f.name: (f.default, f"cq_ros.settings.Settings.{f.name} ({use}); not given: the map's "
+                                            "default, else this one") for f in fields(Settings)}}
+
+
+# Every parameter of the world node: name -> (default, description). The default also fixes the ROS type.
+# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
+# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
+WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("world dynamics use the rewards, step_cap and slip", {
+    "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
+    "episodes": (500, "learning episodes; then eval_episodes more, where the agents play their greedy policy "
+                      "(cq_ros.engine.greedy_episodes); the node exits 0 after the last of all"),
+    "seed": (0, "experiment seed; with run it seeds the world's RNG (used only when slip > 0), "
+                "as cq_ros.engine.world_seed"),
+    "run": (0, "run index (cq_ros.engine.world_seed)"),
+    "step_timeout": (2.0, "seconds to wait for an acting agent's action; past it the agent stays for "
+                          "that step (warned and counted as missed_actions)"),
+    "startup_timeout": (30.0, "seconds to wait before the first step until every agent's action and "
+                              "feedback topics are matched; past it the node exits 1"),
+    "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
+                                 "subscriptions (a recorder that must not miss an episode sets 1)"),
+    "heartbeat_period": (1.0, "seconds between two world/heartbeat messages (sent from the start, whether or "
+                              "not anyone acts); keep it well below the agents' feedback_timeout"),
+    "key_file": ("", "file holding the run's key (hex, readable by its owner only; cq-ros launch writes one): "
+                     "key every message that steers the run and drop actions without a matching MAC; empty: "
+                     "no authentication"),
+    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
+                          "world/map (latched) and world/markers every step; false: not even the publishers"),
+})
+
+# Every parameter of the agent node: name -> (default, description). The default also fixes the ROS type.
+# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
+# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
+AGENT_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("learning settings and rewards, as the world's", {
+    "agent_id": (0, "the AGV this node drives, 1..N as numbered in the map; leave 0 for algo jsa, whose "
+                    "one central node drives every AGV"),
+    "algo": ("cq", f"learner: {', '.join(LEARNERS)} (cq_ros.learners)"),
+    "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file; "
+                              "the same as the world's"),
+    "episodes": (500, "learning episodes (the same as the world's); then eval_episodes greedy ones (epsilon 0, "
+                      "on a copy of the learner, as cq_ros.engine.greedy_episodes); the node exits 0 after the "
+                      "last of all"),
+    "seed": (0, "experiment seed; with run and the agent it seeds the learner (cq_ros.engine.learner_seed)"),
+    "run": (0, "run index (cq_ros.engine.learner_seed)"),
+    "checkpoint": ("", "learner checkpoint file: loaded at start when it exists (resume), written every "
+                       "checkpoint_every episodes and after the last learning one (never in the greedy "
+                       "episodes); empty: no checkpoints"),
+    "checkpoint_every": (50, "episodes between checkpoints"),
+    "feedback_timeout": (30.0, "seconds without a valid message from the world (feedback or heartbeat) after "
+                               "which the node gives up (exit 1)"),
+    "peer_linger_steps": (0, "decision steps a peer subscription is kept after the learner last named the "
+                             "peer (0: drop at the first step without need)"),
+    "min_stats_subscribers": (0, "hold this node's agv<k>/stats messages until that many subscribers are "
+                                 "matched, then send them in order (cq-ros launch: 1, so that it hears every "
+                                 "episode); learning never waits for them, the exit at most 10 s"),
+    "key_file": ("", "file holding the run's key (as the world's key_file): key every action, drop feedback, "
+                     "positions and heartbeats without a matching MAC; empty: no authentication"),
+    "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
+                          "agv<k>/looks at every decision; false: not even the publishers"),
+})
+
+# node kind -> its parameters
+PARAMETERS: dict[str, dict[str, tuple[Any, str]]] = {"world": WORLD_PARAMETERS, "agent": AGENT_PARAMETERS}
+
+
+def declare_node_parameters(node: Any, kind: str) -> dict[str, Any]:
+    """Declare the parameters of node kind `kind` on `node` (declare_parameters, the Settings fields unset)
+    and return their values; SettingsError naming a parameter given to it that no kind of node takes."""
+    own = PARAMETERS[kind]
+    values = declare_parameters(node, own, unset=SETTING_NAMES)
+    others = {name for other, table in PARAMETERS.items() if other != kind for name in table}
+    check_names(undeclared_overrides(node), own, others)
+    return values
+
+
+def declare_parameters(node: Any, parameters: dict[str, tuple[Any, str]], unset: frozenset[str]) -> dict[str, Any]:
+    """Declare `parameters` (name -> (default, description)) read-only on `node` and return their values.
+
+    Those named in `unset` are declared with their default's type but no value, and are in the result only
+    when given (-p name:=value): the node then knows which were given, e.g. which settings override its map's
+    defaults (cq_ros.settings.run_settings). The default still documents them."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.parameter import Parameter
+
+    values = {}
+    for name, (default, description) in parameters.items():
+        descriptor = ParameterDescriptor(description=description, read_only=True)
+        value = Parameter.Type.from_parameter_value(default) if name in unset else default
+        values[name] = node.declare_parameter(name, value, descriptor).value
+    return {name: value for name, value in values.items() if not (name in unset and value is None)}
+
+
+def undeclared_overrides(node: Any) -> list[str]:
+    """Parameter names given to `node` (command line, parameters file, parameter_overrides) that it did not
+    declare: rclpy ignores them silently, so a typo would run with the default."""
+    # rclpy keeps the overrides in a private dict, the only place they are listed (rclpy 7.1.6).
+    return sorted(set(node._parameter_overrides) - set(node._parameters))
+
+
+def read_key_parameter(path: str) -> bytes | None:
+    """The key in parameter key_file (None when empty); SettingsError naming the parameter otherwise."""
+    try:
+        return read_key(path) if path else None
+    except KeyFileError as e:
+        raise SettingsError(str(e)) from None

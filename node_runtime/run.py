@@ -1,0 +1,161 @@
+"""The run loop of a node process: `python -m world_node`, `python -m agent_node` and the composed container
+(`python -m ros_tools.compose`) all spin their nodes through `run_node`, on the executor `make_executor` picks.
+
+rclpy's EventsExecutor is the default, stepped with spin_once (its spin() in rclpy 7.1.6 busy-loops and ignores
+signals, DESIGN.md field notes); `$CQ_ROS_EXECUTOR=single` picks the SingleThreadedExecutor.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+
+__all__ = ["EXECUTORS", "EXECUTOR_ENV", "SPIN_S", "FASTDDS_PROFILE", "FASTDDS_PROFILE_ENV", "executor_kind",
+           "make_executor", "spin_nodes", "run_node", "POLL_S", "when", "all_acked"]
+
+
+# The executors a node process can spin on (`$CQ_ROS_EXECUTOR`, `cq-ros launch --executor`). rclpy's
+# EventsExecutor is the default: lockstep in one process ran 4.5x as fast on it as on the
+# SingleThreadedExecutor, and never slower across processes (benchmarks/bench_ros.py --executors).
+EXECUTORS = ("events", "single")
+EXECUTOR_ENV = "CQ_ROS_EXECUTOR"
+SPIN_S = 0.05  # the longest a node process sleeps in one spin_once before it looks at its nodes again
+# Fast DDS protocol timers for node processes (the file says why): a new peer subscription gets its first
+# sample in a few ms instead of up to 70 ms.
+FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
+FASTDDS_PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+
+
+def executor_kind(kind: str | None = None) -> str:
+    """`kind`, else $CQ_ROS_EXECUTOR, else "events"; ValueError (one line) if it is not one of EXECUTORS."""
+    kind = kind or os.environ.get(EXECUTOR_ENV) or EXECUTORS[0]
+    if kind not in EXECUTORS:
+        raise ValueError(f"executor {kind!r} (${EXECUTOR_ENV} or --executor): choose from {', '.join(EXECUTORS)}")
+    return kind
+
+
+def make_executor(kind: str | None = None, context: Context | None = None) -> Any:
+    """A new executor of `executor_kind(kind)` on `context` (None: the default, initialised already).
+
+    Spin it with spin_once in a loop (`spin_nodes`), never spin(): the EventsExecutor's spin() in rclpy 7.1.6
+    busy-loops and ignores signals (DESIGN.md field notes)."""
+    if executor_kind(kind) == "single":
+        return SingleThreadedExecutor(context=context)
+    from rclpy.experimental import EventsExecutor
+
+    return EventsExecutor(context=context)
+
+
+def spin_nodes(executor: Any, nodes: list[Any], stop: Callable[[], bool] = lambda: False) -> int | None:
+    """Spin until every node's `done` Future holds its exit code (then the largest of them), or until their
+    context is shut down (a signal, under rclpy's handlers) or stop() turns true: None."""
+    context = nodes[0].context
+    pending = list(nodes)  # one node looked at per spin: a composed warehouse spins dozens of times a step
+    look_at = 0.0  # when to look at the context and stop() again: every SPIN_S, not every spin
+    while pending:
+        if pending[-1].done.done():
+            pending.pop()
+            continue
+        if time.monotonic() >= look_at:
+            if not context.ok() or stop():
+                return None
+            look_at = time.monotonic() + SPIN_S
+        executor.spin_once(timeout_sec=SPIN_S)
+    return max(node.done.result() for node in nodes)
+
+
+def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[Exception], ...]) -> int:
+    """The `python -m world_node|agent_node|ros_tools.compose` main: spin the node, or the list of nodes,
+    made by make_node() on the default context, on one executor (`make_executor`), until every `done`
+    Future holds its exit code; the process exits with the largest. A bad parameter (an exception in
+    bad_input) is one line on stderr and exit code 2; Ctrl-C or SIGTERM exit code 130. make_node() must
+    destroy what it made before it raises. Fast DDS reads FASTDDS_PROFILE unless $FASTRTPS_DEFAULT_PROFILES_FILE
+    names another file."""
+    from rclpy.exceptions import ParameterException
+    from rclpy.executors import ExternalShutdownException
+
+    try:
+        kind = executor_kind()
+    except ValueError as e:
+        print(f"{program}: {e}", file=sys.stderr)
+        return 2
+    missing = _missing_params_files(sys.argv)
+    if missing:
+        print(f"{program}: --params-file {missing}: no such file", file=sys.stderr)
+        return 2
+    os.environ.setdefault(FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))  # read when rclpy.init makes the participant
+    try:
+        rclpy.init(args=sys.argv)
+    except RuntimeError as e:  # rcl refused the arguments (e.g. a parameters file it cannot parse)
+        print(f"{program}: bad ROS arguments: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 2
+    executor = make_executor(kind)
+    nodes: list[Any] = []
+    code = 130
+    try:
+        made = make_node()
+        nodes = made if isinstance(made, list) else [made]
+        for node in nodes:
+            executor.add_node(node)
+        finished = spin_nodes(executor, nodes)
+        code = 130 if finished is None else finished  # None: shut down by a signal
+    except (*bad_input, ParameterException) as e:
+        print(f"{program}: {e}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
+            raise
+    finally:
+        # Jazzy order (DESIGN.md field notes): executor, then nodes, then the context.
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+def _missing_params_files(argv: list[str]) -> str | None:
+    """The first `--params-file PATH` after --ros-args that names no readable file."""
+    for flag, path in zip(argv, argv[1:]):
+        if flag == "--params-file" and not os.access(path, os.R_OK):
+            return path
+    return None
+
+
+POLL_S = 0.05  # how often `when` looks again
+
+
+def when(node: Any, ready: Callable[[], bool], timeout_s: float, then: Callable[[bool], Any]) -> None:
+    """then(True) as soon as ready() holds (looked at now, then every POLL_S on a timer of `node`), or
+    then(False) once timeout_s has passed; the executor runs on meanwhile. A node must never wait inside a
+    callback: in a composed process it would stall every other node (an agent's blocking wait for the
+    acknowledgement of its last statistics took up to 2 s, and the world timed out agents still playing)."""
+    if ready():
+        then(True)
+        return
+    deadline = time.monotonic() + timeout_s
+
+    def look() -> None:
+        done = ready()
+        if done or time.monotonic() >= deadline:
+            timer.cancel()
+            node.destroy_timer(timer)
+            then(done)
+
+    timer = node.create_timer(POLL_S, look)
+
+
+def all_acked(publishers: list[Any]) -> Callable[[], bool]:
+    """A `when` condition: every matched reader of these publishers has acknowledged all they sent."""
+    from rclpy.duration import Duration
+
+    return lambda: all(pub.wait_for_all_acked(Duration(seconds=0)) for pub in publishers)
