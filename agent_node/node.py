@@ -22,9 +22,9 @@ from rclpy.task import Future
 from cq_ros.settings import SettingsError
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
-    agent_stats_topic, encode, feedback_topic, position_topic,
+    agent_stats_topic, feedback_topic, position_topic, serialize,
 )
-from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
+from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.run import all_acked, when
 
@@ -56,8 +56,9 @@ class _HeldPublisher:
                  key: bytes | None = None):
         self.min_matched, self.latest_only, self.key = min_matched, latest_only, key
         self.held: list = []  # payloads not sent yet
+        self.matched = Matched(then=self.flush)
         self.pub = node.create_publisher(spec.msg_type, topic, spec.qos,
-                                         event_callbacks=PublisherEventCallbacks(matched=lambda _: self.flush()))
+                                         event_callbacks=PublisherEventCallbacks(matched=self.matched))
 
     def publish(self, payload: Any) -> None:
         if self.latest_only:
@@ -66,9 +67,11 @@ class _HeldPublisher:
         self.flush()
 
     def flush(self) -> None:
-        if self.held and self.pub.get_subscription_count() >= self.min_matched:
+        # The matched events say so at no cost once matched; before, ask the graph (the event may lag it).
+        if self.held and (self.matched.count >= self.min_matched
+                          or self.pub.get_subscription_count() >= self.min_matched):
             for payload in self.held:
-                self.pub.publish(encode(payload, key=self.key))
+                self.pub.publish(serialize(payload, key=self.key))
             self.held.clear()
 
 
@@ -95,11 +98,13 @@ class AgentNode(Node):
                          for k in agents}
         self._stats = {k: _HeldPublisher(self, AGENT_STATS, agent_stats_topic(k), cfg.min_stats_subscribers)
                        for k in agents}
+        # Raw: the driver decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
-                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos) for k in agents]
+                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos, raw=True)
+                          for k in agents]
         self._heartbeat = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
-                                                   HEARTBEAT.reader_qos)
+                                                   HEARTBEAT.reader_qos, raw=True)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
@@ -135,7 +140,7 @@ class AgentNode(Node):
                 case Subscribe(peer=peer):
                     self._positions[peer] = self.create_subscription(
                         POSITION.msg_type, position_topic(peer), partial(self._on_position, peer),
-                        POSITION.reader_qos)
+                        POSITION.reader_qos, raw=True)
                 case Unsubscribe(peer=peer):
                     self.destroy_subscription(self._positions.pop(peer))
                 case SaveCheckpoint(episode=episode, learner=learner):

@@ -1,14 +1,17 @@
 """An agent node's publication for viewers (msgs_spec/viz.py): at each decision, a line from its AGV to every
 peer it looked at to choose (the peers its learner named at that step, whose positions it waited for; the
 central JSA node: every other acting AGV, for each AGV it moves), and none once its episode is over. Built
-only while someone subscribes: an unwatched agent pays one get_subscription_count() a decision for it."""
+only while someone subscribes (as the publisher's matched events tell: an unwatched agent pays nothing)."""
 
 from __future__ import annotations
 
 from typing import Any
 
+from rclpy.event_handler import PublisherEventCallbacks
+
 from msgs_spec import Action, AgentStats
 from msgs_spec.viz import LOOKS, Looks, looks_topic
+from node_runtime.graph import Matched
 
 __all__ = ["AgentView"]
 
@@ -16,12 +19,15 @@ __all__ = ["AgentView"]
 class AgentView:
     def __init__(self, node: Any, driver: Any):
         self.node, self.driver = node, driver
-        self.pubs = {k: node.create_publisher(LOOKS.msg_type, looks_topic(k), LOOKS.qos) for k in driver.agents}
+        self.watchers = {k: Matched() for k in driver.agents}
+        self.pubs = {k: node.create_publisher(LOOKS.msg_type, looks_topic(k), LOOKS.qos,
+                                              event_callbacks=PublisherEventCallbacks(matched=self.watchers[k]))
+                     for k in driver.agents}
         self.last: dict[int, Looks] = {}  # agent -> its last decision's looks, to clear when its episode ends
 
     def on_action(self, action: Action) -> None:
         """Call as the action goes out (the driver still holds what it decided on)."""
-        if not self.pubs[action.agent].get_subscription_count():
+        if not self.watchers[action.agent].count:
             self.last.pop(action.agent, None)
             return
         self._publish(self._looks(action))
@@ -29,7 +35,7 @@ class AgentView:
     def on_stats(self, stats: AgentStats) -> None:
         """The agent's episode is over: it looks at nobody (stamped with the step after its last decision)."""
         last = self.last.pop(stats.agent, None)
-        if last is not None and last.episode == stats.episode and self.pubs[stats.agent].get_subscription_count():
+        if last is not None and last.episode == stats.episode and self.watchers[stats.agent].count:
             self._publish(Looks(last.agent, last.episode, last.step + 1, last.row, last.col))
 
     def _publish(self, looks: Looks) -> None:

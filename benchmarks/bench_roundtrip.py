@@ -8,6 +8,7 @@ the same message on `.../pong`, ping waits for it (bounded) before sending the n
 
     python benchmarks/bench_roundtrip.py                       # 2000 pings, our position type, both QoS
     python benchmarks/bench_roundtrip.py -n 5000 --types position,point_stamped --json
+    python benchmarks/bench_roundtrip.py --stack nodes          # as the nodes talk: EventsExecutor, raw bytes
 
 Other benchmarks call `measure_roundtrip(n=2000) -> dict` (it runs in its own rclpy Context, so it
 does not disturb an rclpy already initialised in the caller).
@@ -33,6 +34,17 @@ from typing import Any
 
 QOS_NAMES = ("reliable", "best_effort")
 TYPE_NAMES = ("position", "point_stamped")
+# How both ends talk: `message`, rclpy's SingleThreadedExecutor with message objects; `nodes`, as the cq_ros
+# nodes do (EventsExecutor, our position published as serialized bytes and read by raw subscriptions).
+STACKS = ("message", "nodes")
+
+
+def _executor(stack: str, context=None):
+    if stack == "nodes":
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    from rclpy.executors import SingleThreadedExecutor
+    return SingleThreadedExecutor(context=context)
 
 
 def _qos(name: str):
@@ -50,11 +62,13 @@ def _msg_type(name: str):
     return PointStamped
 
 
-def _make(type_name: str, seq: int):
-    """A ping carrying `seq`: our real position payload, or a PointStamped as in DESIGN.md's field notes."""
+def _make(type_name: str, seq: int, raw: bool = False):
+    """A ping carrying `seq`: our real position payload (`raw`: serialized, as the nodes publish it), or a
+    PointStamped as in DESIGN.md's field notes."""
     if type_name == "position":
-        from msgs_spec import Position, encode_position
-        return encode_position(Position(agent=1, episode=0, step=seq, row=2, col=3))
+        from msgs_spec import Position, encode_position, serialize
+        position = Position(agent=1, episode=0, step=seq, row=2, col=3)
+        return serialize(position) if raw else encode_position(position)
     from geometry_msgs.msg import PointStamped
     m = PointStamped()
     m.header.frame_id = "grid"
@@ -63,6 +77,9 @@ def _make(type_name: str, seq: int):
 
 
 def _seq(type_name: str, msg) -> int:
+    if type(msg) is bytes:
+        from msgs_spec import decode_position
+        return decode_position(msg).step
     return int(msg.data[2]) if type_name == "position" else int(msg.point.x)
 
 
@@ -75,9 +92,9 @@ def _topics(type_name: str, qos_name: str) -> tuple[str, str]:
 # Echo process
 
 
-def _echo_main(domain_id: int, pairs: list[tuple[str, str]], lifetime_s: float) -> int:
+def _echo_main(domain_id: int, pairs: list[tuple[str, str]], lifetime_s: float, stack: str = "message") -> int:
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
 
     stop = threading.Event()
 
@@ -93,13 +110,13 @@ def _echo_main(domain_id: int, pairs: list[tuple[str, str]], lifetime_s: float) 
     ex = None
     try:
         node = rclpy.create_node("bench_echo")
-        ex = SingleThreadedExecutor()
+        ex = _executor(stack)
         ex.add_node(node)
         for type_name, qos_name in pairs:
             ping, pong = _topics(type_name, qos_name)
             msg_type, qos = _msg_type(type_name), _qos(qos_name)
             pub = node.create_publisher(msg_type, pong, qos)
-            node.create_subscription(msg_type, ping, lambda m, p=pub: p.publish(m), qos)
+            node.create_subscription(msg_type, ping, lambda m, p=pub: p.publish(m), qos, raw=stack == "nodes")
         reader.start()
         print("ready", flush=True)
         deadline = time.monotonic() + lifetime_s
@@ -129,8 +146,10 @@ def _percentile(sorted_ms: list[float], q: float) -> float:
 
 def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
                       qos: tuple[str, ...] = QOS_NAMES, warmup: int = 200, domain_id: int | None = None,
-                      ping_timeout_s: float = 1.0, discovery_timeout_s: float = 30.0) -> dict[str, Any]:
-    """Round trip ping -> echo process -> ping, `n` back-to-back pings per (type, QoS) after `warmup`.
+                      ping_timeout_s: float = 1.0, discovery_timeout_s: float = 30.0,
+                      stack: str = "message") -> dict[str, Any]:
+    """Round trip ping -> echo process -> ping, `n` back-to-back pings per (type, QoS) after `warmup`, both
+    ends talking as `stack` says (STACKS).
 
     Returns {"n", "domain_id", "discovery_s", "rmw", "rclpy", "python", "cpus", "machine",
              "pairs": {"<type>/<qos>": {"median_ms", "p90_ms", "p99_ms", "mean_ms", "min_ms", "max_ms",
@@ -141,8 +160,11 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
     import importlib.metadata
 
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
 
+    if stack not in STACKS:
+        raise ValueError(f"stack {stack!r}: choose from {STACKS}")
+    if stack == "nodes" and types != ("position",):
+        raise ValueError("the nodes' stack carries our position message only")
     for t in types:
         if t not in TYPE_NAMES:
             raise ValueError(f"type {t!r}: choose from {TYPE_NAMES}")
@@ -161,7 +183,8 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
             ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_LOG_DIR=tmp):
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         cmd = [sys.executable, str(Path(__file__).resolve()), "--echo", "--domain", str(domain_id),
-               "--types", ",".join(types), "--qos", ",".join(qos), "--lifetime", f"{lifetime:.0f}"]
+               "--types", ",".join(types), "--qos", ",".join(qos), "--lifetime", f"{lifetime:.0f}",
+               "--stack", stack]
         err_path = Path(tmp) / "echo.stderr"
         t_start = time.monotonic()
         with open(err_path, "wb") as err:
@@ -171,7 +194,7 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
         node = ex = None
         try:
             node = rclpy.create_node("bench_ping", context=ctx)
-            ex = SingleThreadedExecutor(context=ctx)
+            ex = _executor(stack, ctx)
             ex.add_node(node)
             inbox: dict[tuple[str, str], list[int]] = {p: [] for p in pairs}
             ends = {}
@@ -179,7 +202,8 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
                 ping, pong = _topics(t, q)
                 pub = node.create_publisher(_msg_type(t), ping, _qos(q))
                 sub = node.create_subscription(
-                    _msg_type(t), pong, lambda m, key=(t, q): inbox[key].append(_seq(key[0], m)), _qos(q))
+                    _msg_type(t), pong, lambda m, key=(t, q): inbox[key].append(_seq(key[0], m)), _qos(q),
+                    raw=stack == "nodes")
                 ends[(t, q)] = (pub, sub)
 
             # discovery: every ping publisher matched by the echo's subscription, every pong subscription
@@ -201,7 +225,7 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
                 rtts: list[float] = []
                 lost = 0
                 for i in range(warmup + n):
-                    msg = _make(t, i)
+                    msg = _make(t, i, raw=stack == "nodes")
                     box.clear()
                     t0 = time.perf_counter_ns()
                     pub.publish(msg)
@@ -250,7 +274,7 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
             rclpy.try_shutdown(context=ctx)
 
     out: dict[str, Any] = {
-        "n": n, "warmup": warmup, "domain_id": domain_id, "discovery_s": discovery_s,
+        "n": n, "warmup": warmup, "domain_id": domain_id, "discovery_s": discovery_s, "stack": stack,
         "rmw": rclpy.utilities.get_rmw_implementation_identifier(),
         "rclpy": importlib.metadata.version("ros-jazzy-rclpy"), "python": platform.python_version(),
         "cpus": os.cpu_count(), "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
@@ -263,7 +287,8 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
 
 def format_report(r: dict[str, Any]) -> str:
     lines = [f"rclpy {r['rclpy']} ({r['rmw']}), Python {r['python']}, {r['cpus']} CPUs, {r['machine']}; "
-             f"domain {r['domain_id']}; echo process started and discovered in {r['discovery_s']:.2f} s; "
+             f"domain {r['domain_id']}; {r['stack']} stack; echo process started and discovered in "
+             f"{r['discovery_s']:.2f} s; "
              f"{r['n']} back-to-back pings per row after {r['warmup']} warm-up",
              f"{'message type':<48} {'QoS':<12} {'median ms':>9} {'p90 ms':>8} {'p99 ms':>8} {'min ms':>8} "
              f"{'max ms':>8} {'lost':>5}"]
@@ -280,6 +305,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--types", default="position", help=f"comma list of {', '.join(TYPE_NAMES)}")
     ap.add_argument("--qos", default=",".join(QOS_NAMES), help=f"comma list of {', '.join(QOS_NAMES)}")
     ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: random 40..99)")
+    ap.add_argument("--stack", choices=STACKS, default="message",
+                    help="message: SingleThreadedExecutor, message objects (default); nodes: as the cq_ros nodes "
+                         "talk (EventsExecutor, serialized bytes, raw subscriptions; position only)")
     ap.add_argument("--json", action="store_true", help="print the result dict as JSON too")
     ap.add_argument("--echo", action="store_true", help=argparse.SUPPRESS)  # the child role
     ap.add_argument("--lifetime", type=float, default=300.0, help=argparse.SUPPRESS)
@@ -287,8 +315,9 @@ def main(argv: list[str] | None = None) -> int:
     types = tuple(t for t in args.types.split(",") if t)
     qos = tuple(q for q in args.qos.split(",") if q)
     if args.echo:
-        return _echo_main(args.domain, [(t, q) for t in types for q in qos], args.lifetime)
-    r = measure_roundtrip(n=args.n, types=types, qos=qos, warmup=args.warmup, domain_id=args.domain)
+        return _echo_main(args.domain, [(t, q) for t in types for q in qos], args.lifetime, args.stack)
+    r = measure_roundtrip(n=args.n, types=types, qos=qos, warmup=args.warmup, domain_id=args.domain,
+                          stack=args.stack)
     print(format_report(r))
     if args.json:
         print(json.dumps(r, indent=2))

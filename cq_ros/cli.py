@@ -168,7 +168,12 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--seed", type=_number(0, kind=int), default=0, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
                    help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+    p.add_argument("--greedy", action="store_true",
+                   help="with --map: draw the greedy policy's first episode after the learning ones, not a "
+                        "learning episode")
     p.add_argument("--fps", type=_seconds, default=4.0, help="frames (steps) per second (default 4)")
+    p.add_argument("--dpi", type=_positive, default=None,
+                   help="pixels an inch of the picture, a cell being 0.6 in (default 72); fewer make a smaller file")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="with --map: change a setting (repeatable)")
 
@@ -441,7 +446,7 @@ def _launch(args) -> int:
 
 
 def _render(args) -> int:
-    from .render import check_output, engine_frames, frames_from, lattice, write_animation
+    from .render import DPI, check_output, engine_frames, frames_from, lattice, write_animation
 
     check_output(args.out)
     if args.map is not None:
@@ -450,13 +455,16 @@ def _render(args) -> int:
         occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
         title = f"{gridmap.name} {args.algo}"
         _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
+        if args.greedy:
+            title += " greedy"
         frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode,
-                               _every_30_s("episode {} learnt"))
+                               _every_30_s("episode {} learnt"), greedy=args.greedy)
     else:
         from ros_tools import commands as tools
 
-        if args.overrides:
-            raise ValueError("--set applies to --map (the offline engine), not to a bag")
+        if args.overrides or args.greedy:
+            raise ValueError(f"{'--set' if args.overrides else '--greedy'} applies to --map (the offline engine), "
+                             "not to a bag")
         try:
             occupancy, scenes, looks = tools.read_view_bag(args.bag)
         except tools.ToolError as e:
@@ -473,7 +481,7 @@ def _render(args) -> int:
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
         occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
     _note(f"drawing {len(frames)} steps to {args.out}")
-    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps,
+    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps, dpi=args.dpi or DPI,
                           progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
     print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
     return 0

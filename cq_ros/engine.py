@@ -111,12 +111,18 @@ class Team:
         )
 
 
-def greedy_episodes(team: Team, episodes: int) -> np.ndarray:
-    """What the learnt policy does without exploration: `episodes` episodes at epsilon 0, played by a
-    copy of the team, so the run itself is left exactly as it was."""
+def greedy_team(team: Team) -> Team:
+    """A copy of the team whose learners act at epsilon 0 (the learnt policy without exploration), so the run
+    itself is left exactly as it was."""
     greedy = copy.deepcopy(team)
     for learner in greedy.learners:
         learner.epsilon = 0.0
+    return greedy
+
+
+def greedy_episodes(team: Team, episodes: int) -> np.ndarray:
+    """What the learnt policy does without exploration: `episodes` episodes played by greedy_team(team)."""
+    greedy = greedy_team(team)
     return np.array([astuple(greedy.episode()) for _ in range(episodes)], dtype=float).reshape(episodes, 6)
 
 

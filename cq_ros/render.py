@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from .engine import Team, make_learners, world_seed
+from .engine import Team, greedy_team, make_learners, world_seed
 from .gridmap import GridMap
 from .settings import Settings
 from .world import GridWorld
@@ -104,20 +104,27 @@ class _FilmedLearner:
 
 
 def engine_frames(gridmap: GridMap, algo: str, settings: Settings, seed: int, episodes: int,
-                  episode: int | None = None, progress: Callable[[int], Any] | None = None) -> list[Frame]:
+                  episode: int | None = None, progress: Callable[[int], Any] | None = None,
+                  greedy: bool = False) -> list[Frame]:
     """The frames of learning episode `episode` (0-based; None: the last of `episodes`) of the offline run
-    `cq_ros.engine.run(algo, gridmap, settings, seed, 0, episodes)`: every step from 0 to the last.
-    `progress(e)` is called after each episode e played before it."""
+    `cq_ros.engine.run(algo, gridmap, settings, seed, 0, episodes)`: every step from 0 to the last. With
+    `greedy`, instead the run's first greedy episode after its `episodes` learning ones (numbered `episodes`,
+    as a ROS run numbers it; the first row of the run's greedy.csv). `progress(e)` is called after each
+    episode e played before it."""
+    if greedy and episode is not None:
+        raise ValueError("draw either a learning episode or the greedy one after learning, not both")
     episode = episodes - 1 if episode is None else episode
     if not 0 <= episode < episodes:
         raise ValueError(f"episode {episode} is not one of the {episodes} episodes (0..{episodes - 1})")
     world = GridWorld(gridmap, settings, seed=world_seed(seed, 0))
     team = Team(world, make_learners(algo, gridmap, settings, seed, 0))
-    for e in range(episode):
+    for e in range(episodes if greedy else episode):
         team.episode()
         if progress is not None:
             progress(e)
-    filmed = _FilmedWorld(world, episode)
+    if greedy:
+        team, episode = greedy_team(team), episodes
+    filmed = _FilmedWorld(team.world, episode)
     team.world, team.learners = filmed, [_FilmedLearner(learner, filmed) for learner in team.learners]
     team.episode()
     filmed.shoot()
@@ -148,9 +155,10 @@ def check_output(path: Path) -> str:
 
 def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], ...],
                     goals: tuple[tuple[int, int], ...], frames: list[Frame], *, title: str = "",
-                    fps: float = 4.0, progress: Callable[[int], Any] | None = None) -> Path:
-    """Write `frames` as an animation to `path` (.gif with Pillow, .mp4 with ffmpeg); ValueError for another
-    suffix, an empty episode or a missing ffmpeg. `progress(i)` is called after frame i is drawn."""
+                    fps: float = 4.0, dpi: float = DPI, progress: Callable[[int], Any] | None = None) -> Path:
+    """Write `frames` as an animation to `path` (.gif with Pillow, .mp4 with ffmpeg), `dpi` pixels an inch (a
+    cell is CELL_INCHES); ValueError for another suffix, an empty episode or a missing ffmpeg. `progress(i)` is
+    called after frame i is drawn."""
     from matplotlib import animation, colormaps
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.collections import LineCollection
@@ -183,7 +191,7 @@ def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], 
     heading = fig.suptitle("", fontsize=9)
 
     writer = animation.writers[writer_name](fps=fps)
-    with writer.saving(fig, str(path), dpi=DPI):
+    with writer.saving(fig, str(path), dpi=dpi):
         for i, frame in enumerate(frames):
             xy = [(col + 0.5, -(row + 0.5)) for row, col in frame.cells]
             agvs.set_offsets(xy)

@@ -19,6 +19,7 @@ from .codec import (
     WORLD_STATS_KEYS, WORLD_STATS_NAME, ArrayLayout, agent_stats_name, check_sequence, decode, decode_action,
     decode_agent_stats, decode_feedback, decode_heartbeat, decode_position, decode_world_stats, encode,
     encode_action, encode_agent_stats, encode_feedback, encode_heartbeat, encode_position, encode_world_stats,
+    serialize,
 )
 from .errors import KINDS, DropCounter, WireError
 from .payloads import (
@@ -43,7 +44,7 @@ __all__ = [
     # codec
     "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "HEARTBEAT_LAYOUT", "ARRAY_LAYOUTS",
     "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
-    "encode", "decode", "check_sequence", "encode_feedback", "decode_feedback", "encode_position", "decode_position",
+    "encode", "serialize", "decode", "check_sequence", "encode_feedback", "decode_feedback", "encode_position", "decode_position",
     "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
     "decode_world_stats",
     "encode_agent_stats", "decode_agent_stats",

@@ -9,12 +9,13 @@ one (`WireError("unauthenticated")`). The key authenticates; it does not hide (R
 
 from __future__ import annotations
 
-import hashlib
 import hmac
 import os
 import secrets
 import stat
+import struct
 import tempfile
+from functools import lru_cache
 from pathlib import Path
 
 __all__ = ["KEY_BYTES", "MAC_WORDS", "KeyFileError", "new_key_file", "read_key", "mac_words"]
@@ -22,6 +23,7 @@ __all__ = ["KEY_BYTES", "MAC_WORDS", "KeyFileError", "new_key_file", "read_key",
 KEY_BYTES = 32
 MAC_WORDS = 4  # 128 bits as four 32-bit words, appended to the array's data
 _DOMAIN = b"cq_ros/mac/1\0"  # a MAC made for anything else never matches
+_WORDS = struct.Struct(f">{MAC_WORDS}I")  # the digest's first MAC_WORDS big-endian 32-bit words
 
 
 class KeyFileError(ValueError):
@@ -57,5 +59,13 @@ def read_key(path: str | os.PathLike) -> bytes:
 
 def mac_words(key: bytes, label: str, packed: bytes) -> tuple[int, ...]:
     """The MAC of one array payload (its layout label and its packed values) as MAC_WORDS unsigned 32-bit words."""
-    digest = hmac.new(key, _DOMAIN + label.encode() + b"\0" + packed, hashlib.sha256).digest()
-    return tuple(int.from_bytes(digest[4 * i:4 * i + 4], "big") for i in range(MAC_WORDS))
+    mac = _keyed(key, label).copy()
+    mac.update(packed)
+    return _WORDS.unpack_from(mac.digest())
+
+
+@lru_cache(maxsize=64)
+def _keyed(key: bytes, label: str) -> hmac.HMAC:
+    """HMAC-SHA256 under `key`, having read the domain and `label`: copied for each message, so the key's
+    setup and the prefix are hashed once per layout, not once per message."""
+    return hmac.new(key, _DOMAIN + label.encode() + b"\0", "sha256")

@@ -18,6 +18,10 @@ decoder given the key refuses any other message as `unauthenticated`; one withou
 and checks no MAC (the tools, nodes started by hand without a key).
 
 Statistics: diagnostic_msgs/DiagnosticArray holding one DiagnosticStatus whose `values` are KeyValue pairs.
+
+Nodes publish `serialize(payload)`: for an array payload the bytes rclpy would make of `encode(payload)`,
+built without a message object; they read with raw subscriptions, and every array decoder takes a message or
+its serialized bytes alike.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import operator
 import re
 import struct
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Callable, Mapping
 
 from builtin_interfaces.msg import Time
@@ -44,7 +49,7 @@ __all__ = [
     "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
     "encode_feedback", "decode_feedback", "encode_position", "decode_position",
     "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
-    "decode_world_stats", "encode_agent_stats", "decode_agent_stats", "encode", "decode",
+    "decode_world_stats", "encode_agent_stats", "decode_agent_stats", "encode", "serialize", "decode",
 ]
 
 
@@ -62,22 +67,65 @@ class ArrayLayout:
     field_kinds: tuple[str, ...]  # "int" | "float" | "flag" per field
     meanings: tuple[str, ...]
 
-    @property
+    # Derived once per layout (cached_property: a codec call reads them several times per message).
+    @cached_property
     def label(self) -> str:
         return ",".join(self.fields)
 
-    @property
+    @cached_property
     def size(self) -> int:
         return len(self.fields)
 
-    @property
+    @cached_property
     def keyed_label(self) -> str:
         """The label of the keyed form: the fields, then the MAC's words."""
         return ",".join(self.fields + tuple(f"mac{i}" for i in range(MAC_WORDS)))
 
+    @cached_property
+    def _struct(self) -> struct.Struct:
+        return struct.Struct(f"<{self.size}{'i' if self.ros_type is Int32MultiArray else 'd'}")
+
+    @cached_property
+    def _values(self) -> Callable[[Any], tuple]:
+        """payload -> its field values, in order."""
+        return operator.attrgetter(*self.fields)
+
+    @cached_property
+    def _converters(self) -> tuple[tuple[str, Callable[[str, Any], Any]], ...]:
+        return tuple((name, _CONVERT[kind]) for name, kind in zip(self.fields, self.field_kinds))
+
     def pack(self, values) -> bytes:
         """The field values as the MAC reads them (little-endian int32 or float64)."""
-        return struct.pack(f"<{self.size}{'i' if self.ros_type is Int32MultiArray else 'd'}", *values)
+        return self._struct.pack(*values)
+
+    def frame(self, keyed: bool) -> tuple[bytes, int, struct.Struct]:
+        """The serialized form of this layout's messages (keyed or not): (the bytes before the values up to the
+        data's length, the alignment bytes after it, the values' Struct). All but the values and the alignment
+        bytes (which the serializer leaves as they were in memory) is the same in every message of one form.
+        Derived from rclpy's own serialization of one message, and checked against it."""
+        return self._frames[keyed]
+
+    @cached_property
+    def _frames(self) -> dict[bool, tuple[bytes, int, struct.Struct]]:
+        from rclpy.serialization import serialize_message
+
+        frames = {}
+        for keyed in (False, True):
+            size = self.size + MAC_WORDS if keyed else self.size
+            values = struct.Struct(f"<{size}{'i' if self.ros_type is Int32MultiArray else 'd'}")
+            msg = self.ros_type()
+            msg.layout.dim = [MultiArrayDimension(label=self.keyed_label if keyed else self.label, size=size,
+                                                  stride=size)]
+            msg.data = sample = [(i + 1) * 7 for i in range(size)]  # distinct values, to see where they lie
+            raw = serialize_message(msg)
+            start = len(raw) - values.size
+            length = struct.pack("<I", size)  # the data's length, just before the values or their alignment
+            pad = next((p for p in (0, 4) if raw[start - p - 4:start - p] == length), None)
+            if pad is None or raw[start:] != values.pack(*sample):
+                raise RuntimeError(f"{self.ros_type.__name__} {self.label}: its serialization does not end in "
+                                   "its length and values")
+            frames[keyed] = raw[:start - pad], pad, values
+        return frames
 
 
 FEEDBACK_LAYOUT = ArrayLayout(
@@ -131,6 +179,8 @@ _LAYOUT_BY_WIRE = {(lay.ros_type, label): lay for lay in ARRAY_LAYOUTS for label
 
 def _as_int(name: str, v: Any) -> int:
     """An exact integer from an int-like or an integral finite float; else WireError."""
+    if type(v) is int and -INT32_MAX - 1 <= v <= INT32_MAX:  # the common case, first
+        return v
     if isinstance(v, bool):
         return int(v)
     if isinstance(v, float):
@@ -150,6 +200,8 @@ def _as_int(name: str, v: Any) -> int:
 
 
 def _as_float(name: str, v: Any) -> float:
+    if type(v) is float and math.isfinite(v):  # the common case, first
+        return v
     if isinstance(v, (str, bytes)):
         raise WireError("malformed", f"{name} = {v!r} is not a number")
     try:
@@ -233,7 +285,7 @@ def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
 
 
 def _typed(layout: ArrayLayout, values) -> Any:
-    return layout.payload(*(_CONVERT[k](n, v) for n, k, v in zip(layout.fields, layout.field_kinds, values)))
+    return layout.payload(*[convert(name, v) for (name, convert), v in zip(layout._converters, values)])
 
 
 def _mac_data(layout: ArrayLayout, words: tuple[int, ...]) -> list:
@@ -243,18 +295,23 @@ def _mac_data(layout: ArrayLayout, words: tuple[int, ...]) -> list:
     return [w - (1 << 32) if w > INT32_MAX else w for w in words]
 
 
-def _encode_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) -> Any:
+def _wire_values(layout: ArrayLayout, payload: Any, key: bytes | None) -> list:
+    """The array's data for `payload`: its checked field values, then the MAC's words when keyed."""
     if type(payload) is not layout.payload:
         raise WireError("wrong_type", f"expected {layout.payload.__name__}, got {type(payload).__name__}")
-    typed = _typed(layout, (getattr(payload, f) for f in layout.fields))
+    typed = _typed(layout, layout._values(payload))
     _validate(typed, None, None, None, None)
-    msg = layout.ros_type()
     convert = float if layout.ros_type is Float64MultiArray else int
-    data = [convert(getattr(typed, f)) for f in layout.fields]
-    label, size = layout.label, layout.size
+    data = [convert(v) for v in layout._values(typed)]
     if key is not None:
         data += _mac_data(layout, mac_words(key, layout.label, layout.pack(data)))
-        label, size = layout.keyed_label, layout.size + MAC_WORDS
+    return data
+
+
+def _encode_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) -> Any:
+    data = _wire_values(layout, payload, key)
+    label, size = (layout.label, layout.size) if key is None else (layout.keyed_label, layout.size + MAC_WORDS)
+    msg = layout.ros_type()
     msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
     msg.layout.data_offset = 0
     msg.data = data
@@ -263,6 +320,40 @@ def _encode_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) -
 
 def _decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: int | None,
                   episode: int | None, step: int | None, key: bytes | None = None) -> Any:
+    keyed, data = _raw_data(layout, msg) if type(msg) is bytes else _message_data(layout, msg)
+    if key is not None:
+        if not keyed:
+            raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
+        try:
+            expected = _mac_data(layout, mac_words(key, layout.label, layout.pack(data[:layout.size])))
+        except struct.error:  # a value the wire type cannot hold: no MAC was made over it
+            expected = None
+        if expected != data[layout.size:]:
+            raise WireError("unauthenticated", "the MAC does not match the run's key")
+    payload = _typed(layout, data[:layout.size])
+    _validate(payload, bounds, agent, episode, step)
+    return payload
+
+
+def _raw_data(layout: ArrayLayout, raw: bytes) -> tuple[bool, list]:
+    """(keyed, data) of a serialized message (a raw subscription's): read straight from the bytes when they
+    are in one of the layout's two forms (`ArrayLayout.frame`), else deserialized and checked as a message,
+    so that anything else is refused exactly as the message would be."""
+    for keyed in (True, False):
+        head, pad, values = layout.frame(keyed)
+        if len(raw) == len(head) + pad + values.size and raw.startswith(head):
+            return keyed, list(values.unpack_from(raw, len(head) + pad))
+    from rclpy.serialization import deserialize_message
+
+    try:
+        msg = deserialize_message(raw, layout.ros_type)
+    except Exception as e:  # rclpy raises its own errors for bytes that are no such message
+        raise WireError("malformed", f"not a serialized {layout.ros_type.__name__}: {e}") from None
+    return _message_data(layout, msg)
+
+
+def _message_data(layout: ArrayLayout, msg: Any) -> tuple[bool, list]:
+    """(keyed, data) of a message, checked against the layout."""
     if type(msg) is not layout.ros_type:
         raise WireError("wrong_type", f"expected {layout.ros_type.__name__}, got {type(msg).__name__}")
     try:
@@ -283,25 +374,14 @@ def _decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: i
                                         f"expected {size} {size} 0")
     if len(data) != size:
         raise WireError("wrong_length", f"{len(data)} values, expected {size} ({d.label})")
-    if key is not None:
-        if not keyed:
-            raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
-        try:
-            expected = _mac_data(layout, mac_words(key, layout.label, layout.pack(data[:layout.size])))
-        except struct.error:  # a value the wire type cannot hold: no MAC was made over it
-            expected = None
-        if expected != data[layout.size:]:
-            raise WireError("unauthenticated", "the MAC does not match the run's key")
-    payload = _typed(layout, data[:layout.size])
-    _validate(payload, bounds, agent, episode, step)
-    return payload
+    return keyed, data
 
 
 def encode_feedback(fb: Feedback, *, key: bytes | None = None) -> Float64MultiArray:
     return _encode_array(FEEDBACK_LAYOUT, fb, key)
 
 
-def decode_feedback(msg: Float64MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
+def decode_feedback(msg: Float64MultiArray | bytes, *, bounds: Bounds | None = None, agent: int | None = None,
                     episode: int | None = None, step: int | None = None,
                     key: bytes | None = None) -> Feedback:
     """Feedback from `msg`. `agent`: the topic's agent; `episode`/`step`: what the receiver waits for
@@ -313,7 +393,7 @@ def encode_position(pos: Position, *, key: bytes | None = None) -> Int32MultiArr
     return _encode_array(POSITION_LAYOUT, pos, key)
 
 
-def decode_position(msg: Int32MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
+def decode_position(msg: Int32MultiArray | bytes, *, bounds: Bounds | None = None, agent: int | None = None,
                     episode: int | None = None, step: int | None = None,
                     key: bytes | None = None) -> Position:
     """Position from `msg`. `agent`: the peer whose topic this is; `episode`/`step`: the step waited for."""
@@ -324,7 +404,7 @@ def encode_action(act: Action, *, key: bytes | None = None) -> Int32MultiArray:
     return _encode_array(ACTION_LAYOUT, act, key)
 
 
-def decode_action(msg: Int32MultiArray, *, bounds: Bounds | None = None, agent: int | None = None,
+def decode_action(msg: Int32MultiArray | bytes, *, bounds: Bounds | None = None, agent: int | None = None,
                   episode: int | None = None, step: int | None = None,
                   key: bytes | None = None) -> Action:
     """Action from `msg`. `agent`: the topic's agent; `episode`/`step`: the step the world is collecting."""
@@ -335,7 +415,7 @@ def encode_heartbeat(hb: Heartbeat, *, key: bytes | None = None) -> Int32MultiAr
     return _encode_array(HEARTBEAT_LAYOUT, hb, key)
 
 
-def decode_heartbeat(msg: Int32MultiArray, *, after: int | None = None, key: bytes | None = None) -> Heartbeat:
+def decode_heartbeat(msg: Int32MultiArray | bytes, *, after: int | None = None, key: bytes | None = None) -> Heartbeat:
     """Heartbeat from `msg`. `after`: the last beat heard; a beat not above it is `replayed`."""
     hb = _decode_array(HEARTBEAT_LAYOUT, msg, None, None, None, None, key)
     if after is not None and hb.beat <= after:
@@ -643,6 +723,17 @@ def encode(payload: Any, *, key: bytes | None = None, stamp: Time | None = None)
     except KeyError:
         raise WireError("wrong_type", f"no wire encoding for {type(payload).__name__}") from None
     return enc(payload, stamp=stamp)
+
+
+def serialize(payload: Any, *, key: bytes | None = None) -> Any:
+    """What a node publishes for `payload` (rclpy's Publisher.publish takes either): for an array payload the
+    bytes rclpy would serialize `encode(payload, key=key)` to (alignment bytes zero), built without a message
+    object; for statistics the message. Either way the same message goes on the wire."""
+    layout = _LAYOUT_BY_PAYLOAD.get(type(payload))
+    if layout is None:
+        return encode(payload, key=key)
+    head, pad, values = layout.frame(key is not None)
+    return head + bytes(pad) + values.pack(*_wire_values(layout, payload, key))
 
 
 def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -180,23 +181,32 @@ _DECODERS = {
 }
 
 
+# The per-agent names are asked for every message a node takes (as its drop counter's source): made once each.
+_once = lru_cache(maxsize=None, typed=True)  # typed: True is no agent id, though it hashes as 1
+
+
+@_once
 def agent_namespace(agent: int) -> str:
     """'agv<k>': the relative namespace of agent k's topics (and a good node name for agent k)."""
     return f"{AGENT_PREFIX}{_agent_id(agent)}"
 
 
+@_once
 def feedback_topic(agent: int) -> str:
     return FEEDBACK.name(agent)
 
 
+@_once
 def position_topic(agent: int) -> str:
     return POSITION.name(agent)
 
 
+@_once
 def action_topic(agent: int) -> str:
     return ACTION.name(agent)
 
 
+@_once
 def agent_stats_topic(agent: int) -> str:
     return AGENT_STATS.name(agent)
 

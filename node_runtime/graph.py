@@ -1,5 +1,6 @@
 """What a node makes of the ROS graph around it: second writers on its topics, a second system. `GraphWatch`
-decides without ROS; `watch_graph` hands it what a node sees of the graph.
+decides without ROS; `watch_graph` hands it what a node sees of the graph. `Matched` keeps a publisher's
+matched-subscription count from its events, for what a node checks every step.
 
 rclpy 7.1.6's message info names no publisher, so a second writer cannot be told apart message by message;
 the graph (`get_publishers_info_by_topic`) does list every writer. Every topic of ours has one rightful
@@ -19,7 +20,7 @@ from __future__ import annotations
 import time
 from typing import Any, Callable, Iterable, Mapping
 
-__all__ = ["REFUSE_WITHIN_S", "CHECK_PERIOD_S", "GraphWatch", "watch_graph"]
+__all__ = ["REFUSE_WITHIN_S", "CHECK_PERIOD_S", "GraphWatch", "watch_graph", "Matched"]
 
 REFUSE_WITHIN_S = 5.0
 CHECK_PERIOD_S = 1.0  # how often a node looks at the graph
@@ -72,6 +73,25 @@ class GraphWatch:
 def watch_graph(node: Any, watch: Any, topics: list[str]) -> str | None:
     """Hand the graph around `node` (its peers' names, every writer of `topics`) to a GraphWatch;
     its answer: a line to refuse with, or None."""
+    # Only a topic with a second writer has anything to tell, and counting is cheap where listing each writer
+    # is not (every node of a composed warehouse looks at dozens of topics each second).
     writers = {node.resolve_topic_name(t): [(p.node_name, p.node_namespace, p.endpoint_gid)
-                                            for p in node.get_publishers_info_by_topic(t)] for t in topics}
+                                            for p in node.get_publishers_info_by_topic(t)]
+               for t in topics if node.count_publishers(t) > 1}
     return watch.check(node.get_node_names_and_namespaces(), writers)
+
+
+class Matched:
+    """How many subscriptions a publisher has matched, as its matched events tell: give it as the publisher's
+    `PublisherEventCallbacks(matched=...)`. Reading `count` costs nothing, where get_subscription_count() asks
+    the graph each time: what a node checks every step (is anyone watching?) reads this. It lags the graph
+    until the executor has handled the event; `then` is called after each change."""
+
+    def __init__(self, then: Callable[[], Any] | None = None):
+        self.count = 0
+        self._then = then
+
+    def __call__(self, info: Any) -> None:
+        self.count = info.current_count
+        if self._then is not None:
+            self._then()

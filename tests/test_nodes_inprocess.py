@@ -258,7 +258,9 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
     assert {f"dropped.{k}" for k in bad_actions} <= world_counts.keys(), world_counts
     agent_counts = system.agent_stats[1][-1].counters
     assert {f"dropped.{k}" for k in bad_feedback} <= agent_counts.keys(), agent_counts
-    assert system.agent_stats[2][-1].counters == {}
+    # agv2 was sent nothing bad: it counts no drop (a position taken unannounced, AgentNode._take_unannounced,
+    # is the middleware's race recovered, which this run's timing hits now and then)
+    assert {k: v for k, v in system.agent_stats[2][-1].counters.items() if k != "unannounced_positions"} == {}
 
 
 class UnannouncedPositions(AgentNode):

@@ -154,3 +154,25 @@ def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
                           str(tmp_path / "x.gif")], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "episode 20 is not one of the 20 episodes" in bad.stderr
     assert not (tmp_path / "x.gif").exists()
+
+
+def test_render_draws_the_greedy_episode_after_learning_at_the_dpi_asked(tmp_path):
+    gif = tmp_path / "greedy.gif"
+    gridmap = load_map("tunnel_to_goal")
+    args = ["--map", "tunnel_to_goal", "--algo", "cq", "--episodes", "20", "--seed", "3", "--set", "step_cap=60"]
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--greedy", "--dpi", "40",
+                           "--out", str(gif)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "episode 20," in done.stdout  # numbered after the 20 learning episodes, as a ROS run numbers it
+    settings = Settings().with_overrides({"step_cap": 60, "eval_episodes": 1})
+    steps = run("cq", gridmap, settings, 3, 0, 20).greedy[0, 0]  # the run's first greedy episode
+    with Image.open(gif) as image:
+        assert image.n_frames == int(steps) + 1
+        assert image.size == (round(max(3.0, gridmap.width * CELL_INCHES) * 40),
+                              round(max(2.5, gridmap.height * CELL_INCHES + 0.5) * 40))
+    for bad, says in (([*args, "--greedy", "--episode", "3"], "not both"), ([*args, "--dpi", "0"], "--dpi"),
+                      (["--bag", str(tmp_path), "--greedy"], "--greedy applies to --map")):
+        done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *bad, "--out", str(tmp_path / "x.gif")],
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2 and says in done.stderr, done.stderr
+    assert not (tmp_path / "x.gif").exists()

@@ -21,7 +21,7 @@ from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
-    Position, WorldStats, action_topic, agent_namespace, encode, feedback_topic, position_topic,
+    Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic, serialize,
 )
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
 from node_runtime.parameters import declare_node_parameters
@@ -58,8 +58,9 @@ class WorldNode(Node):
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
         self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
+        # Raw: the core decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
-                                                     ACTION.reader_qos) for k in agents}
+                                                     ACTION.reader_qos, raw=True) for k in agents}
         self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
         self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
@@ -112,7 +113,7 @@ class WorldNode(Node):
                 pub = self._stats if isinstance(payload, WorldStats) else self._heartbeat
             else:
                 pub = self._outputs[type(payload)][payload.agent]
-            pub.publish(encode(payload, key=self.config.key))
+            pub.publish(serialize(payload, key=self.config.key))
 
     def _publish(self, out: list) -> None:
         self._send(out)

@@ -1,15 +1,18 @@
 """The world's publications for viewers (msgs_spec/viz.py): the map once, latched, and the scene (every AGV
-and its goal) of every step, built only while someone subscribes, so an unwatched run pays one
-get_subscription_count() a step for it."""
+and its goal) of every step, built only while someone subscribes (as the publisher's matched events tell: an
+unwatched run pays nothing for it)."""
 
 from __future__ import annotations
 
 from typing import Any
 
+from rclpy.event_handler import PublisherEventCallbacks
+
 from cq_ros.gridmap import GridMap
 from cq_ros.render import lattice
 from msgs_spec import Position
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene
+from node_runtime.graph import Matched
 
 __all__ = ["WorldView"]
 
@@ -21,12 +24,14 @@ class WorldView:
         self.goals = tuple(gridmap.cells[g] for g in gridmap.goals)
         self.map = node.create_publisher(MAP.msg_type, MAP_TOPIC, MAP.qos)
         self.map.publish(MAP.encode(Occupancy(lattice(gridmap)), stamp=node.get_clock().now().to_msg()))
-        self.scene = node.create_publisher(SCENE.msg_type, SCENE_TOPIC, SCENE.qos)
+        self.watchers = Matched()
+        self.scene = node.create_publisher(SCENE.msg_type, SCENE_TOPIC, SCENE.qos,
+                                           event_callbacks=PublisherEventCallbacks(matched=self.watchers))
 
     def publish(self, out: list) -> None:
         """The scene of every step whose positions are in `out` (the world's outbox: the N positions of a step
         come together, agent 1 first)."""
-        if not self.scene.get_subscription_count():
+        if not self.watchers.count:
             return
         cells: list[tuple[int, int]] = []
         for payload in out:
