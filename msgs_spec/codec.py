@@ -98,15 +98,16 @@ class ArrayLayout:
         """The field values as the MAC reads them (little-endian int32 or float64)."""
         return self._struct.pack(*values)
 
-    def frame(self, keyed: bool) -> tuple[bytes, int, struct.Struct]:
+    def frame(self, keyed: bool) -> tuple[bytes, tuple[int, int], int, struct.Struct]:
         """The serialized form of this layout's messages (keyed or not): (the bytes before the values up to the
-        data's length, the alignment bytes after it, the values' Struct). All but the values and the alignment
-        bytes (which the serializer leaves as they were in memory) is the same in every message of one form.
+        data's length, with zeros for the alignment after the label; where that alignment lies, as a slice;
+        the alignment bytes before the values; the values' Struct). All but the values and the alignment bytes
+        (which rclpy's serializer leaves as they were in memory) is the same in every message of one form.
         Derived from rclpy's own serialization of one message, and checked against it."""
         return self._frames[keyed]
 
     @cached_property
-    def _frames(self) -> dict[bool, tuple[bytes, int, struct.Struct]]:
+    def _frames(self) -> dict[bool, tuple[bytes, tuple[int, int], int, struct.Struct]]:
         from rclpy.serialization import serialize_message
 
         frames = {}
@@ -124,7 +125,13 @@ class ArrayLayout:
             if pad is None or raw[start:] != values.pack(*sample):
                 raise RuntimeError(f"{self.ros_type.__name__} {self.label}: its serialization does not end in "
                                    "its length and values")
-            frames[keyed] = raw[:start - pad], pad, values
+            # CDR: a 4-byte header, the dimension count, the label's length, the label and its NUL, then
+            # alignment to 4 bytes counted from after the header
+            label_end = 12 + len(self.keyed_label if keyed else self.label) + 1
+            gap = label_end, label_end + (4 - label_end) % 4
+            head = bytearray(raw[:start - pad])
+            head[gap[0]:gap[1]] = bytes(gap[1] - gap[0])
+            frames[keyed] = bytes(head), gap, pad, values
         return frames
 
 
@@ -340,8 +347,8 @@ def _raw_data(layout: ArrayLayout, raw: bytes) -> tuple[bool, list]:
     are in one of the layout's two forms (`ArrayLayout.frame`), else deserialized and checked as a message,
     so that anything else is refused exactly as the message would be."""
     for keyed in (True, False):
-        head, pad, values = layout.frame(keyed)
-        if len(raw) == len(head) + pad + values.size and raw.startswith(head):
+        head, (a, b), pad, values = layout.frame(keyed)
+        if len(raw) == len(head) + pad + values.size and raw[:a] == head[:a] and raw[b:len(head)] == head[b:]:
             return keyed, list(values.unpack_from(raw, len(head) + pad))
     from rclpy.serialization import deserialize_message
 
@@ -732,7 +739,7 @@ def serialize(payload: Any, *, key: bytes | None = None) -> Any:
     layout = _LAYOUT_BY_PAYLOAD.get(type(payload))
     if layout is None:
         return encode(payload, key=key)
-    head, pad, values = layout.frame(key is not None)
+    head, _, pad, values = layout.frame(key is not None)
     return head + bytes(pad) + values.pack(*_wire_values(layout, payload, key))
 
 

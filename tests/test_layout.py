@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RANK = {"cq_ros": 0, "msgs_spec": 1, "node_runtime": 2, "world_node": 3, "agent_node": 3, "ros_tools": 4}
 ROS = {"rclpy", "rcl_interfaces", "std_msgs", "diagnostic_msgs", "nav_msgs", "visualization_msgs",
        "geometry_msgs", "builtin_interfaces", "rosbags"}
-CONTRACT_RCLPY = {"rclpy.qos"}  # all msgs_spec may take from rclpy
+CONTRACT_RCLPY = {"rclpy.qos", "rclpy.serialization"}  # all msgs_spec may take from rclpy: QoS and the wire bytes
 CLI = "cq_ros/cli.py"
 
 
