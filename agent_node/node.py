@@ -26,7 +26,7 @@ from msgs_spec import (
 )
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.parameters import declare_node_parameters
-from node_runtime.run import all_acked, when
+from node_runtime.run import when, when_acked
 
 from .driver import (
     Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
@@ -36,7 +36,6 @@ from .viz import AgentView
 
 __all__ = ["AgentNode"]
 
-FLUSH_TIMEOUT_S = 2.0  # at the end, how long to wait for subscribers to acknowledge the last statistics
 # How often a node waiting for peer positions looks into its position readers for one the executor was never
 # told of (see AgentNode._take_unannounced); a position waited for over one such period is taken there.
 UNANNOUNCED_CHECK_S = 0.05
@@ -200,5 +199,4 @@ class AgentNode(Node):
             self.get_logger().warning(f"{held} statistics message(s) never sent: fewer than min_stats_subscribers="
                                       f"{self.config.min_stats_subscribers} subscribers within "
                                       f"{STATS_MATCH_TIMEOUT_S} s")
-        when(self, all_acked([stats.pub for stats in self._stats.values()]), FLUSH_TIMEOUT_S,
-             lambda _acked: self.done.set_result(code))
+        when_acked(self, [stats.pub for stats in self._stats.values()], lambda: self.done.set_result(code))

@@ -18,7 +18,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 __all__ = ["EXECUTORS", "EXECUTOR_ENV", "SPIN_S", "FASTDDS_PROFILE", "FASTDDS_PROFILE_ENV", "executor_kind",
-           "make_executor", "spin_nodes", "run_node", "POLL_S", "when", "all_acked"]
+           "make_executor", "spin_nodes", "run_node", "POLL_S", "when", "FLUSH_TIMEOUT_S", "when_acked"]
 
 
 # The executors a node process can spin on (`$CQ_ROS_EXECUTOR`, `cq-ros launch --executor`). rclpy's
@@ -154,8 +154,15 @@ def when(node: Any, ready: Callable[[], bool], timeout_s: float, then: Callable[
     timer = node.create_timer(POLL_S, look)
 
 
-def all_acked(publishers: list[Any]) -> Callable[[], bool]:
-    """A `when` condition: every matched reader of these publishers has acknowledged all they sent."""
+# At the end, how long a node gives its readers to acknowledge the last reliable messages it sent: they go
+# with the process otherwise (an exited node's reader is no longer waited for).
+FLUSH_TIMEOUT_S = 2.0
+
+
+def when_acked(node: Any, publishers: list[Any], then: Callable[[], Any]) -> None:
+    """then() once every matched reader of `publishers` has acknowledged all they sent, or after
+    FLUSH_TIMEOUT_S: `when` on that condition, so the node never waits inside a callback."""
     from rclpy.duration import Duration
 
-    return lambda: all(pub.wait_for_all_acked(Duration(seconds=0)) for pub in publishers)
+    when(node, lambda: all(pub.wait_for_all_acked(Duration(seconds=0)) for pub in publishers), FLUSH_TIMEOUT_S,
+         lambda _acked: then())

@@ -25,7 +25,7 @@ from msgs_spec import (
 )
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
 from node_runtime.parameters import declare_node_parameters
-from node_runtime.run import all_acked, when
+from node_runtime.run import when_acked
 
 from .lockstep import Lockstep, world_config
 from .viz import WorldView
@@ -33,7 +33,6 @@ from .viz import WorldView
 __all__ = ["WorldNode"]
 
 STARTUP_POLL_S = 0.05  # how often to look whether every agent is connected, before the first step
-FLUSH_TIMEOUT_S = 2.0  # at the end, how long to wait for subscribers to acknowledge the last messages
 
 
 class WorldNode(Node):
@@ -138,5 +137,4 @@ class WorldNode(Node):
         self._graph_timer.cancel()
         # Reliable messages still in flight go with the process: give the readers a bounded moment to
         # acknowledge the last feedback and statistics (an exited agent's reader is no longer waited for).
-        when(self, all_acked([self._stats, *self._outputs[Feedback].values()]), FLUSH_TIMEOUT_S,
-             lambda _acked: self.done.set_result(code))
+        when_acked(self, [self._stats, *self._outputs[Feedback].values()], lambda: self.done.set_result(code))
