@@ -82,8 +82,13 @@ class ArrayLayout:
         return ",".join(self.fields + tuple(f"mac{i}" for i in range(MAC_WORDS)))
 
     @cached_property
+    def _code(self) -> str:
+        """The struct code of one value on the wire: int32 or float64."""
+        return "i" if self.ros_type is Int32MultiArray else "d"
+
+    @cached_property
     def _struct(self) -> struct.Struct:
-        return struct.Struct(f"<{self.size}{'i' if self.ros_type is Int32MultiArray else 'd'}")
+        return struct.Struct(f"<{self.size}{self._code}")
 
     @cached_property
     def _values(self) -> Callable[[Any], tuple]:
@@ -112,11 +117,10 @@ class ArrayLayout:
 
         frames = {}
         for keyed in (False, True):
-            size = self.size + MAC_WORDS if keyed else self.size
-            values = struct.Struct(f"<{size}{'i' if self.ros_type is Int32MultiArray else 'd'}")
+            label, size = (self.keyed_label, self.size + MAC_WORDS) if keyed else (self.label, self.size)
+            values = struct.Struct(f"<{size}{self._code}")
             msg = self.ros_type()
-            msg.layout.dim = [MultiArrayDimension(label=self.keyed_label if keyed else self.label, size=size,
-                                                  stride=size)]
+            msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
             msg.data = sample = [(i + 1) * 7 for i in range(size)]  # distinct values, to see where they lie
             raw = serialize_message(msg)
             start = len(raw) - values.size
@@ -127,7 +131,7 @@ class ArrayLayout:
                                    "its length and values")
             # CDR: a 4-byte header, the dimension count, the label's length, the label and its NUL, then
             # alignment to 4 bytes counted from after the header
-            label_end = 12 + len(self.keyed_label if keyed else self.label) + 1
+            label_end = 12 + len(label) + 1
             gap = label_end, label_end + (4 - label_end) % 4
             head = bytearray(raw[:start - pad])
             head[gap[0]:gap[1]] = bytes(gap[1] - gap[0])

@@ -29,9 +29,7 @@ def _with_settings(use: str, table: dict[str, tuple[Any, str]]) -> dict[str, tup
                                             "default, else this one") for f in fields(Settings)}}
 
 
-# Every parameter of the world node: name -> (default, description). The default also fixes the ROS type.
-# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
-# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
+# Every parameter of the world node (with the Settings fields: _with_settings).
 WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("world dynamics use the rewards, step_cap and slip", {
     "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
     "episodes": (500, "learning episodes; then eval_episodes more, where the agents play their greedy policy "
@@ -54,9 +52,7 @@ WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("world dynamics us
                           "world/map (latched) and world/markers every step; false: not even the publishers"),
 })
 
-# Every parameter of the agent node: name -> (default, description). The default also fixes the ROS type.
-# Every field of cq_ros.settings.Settings is a parameter too, with the same name and type; one not given is
-# the map's default (its `set` lines) or Settings' (cq_ros.parameters).
+# Every parameter of the agent node (with the Settings fields: _with_settings).
 AGENT_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("learning settings and rewards, as the world's", {
     "agent_id": (0, "the AGV this node drives, 1..N as numbered in the map; leave 0 for algo jsa, whose "
                     "one central node drives every AGV"),
