@@ -159,6 +159,19 @@ def test_cq_new_joint_state_starts_as_a_copy_of_q_local():
     assert learner.q_joint[learner.js] != q0
 
 
+@pytest.mark.parametrize("bootstrap_acted", [0, 1])
+def test_cq_new_joint_state_has_learnt_the_conflict_step_as_q_local_has(bootstrap_acted):
+    """The step that revealed the conflict (its -10) is in Q^j as in Q_k, whether Q_k learnt it at once (the
+    paper) or waits for the next act (cq_bootstrap_acted): else the agent repeats the move that collided."""
+    learner = cq_with_conflict(cq_bootstrap_acted=bootstrap_acted)
+    learner.observe(2)
+    learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3) from elsewhere; any pending update lands now
+    assert learner.pending is None
+    assert learner.q_local[0][EAST] < 5.0  # Q_k has learnt the conflict rewards
+    for js in ((0, 1, 1), (0, 2, 3)):
+        assert learner.q_joint[js] == learner.q_local[0]
+
+
 def test_cq_marking_an_existing_joint_state_keeps_its_table():
     learner = cq_with_conflict()
     step(learner, 0, {1: 1, 2: 3}, -1.0, 1)

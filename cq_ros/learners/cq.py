@@ -51,8 +51,14 @@ class CQLearner(Learner):
 
     def act(self, peer_cells):
         if self.conflict_at is not None:
-            self._mark(self.conflict_at, peer_cells)
+            marked = self._mark(self.conflict_at, peer_cells)
             self.conflict_at = None
+            if self.pending is not None:
+                # The conflict step's own update is still waiting (cq_bootstrap_acted): it is the experience
+                # of the joint states just marked too, as in the paper, whose Q^j copies a Q_k that has
+                # already learnt it (without it the agent repeats the very move that collided).
+                rows, a, reward, next_cell = self.pending
+                self.pending = (rows + marked, a, reward, next_cell)
         met = self._meet(self.s, peer_cells) if self.s in self.marked else []
         self.js = met[0] if met else None
         if not met:
@@ -106,9 +112,11 @@ class CQLearner(Learner):
 
     # -- the joint states of a cell --------------------------------------------------------------------
 
-    def _mark(self, s, peer_cells):
+    def _mark(self, s, peer_cells) -> list[list[float]]:
+        """Mark the joint states of cell s with the peers near it; returns the Q^j rows made new."""
         st = self.settings
         near = st.cq_mark_range
+        made = []
         for j in self.peers:
             if near and self.map.distance(s, peer_cells[j]) > near:
                 continue
@@ -117,9 +125,11 @@ class CQLearner(Learner):
                 self.confidence[js] = max(self.confidence[js], st.conf_init)
                 continue
             self.q_joint[js] = list(self.q_local[s])
+            made.append(self.q_joint[js])
             self.confidence[js] = st.conf_init
             self.marked.setdefault(s, []).append(js)
         self._rewatch(s)
+        return made
 
     def _meet(self, s, peer_cells):
         """The joint states of cell s met now, the most confident first (the first marked among equals)."""
