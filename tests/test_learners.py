@@ -270,6 +270,21 @@ def test_cq_all_met_acts_on_the_most_wary_of_the_joint_states_met_and_updates_ea
     assert learner.act({1: 1, 2: 3}) == EAST
 
 
+def test_cq_all_met_chooses_on_the_rows_after_the_waiting_update():
+    """cq_bootstrap_acted with several joint states met: the last step's update lands in their rows first,
+    and the action is chosen on their minimum as it stands then, as with a single row."""
+    learner = cq_with_conflict(cq_all_met=1, cq_bootstrap_acted=1)
+    learner.observe(0)
+    learner.act({1: 1, 2: 3})  # marks and meets (0, 1, 1) and (0, 2, 3)
+    for js in ((0, 1, 1), (0, 2, 3)):
+        learner.q_joint[js][:] = [-5.0, 4.0, -5.0, 3.5]
+    learner.a = EAST
+    learner.learn(-10.0, 0, False)  # a collision: EAST's update waits, then lowers it to 2.96
+    learner.observe(0)
+    assert learner.act({1: 1, 2: 3}) == WEST  # not EAST, the best of the rows before the update
+    assert learner.q_joint[(0, 1, 1)][EAST] == pytest.approx(4.0 + 0.1 * (-10.0 + 0.9 * 4.0 - 4.0))
+
+
 def test_cq_mark_range_marks_only_the_peers_near_the_conflict():
     learner = cq_with_conflict(cq_mark_range=2)
     assert learner.observe(0) == (1, 2)  # it must look at everyone to know who is near

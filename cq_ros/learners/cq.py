@@ -65,12 +65,16 @@ class CQLearner(Learner):
             self.rows = [self.q_local[self.s]]
         else:
             self.rows = [self.q_joint[js] for js in (met if self.settings.cq_all_met else met[:1])]
-        # several joint states met at once: an action is worth what the most wary of them says
-        row = self.rows[0] if len(self.rows) == 1 else [min(q) for q in zip(*self.rows)]
         if self.pending is not None:
-            self._bootstrap(row)
-        self.a = epsilon_greedy(row, self.epsilon, self.rng)
+            self._bootstrap(self._acted_row())
+        # after the update, which may have changed the rows acted on now
+        self.a = epsilon_greedy(self._acted_row(), self.epsilon, self.rng)
         return self.a
+
+    def _acted_row(self):
+        """The row acted on: one table's, or where several joint states are met the elementwise minimum of
+        theirs (an action is worth what the most wary of them says)."""
+        return self.rows[0] if len(self.rows) == 1 else [min(q) for q in zip(*self.rows)]
 
     def learn(self, reward, next_cell, done):
         s, a = self.s, self.a
