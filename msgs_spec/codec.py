@@ -81,6 +81,11 @@ class ArrayLayout:
         """The label of the keyed form: the fields, then the MAC's words."""
         return ",".join(self.fields + tuple(f"mac{i}" for i in range(MAC_WORDS)))
 
+    def dimension(self, keyed: bool) -> tuple[str, int]:
+        """The label and size of the array's one dimension, in the keyed form (the MAC's words after the
+        fields) or the plain one."""
+        return (self.keyed_label, self.size + MAC_WORDS) if keyed else (self.label, self.size)
+
     @cached_property
     def _code(self) -> str:
         """The struct code of one value on the wire: int32 or float64."""
@@ -117,7 +122,7 @@ class ArrayLayout:
 
         frames = {}
         for keyed in (False, True):
-            label, size = (self.keyed_label, self.size + MAC_WORDS) if keyed else (self.label, self.size)
+            label, size = self.dimension(keyed)
             values = struct.Struct(f"<{size}{self._code}")
             msg = self.ros_type()
             msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
@@ -321,7 +326,7 @@ def _wire_values(layout: ArrayLayout, payload: Any, key: bytes | None) -> list:
 
 def _encode_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) -> Any:
     data = _wire_values(layout, payload, key)
-    label, size = (layout.label, layout.size) if key is None else (layout.keyed_label, layout.size + MAC_WORDS)
+    label, size = layout.dimension(key is not None)
     msg = layout.ros_type()
     msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
     msg.layout.data_offset = 0
@@ -379,7 +384,7 @@ def _message_data(layout: ArrayLayout, msg: Any) -> tuple[bool, list]:
     keyed = d.label == layout.keyed_label
     if not keyed and d.label != layout.label:
         raise WireError("wrong_layout", f"label {d.label!r}, expected {layout.label!r}")
-    size = layout.size + MAC_WORDS if keyed else layout.size
+    _, size = layout.dimension(keyed)
     if d.size != size or d.stride != size or offset != 0:
         raise WireError("wrong_layout", f"size {d.size} stride {d.stride} data_offset {offset}, "
                                         f"expected {size} {size} 0")
