@@ -40,11 +40,9 @@ STACKS = ("message", "nodes")
 
 
 def _executor(stack: str, context=None):
-    if stack == "nodes":
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor(context=context)
-    from rclpy.executors import SingleThreadedExecutor
-    return SingleThreadedExecutor(context=context)
+    """The executor the stack spins: the nodes' own choice (node_runtime.run.make_executor) or rclpy's default."""
+    from node_runtime.run import make_executor
+    return make_executor("events" if stack == "nodes" else "single", context)
 
 
 def _qos(name: str):
