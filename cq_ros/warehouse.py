@@ -17,9 +17,10 @@ Starts (distinct cross-aisle cells) and goals (distinct bays) are drawn by ``ran
 result is checked, not assumed: every agent reaches its goal from its start while every other agent stands
 parked at its own goal (``GridMap.goal_blocked_by_parked``).
 
-Generated maps carry two defaults of their own (``set`` lines, see ``cq_ros.gridmap``), each said why in
-MAP_DEFAULTS: steps cost (reward_step=-1), and a longer discount (gamma=0.98), for goals that lie 15 to 35
-steps from the docks.
+Generated maps carry three defaults of their own (``set`` lines, see ``cq_ros.gridmap``), each said why in
+MAP_DEFAULTS: steps cost (reward_step=-1), a longer discount (gamma=0.98), for goals that lie 15 to 35 steps
+from the docks, and exploration that falls to 0 by episode 2,000 (epsilon_decay_episodes=2000), so that what
+is learnt last is the timing of the greedy policy.
 """
 
 from __future__ import annotations
@@ -41,6 +42,11 @@ MAP_DEFAULTS = {
                           "cross an entrance where they have collided"),
     "gamma": ("0.98", "a goal 30 steps away is discounted by 0.9^30 = 0.04 at the paper's gamma, too little to "
                       "tell arriving from wandering for ever; by 0.98^30 = 0.55 here"),
+    # Measured with `cq-ros experiment --map warehouse_16 --algo cq,indep --runs 10 --episodes 2000`, seeds 0 and 1
+    # (README, Warehouses): CQ's greedy policies collision-free in 17 of 20 runs at a fixed 0.1, in 20 of 20 so.
+    "epsilon_decay_episodes": ("2000", "exploration falls to 0 by episode 2,000: at the paper's fixed epsilon "
+                                       "0.1, at least one of 16 AGVs moves at random at 81% of steps, so the "
+                                       "timing learnt is never the greedy policy's, whose first meetings collide"),
 }
 
 Cell = tuple[int, int]
