@@ -14,6 +14,7 @@ the row says where.
 
     python benchmarks/bench_warehouse.py [--maps warehouse_8,warehouse_16,warehouse_32]
         [--algos indep,js,jsa,loc,cq] [--runs 3] [--episodes 2000] [--check-every 100] [--budget 600] [--jobs 2]
+        [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from cq_ros.gridmap import load_map
 from cq_ros.learners import ALGORITHMS
 from cq_ros.learners.jsa import MAX_AGENTS
 from cq_ros.planner import plan
-from cq_ros.settings import run_settings
+from cq_ros.settings import SettingsError, run_settings
 from cq_ros.world import GridWorld
 
 GREEDY_CAP = 500  # steps a greedy check may take; a warehouse's plan takes a few dozen
@@ -53,11 +54,12 @@ def greedy_play(team: Team) -> tuple[bool, int]:
     return greedy.world.finished and episode.collisions == 0, cost
 
 
-def one_run(map_name: str, algo: str, run: int, episodes: int, check_every: int, budget: float, seed: int) -> dict:
+def one_run(map_name: str, algo: str, run: int, episodes: int, check_every: int, budget: float, seed: int,
+            overrides: list[str]) -> dict:
     gridmap = load_map(map_name)
     if algo == "jsa" and gridmap.n_agents > MAX_AGENTS:
         return {"stopped": f"4^{gridmap.n_agents} joint actions per joint state (at most {MAX_AGENTS} agents)"}
-    settings = run_settings(gridmap)
+    settings = run_settings(gridmap, overrides)
     team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, run)),
                 make_learners(algo, gridmap, settings, seed, run))
     looks = [0, 0]  # peer positions asked for, agent-steps
@@ -119,11 +121,19 @@ def main() -> None:
     parser.add_argument("--budget", type=float, default=600.0, help="CPU seconds of learning and greedy checks per run at most")
     parser.add_argument("--jobs", type=int, default=os.cpu_count())
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="change a setting over the maps' own (repeatable), as in cq-ros experiment")
     args = parser.parse_args()
     maps, algos = args.maps.split(","), args.algos.split(",")
+    try:
+        for name in maps:
+            run_settings(load_map(name), args.overrides)
+    except SettingsError as e:
+        parser.error(str(e))
 
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
-          f"{args.runs} runs x {args.episodes} episodes, greedy checked every {args.check_every}")
+          f"{args.runs} runs x {args.episodes} episodes, greedy checked every {args.check_every}"
+          + (f"; settings: {' '.join(args.overrides)}" if args.overrides else ""))
     planned = {}
     for name in maps:
         started = time.perf_counter()
@@ -136,7 +146,8 @@ def main() -> None:
     results: dict[tuple[str, str], list[dict]] = {}
     # a fresh process per run: its peak memory is its own
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
-        futures = {pool.submit(one_run, m, a, r, args.episodes, args.check_every, args.budget, args.seed): (m, a)
+        futures = {pool.submit(one_run, m, a, r, args.episodes, args.check_every, args.budget, args.seed,
+                               args.overrides): (m, a)
                    for m, a, r in jobs}
         for future in tqdm(as_completed(futures), total=len(jobs), desc="runs", file=sys.stderr):
             results.setdefault(futures[future], []).append(future.result())

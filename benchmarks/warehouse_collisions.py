@@ -6,6 +6,7 @@ wall, or parked at its goal) or a chain (sent back by another collision). A floo
 cannot be learnt away; greedy collisions between agents that saw each other are coordination CQ failed at.
 
     python benchmarks/warehouse_collisions.py [--map warehouse_8] [--algos indep,cq] [--runs 3] [--episodes 2000]
+        [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import cq_ros.learners.base as base
 from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.settings import run_settings
+from cq_ros.settings import SettingsError, run_settings
 from cq_ros.world import GridWorld, resolve_moves
 
 explored: set[int] = set()  # ids of the rngs that took the random branch this step
@@ -52,12 +53,12 @@ def geometry(before, targets, actions, i, j) -> str:
     return "merge" if targets[i] == targets[j] else "chain"
 
 
-def classify(map_name: str, algo: str, runs: int, episodes: int) -> Counter:
+def classify(map_name: str, algo: str, runs: int, episodes: int, overrides: list[str]) -> Counter:
     # every learner module imported epsilon_greedy by name: point them all at the telling twin
     for cls in LEARNERS.values():
         sys.modules[cls.__module__].epsilon_greedy = epsilon_greedy_told
     gridmap = load_map(map_name)
-    settings = run_settings(gridmap)
+    settings = run_settings(gridmap, overrides)
     kinds: Counter = Counter()
     for run in tqdm(range(runs), desc=f"{map_name} {algo}", file=sys.stderr):
         world = GridWorld(gridmap, settings, seed=world_seed(0, run))
@@ -93,10 +94,16 @@ def main() -> None:
     parser.add_argument("--algos", default="indep,cq")
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--episodes", type=int, default=2000)
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="change a setting over the map's own (repeatable), as in cq-ros experiment")
     args = parser.parse_args()
+    try:
+        run_settings(load_map(args.map), args.overrides)
+    except SettingsError as e:
+        parser.error(str(e))
     late_episodes = args.runs * (args.episodes - int(0.9 * args.episodes))
     for algo in args.algos.split(","):
-        kinds = classify(args.map, algo, args.runs, args.episodes)
+        kinds = classify(args.map, algo, args.runs, args.episodes, args.overrides)
         total = sum(kinds.values())
         print(f"{args.map} {algo}: {total / late_episodes:.2f} colliding pairs per episode over the last 10% "
               f"({total} pairs in {late_episodes} episodes)")
