@@ -194,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
                          "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
                          "goal with the others parked at theirs. The map carries `set reward_step=-1`, `set gamma=0.98` "
-                         "and `set epsilon_decay_episodes=2000`.")
+                         "and `set epsilon_decay_episodes=1500`.")
     p.add_argument("--agents", type=_positive, required=True, metavar="N", help="AGVs, each with its own goal")
     p.add_argument("--aisles", type=_positive, default=None, metavar="A",
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")

@@ -43,7 +43,7 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         assert main(["show", name]) == 0
         lines = capsys.readouterr().out.splitlines()
         assert lines[-1].endswith(": none")
-    assert "map defaults: reward_step=-1, gamma=0.98, epsilon_decay_episodes=2000" in lines
+    assert "map defaults: reward_step=-1, gamma=0.98, epsilon_decay_episodes=1500" in lines
 
 
 @pytest.mark.parametrize(

@@ -366,7 +366,7 @@ def test_agent_config_checks_every_parameter():
     assert agent_config({**values, "algo": "jsa"}).agent == 0
     unset = {k: v for k, v in values.items() if k not in SETTING_NAMES}  # settings not given: the map's
     assert agent_config({**unset, "agent_id": 1, "map": "warehouse_8"}).settings == Settings(
-        reward_step=-1.0, gamma=0.98, epsilon_decay_episodes=2000)
+        reward_step=-1.0, gamma=0.98, epsilon_decay_episodes=1500)
     with pytest.raises(SettingsError, match="parameter algo: unknown algorithm 'sarsa'"):
         agent_config({**values, "algo": "sarsa", "agent_id": 1})
     with pytest.raises(SettingsError, match="parameter map: .*no such map"):

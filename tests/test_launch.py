@@ -233,7 +233,7 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
 
 
 def test_nodes_are_given_the_settings_that_differ_from_the_maps_own(tmp_path):
-    # warehouse_8 carries reward_step=-1, gamma=0.98 and epsilon_decay_episodes=2000: the nodes take them from the
+    # warehouse_8 carries reward_step=-1, gamma=0.98 and epsilon_decay_episodes=1500: the nodes take them from the
     # map unless the launch's differ.
     def given(settings):
         children = node_commands(node_specs("warehouse_8", "cq", 5, 0, settings, tmp_path, 2.0), "ns", tmp_path)
@@ -260,7 +260,7 @@ def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_of
     np.testing.assert_array_equal(read_episodes(out), offline.episodes)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["settings"] == settings.as_dict()
-    assert manifest["settings_from_map"] == {"reward_step": -1.0, "gamma": 0.98, "epsilon_decay_episodes": 2000}
+    assert manifest["settings_from_map"] == {"reward_step": -1.0, "gamma": 0.98, "epsilon_decay_episodes": 1500}
 
 
 def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_included(tmp_path):

@@ -282,7 +282,7 @@ def test_world_config_checks_every_parameter():
     assert world_config({**values, "reward_collision": -5.0}).settings.reward_collision == -5.0
     # A setting left out (not given to the node) is the map's default; one given goes over it.
     unset = {k: v for k, v in values.items() if k not in SETTING_NAMES}
-    its_own = Settings(reward_step=-1.0, gamma=0.98, epsilon_decay_episodes=2000)  # warehouse_8's `set` lines
+    its_own = Settings(reward_step=-1.0, gamma=0.98, epsilon_decay_episodes=1500)  # warehouse_8's `set` lines
     assert world_config({**unset, "map": "warehouse_8"}).settings == its_own
     assert world_config({**unset, "map": "warehouse_8", "reward_step": 0.0}).settings == its_own.with_overrides(
         {"reward_step": 0.0})

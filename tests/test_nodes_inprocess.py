@@ -445,7 +445,7 @@ def test_a_node_started_by_hand_takes_the_maps_defaults_under_the_settings_it_is
                  for given in ({}, {"reward_step": 0.0}, {"alpha": 0.5})]
         try:
             assert [n.config.settings.reward_step for n in nodes] == [-1.0, 0.0, -1.0]
-            assert nodes[2].config.settings == Settings(reward_step=-1.0, gamma=0.98, epsilon_decay_episodes=2000,
+            assert nodes[2].config.settings == Settings(reward_step=-1.0, gamma=0.98, epsilon_decay_episodes=1500,
                                                         alpha=0.5)
         finally:
             for n in nodes:

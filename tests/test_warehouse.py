@@ -36,7 +36,7 @@ def check_warehouse(agents, aisles, aisle_length, seed):
         assert 3 <= grid.cells[goal][0] < 3 + aisle_length and len(moves(grid, goal)) == 1
     # The promise, and its pairwise form that `cq-ros show` reports.
     assert grid.goal_blocked_by_parked() == [] and grid.walled_in() == []
-    assert grid.defaults == {"reward_step": -1.0, "gamma": 0.98, "epsilon_decay_episodes": 2000}
+    assert grid.defaults == {"reward_step": -1.0, "gamma": 0.98, "epsilon_decay_episodes": 1500}
     # The file's drawing is the canonical one: draw() with every cell shown as '.'.
     assert text.endswith("\n\n" + grid.draw(marks={i: "." for i in range(grid.n_cells)}) + "\n")
     return grid
@@ -178,8 +178,8 @@ def test_a_generated_warehouse_file_runs_in_cq_ros_experiment(tmp_path, capsys):
     assert manifest["map"] == "small" and manifest["n_agents"] == 3
     # The map's default reached the run; the user's --set went on top of it.
     assert manifest["settings"]["reward_step"] == -1.0 and manifest["settings"]["step_cap"] == 200
-    assert manifest["map_defaults"] == {"reward_step": -1.0, "gamma": 0.98, "epsilon_decay_episodes": 2000}
+    assert manifest["map_defaults"] == {"reward_step": -1.0, "gamma": 0.98, "epsilon_decay_episodes": 1500}
     # gamma is not the map's: --set gamma=0.9 went over it
-    assert manifest["settings_from_map"] == {"reward_step": -1.0, "epsilon_decay_episodes": 2000}
+    assert manifest["settings_from_map"] == {"reward_step": -1.0, "epsilon_decay_episodes": 1500}
     rows = (out / "episodes.csv").read_text().splitlines()
     assert len(rows) == 1 + 2 * 15 and rows[1].startswith("small,indep,0,1,")
