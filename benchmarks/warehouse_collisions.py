@@ -19,9 +19,9 @@ from tqdm import tqdm
 
 import cq_ros.learners.base as base
 from cq_ros.engine import Team, make_learners, world_seed
-from cq_ros.gridmap import load_map
+from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.settings import SettingsError, run_settings
+from cq_ros.settings import Settings, SettingsError, run_settings
 from cq_ros.world import GridWorld, resolve_moves
 
 explored: set[int] = set()  # ids of the rngs that took the random branch this step
@@ -53,14 +53,12 @@ def geometry(before, targets, actions, i, j) -> str:
     return "merge" if targets[i] == targets[j] else "chain"
 
 
-def classify(map_name: str, algo: str, runs: int, episodes: int, overrides: list[str]) -> Counter:
+def classify(gridmap: GridMap, settings: Settings, algo: str, runs: int, episodes: int) -> Counter:
     # every learner module imported epsilon_greedy by name: point them all at the telling twin
     for cls in LEARNERS.values():
         sys.modules[cls.__module__].epsilon_greedy = epsilon_greedy_told
-    gridmap = load_map(map_name)
-    settings = run_settings(gridmap, overrides)
     kinds: Counter = Counter()
-    for run in tqdm(range(runs), desc=f"{map_name} {algo}", file=sys.stderr):
+    for run in tqdm(range(runs), desc=f"{gridmap.name} {algo}", file=sys.stderr):
         world = GridWorld(gridmap, settings, seed=world_seed(0, run))
         team = Team(world, make_learners(algo, gridmap, settings, 0, run))
         for i, learner in enumerate(team.learners):
@@ -97,13 +95,14 @@ def main() -> None:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="change a setting over the map's own (repeatable), as in cq-ros experiment")
     args = parser.parse_args()
+    gridmap = load_map(args.map)
     try:
-        run_settings(load_map(args.map), args.overrides)
+        settings = run_settings(gridmap, args.overrides)
     except SettingsError as e:
         parser.error(str(e))
     late_episodes = args.runs * (args.episodes - int(0.9 * args.episodes))
     for algo in args.algos.split(","):
-        kinds = classify(args.map, algo, args.runs, args.episodes, args.overrides)
+        kinds = classify(gridmap, settings, algo, args.runs, args.episodes)
         total = sum(kinds.values())
         print(f"{args.map} {algo}: {total / late_episodes:.2f} colliding pairs per episode over the last 10% "
               f"({total} pairs in {late_episodes} episodes)")
