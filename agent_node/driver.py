@@ -10,256 +10,32 @@ The drivers decide everything the agent node does and return it as effects for t
 - `CentralDriver` runs the JSA learner for every AGV: it waits for the feedback of every acting agent,
   learns from the sum of their rewards and answers with every acting agent's action.
 
-Peer subscriptions (`PeerView`): a peer the learner names is subscribed at once; one it no longer names is
-dropped after `linger` decision steps without need (the end of the agent's episode counts as one, except
-for JS, which needs every peer at every step). The
-default, 0, is the design's rule: an agent listens to a peer only while it stands in a state that names it.
-A new subscription waits for the match and the reliable handshake before the latched sample arrives, while
-a kept one costs a message a step: lingering saves subscriptions, not messages, and LoC, which re-decides
-COORDINATE every step, gains most from it. The measured costs are in the README ("Who listens to whom").
-
 Greedy evaluation: after its `episodes` learning episodes a driver plays `eval_episodes` more, as
 `cq_ros.engine.greedy_episodes` does after `run`: on a deep copy of the learner with epsilon 0 (learning goes
 on inside the copy), so its random stream continues exactly as the engine's copy does. The world plays
 them as ordinary episodes (episode indices episodes..episodes+eval_episodes-1) and the AgentStats go on.
 
-Catching up (`WorldLink`). Feedback is decoded without a sequence expectation and then judged: the expected
-(episode, step) is played; an older one is dropped and counted (`stale_*`); a later one means the world
-stepped on without us (a feedback lost, a restart, a world that ran ahead): the driver adopts it, as a
-restarted agent does, counts it (`caught_up`, and `missed_feedback`: the steps it never heard) and sends the
-AgentStats of every episode it left behind. Only a later stamp the world vouches for is adopted: with the
-run's key every message is the world's; without one, the world's heartbeat must have reached that stamp
-(else a forged far-future feedback would capture the agent), so a later stamp is held until it has, and
-dropped (`future_*`) if the expected one comes first. A node started without a checkpoint file starts a
-fresh learner wherever the world is.
-
-Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
-and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not.
-
-Positions (`PeerView`) are kept per stamp from the step the agent decides at onwards: an older one is dropped
-and counted (`stale_*`), a second one for a stamp already heard with another cell too (`conflicting`: the
-first writer wins), and at most `AHEAD` stamps are kept per peer (the farthest go first), so no burst of
-other positions can push out the world's.
-
-Checkpoints (`save_checkpoint`/`load_checkpoint`): a pickle of the learner and the last finished episode,
-written to a temporary file in the same directory and moved into place with os.replace, so a reader sees
-the old checkpoint or the new one, never half of one. Only learning episodes are checkpointed, so the last
-checkpoint holds the trained learner, not its greedy copy. A node restarted from one decodes its first
-feedback without an expected (episode, step) and resumes at whatever step the world is at (switching to
-the greedy copy first if the world is past the learning episodes). Temporary files a save killed
-mid-write left behind are removed at start (`make_driver`); a checkpoint folder that is missing or not
-writable is a bad parameter.
+The pieces they share have their own modules: `effects` (what a driver returns), `world_link` (liveness and
+catching up), `peer_view` (peer subscriptions and positions), `checkpoint`, `reading`; `config` makes a
+driver from a node's parameters.
 """
 
 from __future__ import annotations
 
 import copy
-import glob
-import os
-import pickle
-import tempfile
 import time
 from collections import deque
-from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Callable
 
-from cq_ros.engine import make_learner
-from cq_ros.gridmap import GridMap
-from cq_ros.parameters import check_numbers, map_and_settings
-from cq_ros.learners import LEARNERS, Learner, decode_joint_action
-from cq_ros.settings import Settings, SettingsError
-from msgs_spec import (
-    HEARTBEAT_TOPIC, Action, AgentStats, Bounds, DropCounter, MarkedJointState, WireError, check_sequence,
-    decode_feedback, decode_heartbeat, decode_position, feedback_topic, position_topic,
-)
-from node_runtime.parameters import read_key_parameter
+from cq_ros.learners import Learner, decode_joint_action
+from msgs_spec import Action, AgentStats, DropCounter, MarkedJointState, decode_feedback, feedback_topic
 
-__all__ = [
-    "AgentConfig", "agent_config", "make_driver",
-    "Subscribe", "Unsubscribe", "Send", "SaveCheckpoint", "Finish",
-    "WorldLink", "PeerView", "AgentDriver", "CentralDriver", "save_checkpoint", "load_checkpoint",
-    "remove_stale_temporaries", "state_counts",
-]
+from .effects import Effects, Finish, SaveCheckpoint, Send
+from .peer_view import PeerView
+from .reading import bounds_of, cell_of
+from .world_link import WorldLink
 
-_CHECKPOINT_FORMAT = 1
-
-
-@dataclass(frozen=True)
-class AgentConfig:
-    gridmap: GridMap
-    settings: Settings
-    algo: str
-    agent: int  # 1..N; 0 for the JSA central node
-    episodes: int
-    seed: int
-    run: int
-    checkpoint: str
-    checkpoint_every: int
-    feedback_timeout: float
-    peer_linger_steps: int
-    min_stats_subscribers: int
-    key: bytes | None
-
-
-def agent_config(values: Mapping[str, Any]) -> AgentConfig:
-    """Check the node's parameter values (name -> value, already of the declared ROS type)."""
-    check_numbers(values, (("episodes", 1, False), ("seed", 0, False), ("run", 0, False),
-                           ("checkpoint_every", 1, False), ("feedback_timeout", 0, True),
-                           ("peer_linger_steps", 0, False), ("agent_id", 0, False),
-                           ("min_stats_subscribers", 0, False)))
-    algo = values["algo"]
-    if algo not in LEARNERS:
-        raise SettingsError(f"parameter algo: unknown algorithm {algo!r}; algorithms are: "
-                            f"{', '.join(LEARNERS)}")
-    gridmap, settings = map_and_settings(values)
-    agent = values["agent_id"]
-    if LEARNERS[algo].central:
-        if agent != 0:  # a second central node would answer for every AGV a second time
-            raise SettingsError(f"parameter agent_id: algo {algo} runs one central node for all AGVs; "
-                                f"leave agent_id 0, got {agent}")
-    elif not 1 <= agent <= gridmap.n_agents:
-        raise SettingsError(f"parameter agent_id must be 1..{gridmap.n_agents} (the agents of map "
-                            f"{gridmap.name}) for algo {algo}, got {agent}")
-    _check_checkpoint_folder(values["checkpoint"])
-    return AgentConfig(gridmap, settings, algo, agent, values["episodes"], values["seed"], values["run"],
-                       values["checkpoint"], values["checkpoint_every"], values["feedback_timeout"],
-                       values["peer_linger_steps"], values["min_stats_subscribers"],
-                       read_key_parameter(values["key_file"]))
-
-
-def _check_checkpoint_folder(path: str) -> None:
-    """A checkpoint must be writable from the start, not found unwritable at the first save."""
-    if not path:
-        return
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise SettingsError(f"parameter checkpoint: {path!r}: folder {folder!r} does not exist")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise SettingsError(f"parameter checkpoint: {path!r}: folder {folder!r} is not writable")
-    if os.path.isdir(path):
-        raise SettingsError(f"parameter checkpoint: {path!r} is a folder, not a file")
-
-
-def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None,
-                clock: Callable[[], float] = time.monotonic) -> "AgentDriver | CentralDriver":
-    """The driver of a node with this configuration: a fresh learner, or the one in cfg.checkpoint."""
-    if cfg.checkpoint:
-        removed = remove_stale_temporaries(cfg.checkpoint)
-        if removed and log:
-            log(f"removed {len(removed)} temporary checkpoint file(s) a save killed mid-write left: "
-                f"{', '.join(removed)}")
-    resume = bool(cfg.checkpoint) and os.path.exists(cfg.checkpoint)
-    if resume:
-        learner, episode = load_checkpoint(cfg.checkpoint, cfg.algo, cfg.gridmap, max(cfg.agent - 1, 0))
-        if log:
-            log(f"resuming from {cfg.checkpoint} (episodes up to {episode} learnt)")
-    else:
-        try:
-            learner = make_learner(cfg.algo, cfg.gridmap, cfg.settings, cfg.seed, cfg.run, max(cfg.agent - 1, 0))
-        except ValueError as e:  # e.g. jsa on a map with too many agents
-            raise SettingsError(f"parameter algo: {e}") from None
-    every = cfg.checkpoint_every if cfg.checkpoint else 0
-    greedy = cfg.settings.eval_episodes
-    if learner.central:
-        return CentralDriver(learner, cfg.episodes, eval_episodes=greedy, checkpoint_every=every, resync=resume,
-                             log=log, key=cfg.key, clock=clock)
-    return AgentDriver(learner, cfg.agent, cfg.episodes, eval_episodes=greedy, linger=cfg.peer_linger_steps,
-                       checkpoint_every=every, resync=resume, log=log, key=cfg.key, clock=clock)
-
-
-# -- effects: what a driver asks its node to do, in order ------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Subscribe:
-    peer: int  # agent id whose position topic to subscribe to (with msgs_spec POSITION.qos)
-
-
-@dataclass(frozen=True)
-class Unsubscribe:
-    peer: int
-
-
-@dataclass(frozen=True)
-class Send:
-    payload: Action | AgentStats  # on the topic of payload.agent
-
-
-@dataclass(frozen=True)
-class SaveCheckpoint:
-    episode: int  # the last episode learnt
-    # The learner as it was after that episode: named here because the driver may have moved on to its
-    # greedy copy by the time the node carries the effect out.
-    learner: Learner
-
-
-@dataclass(frozen=True)
-class Finish:
-    """The last episode (the last greedy one, if any) is over: the node may exit."""
-
-
-Effects = list  # of the effects above
-
-
-# -- checkpoints -----------------------------------------------------------------------------------------
-
-
-def _temporary_prefix(path: str) -> tuple[str, str]:
-    """(folder, name prefix) of the temporary files save_checkpoint writes for `path`."""
-    return os.path.dirname(os.path.abspath(path)), os.path.basename(path) + "."
-
-
-def save_checkpoint(path: str | os.PathLike, learner: Learner, episode: int) -> None:
-    """Write learner and episode to path atomically: a temporary file beside it, fsync, os.replace."""
-    path = os.fspath(path)
-    state = {"format": _CHECKPOINT_FORMAT, "algo": learner.name, "map": learner.map.name,
-             "agent": learner.agent, "episode": episode, "learner": learner}
-    folder, prefix = _temporary_prefix(path)
-    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            pickle.dump(state, f, protocol=pickle.HIGHEST_PROTOCOL)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
-def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
-    """Remove the temporary files of `path` a save killed mid-write left (a node starting with this checkpoint
-    path is its only writer); their names."""
-    folder, prefix = _temporary_prefix(os.fspath(path))
-    removed = []
-    for tmp in sorted(glob.glob(os.path.join(glob.escape(folder), glob.escape(prefix) + "*.tmp"))):
-        try:
-            os.unlink(tmp)
-            removed.append(os.path.basename(tmp))
-        except FileNotFoundError:
-            pass
-    return removed
-
-
-def load_checkpoint(path: str | os.PathLike, algo: str, gridmap: GridMap, agent: int) -> tuple[Learner, int]:
-    """(learner, last episode learnt) from a checkpoint written for this algorithm, map and agent (0-based);
-    SettingsError naming the checkpoint parameter otherwise."""
-    where = f"parameter checkpoint: {os.fspath(path)!r}"
-    try:
-        with open(path, "rb") as f:
-            state = pickle.load(f)
-        learner, episode = state["learner"], state["episode"]
-        written_for = (state["format"], state["algo"], state["map"], state["agent"])
-    except Exception as e:  # an unreadable file of any kind is a bad parameter value, not a crash
-        raise SettingsError(f"{where}: cannot load it: {type(e).__name__}: {e}") from None
-    wanted = (_CHECKPOINT_FORMAT, algo, gridmap.name, agent)
-    if written_for != wanted:
-        what = "format {}, algo {}, map {}, agent index {}"
-        raise SettingsError(f"{where} holds {what.format(*written_for)}; this node runs {what.format(*wanted)}")
-    return learner, episode
-
-
-# -- shared pieces -------------------------------------------------------------------------------------
+__all__ = ["AgentDriver", "CentralDriver", "state_counts"]
 
 
 def state_counts(learner: Learner) -> tuple[int, int]:
@@ -268,209 +44,6 @@ def state_counts(learner: Learner) -> tuple[int, int]:
     total = learner.state_count()
     local = 0 if learner.joint_state else learner.n_cells
     return local, total - local
-
-
-def _bounds(gridmap: GridMap) -> Bounds:
-    return Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
-
-
-def _cell(gridmap: GridMap, drops: DropCounter, row: int, col: int, source: str) -> int | None:
-    """The cell index of (row, col); a '#' square inside the grid is refused like one outside it."""
-    try:
-        return gridmap.index(row, col)
-    except KeyError:
-        drops.record(WireError("cell_out_of_range", f"({row}, {col}) is not a cell of map {gridmap.name}"),
-                     source)
-        return None
-
-
-AHEAD = 8  # stamps of positions kept per peer from the one the agent decides at
-
-
-def _record_sequence(drops: DropCounter, stamp: tuple[int, int], expected: tuple[int, int], source: str) -> None:
-    """Count a message stamped `stamp` where `expected` was due, as msgs_spec names the gap (stale_*, future_*)."""
-    try:
-        check_sequence(*stamp, *expected)
-    except WireError as e:
-        drops.record(e, source)
-
-
-class WorldLink:
-    """What a driver knows of the world beyond its own feedback: whether it is alive (when it last sent a valid
-    message), where it is (its last heartbeat), and so whether a later feedback stamp is the world's."""
-
-    def __init__(self, drops: DropCounter, key: bytes | None, clock: Callable[[], float]):
-        self.drops, self.key, self._clock = drops, key, clock
-        self.last_heard = clock()
-        self.beat = 0  # the last heartbeat's number
-        self.at = (0, 0)  # the world's (episode, step) by its last heartbeat
-        self.caught_up = 0  # times a later stamp was adopted
-        self.missed_feedback = 0  # feedback never heard, as far as the stamps tell
-        self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
-        # The earliest later feedback the world has not vouched for yet: (stamp, agent, feedback, cell, expected)
-        self.held: tuple | None = None
-
-    def heard(self) -> None:
-        self.last_heard = self._clock()
-
-    def silent_for(self) -> float:
-        """Seconds since the last valid message from the world (or since the start)."""
-        return self._clock() - self.last_heard
-
-    def on_heartbeat(self, msg: Any) -> bool:
-        """A message from world/heartbeat; True if it was valid and new."""
-        hb = self.drops.guard(decode_heartbeat, msg, after=self.beat, key=self.key, source=HEARTBEAT_TOPIC)
-        if hb is None:
-            return False
-        self.beat, self.at = hb.beat, (hb.episode, hb.step)
-        self.heard()
-        return True
-
-    def judge(self, agent: int, fb: Any, cell: int, expected: tuple[int, int] | None) -> str:
-        """'play' a feedback that is the expected one (or when none is), 'adopt' a later one the world vouches
-        for; '' for one dropped (counted) or held until the world vouches for it (`vouched`)."""
-        stamp = (fb.episode, fb.step)
-        if expected is None or stamp == expected:
-            self._drop_held()
-            return "play"
-        if stamp < expected:
-            _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
-            return ""
-        if self.vouches_for(stamp):
-            self._drop_held()
-            return "adopt"
-        if self.held is None or stamp < self.held[0]:
-            self._drop_held()
-            self.held = (stamp, agent, fb, cell, expected)
-        else:
-            _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
-        return ""
-
-    def vouches_for(self, stamp: tuple[int, int]) -> bool:
-        """Is a feedback stamped `stamp` the world's? Any is, with the run's key; without it, one the world's
-        heartbeat has reached."""
-        return self.key is not None or stamp <= self.at
-
-    def vouched(self) -> tuple | None:
-        """The held (agent, feedback, cell) once the world's heartbeat has reached its stamp (no longer held)."""
-        if self.held is None or not self.vouches_for(self.held[0]):
-            return None
-        _, agent, fb, cell, _ = self.held
-        self.held = None
-        return agent, fb, cell
-
-    def adopted(self, expected: tuple[int, int] | None, fb: Any) -> str:
-        """Count an adoption; a line for the log."""
-        self.caught_up += 1
-        if expected is None:
-            return f"joining the world at episode {fb.episode} step {fb.step}"
-        episode, step = expected
-        # the rest of the old episode is unknown: at least its last feedback
-        missed = fb.step - step if fb.episode == episode else fb.step + 1
-        self.missed_feedback += missed
-        return (f"the world is at episode {fb.episode} step {fb.step}, we expected episode {episode} step {step}: "
-                f"catching up (about {missed} feedback message(s) missed)")
-
-    def counters(self) -> dict[str, int]:
-        out = {"caught_up": self.caught_up, "missed_feedback": self.missed_feedback}
-        return {**{k: v for k, v in out.items() if v}, **self.extra_counters}
-
-    def _drop_held(self) -> None:
-        if self.held is not None:
-            stamp, agent, _, _, expected = self.held
-            _record_sequence(self.drops, stamp, expected, feedback_topic(agent))
-            self.held = None
-
-
-class PeerView:
-    """The peers an agent listens to: which position topics are subscribed, the positions each has delivered
-    from the step the agent decides at (`floor`) on, and when to let a subscription go (after `linger`
-    decision steps without need)."""
-
-    def __init__(self, gridmap: GridMap, drops: DropCounter, linger: int, key: bytes | None = None):
-        self.map = gridmap
-        self.bounds = _bounds(gridmap)
-        self.drops = drops
-        self.linger = linger
-        self.key = key
-        self.idle: dict[int, int] = {}  # subscribed peer -> decision steps since it was last needed
-        self.created = 0  # subscriptions created since start (communication cost)
-        self.messages = 0  # position messages received since start (communication cost)
-        self.floor = (0, 0)  # the (episode, step) the agent decides at: older positions are stale
-        self.between_episodes = False  # its episode is over: older positions are the others' traffic, not faults
-        self._seen: dict[int, dict[tuple[int, int], int]] = {}  # peer -> {(episode, step): cell} from floor on
-
-    @property
-    def subscribed(self) -> list[int]:
-        return sorted(self.idle)
-
-    def advance(self, episode: int, step: int, between_episodes: bool = False) -> None:
-        """The agent decides at (episode, step) now, or (`between_episodes`) waits for that one, the first
-        of its next episode: forget every position stamped earlier."""
-        self.floor, self.between_episodes = (episode, step), between_episodes
-        for held in self._seen.values():
-            for stamp in [s for s in held if s < self.floor]:
-                del held[stamp]
-
-    def need(self, peers: Iterable[int]) -> Effects:
-        """A decision step needing `peers`: subscribe to the new ones, drop the ones idle too long."""
-        peers = set(peers)
-        out: Effects = []
-        for j in self.subscribed:
-            self.idle[j] = 0 if j in peers else self.idle[j] + 1
-            if self.idle[j] > self.linger:
-                del self.idle[j]
-                self._seen.pop(j, None)
-                out.append(Unsubscribe(j))
-        for j in sorted(peers - self.idle.keys()):
-            self.idle[j] = 0
-            self.created += 1
-            out.append(Subscribe(j))
-        return out
-
-    def on_position(self, peer: int, msg: Any) -> bool:
-        """A message from agv<peer>/position; True if it was a new valid position of a subscribed peer."""
-        self.messages += 1
-        if peer not in self.idle:  # delivered after the subscription was dropped
-            return False
-        source = position_topic(peer)
-        # No (episode, step) expectation: positions also arrive between two waits; the stamps are judged here.
-        pos = self.drops.guard(decode_position, msg, bounds=self.bounds, agent=peer, key=self.key, source=source)
-        cell = pos and _cell(self.map, self.drops, pos.row, pos.col, source)
-        if cell is None:
-            return False
-        stamp = (pos.episode, pos.step)
-        if stamp < self.floor:
-            if not self.between_episodes:  # a peer still playing the episode we are done with is no fault
-                _record_sequence(self.drops, stamp, self.floor, source)
-            return False
-        held = self._seen.setdefault(peer, {})
-        if stamp in held:
-            if held[stamp] != cell:  # the first writer wins: the world publishes before anyone could copy it
-                self.drops.record(WireError("conflicting", f"episode {stamp[0]} step {stamp[1]}: cell {pos.row},"
-                                            f"{pos.col} after {self.map.cells[held[stamp]]}"), source)
-            return False
-        held[stamp] = cell
-        if len(held) > AHEAD:  # the farthest goes: the world's next positions are the nearest
-            farthest = max(held)
-            del held[farthest]
-            _record_sequence(self.drops, farthest, self.floor, source)
-            return farthest != stamp
-        return True
-
-    def missing(self, episode: int, step: int, peers: Iterable[int]) -> set[tuple[int, int, int]]:
-        """(peer, episode, step) for every peer in `peers` whose position stamped (episode, step) has not come."""
-        return {(j, episode, step) for j in peers if (episode, step) not in self._seen.get(j, {})}
-
-    def cells_at(self, episode: int, step: int, peers: Iterable[int]) -> dict[int, int] | None:
-        """{peer: cell} stamped (episode, step) for every peer in `peers`, or None while one is missing."""
-        cells = {}
-        for j in peers:
-            cell = self._seen.get(j, {}).get((episode, step))
-            if cell is None:
-                return None
-            cells[j] = cell
-        return cells
 
 
 # -- the decentralised agent ---------------------------------------------------------------------------
@@ -490,7 +63,7 @@ class AgentDriver:
         self.greedy = False  # playing the greedy episodes (self.learner is the copy at epsilon 0)
         self.checkpoint_every = checkpoint_every
         self.map = learner.map
-        self.bounds = _bounds(self.map)
+        self.bounds = bounds_of(self.map)
         self.drops = DropCounter(log)
         self.link = WorldLink(self.drops, key, clock)
         self.peers = PeerView(self.map, self.drops, linger, key)
@@ -508,7 +81,7 @@ class AgentDriver:
         source = feedback_topic(agent)
         fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, key=self.link.key,
                               source=source)
-        cell = fb and _cell(self.map, self.drops, fb.row, fb.col, source)
+        cell = fb and cell_of(self.map, self.drops, fb.row, fb.col, source)
         if cell is None:
             return []
         verdict = self.link.judge(agent, fb, cell, self.expect)
@@ -657,7 +230,7 @@ class CentralDriver:
         self.checkpoint_every = checkpoint_every
         self.map = learner.map
         self.n = self.map.n_agents
-        self.bounds = _bounds(self.map)
+        self.bounds = bounds_of(self.map)
         self.drops = DropCounter(log)
         self.link = WorldLink(self.drops, key, clock)
         self.peers = PeerView(self.map, self.drops, linger=0, key=key)
@@ -679,7 +252,7 @@ class CentralDriver:
         source = feedback_topic(agent)
         fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, key=self.link.key,
                               source=source)
-        cell = fb and _cell(self.map, self.drops, fb.row, fb.col, source)
+        cell = fb and cell_of(self.map, self.drops, fb.row, fb.col, source)
         if cell is None:
             return []
         if self._resync is not None:  # the positions decide; a later feedback moves the step they must show

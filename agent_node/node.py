@@ -2,11 +2,12 @@
 
 Thin on purpose, like the ros2/examples minimal nodes: it declares its parameters, creates the publishers
 and subscriptions msgs_spec names with msgs_spec's QoS, and hands every message to the driver of
-`agent_node.driver`, carrying out the effects it returns: publish, subscribe to or drop a peer's position
-topic (always from inside an executor callback, as DESIGN.md's field notes require), save a checkpoint,
-finish. While the driver waits for peer positions, it also takes one that its reader holds but the executor
-never announced (`_take_unannounced`: a middleware race, see there). Constructible in-process
-(`AgentNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding the exit code.
+`agent_node.driver` (made by `agent_node.config`), carrying out the effects it returns: publish, subscribe
+to or drop a peer's position topic (always from inside an executor callback, as DESIGN.md's field notes
+require), save a checkpoint, finish. While the driver waits for peer positions, it also takes one that its
+reader holds but the executor never announced (`_take_unannounced`: a middleware race, see there).
+Constructible in-process (`AgentNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding
+the exit code.
 """
 
 from __future__ import annotations
@@ -28,10 +29,9 @@ from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.run import when, when_acked
 
-from .driver import (
-    Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe, agent_config, make_driver,
-    save_checkpoint,
-)
+from .checkpoint import save_checkpoint
+from .config import agent_config, make_driver
+from .effects import Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe
 from .viz import AgentView
 
 __all__ = ["AgentNode"]

@@ -64,7 +64,7 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from agent_node.driver import agent_config
+from agent_node.config import agent_config
 from cq_ros.engine import RunResult, make_learner
 from cq_ros.experiment import manifest_for, prepare_output, write_results
 from cq_ros.gridmap import GridMap, load_map

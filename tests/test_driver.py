@@ -13,10 +13,10 @@ from collections import defaultdict, deque
 import numpy as np
 import pytest
 
-from agent_node.driver import (
-    AgentDriver, CentralDriver, Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe,
-    agent_config, load_checkpoint, make_driver, save_checkpoint,
-)
+from agent_node.checkpoint import load_checkpoint, save_checkpoint
+from agent_node.config import agent_config, make_driver
+from agent_node.driver import AgentDriver, CentralDriver
+from agent_node.effects import Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe
 from cq_ros.engine import make_learner, run, world_seed
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner

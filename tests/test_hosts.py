@@ -278,7 +278,7 @@ def test_a_link_down_for_2_s_costs_counted_misses_and_the_agent_comes_back_in_st
 
 
 def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_was_written(hosts, tmp_path):
-    from agent_node.driver import load_checkpoint
+    from agent_node.checkpoint import load_checkpoint
 
     out, sets = tmp_path / "result", ("step_cap=100", "reward_step=-1", "checkpoint_every=5", "feedback_timeout=5")
     launcher, err = launch_until(hosts, out, 1000, sets, after=6, step_timeout=0.5)

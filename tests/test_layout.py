@@ -93,7 +93,7 @@ def test_every_package_of_the_layering_exists_and_is_installed():
     ("msgs_spec/codec.py", "from rclpy.executors import SingleThreadedExecutor", "only rclpy.qos"),
     ("msgs_spec/topics.py", "import cq_ros.settings", "no other package"),
     ("msgs_spec/topics.py", "from node_runtime.run import run_node", "no other package"),
-    ("world_node/node.py", "from agent_node.driver import agent_config", "only packages below"),
+    ("world_node/node.py", "from agent_node.config import agent_config", "only packages below"),
     ("agent_node/node.py", "def f():\n    from world_node import lockstep", "only packages below"),
     ("node_runtime/run.py", "from world_node import WorldNode", "only packages below"),
     ("world_node/node.py", "from ros_tools.launch import launch", "import ros_tools"),

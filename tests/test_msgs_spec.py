@@ -470,7 +470,7 @@ REJECTIONS = [
     ("hb-replayed", lambda: ms.decode_heartbeat(ms.encode(ms.Heartbeat(5, 0, 0)), after=5), "replayed"),
     ("hb-beat-zero", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [0, 0, 0])), "out_of_range"),
 ]
-# Judged by the receiver (agent_node.driver.PeerView, tests/test_driver.py), not by a decoder.
+# Judged by the receiver (agent_node.peer_view.PeerView, tests/test_driver.py), not by a decoder.
 RECEIVER_KINDS = {"conflicting"}
 
 

@@ -21,7 +21,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Int32MultiArray, MultiArrayDimension
 
 from agent_node import AgentNode
-from agent_node.driver import load_checkpoint
+from agent_node.checkpoint import load_checkpoint
 from cq_ros.engine import Team, make_learners, run, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, SettingsError

@@ -1,0 +1,120 @@
+"""The peers an agent listens to.
+
+Peer subscriptions (`PeerView`): a peer the learner names is subscribed at once; one it no longer names is
+dropped after `linger` decision steps without need (the end of the agent's episode counts as one, except
+for JS, which needs every peer at every step). The
+default, 0, is the design's rule: an agent listens to a peer only while it stands in a state that names it.
+A new subscription waits for the match and the reliable handshake before the latched sample arrives, while
+a kept one costs a message a step: lingering saves subscriptions, not messages, and LoC, which re-decides
+COORDINATE every step, gains most from it. The measured costs are in the README ("Who listens to whom").
+
+Positions (`PeerView`) are kept per stamp from the step the agent decides at onwards: an older one is dropped
+and counted (`stale_*`), a second one for a stamp already heard with another cell too (`conflicting`: the
+first writer wins), and at most `AHEAD` stamps are kept per peer (the farthest go first), so no burst of
+other positions can push out the world's.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+from cq_ros.gridmap import GridMap
+from msgs_spec import DropCounter, WireError, decode_position, position_topic
+
+from .effects import Effects, Subscribe, Unsubscribe
+from .reading import bounds_of, cell_of, record_sequence
+
+__all__ = ["AHEAD", "PeerView"]
+
+AHEAD = 8  # stamps of positions kept per peer from the one the agent decides at
+
+
+class PeerView:
+    """The peers an agent listens to: which position topics are subscribed, the positions each has delivered
+    from the step the agent decides at (`floor`) on, and when to let a subscription go (after `linger`
+    decision steps without need)."""
+
+    def __init__(self, gridmap: GridMap, drops: DropCounter, linger: int, key: bytes | None = None):
+        self.map = gridmap
+        self.bounds = bounds_of(gridmap)
+        self.drops = drops
+        self.linger = linger
+        self.key = key
+        self.idle: dict[int, int] = {}  # subscribed peer -> decision steps since it was last needed
+        self.created = 0  # subscriptions created since start (communication cost)
+        self.messages = 0  # position messages received since start (communication cost)
+        self.floor = (0, 0)  # the (episode, step) the agent decides at: older positions are stale
+        self.between_episodes = False  # its episode is over: older positions are the others' traffic, not faults
+        self._seen: dict[int, dict[tuple[int, int], int]] = {}  # peer -> {(episode, step): cell} from floor on
+
+    @property
+    def subscribed(self) -> list[int]:
+        return sorted(self.idle)
+
+    def advance(self, episode: int, step: int, between_episodes: bool = False) -> None:
+        """The agent decides at (episode, step) now, or (`between_episodes`) waits for that one, the first
+        of its next episode: forget every position stamped earlier."""
+        self.floor, self.between_episodes = (episode, step), between_episodes
+        for held in self._seen.values():
+            for stamp in [s for s in held if s < self.floor]:
+                del held[stamp]
+
+    def need(self, peers: Iterable[int]) -> Effects:
+        """A decision step needing `peers`: subscribe to the new ones, drop the ones idle too long."""
+        peers = set(peers)
+        out: Effects = []
+        for j in self.subscribed:
+            self.idle[j] = 0 if j in peers else self.idle[j] + 1
+            if self.idle[j] > self.linger:
+                del self.idle[j]
+                self._seen.pop(j, None)
+                out.append(Unsubscribe(j))
+        for j in sorted(peers - self.idle.keys()):
+            self.idle[j] = 0
+            self.created += 1
+            out.append(Subscribe(j))
+        return out
+
+    def on_position(self, peer: int, msg: Any) -> bool:
+        """A message from agv<peer>/position; True if it was a new valid position of a subscribed peer."""
+        self.messages += 1
+        if peer not in self.idle:  # delivered after the subscription was dropped
+            return False
+        source = position_topic(peer)
+        # No (episode, step) expectation: positions also arrive between two waits; the stamps are judged here.
+        pos = self.drops.guard(decode_position, msg, bounds=self.bounds, agent=peer, key=self.key, source=source)
+        cell = pos and cell_of(self.map, self.drops, pos.row, pos.col, source)
+        if cell is None:
+            return False
+        stamp = (pos.episode, pos.step)
+        if stamp < self.floor:
+            if not self.between_episodes:  # a peer still playing the episode we are done with is no fault
+                record_sequence(self.drops, stamp, self.floor, source)
+            return False
+        held = self._seen.setdefault(peer, {})
+        if stamp in held:
+            if held[stamp] != cell:  # the first writer wins: the world publishes before anyone could copy it
+                self.drops.record(WireError("conflicting", f"episode {stamp[0]} step {stamp[1]}: cell {pos.row},"
+                                            f"{pos.col} after {self.map.cells[held[stamp]]}"), source)
+            return False
+        held[stamp] = cell
+        if len(held) > AHEAD:  # the farthest goes: the world's next positions are the nearest
+            farthest = max(held)
+            del held[farthest]
+            record_sequence(self.drops, farthest, self.floor, source)
+            return farthest != stamp
+        return True
+
+    def missing(self, episode: int, step: int, peers: Iterable[int]) -> set[tuple[int, int, int]]:
+        """(peer, episode, step) for every peer in `peers` whose position stamped (episode, step) has not come."""
+        return {(j, episode, step) for j in peers if (episode, step) not in self._seen.get(j, {})}
+
+    def cells_at(self, episode: int, step: int, peers: Iterable[int]) -> dict[int, int] | None:
+        """{peer: cell} stamped (episode, step) for every peer in `peers`, or None while one is missing."""
+        cells = {}
+        for j in peers:
+            cell = self._seen.get(j, {}).get((episode, step))
+            if cell is None:
+                return None
+            cells[j] = cell
+        return cells

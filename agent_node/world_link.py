@@ -1,0 +1,112 @@
+"""The world as an agent driver knows it beyond its own feedback.
+
+Catching up (`WorldLink`). Feedback is decoded without a sequence expectation and then judged: the expected
+(episode, step) is played; an older one is dropped and counted (`stale_*`); a later one means the world
+stepped on without us (a feedback lost, a restart, a world that ran ahead): the driver adopts it, as a
+restarted agent does, counts it (`caught_up`, and `missed_feedback`: the steps it never heard) and sends the
+AgentStats of every episode it left behind. Only a later stamp the world vouches for is adopted: with the
+run's key every message is the world's; without one, the world's heartbeat must have reached that stamp
+(else a forged far-future feedback would capture the agent), so a later stamp is held until it has, and
+dropped (`future_*`) if the expected one comes first. A node started without a checkpoint file starts a
+fresh learner wherever the world is.
+
+Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
+and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from msgs_spec import HEARTBEAT_TOPIC, DropCounter, decode_heartbeat, feedback_topic
+
+from .reading import record_sequence
+
+__all__ = ["WorldLink"]
+
+
+class WorldLink:
+    """What a driver knows of the world beyond its own feedback: whether it is alive (when it last sent a valid
+    message), where it is (its last heartbeat), and so whether a later feedback stamp is the world's."""
+
+    def __init__(self, drops: DropCounter, key: bytes | None, clock: Callable[[], float]):
+        self.drops, self.key, self._clock = drops, key, clock
+        self.last_heard = clock()
+        self.beat = 0  # the last heartbeat's number
+        self.at = (0, 0)  # the world's (episode, step) by its last heartbeat
+        self.caught_up = 0  # times a later stamp was adopted
+        self.missed_feedback = 0  # feedback never heard, as far as the stamps tell
+        self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
+        # The earliest later feedback the world has not vouched for yet: (stamp, agent, feedback, cell, expected)
+        self.held: tuple | None = None
+
+    def heard(self) -> None:
+        self.last_heard = self._clock()
+
+    def silent_for(self) -> float:
+        """Seconds since the last valid message from the world (or since the start)."""
+        return self._clock() - self.last_heard
+
+    def on_heartbeat(self, msg: Any) -> bool:
+        """A message from world/heartbeat; True if it was valid and new."""
+        hb = self.drops.guard(decode_heartbeat, msg, after=self.beat, key=self.key, source=HEARTBEAT_TOPIC)
+        if hb is None:
+            return False
+        self.beat, self.at = hb.beat, (hb.episode, hb.step)
+        self.heard()
+        return True
+
+    def judge(self, agent: int, fb: Any, cell: int, expected: tuple[int, int] | None) -> str:
+        """'play' a feedback that is the expected one (or when none is), 'adopt' a later one the world vouches
+        for; '' for one dropped (counted) or held until the world vouches for it (`vouched`)."""
+        stamp = (fb.episode, fb.step)
+        if expected is None or stamp == expected:
+            self._drop_held()
+            return "play"
+        if stamp < expected:
+            record_sequence(self.drops, stamp, expected, feedback_topic(agent))
+            return ""
+        if self.vouches_for(stamp):
+            self._drop_held()
+            return "adopt"
+        if self.held is None or stamp < self.held[0]:
+            self._drop_held()
+            self.held = (stamp, agent, fb, cell, expected)
+        else:
+            record_sequence(self.drops, stamp, expected, feedback_topic(agent))
+        return ""
+
+    def vouches_for(self, stamp: tuple[int, int]) -> bool:
+        """Is a feedback stamped `stamp` the world's? Any is, with the run's key; without it, one the world's
+        heartbeat has reached."""
+        return self.key is not None or stamp <= self.at
+
+    def vouched(self) -> tuple | None:
+        """The held (agent, feedback, cell) once the world's heartbeat has reached its stamp (no longer held)."""
+        if self.held is None or not self.vouches_for(self.held[0]):
+            return None
+        _, agent, fb, cell, _ = self.held
+        self.held = None
+        return agent, fb, cell
+
+    def adopted(self, expected: tuple[int, int] | None, fb: Any) -> str:
+        """Count an adoption; a line for the log."""
+        self.caught_up += 1
+        if expected is None:
+            return f"joining the world at episode {fb.episode} step {fb.step}"
+        episode, step = expected
+        # the rest of the old episode is unknown: at least its last feedback
+        missed = fb.step - step if fb.episode == episode else fb.step + 1
+        self.missed_feedback += missed
+        return (f"the world is at episode {fb.episode} step {fb.step}, we expected episode {episode} step {step}: "
+                f"catching up (about {missed} feedback message(s) missed)")
+
+    def counters(self) -> dict[str, int]:
+        out = {"caught_up": self.caught_up, "missed_feedback": self.missed_feedback}
+        return {**{k: v for k, v in out.items() if v}, **self.extra_counters}
+
+    def _drop_held(self) -> None:
+        if self.held is not None:
+            stamp, agent, _, _, expected = self.held
+            record_sequence(self.drops, stamp, expected, feedback_topic(agent))
+            self.held = None
