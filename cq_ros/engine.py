@@ -6,7 +6,7 @@ one (algorithm, run) for a number of episodes and returns its per-episode record
 spreads runs over the cores and writes result files.
 
 Seeds: the learner of agent i in run r draws from `learner_seed(seed, r, i)`, the world (only used
-with slip > 0) from `world_seed(seed, r)`: the same seed gives the same run, offline or over ROS.
+with delays: slip, start_hold) from `world_seed(seed, r)`: the same seed gives the same run, offline or over ROS.
 """
 
 from __future__ import annotations

@@ -68,8 +68,11 @@ class Settings:
     # After the last episode, this many episodes of the greedy policy (epsilon 0) on a copy of the
     # learners: what was learnt, without the collisions that exploration causes.
     eval_episodes: int = 20
-    # Probability that a move is replaced by a uniformly random one (0: deterministic, as in the paper).
+    # Delays (cq_ros.world; 0: deterministic, as in the paper): the probability that an AGV's move fails at a
+    # step (it stays: a person in the aisle, a wheel slipping), and the longest hold at the start of an
+    # episode (each AGV's first 0..start_hold moves fail, uniformly drawn: a slow load at the dock).
     slip: float = 0.0
+    start_hold: int = 0
 
     def __post_init__(self):
         _check(0.0 < self.alpha <= 1.0, "alpha", self.alpha, "in (0, 1]")
@@ -88,6 +91,7 @@ class Settings:
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
         _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
+        _check(self.start_hold >= 0, "start_hold", self.start_hold, "at least 0")
         _check(self.eval_episodes >= 0, "eval_episodes", self.eval_episodes, "at least 0")
         for f in fields(self):
             value = getattr(self, f.name)

@@ -13,6 +13,19 @@ the list-based step the offline engine and the world node call. Rules (DESIGN.md
   agent its goal reward on its own arrival step is the same learning problem and keeps the per-agent
   learners independent of each other's progress, so that is what we do. JSA learns from the sum.
 - The episode ends when every agent is at its goal, or is truncated after `step_cap` steps.
+
+Delays (README, "Delays"; deterministic unless a setting asks): real AGVs are held up by a slow pick, a
+person in the aisle, a wheel slipping. A delayed AGV's move fails: it stays in its cell, as an AGV parked
+there, and gets `reward_step` (it lost a step; it bumped nothing). Anyone moving into its cell collides with
+it, and both get the collision penalty, as every collision is paid by both. Two kinds, both drawn from the
+world's own `random.Random` (seeded by `cq_ros.engine.world_seed`, so a run over ROS, whose world node owns
+the same GridWorld, draws exactly the offline run's delays):
+- `start_hold` H: at each reset every agent, in index order, draws a hold of 0..H steps (uniform): its first
+  moves of the episode fail that many times (its load is still being put on at the dock).
+- `slip` p: at every step, every acting agent not on hold, in index order, draws once: with probability p
+  its move fails.
+The draws do not depend on the actions, so a step whose action never came (`None` for an acting agent,
+the world node's step timeout: it stays like a delayed agent) draws what the offline step draws.
 """
 
 from __future__ import annotations
@@ -72,6 +85,7 @@ class GridWorld:
         self.rewards = Rewards.from_settings(settings)
         self.step_cap = settings.step_cap
         self.slip = settings.slip
+        self.start_hold = settings.start_hold
         self.n = gridmap.n_agents
         self.agents = [f"agv{i + 1}" for i in range(self.n)]
         self._rng = random.Random(seed)
@@ -87,27 +101,46 @@ class GridWorld:
     def reset_joint(self) -> list[int]:
         self.cells = list(self.map.starts)
         self.done = [c == g for c, g in zip(self.cells, self.map.goals)]
+        # steps of each agent's start hold left (drawn for every agent, at its goal or not, so the stream
+        # does not depend on the map's starts)
+        self.hold = [self._rng.randint(0, self.start_hold) for _ in range(self.n)] if self.start_hold else [0] * self.n
         self.arrival = [0 if d else None for d in self.done]  # the step each agent reached its goal
         self.t = 0
         self.last_collisions = 0
         self.last_bumps = 0
+        self.last_delays = 0
+        self.delayed = [False] * self.n
         return self.cells
 
+    def _delayed(self) -> list[bool]:
+        """Whose move fails this step: an agent on its start hold, or one the slip draw stops."""
+        done, hold, slip, rng = self.done, self.hold, self.slip, self._rng
+        delayed = [False] * self.n
+        for i in range(self.n):
+            if done[i]:
+                continue
+            if hold[i]:
+                hold[i] -= 1
+                delayed[i] = True
+            elif slip:
+                delayed[i] = rng.random() < slip
+        return delayed
+
     def step_joint(self, actions: list[int | None]) -> list[float]:
-        """Apply one joint action (None for agents at their goals); return each agent's reward.
+        """Apply one joint action (None for agents at their goals, and for an acting agent that stays this
+        step without an action); return each agent's reward.
 
         Afterwards `cells`, `done`, `arrival` (the step each agent reached its goal, None before), `t`,
-        `last_collisions` (colliding pairs) and `last_bumps` describe the new state; an agent already at
-        its goal gets reward 0.
+        `last_collisions` (colliding pairs), `last_bumps`, `delayed` (whose move failed) and `last_delays`
+        (how many) describe the new state; an agent already at its goal gets reward 0, one delayed or without an action reward_step.
         """
         cells, done, nbr, r = self.cells, self.done, self.map.neighbours, self.rewards
         targets = list(cells)
         bumped = [False] * self.n
+        delayed = self._delayed() if self.slip or self.start_hold else [False] * self.n
         for i, a in enumerate(actions):
-            if done[i]:
+            if done[i] or a is None or delayed[i]:
                 continue
-            if self.slip and self._rng.random() < self.slip:
-                a = self._rng.randrange(N_ACTIONS)
             targets[i] = nbr[cells[i]][a]
             bumped[i] = targets[i] == cells[i]
         final, pairs = resolve_moves(cells, targets, self.map.goals)
@@ -120,6 +153,8 @@ class GridWorld:
                 continue
             if collided[i]:
                 rewards[i] = r.collision
+            elif targets[i] == cells[i] and not bumped[i]:  # delayed, or no action: stayed, a step lost
+                rewards[i] = r.step
             elif bumped[i]:
                 rewards[i] = r.wall
             elif final[i] == self.map.goals[i]:
@@ -132,6 +167,8 @@ class GridWorld:
         self.t += 1
         self.last_collisions = len(pairs)
         self.last_bumps = sum(bumped[i] and not collided[i] for i in range(self.n))
+        self.delayed = delayed
+        self.last_delays = sum(delayed)
         return rewards
 
     @property

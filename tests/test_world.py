@@ -263,28 +263,63 @@ def test_slip_zero_is_deterministic():
                 assert w.cells[i] == m.neighbours[before[i]][SOUTH if i == 0 else NORTH] or w.done[i]
 
 
-def test_slip_is_reproducible_from_the_seed():
+def test_delays_are_reproducible_from_the_seed():
     m = load_map("tunnel_to_goal")
-    s = Settings(slip=0.3)
-    a = random_walk(GridWorld(m, s, seed=11), 5, 400)
-    b = random_walk(GridWorld(m, s, seed=11), 5, 400)
-    c = random_walk(GridWorld(m, s, seed=12), 5, 400)
-    plain = random_walk(GridWorld(m, Settings(), seed=11), 5, 400)
-    assert a == b
-    assert a != c
-    assert a != plain  # slip does change some moves
+    for s in (Settings(slip=0.3), Settings(start_hold=4), Settings(slip=0.1, start_hold=2)):
+        a = random_walk(GridWorld(m, s, seed=11), 5, 400)
+        b = random_walk(GridWorld(m, s, seed=11), 5, 400)
+        c = random_walk(GridWorld(m, s, seed=12), 5, 400)
+        plain = random_walk(GridWorld(m, Settings(), seed=11), 5, 400)
+        assert a == b
+        assert a != c
+        assert a != plain  # delays do change some moves
 
 
-def test_reset_with_a_seed_reseeds_the_slip():
+def test_reset_with_a_seed_reseeds_the_delays():
     m = load_map("tunnel_to_goal")
-    w = GridWorld(m, Settings(slip=1.0), seed=0)
+    w = GridWorld(m, Settings(slip=0.5, start_hold=3), seed=0)
     traces = []
     for _ in range(2):
         w.reset(seed=42)
-        traces.append([(w.step_joint([WEST, WEST]), tuple(w.cells)) for _ in range(30) if not w.finished])
+        traces.append([(w.step_joint([EAST, EAST]), tuple(w.cells), tuple(w.delayed)) for _ in range(30)
+                       if not w.finished])
     assert traces[0] == traces[1]
-    # slip=1 replaces every move, so constant WEST does not just bump forever
-    assert any(r != [R.wall, R.wall] for r, _ in traces[0])
+
+
+def test_slip_one_holds_every_agent_where_it_is_at_the_cost_of_a_step():
+    m = load_map("tunnel_to_goal")
+    w = GridWorld(m, Settings(slip=1.0), seed=0)
+    for _ in range(20):
+        rewards = w.step_joint([EAST, WEST])
+        assert w.cells == list(m.starts) and rewards == [R.step, R.step] and w.delayed == [True, True]
+    assert w.last_delays == 2 and w.last_bumps == 0
+
+
+def test_start_hold_delays_only_the_first_moves_and_is_drawn_each_episode():
+    m = load_map("tunnel_to_goal")
+    w = GridWorld(m, Settings(start_hold=5), seed=3)
+    seen = set()
+    for _ in range(40):
+        w.reset_joint()
+        holds = list(w.hold)
+        assert all(0 <= h <= 5 for h in holds)
+        seen.add(tuple(holds))
+        for t in range(6):
+            w.step_joint([None if d else EAST for d in w.done])
+            assert w.delayed == [t < h for h in holds]  # exactly the first h moves of each agent fail
+    assert len(seen) > 10  # drawn anew at every reset
+
+
+def test_an_acting_agent_without_an_action_stays_and_draws_what_the_offline_step_draws():
+    m = load_map("tunnel_to_goal")
+    s = Settings(slip=0.4)
+    a, b = GridWorld(m, s, seed=5), GridWorld(m, s, seed=5)
+    for _ in range(30):
+        before = list(b.cells)
+        a.step_joint([EAST, WEST])
+        rewards = b.step_joint([None, WEST])
+        assert a.delayed == b.delayed  # the stream does not depend on the actions
+        assert b.cells[0] == before[0] and rewards[0] in (R.step, R.collision)
 
 
 # --- resolve_moves, directly -----------------------------------------------------------------------
@@ -417,8 +452,8 @@ def shipped_maps_with_agents(draw):
     return dataclasses.replace(gm, starts=starts, goals=goals)
 
 
-def check_random_play(gm, actions_seed, slip):
-    w = GridWorld(gm, Settings(slip=slip, step_cap=10_000), seed=actions_seed)
+def check_random_play(gm, actions_seed, slip, start_hold=0):
+    w = GridWorld(gm, Settings(slip=slip, start_hold=start_hold, step_cap=10_000), seed=actions_seed)
     rng = random.Random(actions_seed)
     goals = gm.goals
     assert w.done == [c == g for c, g in zip(w.cells, goals)]
@@ -441,30 +476,37 @@ def check_random_play(gm, actions_seed, slip):
         # idempotent on its own output
         assert resolve_moves(before, list(after), goals) == (after, set())
         assert w.done == [c == g for c, g in zip(after, goals)]
-        if slip == 0:
-            targets = [c if d else gm.neighbours[c][a] for c, d, a in zip(before, done_before, actions)]
-            final, pairs = resolve_moves(before, targets, goals)
-            assert final == after
-            assert w.last_collisions == len(pairs)
-            collided = {i for p in pairs for i in p}
-            for i in range(w.n):
-                assert after[i] in (before[i], targets[i])
-                if done_before[i]:
-                    continue
-                bumped = targets[i] == before[i]
-                if bumped or i in collided:
-                    assert after[i] == before[i]  # a bumped or colliding agent is where it was
-                if i in collided:
-                    assert rewards[i] == R.collision
-                elif bumped:
-                    assert rewards[i] == R.wall
-                elif after[i] == goals[i]:
-                    assert rewards[i] == R.goal and w.done[i]
-                else:
-                    assert rewards[i] == R.step and after[i] == targets[i]
-            assert w.last_bumps == sum(
-                1 for i in range(w.n) if not done_before[i] and targets[i] == before[i] and i not in collided
-            )
+        # the step is resolve_moves of the moves that did not fail
+        delayed = w.delayed
+        assert slip > 0 or not any(delayed)
+        assert not any(d and done for d, done in zip(delayed, done_before))  # an agent at its goal draws nothing
+        targets = [c if d or late else gm.neighbours[c][a] for c, d, late, a in zip(before, done_before, delayed, actions)]
+        final, pairs = resolve_moves(before, targets, goals)
+        assert final == after
+        assert w.last_collisions == len(pairs)
+        collided = {i for p in pairs for i in p}
+        for i in range(w.n):
+            assert after[i] in (before[i], targets[i])
+            if done_before[i]:
+                continue
+            bumped = targets[i] == before[i] and not delayed[i]
+            if bumped or delayed[i] or i in collided:
+                assert after[i] == before[i]  # a bumped, delayed or colliding agent is where it was
+            if i in collided:
+                assert rewards[i] == R.collision
+            elif delayed[i]:
+                assert rewards[i] == R.step  # a delay costs a step, never a wall penalty
+            elif bumped:
+                assert rewards[i] == R.wall
+            elif after[i] == goals[i]:
+                assert rewards[i] == R.goal and w.done[i]
+            else:
+                assert rewards[i] == R.step and after[i] == targets[i]
+        assert w.last_bumps == sum(
+            1 for i in range(w.n) if not done_before[i] and not delayed[i] and targets[i] == before[i]
+            and i not in collided
+        )
+        assert w.last_delays == sum(delayed)
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
@@ -481,8 +523,9 @@ def test_random_play_on_shipped_maps(gm, actions_seed):
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(random_maps(), st.integers(0, 2**32 - 1))
-def test_random_play_with_slip_keeps_the_invariants(gm, actions_seed):
+def test_random_play_with_delays_keeps_the_invariants(gm, actions_seed):
     check_random_play(gm, actions_seed, slip=0.5)
+    check_random_play(gm, actions_seed, slip=0.1, start_hold=3)
 
 
 def test_crowded_corridor_many_steps():

@@ -7,9 +7,9 @@ acting, then WorldStats when the episode is over, then the next episode's step 0
 messages between ROS and this object, so the protocol is tested without a ROS graph
 (tests/test_lockstep.py) and a run equals `cq_ros.engine.run` step for step.
 
-A missing action past `step_timeout`: the agent stays where it is, for that step only, and is treated as
-parked: anyone moving into its cell collides (and gets the collision penalty, counted in the episode's
-collisions), it bumps no wall and gets `reward_step`, the reward of a step that changed nothing for it.
+A missing action past `step_timeout`: the agent stays where it is, for that step only, as a delayed agent
+does (cq_ros.world, "Delays"): anyone moving into its cell collides with it (both get the collision
+penalty, counted in the episode's collisions); otherwise it gets `reward_step`, the reward of a step lost.
 The warning is logged and the miss counted (`WorldStats.missed_actions`). The wait is `step_timeout` from the
 moment the step's feedback went out: the node ticks every `tick_period` (a twentieth of it, at most 50 ms).
 
@@ -21,7 +21,7 @@ that steers the run is keyed and every action checked (msgs_spec.auth).
 with one line naming the parameter. The node plays `episodes + eval_episodes` episodes: the agents learn
 in the first `episodes` and play their greedy policy in the rest, as `cq_ros.engine.run` then
 `greedy_episodes`; for the world they are alike. The engine plays the greedy ones in a deep copy of its
-world, whose RNG (used only when slip > 0) goes on from the same state; since it never uses the original
+world, whose RNG (used only for delays) goes on from the same state; since it never uses the original
 again, going on with the one world is the same.
 """
 
@@ -168,7 +168,7 @@ class Lockstep:
     def _advance(self) -> Outbox:
         w = self.world
         acting = [i + 1 for i in range(w.n) if not w.done[i]]
-        rewards = self._step_joint(self._actions)
+        rewards = w.step_joint(self._actions)  # a missing action (None): the agent stays
         self.collisions += w.last_collisions
         self.returns = [r + x for r, x in zip(self.returns, rewards)]
         out = self._positions()
@@ -180,25 +180,6 @@ class Lockstep:
         else:
             self._collect()
         return out
-
-    def _step_joint(self, actions: list[int | None]) -> list[float]:
-        """GridWorld.step_joint, with agents that sent no action staying put.
-
-        GridWorld leaves an agent marked done where it is and gives it nothing, while others still collide
-        with it: exactly a stay. So a missing agent is marked done for this one step, then gets reward_step.
-        """
-        w = self.world
-        missing = [i for i, a in enumerate(actions) if a is None and not w.done[i]]
-        for i in missing:
-            w.done[i] = True
-        try:
-            rewards = w.step_joint(actions)
-        finally:
-            for i in missing:
-                w.done[i] = False
-        for i in missing:
-            rewards[i] = w.rewards.step
-        return rewards
 
     def _next_episode(self) -> Outbox:
         """Reset for the next episode (skipping any that is over at step 0: every agent starts at its goal)."""
