@@ -70,9 +70,10 @@ class AgentDriver:
         self._log = log or (lambda _msg: None)
         self.expect: tuple[int, int] | None = None if resync else (0, 0)  # next feedback; None: any
         self.finished = False
-        self.skipped_steps = 0  # steps the world took without our action (it timed us out)
+        self.skipped_steps = 0  # steps the world took before we had acted (it timed us out)
+        self.unapplied_actions = 0  # actions we sent that the world did not apply (late or lost)
         self._played = False  # a feedback played: episodes left behind since get their statistics
-        self._acted: tuple[int, int] | None = None  # (episode, step) of the action just sent
+        self._acted: tuple[int, int, int] | None = None  # (episode, step, action) of the action just sent
         self._pending: tuple[int, int, tuple[int, ...]] | None = None  # (episode, step, peers) awaiting positions
         self._plays_before = learner.joint_plays  # joint plays before the current episode
 
@@ -109,6 +110,8 @@ class AgentDriver:
         out = self.drops.as_counters()
         if self.skipped_steps:
             out["skipped_steps"] = self.skipped_steps
+        if self.unapplied_actions:
+            out["unapplied_actions"] = self.unapplied_actions
         out.update(self.link.counters())
         return out
 
@@ -136,9 +139,13 @@ class AgentDriver:
             _greedy_from(self, fb.episode)
         if fb.step == 0 or self.expect is None:
             self._plays_before = self.learner.joint_plays
-        # Learn only from the outcome of an action we sent: after a skipped step or a restart there is none.
-        if self._acted == (fb.episode, fb.step - 1):
-            self.learner.learn(fb.reward, cell, fb.done)
+        # Learn only from the outcome of an action we sent and the world applied: after a skipped step or a
+        # restart there is none; one that came after step_timeout (or was lost) the world stepped without.
+        if self._acted is not None and self._acted[:2] == (fb.episode, fb.step - 1):
+            if fb.applied == self._acted[2]:
+                self.learner.learn(fb.reward, cell, fb.done)
+            else:
+                self._unapplied(fb)
         self._acted = None
         if fb.done or fb.truncated:
             return self._end_episode(fb.episode)
@@ -157,8 +164,13 @@ class AgentDriver:
             return []
         self._pending = None
         action = self.learner.act({j - 1: c for j, c in cells.items()})
-        self._acted = (episode, step)
+        self._acted = (episode, step, action)
         return [Send(Action(self.agent, episode, step, action))]
+
+    def _unapplied(self, fb: Any) -> None:
+        self.unapplied_actions += 1
+        self._log(f"episode {fb.episode}: the world stepped to {fb.step} without our action of step "
+                  f"{fb.step - 1} (it came after step_timeout, or was lost): nothing learnt from that step")
 
     def _end_episode(self, episode: int) -> Effects:
         self.learner.end_episode()
@@ -245,6 +257,8 @@ class CentralDriver:
         self.expect: dict[int, tuple[int, int] | None] = {k: None if resync else (0, 0) for k in self.agents}
         self._collect(set(self.agents))
         self._acted: tuple[int, int] | None = None
+        self._sent: dict[int, int] = {}  # agent -> its action of the step acted at (self._acted)
+        self.unapplied_actions = 0  # actions sent that the world did not apply (late or lost)
         self._plays_before = learner.joint_plays
 
     def on_feedback(self, agent: int, msg: Any) -> Effects:
@@ -315,7 +329,8 @@ class CentralDriver:
         return set() if self._resync is None else self.peers.missing(*self._resync, self.agents)
 
     def counters(self) -> dict[str, int]:
-        return {**self.drops.as_counters(), **self.link.counters()}
+        unapplied = {"unapplied_actions": self.unapplied_actions} if self.unapplied_actions else {}
+        return {**self.drops.as_counters(), **unapplied, **self.link.counters()}
 
     def _catch_up(self, agent: int, fb: Any) -> Effects:
         """Adopt the world's later (episode, step), as a resumed node does (from the positions of that step);
@@ -337,15 +352,23 @@ class CentralDriver:
         return out + self._start_resync(fb)
     def _joint_step(self) -> Effects:
         """Every acting agent's feedback of a step is in: learn, then end the episode or act."""
+        unapplied = 0  # acting agents whose action the world did not apply (it came late, or was lost)
         for k in self._waiting:
             fb, self._cells[k - 1] = self._inbox[k].popleft()
             self._rewards[k - 1], self._done[k - 1] = fb.reward, fb.done
             self._truncated |= fb.truncated
+            unapplied += fb.applied != self._sent.get(k)
         if fb.step == 0:
             self._plays_before = self.learner.joint_plays
         finished = all(self._done)
         if self._acted == (fb.episode, fb.step - 1):
-            self.learner.learn(sum(self._rewards), tuple(self._cells), finished)
+            # The joint action is learnt only as the world applied it whole.
+            if unapplied:
+                self.unapplied_actions += unapplied
+                self._log(f"episode {fb.episode}: the world stepped to {fb.step} without {unapplied} of our "
+                          f"actions of step {fb.step - 1}: nothing learnt from that step")
+            else:
+                self.learner.learn(sum(self._rewards), tuple(self._cells), finished)
         self._acted = None
         if finished or self._truncated:
             return self._end_episode(fb.episode)
@@ -373,6 +396,7 @@ class CentralDriver:
         joint = decode_joint_action(self.learner.act({}), self.n)
         acting = self.acting
         self._acted = (episode, step)
+        self._sent = {k: joint[k - 1] for k in acting}
         self._collect(set(acting))
         return [Send(Action(k, episode, step, joint[k - 1])) for k in acting]
 

@@ -23,7 +23,7 @@ from .codec import (
 )
 from .errors import KINDS, DropCounter, WireError
 from .payloads import (
-    ACTION_NAMES, ACTIONS, EAST, INT32_MAX, NORTH, SOUTH, WEST, Action, AgentStats, Bounds, Feedback,
+    ACTION_NAMES, ACTIONS, EAST, INT32_MAX, NO_ACTION, NORTH, SOUTH, WEST, Action, AgentStats, Bounds, Feedback,
     Heartbeat, MarkedJointState, Position, WorldStats,
 )
 from .topics import (
@@ -35,7 +35,7 @@ from .topics import (
 
 __all__ = [
     # payloads
-    "NORTH", "EAST", "SOUTH", "WEST", "ACTIONS", "ACTION_NAMES", "INT32_MAX",
+    "NORTH", "EAST", "SOUTH", "WEST", "ACTIONS", "ACTION_NAMES", "NO_ACTION", "INT32_MAX",
     "Bounds", "Feedback", "Position", "Action", "Heartbeat", "MarkedJointState", "AgentStats", "WorldStats",
     # auth
     "KeyFileError", "new_key_file", "read_key",

@@ -7,7 +7,7 @@ so a sender's bug shows at the sender.
 
 Array layouts (one dimension; its label lists the fields in order, so `ros2 topic echo` is self-describing):
 
-    Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated"
+    Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated,applied"
     Position  std_msgs/Int32MultiArray    label "agent,episode,step,row,col"
     Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
     Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step"
@@ -41,7 +41,7 @@ from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
 from .auth import MAC_WORDS, mac_words
 from .errors import WireError
 from .payloads import (
-    INT32_MAX, Action, AgentStats, Bounds, Feedback, Heartbeat, MarkedJointState, Position, WorldStats,
+    INT32_MAX, NO_ACTION, Action, AgentStats, Bounds, Feedback, Heartbeat, MarkedJointState, Position, WorldStats,
 )
 
 __all__ = [
@@ -146,8 +146,8 @@ class ArrayLayout:
 
 FEEDBACK_LAYOUT = ArrayLayout(
     Feedback, Float64MultiArray,
-    ("agent", "episode", "step", "row", "col", "reward", "done", "truncated"),
-    ("int", "int", "int", "int", "int", "float", "flag", "flag"),
+    ("agent", "episode", "step", "row", "col", "reward", "done", "truncated", "applied"),
+    ("int", "int", "int", "int", "int", "float", "flag", "flag", "int"),
     ("agent id, 1..N (the topic's own agent)",
      "episode index, from 0",
      "step index within the episode, from 0 (0 = start observation)",
@@ -155,7 +155,9 @@ FEEDBACK_LAYOUT = ArrayLayout(
      "the agent's column at this step, 0..W-1",
      "reward of the transition into this step (0.0 at step 0); finite",
      "1.0 when the agent is at its goal (it sends no more actions this episode), else 0.0",
-     "1.0 when the episode hit the step cap at this step (never with done), else 0.0"),
+     "1.0 when the episode hit the step cap at this step (never with done), else 0.0",
+     "the agent's action the world applied in the transition into this step, 0..3; -1 when it applied none "
+     "(step 0, or no action within step_timeout: the agent stayed)"),
 )
 POSITION_LAYOUT = ArrayLayout(
     Position, Int32MultiArray,
@@ -291,8 +293,11 @@ def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
             raise WireError("action_out_of_range", f"action {payload.action}, must be 0..3")
     else:
         _check_cell(payload.row, payload.col, bounds)
-    if isinstance(payload, Feedback) and payload.done and payload.truncated:
-        raise WireError("malformed", "done and truncated both set")
+    if isinstance(payload, Feedback):
+        if payload.done and payload.truncated:
+            raise WireError("malformed", "done and truncated both set")
+        if not NO_ACTION <= payload.applied <= 3:
+            raise WireError("action_out_of_range", f"applied {payload.applied}, must be 0..3 or {NO_ACTION}")
     check_sequence(payload.episode, payload.step, episode, step)
 
 

@@ -10,13 +10,14 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 __all__ = [
-    "NORTH", "EAST", "SOUTH", "WEST", "ACTIONS", "ACTION_NAMES", "INT32_MAX",
+    "NORTH", "EAST", "SOUTH", "WEST", "ACTIONS", "ACTION_NAMES", "NO_ACTION", "INT32_MAX",
     "Bounds", "Feedback", "Position", "Action", "Heartbeat", "MarkedJointState", "AgentStats", "WorldStats",
 ]
 
 NORTH, EAST, SOUTH, WEST = 0, 1, 2, 3
 ACTIONS = (NORTH, EAST, SOUTH, WEST)
 ACTION_NAMES = ("NORTH", "EAST", "SOUTH", "WEST")
+NO_ACTION = -1  # Feedback.applied when the world applied no action of this agent
 INT32_MAX = 2**31 - 1
 
 
@@ -38,7 +39,10 @@ class Bounds:
 @dataclass(frozen=True, slots=True)
 class Feedback:
     """World -> one agent, once per step: the agent's observation at (episode, step) and the outcome of the
-    transition that led there. Step 0 of an episode is the start observation (reward 0.0, done False)."""
+    transition that led there. Step 0 of an episode is the start observation (reward 0.0, done False).
+    `applied` is the agent's action the world applied in that transition, or NO_ACTION when it applied none
+    (step 0; or no action came within step_timeout, and the agent stayed): an agent learns from a step only
+    when its own action was applied."""
 
     agent: int
     episode: int
@@ -48,6 +52,7 @@ class Feedback:
     reward: float
     done: bool = False  # the agent is at its goal (absorbing): it sends no more actions this episode
     truncated: bool = False  # the episode hit the step cap at this step (never together with done)
+    applied: int = NO_ACTION  # the action applied for this agent into this step, 0..3, or NO_ACTION
 
 
 @dataclass(frozen=True, slots=True)

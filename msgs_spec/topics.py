@@ -131,7 +131,7 @@ _NS = AGENT_PREFIX + "{agent}/"
 FEEDBACK = TopicSpec(
     "feedback", _NS + "feedback", Float64MultiArray, QOS_FEEDBACK, Feedback,
     "world", "agent k (the JSA central node: every agent's)",
-    "data = [agent, episode, step, row, col, reward, done, truncated] (float64; flags 0/1)",
+    "data = [agent, episode, step, row, col, reward, done, truncated, applied] (float64; flags 0/1; applied -1: none)",
     READER_DEPTH,
 )
 POSITION = TopicSpec(

@@ -23,7 +23,7 @@ from cq_ros.learners.base import Learner
 from cq_ros.parameters import SETTING_NAMES
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
-from msgs_spec import Action, AgentStats, Feedback, Heartbeat, Position, WorldStats, encode
+from msgs_spec import EAST, NO_ACTION, Action, AgentStats, Feedback, Heartbeat, Position, WorldStats, encode
 from node_runtime.parameters import AGENT_PARAMETERS as PARAMETERS
 from world_node.lockstep import Lockstep
 
@@ -69,8 +69,10 @@ class Stub(Learner):
         return self.n_cells
 
 
-def fb(agent, episode, step, row, col, reward=0.0, done=False, truncated=False):
-    return encode(Feedback(agent, episode, step, row, col, reward, done, truncated))
+def fb(agent, episode, step, row, col, reward=0.0, done=False, truncated=False, applied=None):
+    """Feedback as the world sends it to Stub, whose every action is EAST (`applied`: unless told otherwise)."""
+    applied = (EAST if step else NO_ACTION) if applied is None else applied
+    return encode(Feedback(agent, episode, step, row, col, reward, done, truncated, applied))
 
 
 def pos(agent, episode, step, row, col):
@@ -145,6 +147,36 @@ def test_learns_only_from_the_outcome_of_its_own_action():
     d.on_feedback(1, fb(1, 0, 0, 0, 0))
     d.on_feedback(1, fb(1, 0, 1, 0, 1, -1.0))
     assert ("learn", -1.0, THREE.index(0, 1), False) in learner.calls
+
+
+def test_an_action_the_world_did_not_apply_is_not_learnt_and_is_counted():
+    """Issue 20's reproduction: step 0's EAST was applied (it moved); step 1's came after step_timeout and the
+    world stepped without it (it stayed, feedback of step 2 from the same cell): nothing is learnt from
+    step 1, and the agent plays step 2 as usual."""
+    learner = Stub()
+    logs = []
+    d = AgentDriver(learner, 1, episodes=1, linger=0, log=logs.append)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    d.on_feedback(1, fb(1, 0, 1, 0, 1, -1.0, applied=EAST))
+    effects = d.on_feedback(1, fb(1, 0, 2, 0, 1, Settings().reward_step, applied=NO_ACTION))
+    assert sent(effects) == [Action(1, 0, 2, EAST)]
+    assert [c for c in learner.calls if c[0] == "learn"] == [("learn", -1.0, THREE.index(0, 1), False)]
+    assert d.counters()["unapplied_actions"] == 1 and "skipped_steps" not in d.counters()
+    assert "without our action of step 1" in logs[-1]
+
+
+def test_a_central_driver_learns_a_joint_action_only_as_the_world_applied_it_whole():
+    learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
+    learnt = []
+    learner.learn = lambda reward, cells, done: learnt.append((reward, cells))
+    d = CentralDriver(learner, episodes=1)
+    for k in (1, 2, 3):
+        joint = sent(d.on_feedback(k, fb(k, 0, 0, k - 1, 0)))
+    applied = {a.agent: a.action for a in joint}
+    d.on_feedback(1, fb(1, 0, 1, 0, 0, -1.0, applied=applied[1]))
+    d.on_feedback(2, fb(2, 0, 1, 1, 0, -1.0, applied=NO_ACTION))  # came late: the world stepped without it
+    assert sent(d.on_feedback(3, fb(3, 0, 1, 2, 0, -1.0, applied=applied[3])))  # it acts on
+    assert learnt == [] and d.counters()["unapplied_actions"] == 1
 
 
 def test_a_step_the_world_took_without_us_is_skipped_not_learnt():
@@ -520,7 +552,8 @@ class Clock:
 
 
 def kfb(agent, episode, step, row, col, reward=0.0, done=False, truncated=False):
-    return encode(Feedback(agent, episode, step, row, col, reward, done, truncated), key=KEY)
+    return encode(Feedback(agent, episode, step, row, col, reward, done, truncated, EAST if step else NO_ACTION),
+                  key=KEY)
 
 
 def beat(n, episode, step, key=None):

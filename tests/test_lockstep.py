@@ -14,7 +14,7 @@ from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
-from msgs_spec import Action, Feedback, Heartbeat, Position, WorldStats, encode
+from msgs_spec import NO_ACTION, Action, Feedback, Heartbeat, Position, WorldStats, encode
 from cq_ros.parameters import SETTING_NAMES
 from node_runtime.parameters import WORLD_PARAMETERS as PARAMETERS
 from world_node.lockstep import Lockstep, world_config
@@ -73,8 +73,8 @@ def test_step_waits_for_every_acting_agent_then_positions_then_feedback():
     assert core.on_action(2, act(2, 0, 0, EAST)) == []  # agent 1 still missing
     out = core.on_action(1, act(1, 0, 0, EAST))
     assert [type(p) for p in out] == [Position, Position, Feedback, Feedback]
-    assert out[2] == Feedback(1, 0, 1, 0, 1, 0.0)
-    assert out[3] == Feedback(2, 0, 1, 1, 2, 10.0, done=True)  # at its goal: no more actions this episode
+    assert out[2] == Feedback(1, 0, 1, 0, 1, 0.0, applied=EAST)
+    assert out[3] == Feedback(2, 0, 1, 1, 2, 10.0, done=True, applied=EAST)  # at its goal: no more actions this episode
     assert core.waiting == {1}
 
 
@@ -87,7 +87,7 @@ def test_episode_end_sends_stats_then_the_next_episode():
     # positions of step 2, the last feedback (only agent 1 was acting), the stats, episode 1 from scratch
     assert [type(p) for p in out] == [Position, Position, Feedback, WorldStats, Position, Position, Feedback,
                                       Feedback]
-    assert out[2] == Feedback(1, 0, 2, 0, 2, 10.0, done=True)
+    assert out[2] == Feedback(1, 0, 2, 0, 2, 10.0, done=True, applied=EAST)
     stats = out[3]
     assert (stats.episode, stats.steps, stats.truncated, stats.collisions, stats.missed_actions,
             stats.returns) == (0, 2, False, 0, 0, (10.0, 10.0))
@@ -104,7 +104,8 @@ def test_step_cap_truncates_every_acting_agent():
     core.on_action(1, act(1, 0, 0, WEST))  # a wall bump: agent 1 stays
     out = core.on_action(2, act(2, 0, 0, WEST))
     fb = [p for p in out if isinstance(p, Feedback)]
-    assert fb == [Feedback(1, 0, 1, 0, 0, -1.0, truncated=True), Feedback(2, 0, 1, 1, 0, 0.0, truncated=True)]
+    assert fb == [Feedback(1, 0, 1, 0, 0, -1.0, truncated=True, applied=WEST),
+                  Feedback(2, 0, 1, 1, 0, 0.0, truncated=True, applied=WEST)]
     assert out[-1].truncated and core.finished
 
 
@@ -118,8 +119,8 @@ def test_timeout_lets_the_missing_agent_stay_and_counts_it():
     clock.now = 2.0
     out = core.on_tick()
     fb = {p.agent: p for p in out if isinstance(p, Feedback)}
-    assert fb[2] == Feedback(2, 0, 1, 1, 1, Settings().reward_step)  # stayed, bumped no wall
-    assert fb[1] == Feedback(1, 0, 1, 0, 1, 0.0)
+    assert fb[2] == Feedback(2, 0, 1, 1, 1, Settings().reward_step, applied=NO_ACTION)  # stayed, bumped no wall
+    assert fb[1] == Feedback(1, 0, 1, 0, 1, 0.0, applied=EAST)
     assert any("agv2" in line and "stay" in line for line in logs)
     assert core.on_action(2, act(2, 0, 0, EAST)) == []  # the late answer is stale now
     assert core.drops["stale_step"] == 1
@@ -175,7 +176,7 @@ def test_rejected_actions_are_counted_by_kind_and_change_nothing():
     assert core.on_action(1, act(1, 0, 1, WEST)) == []  # a second answer is ignored, not applied
     assert core.unexpected_actions == 1
     out = core.on_action(2, act(2, 0, 1, EAST))
-    assert Feedback(1, 0, 2, 0, 2, 10.0, done=True) in out  # the first answer counted
+    assert Feedback(1, 0, 2, 0, 2, 10.0, done=True, applied=EAST) in out  # the first answer counted
     counters = core.counters()
     assert all(counters[f"dropped.{kind}"] == 1 for kind in bad)
     assert counters["ignored.unexpected_action"] == 1

@@ -165,7 +165,7 @@ def feedbacks(draw):
     done = draw(st.booleans())
     truncated = False if done else draw(st.booleans())
     return ms.Feedback(draw(agents), draw(int32s), draw(int32s), draw(rows), draw(cols), draw(finite),
-                       done, truncated)
+                       done, truncated, draw(st.integers(ms.NO_ACTION, 3)))
 
 
 positions = st.builds(ms.Position, agents, int32s, int32s, rows, cols)
@@ -293,7 +293,7 @@ def _arr(layout, data, label=None, dims=1, size=None, stride=None, offset=0):
 FB = ms.FEEDBACK_LAYOUT
 POS = ms.POSITION_LAYOUT
 ACT = ms.ACTION_LAYOUT
-GOOD_FB = [1.0, 2.0, 3.0, 4.0, 5.0, -1.0, 0.0, 0.0]
+GOOD_FB = [1.0, 2.0, 3.0, 4.0, 5.0, -1.0, 0.0, 0.0, 2.0]
 GOOD_POS = [2, 2, 3, 4, 10]
 GOOD_ACT = [3, 2, 3, 1]
 
@@ -440,6 +440,9 @@ REJECTIONS = [
     ("as-wrong-agent", lambda: das(_stats(_as_values(), "agv1/stats", "agv1"), agent=2), "wrong_agent"),
     ("as-name-agent-mismatch", lambda: das(_stats(_as_values(), "agv2/stats", "agv2")), "wrong_agent"),
     ("act-4", lambda: dact(_act(action=4), **ACTX), "action_out_of_range"),
+    ("fb-applied-4", lambda: dfb(_fb(applied=4.0), **FBX), "action_out_of_range"),
+    ("fb-applied-minus-2", lambda: dfb(_fb(applied=-2.0), **FBX), "action_out_of_range"),
+    ("fb-applied-fraction", lambda: dfb(_fb(applied=0.5), **FBX), "not_integer"),
     ("act-minus-1", lambda: dact(_act(action=-1), **ACTX), "action_out_of_range"),
     ("act-huge", lambda: dact(_act(action=2**31 - 1), **ACTX), "action_out_of_range"),
     ("encode-action-4", lambda: ms.encode(ms.Action(1, 0, 0, 4)), "action_out_of_range"),
@@ -484,7 +487,8 @@ def test_rejection(thunk, kind):
 
 def test_every_kind_is_tested_and_the_good_messages_pass():
     assert {k for _, _, k in REJECTIONS} == set(ms.KINDS) - RECEIVER_KINDS
-    assert dfb(_fb(), **FBX) == ms.Feedback(1, 2, 3, 4, 5, -1.0, False, False)
+    assert dfb(_fb(), **FBX) == ms.Feedback(1, 2, 3, 4, 5, -1.0, False, False, 2)
+    assert dfb(_fb(applied=-1.0), **FBX).applied == ms.NO_ACTION
     assert dpos(_pos(), **POSX) == ms.Position(2, 2, 3, 4, 10)
     assert dact(_act(), **ACTX) == ms.Action(3, 2, 3, 1)
     assert dws(_stats(_ws_values()), bounds=ms.Bounds(2, 5, 11), episode=3) == doc.EXAMPLES["world_stats"]

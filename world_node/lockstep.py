@@ -10,7 +10,8 @@ messages between ROS and this object, so the protocol is tested without a ROS gr
 A missing action past `step_timeout`: the agent stays where it is, for that step only, as a delayed agent
 does (cq_ros.world, "Delays"): anyone moving into its cell collides with it (both get the collision
 penalty, counted in the episode's collisions); otherwise it gets `reward_step`, the reward of a step lost.
-The warning is logged and the miss counted (`WorldStats.missed_actions`). The wait is `step_timeout` from the
+The warning is logged and the miss counted (`WorldStats.missed_actions`); the agent's next Feedback says no
+action of it was applied (`applied` NO_ACTION), so it does not learn from a step it did not play. The wait is `step_timeout` from the
 moment the step's feedback went out: the node ticks every `tick_period` (a twentieth of it, at most 50 ms).
 
 Every `heartbeat_period` the world sends a `Heartbeat` (`heartbeat()`), whether or not anyone acts, so an
@@ -36,7 +37,8 @@ from cq_ros.parameters import check_numbers, map_and_settings
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    Bounds, DropCounter, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace, decode_action,
+    NO_ACTION, Bounds, DropCounter, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace,
+    decode_action,
 )
 from node_runtime.parameters import read_key_parameter
 
@@ -173,7 +175,7 @@ class Lockstep:
         self.returns = [r + x for r, x in zip(self.returns, rewards)]
         out = self._positions()
         cap = w.t >= w.step_cap
-        out += [self._feedback(k - 1, rewards[k - 1], cap) for k in acting]
+        out += [self._feedback(k - 1, rewards[k - 1], cap, self._actions[k - 1]) for k in acting]
         if w.finished or cap:
             out.append(self._episode_stats())
             out += self._next_episode()
@@ -210,11 +212,12 @@ class Lockstep:
         w = self.world
         return [Position(i + 1, self.episode, w.t, *w.map.cells[w.cells[i]]) for i in range(w.n)]
 
-    def _feedback(self, i: int, reward: float, cap: bool) -> Feedback:
+    def _feedback(self, i: int, reward: float, cap: bool, applied: int | None = None) -> Feedback:
+        """Agent i's feedback; `applied`: its action the world applied into this step (None: none came)."""
         w = self.world
         row, col = w.map.cells[w.cells[i]]
         return Feedback(i + 1, self.episode, w.t, row, col, reward, done=w.done[i],
-                        truncated=cap and not w.done[i])
+                        truncated=cap and not w.done[i], applied=NO_ACTION if applied is None else applied)
 
     def _episode_stats(self) -> WorldStats:
         w = self.world
