@@ -27,6 +27,7 @@ from msgs_spec import (
 )
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.parameters import declare_node_parameters
+from node_runtime.patience import Patience
 from node_runtime.run import when, when_acked
 
 from .checkpoint import save_checkpoint
@@ -108,7 +109,9 @@ class AgentNode(Node):
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._closing = False  # finishing: flushing the last statistics before `done`
-        self._watchdog = self.create_timer(min(cfg.feedback_timeout / 10, 1.0), self._check_world)
+        watch_period = min(cfg.feedback_timeout / 10, 1.0)
+        self.driver.link.patience = Patience(cfg.feedback_timeout, watch_period)
+        self._watchdog = self.create_timer(watch_period, self._check_world)
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning, refuse=False)
         self._graph_topics = [HEARTBEAT_TOPIC] + [position_topic(k) for k in range(1, cfg.gridmap.n_agents + 1)] + [
             name(k) for k in agents for name in (feedback_topic, action_topic, agent_stats_topic)]
@@ -148,9 +151,10 @@ class AgentNode(Node):
                     self._finish(0)
 
     def _check_world(self) -> None:
-        silent = self.driver.link.silent_for()
-        if silent > self.config.feedback_timeout and not self.done.done():
-            self.get_logger().error(f"no valid message from the world (feedback or heartbeat) for {silent:.1f} s "
+        link = self.driver.link
+        if link.patience.expired() and not self.done.done():
+            self.get_logger().error(f"no valid message from the world (feedback or heartbeat) for "
+                                    f"{link.patience.waited:.1f} s awake, {link.silent_for():.1f} s of wall time "
                                     f"(feedback_timeout={self.config.feedback_timeout}): giving up")
             self._finish(1)
 

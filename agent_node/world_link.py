@@ -11,7 +11,10 @@ dropped (`future_*`) if the expected one comes first. A node started without a c
 fresh learner wherever the world is.
 
 Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
-and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not.
+and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not. The node
+judges the silence with a `node_runtime.patience.Patience` it hands the link (`patience`, restarted by every
+sign of life), so the time the agent itself was stopped does not count against the world, and the
+heartbeats waiting in its queue when it resumes are heard before it gives up.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from msgs_spec import HEARTBEAT_TOPIC, DropCounter, decode_heartbeat, feedback_topic
+from node_runtime.patience import Patience
 
 from .reading import record_sequence
 
@@ -32,6 +36,7 @@ class WorldLink:
     def __init__(self, drops: DropCounter, key: bytes | None, clock: Callable[[], float]):
         self.drops, self.key, self._clock = drops, key, clock
         self.last_heard = clock()
+        self.patience: Patience | None = None  # the node's judge of the silence: restarted by every sign of life
         self.beat = 0  # the last heartbeat's number
         self.at = (0, 0)  # the world's (episode, step) by its last heartbeat
         self.caught_up = 0  # times a later stamp was adopted
@@ -42,6 +47,8 @@ class WorldLink:
 
     def heard(self) -> None:
         self.last_heard = self._clock()
+        if self.patience is not None:
+            self.patience.restart()
 
     def silent_for(self) -> float:
         """Seconds since the last valid message from the world (or since the start)."""
@@ -102,7 +109,8 @@ class WorldLink:
                 f"catching up (about {missed} feedback message(s) missed)")
 
     def counters(self) -> dict[str, int]:
-        out = {"caught_up": self.caught_up, "missed_feedback": self.missed_feedback}
+        out = {"caught_up": self.caught_up, "missed_feedback": self.missed_feedback,
+               "stalls": self.patience.stalls if self.patience is not None else 0}
         return {**{k: v for k, v in out.items() if v}, **self.extra_counters}
 
     def _drop_held(self) -> None:

@@ -9,11 +9,17 @@ parameters run as `python -m world_node|agent_node` processes, as a user starts 
 
 from __future__ import annotations
 
+import csv
 import itertools
+import json
 import math
 import os
+import re
+import signal
 import subprocess
 import sys
+import time
+import uuid
 
 import pytest
 import rclpy
@@ -317,3 +323,84 @@ def test_bad_node_parameters_through_launch_exit_2_before_anything_starts(tmp_pa
         err = capsys.readouterr().err
         assert phrase in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "X").exists()
+
+
+# -- stalls: a node process stopped (SIGSTOP) and resumed in a real launch ------------------------------------
+
+STALL_MAP, STALL_ALGO, STALL_EPISODES, STALL_SETTINGS = "grid_game_2", "cq", 40, ("window=10", "eval_episodes=0")
+LAUNCH_TIMEOUT_S = 180.0  # bound on one launch with its stalls; each takes about 20 s on 2 busy cores
+
+
+def wait_for(predicate, timeout_s: float, what: str) -> None:
+    """Until predicate() holds (looked at every 50 ms: a file's content, a process's state); fails after
+    timeout_s naming `what`."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f"no {what} within {timeout_s} s"
+        time.sleep(0.05)
+
+
+def text_of(path) -> str:
+    try:
+        return path.read_text(errors="replace")
+    except FileNotFoundError:
+        return ""
+
+
+def read_rows(path) -> list[tuple[int, int, bool]]:
+    with open(path, newline="") as f:
+        return [(int(float(r["steps"])), int(float(r["collisions"])), float(r["truncated"]) != 0)
+                for r in csv.DictReader(f)]
+
+
+@pytest.mark.parametrize("stopped, sets, stalls, stall_s", [
+    # the world, stopped past its step_timeout with the agents' actions waiting in its queue
+    ("world", ("step_timeout=1.0",), 3, 2.0),
+    # an agent, stopped past its own feedback_timeout with the world's heartbeats waiting in its queue
+    ("agv1", ("step_timeout=8.0", "feedback_timeout=1.0", "heartbeat_period=0.2"), 2, 3.0),
+], ids=["world", "agent"])
+def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, stopped, sets, stalls, stall_s):
+    """Issue 20: kill -STOP, then -CONT, of one node process of a real `cq-ros launch`, several times. A stalled
+    node handles what is waiting in its queues before it judges anyone late: nobody is timed out, nothing is
+    dropped, the run is the offline engine's, and the node counts the stalls."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    out, namespace = tmp_path / "result", f"stall_{uuid.uuid4().hex[:8]}"
+    err = tmp_path / "stderr.txt"
+    sets = (*STALL_SETTINGS, *sets)
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(
+            [sys.executable, "-m", "cq_ros.cli", "launch", "--map", STALL_MAP, "--algo", STALL_ALGO,
+             "--episodes", str(STALL_EPISODES), "--seed", "1", "--out", str(out), "--namespace", namespace,
+             "--no-figures", *[a for s in sets for a in ("--set", s)]], stdout=subprocess.DEVNULL, stderr=stderr)
+    pid = None
+    try:
+        wait_for(lambda: re.search(rf"\b{stopped} pid (\d+)", text_of(err)), 60.0, "process list from the launcher")
+        pid = int(re.search(rf"\b{stopped} pid (\d+)", text_of(err)).group(1))
+        wait_for(lambda: "stepping" in text_of(out / "logs" / "world.log"), 60.0, "first step")
+        for _ in range(stalls):
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(stall_s)  # the fault itself: this long stopped
+            os.kill(pid, signal.SIGCONT)
+            time.sleep(0.2)  # a few steps played between two stalls
+        assert launcher.wait(LAUNCH_TIMEOUT_S) == 0, text_of(err)
+    finally:
+        if pid is not None:
+            try:
+                os.kill(pid, signal.SIGCONT)  # never leave a stopped process behind
+            except ProcessLookupError:
+                pass
+        if launcher.poll() is None:
+            launcher.send_signal(signal.SIGINT)  # the launcher stops its children
+            launcher.wait(30)
+    manifest = json.loads((out / "manifest.json").read_text())
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, STALL_EPISODES)
+    assert read_rows(out / "episodes.csv") == [(int(e[0]), int(e[1]), bool(e[5])) for e in offline.episodes]
+    assert manifest["world"]["missed_actions"] == 0
+    counted = manifest["world"]["counters"] if stopped == "world" else manifest["communication"][stopped]["counters"]
+    assert counted.get("stalls", 0) >= 1, counted  # the stalls fell inside the run, and were seen
+    assert not any(k.startswith("dropped.") for k in manifest["world"]["counters"]), manifest["world"]
+    assert not any("caught_up" in c["counters"] or "unapplied_actions" in c["counters"]
+                   for c in manifest["communication"].values())

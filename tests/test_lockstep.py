@@ -34,6 +34,15 @@ def lockstep(gridmap, episodes=3, settings=Settings(), timeout=1.0, log=None):
     return core, clock
 
 
+def ticks(core, clock, until):
+    """Tick every tick_period from the clock's time to `until`, as the node does: what the ticks returned."""
+    start, out = clock.now, []
+    for i in range(1, math.ceil((until - start) / core.tick_period - 1e-9) + 1):
+        clock.now = min(until, start + i * core.tick_period)
+        out += core.on_tick()
+    return out
+
+
 def act(agent, episode, step, action):
     return encode(Action(agent, episode, step, action))
 
@@ -114,10 +123,8 @@ def test_timeout_lets_the_missing_agent_stay_and_counts_it():
     core, clock = lockstep(CORRIDOR, timeout=2.0, log=logs.append)
     core.begin()
     core.on_action(1, act(1, 0, 0, EAST))
-    clock.now = 1.9
-    assert core.on_tick() == []  # not yet
-    clock.now = 2.0
-    out = core.on_tick()
+    assert ticks(core, clock, 1.9) == []  # not yet
+    out = ticks(core, clock, 2.0 + core.tick_period)
     fb = {p.agent: p for p in out if isinstance(p, Feedback)}
     assert fb[2] == Feedback(2, 0, 1, 1, 1, Settings().reward_step, applied=NO_ACTION)  # stayed, bumped no wall
     assert fb[1] == Feedback(1, 0, 1, 0, 1, 0.0, applied=EAST)
@@ -134,13 +141,12 @@ def test_missing_agent_blocks_its_cell_like_a_parked_one():
     core, clock = lockstep(CORRIDOR, episodes=1, timeout=1.0, settings=Settings(step_cap=2, reward_step=-0.5))
     core.begin()
     core.on_action(2, act(2, 0, 0, NORTH))  # agent 2 to (0, 1); agent 1 misses the step
-    clock.now = 5.0
-    fb = {p.agent: p for p in core.on_tick() if isinstance(p, Feedback)}
+    past_timeout = 1.0 + 2 * core.tick_period  # judged a tick after it ran out
+    fb = {p.agent: p for p in ticks(core, clock, past_timeout) if isinstance(p, Feedback)}
     assert (fb[1].row, fb[1].col, fb[1].reward) == (0, 0, -0.5)
     assert (fb[2].row, fb[2].col, fb[2].reward) == (0, 1, -0.5)
     core.on_action(1, act(1, 0, 1, EAST))  # agent 1 into agent 2's cell, while agent 2 misses this step
-    clock.now = 10.0
-    out = core.on_tick()
+    out = ticks(core, clock, clock.now + past_timeout)
     fb = {p.agent: p for p in out if isinstance(p, Feedback)}
     assert (fb[1].row, fb[1].col, fb[1].reward) == (0, 0, Settings().reward_collision)
     # run into, it pays the collision as both agents of every collision do (a delayed agent too)
@@ -304,11 +310,24 @@ def test_the_wait_for_a_missing_agent_is_step_timeout_to_a_tick():
     core, clock = lockstep(CORRIDOR, timeout=2.0, log=logs.append)
     assert core.tick_period <= 2.0 / 20
     core.begin()
-    clock.now = 2.0 - 1e-9
-    assert core.on_tick() == []
-    clock.now = 2.0 + core.tick_period  # the node ticks every tick_period: it notices by then
-    assert core.on_tick() and core.missed_actions == 2
+    assert ticks(core, clock, 2.0) == []  # run out at this tick: judged at the next, after what came meanwhile
+    assert ticks(core, clock, 2.0 + core.tick_period) and core.missed_actions == 2
     assert "within step_timeout=2.0 s (waited 2.05 s)" in logs[-1]
+
+
+def test_a_world_stopped_past_step_timeout_takes_the_actions_waiting_for_it():
+    """Issue 20: stopped for 5 s (SIGSTOP) with both actions in its queue, the world's first tick after
+    the stop comes before them; the stall is counted, nobody is judged late, and the step is played."""
+    core, clock = lockstep(CORRIDOR, timeout=2.0)
+    core.begin()
+    ticks(core, clock, 0.5)
+    clock.now += 5.0
+    assert core.on_tick() == []
+    core.on_action(1, act(1, 0, 0, EAST))
+    out = core.on_action(2, act(2, 0, 0, EAST))
+    assert [p.applied for p in out if isinstance(p, Feedback)] == [EAST, EAST]
+    assert core.missed_actions == 0 and core.counters() == {"stalls": 1}
+    assert ticks(core, clock, clock.now + 1.9) == []  # the next step waits its whole step_timeout
 
 
 def test_heartbeats_count_up_and_say_where_the_world_is():

@@ -11,8 +11,11 @@ A missing action past `step_timeout`: the agent stays where it is, for that step
 does (cq_ros.world, "Delays"): anyone moving into its cell collides with it (both get the collision
 penalty, counted in the episode's collisions); otherwise it gets `reward_step`, the reward of a step lost.
 The warning is logged and the miss counted (`WorldStats.missed_actions`); the agent's next Feedback says no
-action of it was applied (`applied` NO_ACTION), so it does not learn from a step it did not play. The wait is `step_timeout` from the
-moment the step's feedback went out: the node ticks every `tick_period` (a twentieth of it, at most 50 ms).
+action of it was applied (`applied` NO_ACTION), so it does not learn from a step it did not play. The wait is
+`step_timeout` from the moment the step's feedback went out, in the time the world was awake to hear the
+answers (node_runtime.patience: a world stopped and resumed handles the actions waiting in its queue before
+it judges anyone late, and counts the stall in `stalls`); the node ticks every `tick_period` (a twentieth
+of step_timeout, at most 50 ms).
 
 Every `heartbeat_period` the world sends a `Heartbeat` (`heartbeat()`), whether or not anyone acts, so an
 agent waiting at its goal for the episode's end knows the world is alive. With a `key_file` every message
@@ -41,6 +44,7 @@ from msgs_spec import (
     decode_action,
 )
 from node_runtime.parameters import read_key_parameter
+from node_runtime.patience import Patience
 
 __all__ = ["WorldConfig", "world_config", "Lockstep"]
 
@@ -108,6 +112,7 @@ class Lockstep:
         self.returns: list[float] = []  # of each agent in the current episode so far
         self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
         self._actions: list[int | None] = []
+        self._patience = Patience(step_timeout, self.tick_period, clock)  # the wait for the step's actions
 
     @property
     def step(self) -> int:
@@ -140,9 +145,9 @@ class Lockstep:
 
     def on_tick(self) -> Outbox:
         """Call every `tick_period`: past `step_timeout` the agents still missing stay, and the world steps."""
-        waited = self._clock() - self._step_started if self.waiting else 0.0
-        if waited < self.step_timeout:
+        if not self.waiting or not self._patience.expired():
             return []
+        waited = self._patience.waited
         missing = sorted(self.waiting)
         self.missed_actions += len(missing)
         self._log(f"episode {self.episode} step {self.step}: no action from "
@@ -162,6 +167,8 @@ class Lockstep:
         out = self.drops.as_counters()
         if self.unexpected_actions:
             out["ignored.unexpected_action"] = self.unexpected_actions
+        if self._patience.stalls:
+            out["stalls"] = self._patience.stalls
         out.update(self.extra_counters)
         return out
 
@@ -206,7 +213,7 @@ class Lockstep:
         w = self.world
         self.waiting = {i + 1 for i in range(w.n) if not w.done[i]}
         self._actions = [None] * w.n
-        self._step_started = self._clock()
+        self._patience.restart()
 
     def _positions(self) -> Outbox:
         w = self.world
