@@ -12,6 +12,7 @@ from cq_ros.engine import make_learner
 from cq_ros.gridmap import GridMap
 from cq_ros.learners import LEARNERS
 from cq_ros.parameters import check_numbers, map_and_settings
+from cq_ros.output import OutputError, probe_folder
 from cq_ros.settings import Settings, SettingsError
 from node_runtime.parameters import read_key_parameter
 
@@ -75,6 +76,10 @@ def _check_checkpoint_folder(path: str) -> None:
         raise SettingsError(f"parameter checkpoint: {path!r}: folder {folder!r} is not writable")
     if os.path.isdir(path):
         raise SettingsError(f"parameter checkpoint: {path!r} is a folder, not a file")
+    try:  # a read-only or full file system, which the permission bits do not show (and root passes them)
+        probe_folder(folder, "folder")
+    except OutputError as e:
+        raise SettingsError(f"parameter checkpoint: {path!r}: {e}") from None
 
 
 def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None,

@@ -15,6 +15,7 @@ from tqdm import tqdm
 
 from .gridmap import ACTIONS, MapError, available_maps, load_map
 from .learners import ALGORITHMS, LEARNERS
+from .output import check_parent
 from .settings import Settings, SettingsError, run_settings
 from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
 
@@ -242,6 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         return _dispatch(args)
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
+    except OSError as e:  # a disk that filled or went read-only after the start's checks: one line, no traceback
+        parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -450,6 +453,7 @@ def _render(args) -> int:
     from .render import DPI, check_output, engine_frames, frames_from, lattice, write_animation
 
     check_output(args.out)
+    check_parent(args.out, "--out")
     if args.map is not None:
         gridmap = load_map(args.map)
         settings = run_settings(gridmap, args.overrides)
@@ -516,6 +520,7 @@ def _ros_tool(args) -> int:
         elif args.command == "nodes":
             tools.nodes(all_nodes=args.all_nodes, wait_s=args.wait, domain_id=args.domain_id)
         else:
+            check_parent(args.out, "--out")
             tools.record(args.out, topics=args.topics, duration_s=args.duration, count=args.count,
                          storage=args.storage, domain_id=args.domain_id)
     except tools.ToolError as e:

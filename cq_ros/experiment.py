@@ -29,6 +29,7 @@ from . import __version__
 from .engine import RunResult, run
 from .gridmap import GridMap, load_map
 from .learners import LEARNERS
+from .output import check_folder
 from .settings import Settings, run_settings
 
 EPISODE_COLUMNS = ("map", "algo", "run", "episode", "steps", "collisions", "joint_plays", "states", "return", "truncated")
@@ -135,14 +136,14 @@ def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs",
 
 
 def prepare_output(out: Path, force: bool) -> Path:
-    """An output directory that is ours to write: new, empty, or (with force) an old result."""
+    """An output directory that is ours to write: new, empty, or (with force) an old result; and one that takes
+    a file (cq_ros.output.check_folder: OutputError for a read-only or full one)."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ResultExists(f"output {out} is a file, not a directory")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise ResultExists(f"output directory {out} is not empty; choose another or pass --force to overwrite")
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    return check_folder(out, "output directory")
 
 
 def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifest: dict) -> None:

@@ -9,6 +9,7 @@ parameters run as `python -m world_node|agent_node` processes, as a user starts 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import itertools
 import json
@@ -404,3 +405,41 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
     assert not any(k.startswith("dropped.") for k in manifest["world"]["counters"]), manifest["world"]
     assert not any("caught_up" in c["counters"] or "unapplied_actions" in c["counters"]
                    for c in manifest["communication"].values())
+
+
+# -- disks: read-only, full, filling -------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def tmpfs(where, size_kib: int, read_only: bool = False):
+    """A tmpfs of size_kib mounted at `where` (read-only after mounting if asked), unmounted after, even on
+    failure; the test is skipped, with the reason, where mounting is not allowed (not root, no CAP_SYS_ADMIN)."""
+    where.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_kib}k", "tmpfs", str(where)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip() or done.returncode}")
+    try:
+        if read_only:
+            subprocess.run(["mount", "-o", "remount,ro", str(where)], check=True, capture_output=True)
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+@pytest.mark.parametrize("command", [
+    ["experiment", "--map", "grid_game_2", "--algo", "cq", "--runs", "1", "--episodes", "2", "--out", "{ro}/result"],
+    ["launch", "--map", "grid_game_2", "--algo", "cq", "--episodes", "2", "--out", "{ro}/result"],
+    ["reproduce", "--runs", "1", "--episodes", "2", "--out", "{ro}/result"],
+    ["record", "--duration", "1", "--out", "{ro}/bag"],
+    ["render", "--map", "grid_game_2", "--episodes", "1", "--out", "{ro}/episode.gif"],
+], ids=lambda c: c[0])
+def test_a_read_only_output_folder_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, command):
+    from cq_ros.cli import main
+
+    with tmpfs(tmp_path / "ro", 256, read_only=True) as ro:
+        with pytest.raises(SystemExit) as exit_:
+            main([part.format(ro=ro) for part in command])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(ro) in err and "Read-only file system" in err, err
