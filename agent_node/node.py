@@ -12,6 +12,7 @@ the exit code.
 
 from __future__ import annotations
 
+import errno
 from functools import partial
 from typing import Any
 
@@ -20,6 +21,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
+from cq_ros.output import os_reason
 from cq_ros.settings import SettingsError
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
@@ -146,9 +148,21 @@ class AgentNode(Node):
                 case Unsubscribe(peer=peer):
                     self.destroy_subscription(self._positions.pop(peer))
                 case SaveCheckpoint(episode=episode, learner=learner):
-                    save_checkpoint(self.config.checkpoint, learner, episode)
+                    self._save_checkpoint(episode, learner)
                 case Finish():
                     self._finish(0)
+
+    def _save_checkpoint(self, episode: int, learner: Any) -> None:
+        """Save, or log and count why not (`checkpoint_failed.<errno>`): a full or read-only disk costs the
+        checkpoint, never the learning, which goes on in memory (the next save tries again)."""
+        try:
+            save_checkpoint(self.config.checkpoint, learner, episode)
+        except OSError as e:
+            name = f"checkpoint_failed.{errno.errorcode.get(e.errno, 'other').lower()}"
+            counters = self.driver.link.extra_counters
+            counters[name] = counters.get(name, 0) + 1
+            self.get_logger().error(f"checkpoint {self.config.checkpoint} of episode {episode} not written: "
+                                    f"{os_reason(e)}; learning goes on (counted as {name})")
 
     def _check_world(self) -> None:
         link = self.driver.link

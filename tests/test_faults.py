@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import itertools
 import json
 import math
@@ -443,3 +444,36 @@ def test_a_read_only_output_folder_is_one_line_and_exit_2_before_any_work(tmp_pa
     assert exit_.value.code == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(ro) in err and "Read-only file system" in err, err
+
+
+def fill(folder) -> None:
+    """Write zeros into folder/filler until its file system is full."""
+    with open(folder / "filler", "wb", buffering=0) as f:
+        try:
+            while True:
+                f.write(b"\0" * 4096)
+        except OSError as e:
+            assert e.errno == errno.ENOSPC, e
+
+
+def test_a_checkpoint_folder_on_a_full_disk_is_refused_at_start(tmp_path):
+    with tmpfs(tmp_path / "full", 64) as full:
+        fill(full)
+        done = subprocess.run([sys.executable, "-m", "agent_node", "--ros-args", "-p", "agent_id:=1", "-p",
+                               f"checkpoint:={full}/agv1.pkl"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and "No space left on device" in done.stderr, done.stderr
+
+
+def test_a_checkpoint_that_cannot_be_written_is_counted_and_learning_goes_on(system_in, spin_until, tmp_path):
+    """agv1's checkpoint folder fills after the start: every save fails, is logged and counted, and the
+    run goes on to the engine's very episodes."""
+    algo, episodes = "cq", 20
+    with tmpfs(tmp_path / "filling", 64) as folder:
+        system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2],
+                           agent_extra={1: {"checkpoint": str(folder / "agv1.pkl"), "checkpoint_every": 5}})
+        fill(folder)
+        finish(system, spin_until)
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
+    assert counters(system, 1)["checkpoint_failed.enospc"] == episodes // 5  # every 5, and the last
+    assert not any(k.startswith("checkpoint_failed") for k in counters(system, 2))
