@@ -146,16 +146,24 @@ def prepare_output(out: Path, force: bool) -> Path:
     return check_folder(out, "output directory")
 
 
-def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifest: dict) -> None:
-    """episodes.csv, observe.csv, greedy.csv and manifest.json for one map."""
+def episode_row(map_name: str, algo: str, run: int, episode: int, values) -> tuple:
+    """One row of episodes.csv: `episode` from 1, `values` a row of RunResult.episodes."""
+    steps, coll, plays, states, ret, trunc = values
+    return (map_name, algo, run, episode, int(steps), int(coll), int(plays), int(states), f"{ret:g}", int(trunc))
+
+
+def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifest: dict, *,
+                  episodes_written: bool = False) -> None:
+    """episodes.csv (unless `episodes_written`: a launch writes it as the episodes come), observe.csv,
+    greedy.csv and manifest.json for one map."""
     ordered = sorted(results, key=lambda r: (list(LEARNERS).index(r.algo), r.run))
-    with open(out / "episodes.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(EPISODE_COLUMNS)
-        for r in ordered:
-            for e, (steps, coll, plays, states, ret, trunc) in enumerate(r.episodes, start=1):
-                w.writerow((gridmap.name, r.algo, r.run, e, int(steps), int(coll), int(plays), int(states),
-                            f"{ret:g}", int(trunc)))
+    if not episodes_written:
+        with open(out / "episodes.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(EPISODE_COLUMNS)
+            for r in ordered:
+                w.writerows(episode_row(gridmap.name, r.algo, r.run, e, values)
+                            for e, values in enumerate(r.episodes, start=1))
     with open(out / "observe.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(OBSERVE_COLUMNS)

@@ -39,7 +39,10 @@ truncation and return (summed over agents) come from WorldStats; joint plays and
 summed over the learners' AgentStats, where the central JSA node, which repeats its one learner's counts on
 every agv<k>/stats, counts once. The learning episodes' rows make episodes.csv, the greedy ones' greedy.csv
 (RunResult.greedy, as `cq_ros.engine.run` gives it), and the marked joint states of the last learning
-episode's AgentStats make observe.csv (the engine takes them before its greedy episodes too). The manifest
+episode's AgentStats make observe.csv (the engine takes them before its greedy episodes too). episodes.csv
+is written row by row as the episodes are heard (ros_tools.launch_results: a disk that fills keeps every row
+it took, the launch ends early with one line naming the file and the OS's reason, and the manifest says so);
+a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason. The manifest
 adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
 messages; the world's missed actions and dropped-message counters).
 """
@@ -56,33 +59,32 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field, fields
-from functools import partial
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 from tqdm import tqdm
 
 from agent_node.config import agent_config
-from cq_ros.engine import RunResult, make_learner
-from cq_ros.experiment import manifest_for, prepare_output, write_results
+from cq_ros.engine import make_learner
+from cq_ros.experiment import prepare_output
+from cq_ros.output import os_reason
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
 from cq_ros.parameters import check_names
 from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
-from msgs_spec import (
-    AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
-    agent_stats_topic, decode_agent_stats, decode_world_stats, new_key_file,
-)
+from msgs_spec import agent_namespace, new_key_file
 from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import world_config
 
 from .commands import StopSignals, environment, ros_session, spin_until
 from .hosts import Hosts
+from .launch_results import (
+    EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, write_ended_early, write_launch_results,
+)
 
-__all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
+__all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
            "node_specs", "node_commands", "compose_command", "check_hosts", "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
@@ -109,12 +111,9 @@ class Interrupted(LaunchError):
     """Ctrl-C or SIGTERM to the launcher; every child was stopped."""
 
 
-@dataclass
-class LaunchResult:
-    out: Path
-    episodes: np.ndarray  # (episodes, 6), the columns of RunResult.episodes
-    greedy: np.ndarray  # (eval_episodes, 6), the same columns, as RunResult.greedy
-    manifest: dict
+class EndedEarly(LaunchError):
+    """The launcher could not write a result file (a full or failing disk): every child was stopped, the rows
+    written are kept, and the manifest says why."""
 
 
 # -- children ----------------------------------------------------------------------------------------------
@@ -281,70 +280,6 @@ def _stop(children: list[Child]) -> None:
             running = [c for c in running if c.running]
 
 
-# -- the listener ------------------------------------------------------------------------------------------
-
-
-def _ranges(numbers: list[int]) -> str:
-    """[0, 1, 2, 5] -> '0-2, 5'."""
-    spans: list[list[int]] = []
-    for n in numbers:
-        if spans and n == spans[-1][1] + 1:
-            spans[-1][1] = n
-        else:
-            spans.append([n, n])
-    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans)
-
-
-class StatsListener:
-    """The launcher's subscriptions: every WorldStats and AgentStats of the run (`episodes` of each: learning
-    and greedy episodes alike), decoded through the contract (a bad message is logged, counted and dropped,
-    never raised)."""
-
-    def __init__(self, node: Any, gridmap: GridMap, episodes: int):
-        self.node = node
-        self.episodes = episodes
-        self.bounds = Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
-        self.drops = DropCounter(node.get_logger().warning)
-        self.world: dict[int, WorldStats] = {}
-        self.collisions = 0  # over the episodes heard so far, for the progress display
-        self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
-        self.newest: dict[int, AgentStats] = {}  # each agent's statistics of its latest episode so far
-        self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
-                                                     partial(self._on_agent, k), AGENT_STATS.qos)
-                            for k in self.agents]
-        self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
-                                                   WORLD_STATS.qos)
-
-    def _on_world(self, msg: Any) -> None:
-        stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, source=WORLD_STATS_TOPIC)
-        if stats is not None and stats.episode not in self.world:
-            self.world[stats.episode] = stats
-            self.collisions += stats.collisions
-
-    def _on_agent(self, agent: int, msg: Any) -> None:
-        stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent,
-                                 source=agent_stats_topic(agent))
-        if stats is not None:
-            self.agents[agent][stats.episode] = stats
-            if agent not in self.newest or stats.episode > self.newest[agent].episode:
-                self.newest[agent] = stats
-
-    @property
-    def complete(self) -> bool:
-        return len(self.world) == self.episodes and all(len(s) == self.episodes for s in self.agents.values())
-
-    def missing(self) -> list[str]:
-        """What has not come yet, e.g. ['world/stats episodes 7-9', 'agv2/stats episode 0']."""
-        wanted = range(self.episodes)
-        out = []
-        heard = [(WORLD_STATS_TOPIC, self.world)] + [(agent_stats_topic(k), v) for k, v in self.agents.items()]
-        for topic, got in heard:
-            gone = [e for e in wanted if e not in got]
-            if gone:
-                out.append(f"{topic} episode{'s' if len(gone) > 1 else ''} {_ranges(gone)}")
-        return out
-
-
 # -- progress ----------------------------------------------------------------------------------------------
 
 
@@ -444,6 +379,25 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             child.env = hosts.discovery_env(child.name, discovery)
         listener_env = hosts.discovery_env("world", discovery)
     learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
+    rows = EpisodeRows(out, gridmap.name, algo, learners, episodes)  # OutputError if the disk is full already
+    on_hosts = {} if hosts is None else {"hosts": {"prefix": hosts.prefix, "discovery": discovery,
+                                                   "addresses": {h: hosts.address(h) for h in hosts.names}}}
+    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
+                    domain_id=domain_id, namespace=f"/{namespace}",
+                    step_timeout_s=node_parameters["step_timeout"], **on_hosts,
+                    peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
+                    node_parameters=node_parameters, authenticated=True)
+
+    def node_info() -> dict:
+        return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
+                for c in children}
+
+    def ended_early(reason: str) -> EndedEarly:
+        kept = write_ended_early(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, rows,
+                                 node_info(), run_info, reason)
+        return EndedEarly(f"the launcher {reason}: the run ended early after {rows.written}/{episodes} "
+                          f"episodes; those rows are in {rows.path}, and {kept}")
+
     started = time.perf_counter()
 
     with StopSignals() as stop, environment(**listener_env), ros_session(
@@ -458,14 +412,21 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 tqdm.write(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "  # above the bar
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
-            _watch(children, listener, executor, stop, bar, learners)
+            _watch(children, listener, executor, stop, bar, learners, rows)
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
                 raise LaunchError(f"every node finished, but the launcher never got {'; '.join(listener.missing())}")
+            rows.take(listener)
+            if rows.failure:
+                raise EndedEarly(rows.failure)
         except LaunchError as e:
             stopping = [c.name for c in children if c.running]
             _stop(children)
+            rows.close()
+            if isinstance(e, EndedEarly):
+                raise ended_early(str(e)) from None
+            rows.free()
             raise type(e)(f"{e}{'; stopped ' + ', '.join(stopping) if stopping else ''} "
                           f"(logs in {out / 'logs'})") from None
         finally:
@@ -473,61 +434,37 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             key_file.unlink(missing_ok=True)
             bar.close()
 
-    on_hosts = {} if hosts is None else {"hosts": {"prefix": hosts.prefix, "discovery": discovery,
-                                                   "addresses": {h: hosts.address(h) for h in hosts.names}}}
-    run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
-                    domain_id=domain_id, namespace=f"/{namespace}",
-                    step_timeout_s=node_parameters["step_timeout"], **on_hosts,
-                    peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
-                    node_parameters=node_parameters, authenticated=True)
-    result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
-                    learners, list(nodes)[1:], children, run_info)
-    if figures:
-        from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
+    rows.close()
+    try:
+        result = write_launch_results(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started,
+                                      listener, learners, list(nodes)[1:], node_info(), run_info)
+        rows.free()
+        if figures:
+            from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
 
-        write_figures(out, map_loader=lambda _name: gridmap)  # a map file is known by its name only here
+            write_figures(out, map_loader=lambda _name: gridmap)  # a map file is known by its name only here
+    except OSError as e:
+        raise ended_early(f"cannot write {e.filename or out}: {os_reason(e)}") from None
+    for name, stats in result.manifest["communication"].items():  # the nodes' own losses, last
+        for failure in checkpoint_failures(stats["counters"]):
+            print(f"cq-ros launch: warning: {name}: checkpoint {nodes[name][1]['checkpoint']} not written: "
+                  f"{failure}; learning went on", file=sys.stderr)
     return result
 
 
-def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings, wall: float,
-           listener: StatsListener, learners: list[int], learner_nodes: list[str], children: list[Child],
-           run_info: dict) -> LaunchResult:
-    """episodes.csv, observe.csv, greedy.csv and manifest.json from the statistics heard: the first `episodes`
-    (learning) and the greedy ones after them (see the module docstring for what comes from where)."""
-    played = range(listener.episodes)
-    world = [listener.world[e] for e in played]
-    per_learner = [[listener.agents[k][e] for k in learners] for e in played]
-    rows = np.array([(w.steps, w.collisions, sum(s.joint_plays for s in a),
-                      sum(s.local_states + s.joint_states for s in a), sum(w.returns), w.truncated)
-                     for w, a in zip(world, per_learner)], dtype=float).reshape(len(played), 6)
-    table, greedy = rows[:episodes], rows[episodes:]
-    kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
-             m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
-    final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
-    manifest = manifest_for(
-        gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
-        nodes={c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
-               for c in children},
-        communication={name: {"subscriptions_created": s.subscriptions_created,
-                              "subscriptions_active": s.subscriptions_active,
-                              "peer_messages": s.peer_messages, "counters": dict(s.counters)}
-                       for name, s in zip(learner_nodes, final)},
-        world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
-               "stepping_s": round(sum(w.duration_s for w in world), 3)},
-        launcher={"dropped": listener.drops.as_counters()})
-    write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest)
-    return LaunchResult(out, table, greedy, manifest)
-
-
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: _Progress,
-           learners: list[int]) -> None:
-    """Spin the listener until every child has exited 0; LaunchError/Interrupted as soon as one fails."""
+           learners: list[int], rows: EpisodeRows) -> None:
+    """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
+    soon as one fails, EndedEarly as soon as a row cannot be written."""
     world_done_at = None
     while True:
         if stop:
             raise Interrupted(f"interrupted by {stop.received} after {len(listener.world)}/{listener.episodes} "
                               "episodes")
         executor.spin_once(timeout_sec=0.05)
+        rows.take(listener)
+        if rows.failure:
+            raise EndedEarly(rows.failure)
         if len(listener.world) != bar.shown:
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),

@@ -477,3 +477,42 @@ def test_a_checkpoint_that_cannot_be_written_is_counted_and_learning_goes_on(sys
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
     assert counters(system, 1)["checkpoint_failed.enospc"] == episodes // 5  # every 5, and the last
     assert not any(k.startswith("checkpoint_failed") for k in counters(system, 2))
+
+
+def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_says_why(tmp_path):
+    """--out on a 512 KiB tmpfs, filled by the test once the launch has written a few rows: the launcher
+    stops the run with one line naming the file and the OS's reason; every row it wrote is whole and the
+    offline engine's, and the manifest (written in the reserve given back) says the run ended early."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    episodes = 400
+    with tmpfs(tmp_path / "disk", 512) as disk:
+        out, err = disk / "result", tmp_path / "stderr.txt"
+        with open(err, "wb") as stderr:
+            launcher = subprocess.Popen(
+                [sys.executable, "-m", "cq_ros.cli", "launch", "--map", STALL_MAP, "--algo", STALL_ALGO,
+                 "--episodes", str(episodes), "--seed", "1", "--out", str(out), "--no-figures",
+                 *[a for s in STALL_SETTINGS for a in ("--set", s)]], stdout=subprocess.DEVNULL, stderr=stderr)
+        try:
+            wait_for(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "five rows")
+            fill(disk)
+            code = launcher.wait(LAUNCH_TIMEOUT_S)
+        finally:
+            if launcher.poll() is None:
+                launcher.send_signal(signal.SIGINT)
+                launcher.wait(30)
+        lines = text_of(err).strip().splitlines()
+        rows = read_rows(out / "episodes.csv")
+        manifest = json.loads((out / "manifest.json").read_text())
+        leftover = (out / ".reserve").exists()
+    assert code == 1 and "Traceback" not in text_of(err)
+    last = lines[-1]
+    assert "cannot write" in last and "episodes.csv" in last and "No space left on device" in last, last
+    assert f"ended early after {len(rows)}/{episodes} episodes" in last, last
+    assert 5 <= len(rows) < episodes
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, len(rows))
+    assert rows == [(int(e[0]), int(e[1]), bool(e[5])) for e in offline.episodes]
+    assert manifest["ended_early"]["episodes_written"] == len(rows)
+    assert "No space left on device" in manifest["ended_early"]["reason"] and not leftover

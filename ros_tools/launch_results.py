@@ -1,0 +1,234 @@
+"""What a launch hears and how it is written (ros_tools.launch runs it): the launcher's statistics
+listener, episodes.csv written row by row as the episodes are heard, and the result files at the end.
+
+Disks fill. A row is written (whole, or not at all: a row cut short by a full disk is cut off again) as soon
+as the world's and every learner's statistics of its episode are in, so a disk that fills keeps every row it
+could take, and the launch ends early with one line naming the file and the OS's reason. At the start the
+launcher also writes a small reserve file, given back when a write fails, so that the manifest saying the
+run ended early, and why, still fits on a disk that is full.
+"""
+
+from __future__ import annotations
+
+import csv
+import errno
+import io
+import json
+import os
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cq_ros.engine import RunResult
+from cq_ros.experiment import EPISODE_COLUMNS, episode_row, manifest_for, write_results
+from cq_ros.gridmap import GridMap
+from cq_ros.output import OutputError, os_reason
+from cq_ros.settings import Settings
+from msgs_spec import (
+    AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_stats_topic,
+    decode_agent_stats, decode_world_stats,
+)
+
+__all__ = ["RESERVE_NAME", "RESERVE_BYTES", "StatsListener", "EpisodeRows", "LaunchResult", "write_launch_results",
+           "write_ended_early", "checkpoint_failures"]
+
+RESERVE_NAME = ".reserve"  # in the result directory while the launch runs
+RESERVE_BYTES = 64 * 1024  # room for the manifest (a few KiB) once the disk is full
+
+
+@dataclass
+class LaunchResult:
+    out: Path
+    episodes: np.ndarray  # (episodes, 6), the columns of RunResult.episodes
+    greedy: np.ndarray  # (eval_episodes, 6), the same columns, as RunResult.greedy
+    manifest: dict
+
+
+def _ranges(numbers: list[int]) -> str:
+    """[0, 1, 2, 5] -> '0-2, 5'."""
+    spans: list[list[int]] = []
+    for n in numbers:
+        if spans and n == spans[-1][1] + 1:
+            spans[-1][1] = n
+        else:
+            spans.append([n, n])
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans)
+
+
+class StatsListener:
+    """The launcher's subscriptions: every WorldStats and AgentStats of the run (`episodes` of each: learning
+    and greedy episodes alike), decoded through the contract (a bad message is logged, counted and dropped,
+    never raised)."""
+
+    def __init__(self, node: Any, gridmap: GridMap, episodes: int):
+        self.node = node
+        self.episodes = episodes
+        self.bounds = Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
+        self.drops = DropCounter(node.get_logger().warning)
+        self.world: dict[int, WorldStats] = {}
+        self.collisions = 0  # over the episodes heard so far, for the progress display
+        self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
+        self.newest: dict[int, AgentStats] = {}  # each agent's statistics of its latest episode so far
+        self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
+                                                     partial(self._on_agent, k), AGENT_STATS.qos)
+                            for k in self.agents]
+        self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
+                                                   WORLD_STATS.qos)
+
+    def _on_world(self, msg: Any) -> None:
+        stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, source=WORLD_STATS_TOPIC)
+        if stats is not None and stats.episode not in self.world:
+            self.world[stats.episode] = stats
+            self.collisions += stats.collisions
+
+    def _on_agent(self, agent: int, msg: Any) -> None:
+        stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent,
+                                 source=agent_stats_topic(agent))
+        if stats is not None:
+            self.agents[agent][stats.episode] = stats
+            if agent not in self.newest or stats.episode > self.newest[agent].episode:
+                self.newest[agent] = stats
+
+    def row(self, episode: int, learners: list[int]) -> tuple | None:
+        """Episode `episode`'s values, in RunResult.episodes' columns, once the world's statistics and every
+        learner's of it are in (else None): steps, collisions and truncation and the return summed over the
+        agents from WorldStats; joint plays and states summed over the learners' AgentStats."""
+        w = self.world.get(episode)
+        a = [self.agents[k].get(episode) for k in learners]
+        if w is None or None in a:
+            return None
+        return (w.steps, w.collisions, sum(s.joint_plays for s in a), sum(s.local_states + s.joint_states for s in a),
+                sum(w.returns), w.truncated)
+
+    @property
+    def complete(self) -> bool:
+        return len(self.world) == self.episodes and all(len(s) == self.episodes for s in self.agents.values())
+
+    def missing(self) -> list[str]:
+        """What has not come yet, e.g. ['world/stats episodes 7-9', 'agv2/stats episode 0']."""
+        wanted = range(self.episodes)
+        out = []
+        heard = [(WORLD_STATS_TOPIC, self.world)] + [(agent_stats_topic(k), v) for k, v in self.agents.items()]
+        for topic, got in heard:
+            gone = [e for e in wanted if e not in got]
+            if gone:
+                out.append(f"{topic} episode{'s' if len(gone) > 1 else ''} {_ranges(gone)}")
+        return out
+
+
+class EpisodeRows:
+    """episodes.csv of a launch, a row per learning episode, in order, each written as soon as it is heard.
+
+    `failure` is None until a write fails; then it names the file and the OS's reason, the file ends with the
+    last whole row, and the reserve is given back. OutputError at the start when the folder cannot take
+    the reserve and the header."""
+
+    def __init__(self, out: Path, map_name: str, algo: str, learners: list[int], episodes: int):
+        self.path, self.reserve = out / "episodes.csv", out / RESERVE_NAME
+        self.map_name, self.algo, self.learners, self.episodes = map_name, algo, learners, episodes
+        self.written = 0  # rows on disk
+        self.failure: str | None = None
+        self._fd = -1
+        try:
+            with open(self.reserve, "wb") as f:
+                f.write(bytes(RESERVE_BYTES))
+                f.flush()
+                os.fsync(f.fileno())
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            self._write(EPISODE_COLUMNS)
+        except OSError as e:
+            self.close()
+            self.free()
+            raise OutputError(f"output directory {out}: cannot write there: {os_reason(e)}") from None
+
+    def take(self, listener: StatsListener) -> None:
+        """Write every row heard since the last call, in order (none after a failure)."""
+        while self.failure is None and self.written < self.episodes:
+            values = listener.row(self.written, self.learners)
+            if values is None:
+                return
+            try:
+                self._write(episode_row(self.map_name, self.algo, 0, self.written + 1, values))
+            except OSError as e:
+                self.failure = f"cannot write {self.path}: {os_reason(e)}"
+                self.close()
+                self.free()
+                return
+            self.written += 1
+
+    def _write(self, row) -> None:
+        line = io.StringIO()
+        csv.writer(line).writerow(row)
+        data = line.getvalue().encode()
+        start = os.lseek(self._fd, 0, os.SEEK_CUR)
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self._fd, view):]
+        except OSError:
+            os.ftruncate(self._fd, start)  # no half row: a reader sees whole rows only
+            raise
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def free(self) -> None:
+        """Give the reserve back (at the end, or to make room for the manifest on a full disk)."""
+        self.reserve.unlink(missing_ok=True)
+
+
+def checkpoint_failures(counters: dict[str, int]) -> list[str]:
+    """'[Errno 28] No space left on device (4 times)' for each checkpoint_failed.<errno> an agent counted."""
+    out = []
+    for key, n in counters.items():
+        if key.startswith("checkpoint_failed."):
+            code = getattr(errno, key.split(".", 1)[1].upper(), None)
+            reason = f"[Errno {code}] {os.strerror(code)}" if code else key.split(".", 1)[1]
+            out.append(f"{reason} ({n} time{'s' if n != 1 else ''})")
+    return out
+
+
+def write_launch_results(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
+                         wall: float, listener: StatsListener, learners: list[int], learner_nodes: list[str],
+                         nodes: dict, run_info: dict) -> LaunchResult:
+    """observe.csv, greedy.csv and manifest.json from the statistics heard (episodes.csv is written already,
+    by EpisodeRows): the first `episodes` (learning) and the greedy ones after them (ros_tools.launch says
+    what comes from where). OSError if the disk refuses them."""
+    played = range(listener.episodes)
+    world = [listener.world[e] for e in played]
+    per_learner = [[listener.agents[k][e] for k in learners] for e in played]
+    rows = np.array([listener.row(e, learners) for e in played], dtype=float).reshape(len(played), 6)
+    table, greedy = rows[:episodes], rows[episodes:]
+    kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
+             m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
+    final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
+    manifest = manifest_for(
+        gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
+        communication={name: {"subscriptions_created": s.subscriptions_created,
+                              "subscriptions_active": s.subscriptions_active,
+                              "peer_messages": s.peer_messages, "counters": dict(s.counters)}
+                       for name, s in zip(learner_nodes, final)},
+        world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
+               "stepping_s": round(sum(w.duration_s for w in world), 3)},
+        launcher={"dropped": listener.drops.as_counters()})
+    write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=True)
+    return LaunchResult(out, table, greedy, manifest)
+
+
+def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
+                      wall: float, rows: EpisodeRows, nodes: dict, run_info: dict, reason: str) -> str:
+    """manifest.json of a launch that ended early (`reason`), with the rows written; what became of it, for
+    the launch's last line."""
+    manifest = manifest_for(gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
+                            ended_early={"reason": reason, "episodes_written": rows.written})
+    rows.free()  # room for the manifest on a full disk
+    try:
+        (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    except OSError as e:
+        return f"manifest.json not written either: {os_reason(e)}"
+    return f"{out / 'manifest.json'} says so"
