@@ -15,7 +15,7 @@ the next cell, since the agent cannot know it will need coordination at the next
 its peers at the start of its next step, before acting. For a collision this is also the joint state
 the agent acted in, since colliding agents stay where they were.
 
-Three choices of ours, each a setting whose other value is the paper's reading (README, "Choices"): only
+Three choices of ours, each a setting whose other value is the paper's reading (docs/choices.md): only
 the peers within `cq_mark_range` cells are marked; an update waits one step and bootstraps from the row
 the agent then acts on (`cq_bootstrap_acted`), so waiting in a joint state is not valued by Q_k's free
 road; and where several joint states are met at once, the agent acts on the elementwise minimum of their
