@@ -5,14 +5,18 @@ code changes.
 
 `python tests/test_docs.py --write` copies them into docs/choices.md after a new report.
 
-The README's Python examples run as written: a newcomer copies them first.
+The README's Python examples run as written: a newcomer copies them first. The map format page that the
+shipped maps' headers point to ships beside them, and its example is a map the loader reads.
 """
 
 import contextlib
 import io
 import re
 import sys
+from importlib import resources
 from pathlib import Path
+
+from cq_ros.gridmap import available_maps, map_text, parse_map
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
@@ -57,6 +61,17 @@ def test_the_readmes_python_examples_run_as_written():
         with contextlib.redirect_stdout(printed):
             exec(compile(block, "README.md", "exec"), {})
         assert printed.getvalue().strip(), f"the example printed nothing:\n{block}"
+
+
+def test_the_maps_headers_point_to_the_format_page_shipped_beside_them():
+    pointing = [name for name in available_maps() if "see README.md in this folder" in map_text(name)]
+    assert pointing  # the paper's maps say so in their header
+    page = resources.files("cq_ros") / "maps" / "README.md"
+    assert page.is_file()
+    assert "README" not in available_maps()
+    example = re.search(r"^```\n(.*?)^```$", page.read_text(encoding="utf-8"), flags=re.S | re.M)[1]
+    gridmap = parse_map(example, source="cq_ros/maps/README.md")
+    assert (gridmap.n_agents, gridmap.n_cells, gridmap.defaults) == (2, 25, {"reward_step": -1})
 
 
 if __name__ == "__main__" and sys.argv[1:] == ["--write"]:
