@@ -1,5 +1,5 @@
 """Every tunable number of an experiment in one flat, typed record: the paper's settings where it gives
-them, our choices where it does not (README, "Defaults"), each written into every result manifest.
+them, our choices where it does not (docs/choices.md), each written into every result manifest.
 
 `Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
 parameters reach it, so a bad key or value is reported the same way everywhere. `run_settings` is the one

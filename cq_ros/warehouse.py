@@ -37,13 +37,13 @@ __all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "MAP_DEFAULTS", "default_ai
 
 DEFAULT_AISLE_LENGTH = 6
 # Setting -> (value, why). On warehouse_16, indep with reward_step=-1 and gamma 0.9 ran 924 of 1,000 episodes
-# to the 5,000-step cap; with gamma 0.98, 17 of 3,000, and every greedy policy got all home (README, Use).
+# to the 5,000-step cap; with gamma 0.98, 17 of 3,000, and every greedy policy got all home (docs/warehouses.md, "The maps").
 MAP_DEFAULTS = {
     "reward_step": ("-1", "steps cost: with free steps, learners wander in the safe cross-aisles rather than "
                           "cross an entrance where they have collided"),
     "gamma": ("0.98", "a goal 30 steps away is discounted by 0.9^30 = 0.04 at the paper's gamma, too little to "
                       "tell arriving from wandering for ever; by 0.98^30 = 0.55 here"),
-    # Measured on warehouse_16, 10 runs x 2,000 episodes per seed (README, Warehouses): CQ's greedy policies were
+    # Measured on warehouse_16, 10 runs x 2,000 episodes per seed (docs/warehouses.md): CQ's greedy policies were
     # collision-free in 17 of 20 runs at a fixed 0.1 (seeds 0, 1), in 48 of 50 with epsilon at 0 by episode 2,000
     # (seeds 0-4), and in 50 of 50 by episode 1,500.
     "epsilon_decay_episodes": ("1500", "exploration falls to 0 by episode 1,500, so that the last 500 of 2,000 "

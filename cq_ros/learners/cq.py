@@ -20,7 +20,7 @@ the first N rewards, since where AGVs are delayed a conflict is there from the f
 first rewards are no measure of being alone (the earlier CQ-learning of De Hauwere et al. 2010 took W1 from
 a single-agent phase).
 
-Three choices of ours, each a setting whose other value is the paper's reading (README, "Choices"): only
+Three choices of ours, each a setting whose other value is the paper's reading (docs/choices.md): only
 the peers within `cq_mark_range` cells are marked; an update waits one step and bootstraps from the row
 the agent then acts on (`cq_bootstrap_acted`), so waiting in a joint state is not valued by Q_k's free
 road; and where several joint states are met at once, the agent acts on the elementwise minimum of their
