@@ -253,10 +253,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def _dispatch(args) -> int:
     if args.command == "maps":
-        print(f"{'map':<18} {'cells':>5} {'agents':>6}")
-        for name in available_maps():
+        names = available_maps()
+        width = max(len(name) for name in names)
+        print(f"{'map':<{width}} {'cells':>5} {'agents':>6}")
+        for name in names:
             m = load_map(name)
-            print(f"{name:<18} {m.n_cells:>5} {m.n_agents:>6}")
+            print(f"{name:<{width}} {m.n_cells:>5} {m.n_agents:>6}")
         return 0
     if args.command == "show":
         m = load_map(args.map)
