@@ -225,6 +225,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
     p.add_argument("--show", action="store_true",
                    help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
+    p.add_argument("--slip", type=_number(0, 1), default=None, metavar="P",
+                   help="execute the plan where a move fails with probability P (default: the map's own slip)")
+    p.add_argument("--start-hold", type=_number(0, kind=int), default=None, metavar="H",
+                   help="execute the plan where each AGV's first 0..H moves fail (default: the map's own)")
+    p.add_argument("--executions", type=_number(0, kind=int), default=100, metavar="N",
+                   help="seeded executions of the plan under those delays, kept in order by its action "
+                        "dependency graph (cq_ros.execute); execution r draws the delays of a learner's run r "
+                        "(default 100; 0: none)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a setting of the executions' world (repeatable); `cq-ros settings` lists them")
 
     p = sub.add_parser("reproduce", help="the paper's grid (4 maps x 5 algorithms), figures and REPORT.md")
     p.add_argument("--out", type=Path, required=True, help="result directory")
@@ -306,6 +316,9 @@ def _plan(args) -> int:
     from .planner import NoPlan, PlanError, distances_to, plan, validate
 
     gridmap = load_map(args.map)
+    delays = [f"{key}={value}" for key, value in (("slip", args.slip), ("start_hold", args.start_hold))
+              if value is not None]
+    settings = run_settings(gridmap, args.overrides + delays)  # checked before the search starts
     started = time.perf_counter()
     progress = _PlanProgress()
     try:
@@ -332,7 +345,35 @@ def _plan(args) -> int:
             moves = "".join(ACTIONS[a][0] if b != a_cell else ACTIONS[a][0].lower()
                             for a, a_cell, b in zip(actions, path, path[1:]))
             print(f"agv{i + 1} {gridmap.cells[path[0]]} -> {gridmap.cells[path[-1]]}: {moves or '(at its goal)'}")
+    if args.executions:
+        _print_executions(result, gridmap, settings, args.seed, args.executions)
     return 0
+
+
+def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: int) -> None:
+    from .execute import execute_many, moves_can_fail, spread
+
+    progress = _PlanProgress()
+    try:
+        executions = execute_many(the_plan, gridmap, settings, seed, runs, lambda done: progress("executions", done, runs))
+    finally:
+        progress.close()
+    how = ("the action dependency graph keeps the plan's order at every shared cell" if moves_can_fail(settings)
+           else "no move can fail, so the AGVs follow the plan's clock")
+    print(f"\n{runs} executions (seed {seed}, runs 0-{runs - 1}) with slip {settings.slip:g}, start_hold "
+          f"{settings.start_hold}: {how}")
+    print(f"{'':<14} {'mean':>8} {'min':>6} {'max':>6}")
+    notes = {"waits": "wall bumps while waiting", "held": "steps at a start without a wall, no action sent",
+             "delays": "moves the delays failed", "messages": "one per cross-agent dependency, on leaving the cell"}
+    for name, figure in spread(executions).items():
+        label = name.replace("_", " ")
+        if figure is None:
+            print(f"{label:<14} {'-':>8} {'-':>6} {'-':>6}")
+        else:
+            print(f"{label:<14} {figure.mean:>8.2f} {figure.low:>6g} {figure.high:>6g}  {notes.get(name, '')}".rstrip())
+    home = sum(e.home for e in executions)
+    print(f"every AGV home in {home} of {runs}; stalled {sum(e.stalled for e in executions)}, "
+          f"truncated at the step cap {sum(e.truncated for e in executions)}")
 
 
 class _PlanProgress:

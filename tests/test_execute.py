@@ -1,0 +1,190 @@
+"""Tests of cq_ros.execute: the planner's plan carried out under delays by its action dependency graph, on
+hand-made maps (a corridor, an entrance, an open aisle), on warehouse_8, and through `cq-ros plan`."""
+
+import pytest
+
+from cq_ros.cli import main
+from cq_ros.execute import execute, execute_many, spread
+from cq_ros.gridmap import load_map, parse_map
+from cq_ros.planner import Plan, plan, validate
+from cq_ros.settings import Settings
+
+# AGV 2 follows AGV 1 east through a one-lane corridor (every cell walled north and south).
+CORRIDOR = """\
+agent 1: start 0,1  goal 0,5
+agent 2: start 0,0  goal 0,4
++-+-+-+-+-+-+
+|. . . . . .|
++-+-+-+-+-+-+
+"""
+
+# AGV 2 comes up a one-lane corridor into a lane that AGV 1 crosses: they share the entrance (0,2) and (0,3).
+ENTRANCE = """\
+agent 1: start 0,0  goal 0,4
+agent 2: start 2,2  goal 0,3
++-+-+-+-+-+
+|. . . . .|
++-+-+ +-+-+
+ # #|.|# #
++ + + + + +
+ # #|.|# #
++ + +-+ + +
+"""
+
+# A two-lane aisle between walled edges: rows 1 and 2 have no wall at all in columns 1-4, so an AGV there
+# cannot wait; four AGVs pass each other through it.
+OPEN_AISLE = """\
+agent 1: start 0,0  goal 3,5
+agent 2: start 3,0  goal 0,5
+agent 3: start 0,5  goal 3,0
+agent 4: start 3,5  goal 0,0
++-+-+-+-+-+-+
+|. . . . . .|
++ + + + + + +
+|. . . . . .|
++ + + + + + +
+|. . . . . .|
++ + + + + + +
+|. . . . . .|
++-+-+-+-+-+-+
+"""
+
+MAPS = {"corridor": CORRIDOR, "entrance": ENTRANCE, "open aisle": OPEN_AISLE}
+DELAYS = [{"slip": 0.1}, {"slip": 0.3}, {"start_hold": 3}, {"slip": 0.2, "start_hold": 2}]
+
+
+def visit_order(paths):
+    """Cell -> the AGVs in the order they enter it (a start counts as entering at step 0)."""
+    entries = []
+    for i, path in enumerate(paths):
+        entries += [(t, i, cell) for t, cell in enumerate(path) if t == 0 or path[t - 1] != cell]
+    order = {}
+    for _, i, cell in sorted(entries):
+        order.setdefault(cell, []).append(i)
+    return order
+
+
+def cross_agent_dependencies(paths):
+    """What each execution sends: one message per pair of consecutive visits of a cell by different AGVs."""
+    return sum(sum(a != b for a, b in zip(agents, agents[1:])) for agents in visit_order(paths).values())
+
+
+@pytest.mark.parametrize("delays", DELAYS, ids=lambda d: ",".join(f"{k}={v}" for k, v in d.items()))
+@pytest.mark.parametrize("name", MAPS)
+def test_under_delays_no_collision_every_agv_home_and_the_plan_order_kept_at_every_cell(name, delays):
+    m = parse_map(MAPS[name])
+    the_plan = plan(m)
+    settings = Settings(**delays)
+    shared = [cell for cell, agents in visit_order(the_plan.paths).items() if len(set(agents)) > 1]
+    assert shared  # the plan sends several AGVs through some cell: there is an order to keep
+    executions = execute_many(the_plan, m, settings, seed=7, runs=10)
+    for e in executions:
+        assert e.collisions == 0 and e.home and not e.stalled and not e.truncated
+        assert visit_order(e.paths) == visit_order(the_plan.paths)
+        assert e.messages == cross_agent_dependencies(the_plan.paths) > 0
+        assert [path[-1] for path in e.paths] == list(m.goals)
+        assert all(e.arrivals[i] == len(path) - 1 for i, path in enumerate(e.paths))
+    assert sum(e.delays for e in executions) > 0  # the delays did happen
+    # the delays cost time: never less than the plan, sometimes more
+    assert min(e.sum_of_costs for e in executions) >= the_plan.sum_of_costs
+    assert max(e.sum_of_costs for e in executions) > the_plan.sum_of_costs
+
+
+def test_an_agv_stops_only_in_a_cell_where_it_can_wait():
+    # With start holds alone, no move fails once an AGV has left its start: from then on it stays only by
+    # bumping into a wall, so never in a cell without one (rows 1 and 2 of the open aisle, columns 1-4).
+    m = parse_map(OPEN_AISLE)
+    the_plan = plan(m)
+    no_wait = {c for c, nbr in enumerate(m.neighbours) if all(there != c for there in nbr)}
+    assert len(no_wait) == 8 and any(no_wait & set(path) for path in the_plan.paths)
+    for e in execute_many(the_plan, m, Settings(start_hold=4), seed=3, runs=20):
+        for i, path in enumerate(e.paths):
+            left = next(t for t, cell in enumerate(path) if cell != path[0])
+            assert all(not (path[t] == path[t + 1] and path[t] in no_wait) for t in range(left, len(path) - 1))
+
+
+@pytest.mark.parametrize("name", MAPS)
+def test_with_no_delays_the_execution_is_exactly_the_plan(name):
+    m = parse_map(MAPS[name])
+    the_plan = plan(m)
+    e = execute(the_plan, m, Settings(), seed=0, run=0)
+    assert e.paths == the_plan.paths and e.arrivals == the_plan.arrivals
+    assert (e.makespan, e.sum_of_costs, e.collisions, e.messages, e.delays) == (
+        the_plan.makespan, the_plan.sum_of_costs, 0, 0, 0)
+
+
+def test_the_same_seed_gives_the_same_execution_and_runs_draw_their_own_delays():
+    m = parse_map(OPEN_AISLE)
+    the_plan = plan(m)
+    settings = Settings(slip=0.2)
+    assert execute(the_plan, m, settings, 5, 1) == execute(the_plan, m, settings, 5, 1)
+    assert len({execute(the_plan, m, settings, 5, run).paths for run in range(6)}) > 1
+    assert execute_many(the_plan, m, settings, 5, 3)[2] == execute(the_plan, m, settings, 5, 2)
+
+
+def test_a_stall_is_detected_and_the_execution_stops():
+    # AGV 1 waits in (1,1) (walled north) for its whole stretch (1,2) (2,2) (2,1) to be released, the last
+    # by AGV 2 leaving (2,1); AGV 2, starting in (2,1) where it cannot wait, may enter (1,1) only once AGV 1
+    # has left it. The plan is fine by the clock (AGV 2 moves in as AGV 1 moves out), but once a move can fail
+    # neither AGV can move: a dependency cycle of stretches.
+    m = parse_map("""\
+agent 1: start 1,1  goal 2,1
+agent 2: start 2,1  goal 1,1
++-+-+-+-+
+|. . . .|
++ +-+ + +
+|. . . .|
++ + + + +
+|. . . .|
++ + + + +
+|. . . .|
++-+-+-+-+
+""")
+    paths = ((m.index(1, 1), m.index(1, 2), m.index(2, 2), m.index(2, 1)), (m.index(2, 1), m.index(1, 1)))
+    actions = tuple(tuple(m.neighbours[a].index(b) for a, b in zip(p, p[1:])) for p in paths)
+    by_hand = Plan(paths, actions, "by hand", 0)
+    assert validate(m, by_hand) == [3, 1]
+    assert execute(by_hand, m, Settings(), 0, 0).home
+    e = execute(by_hand, m, Settings(slip=0.1), 0, 0)
+    assert e.stalled and not e.home and e.arrivals == (None, None) and e.collisions == 0
+    assert e.paths == ((paths[0][0],), (paths[1][0],))  # stopped at once, not bumping for ever
+
+
+def test_warehouse_8_under_slip_is_collision_free_and_every_agv_home():
+    m = load_map("warehouse_8")
+    the_plan = plan(m)
+    executions = execute_many(the_plan, m, Settings(slip=0.1), seed=0, runs=5)
+    assert all(e.collisions == 0 and e.home and not e.stalled for e in executions)
+    assert all(visit_order(e.paths) == visit_order(the_plan.paths) for e in executions)
+    figures = spread(executions)
+    assert figures["makespan"].low >= the_plan.makespan and figures["collisions"].high == 0
+
+
+def test_plan_command_prints_the_executions(tmp_path, capsys):
+    path = tmp_path / "entrance.txt"
+    path.write_text(ENTRANCE)
+    assert main(["plan", "--map", str(path), "--slip", "0.2", "--executions", "5", "--seed", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "5 executions (seed 3, runs 0-4) with slip 0.2, start_hold 0: the action dependency graph" in out
+    assert "collisions         0.00      0      0" in out
+    assert "every AGV home in 5 of 5; stalled 0" in out
+    m = parse_map(ENTRANCE)
+    e = execute_many(plan(m, seed=3), m, Settings(slip=0.2), 3, 5)
+    assert f"{'messages':<14} {spread(e)['messages'].mean:>8.2f}" in out
+    # the map's own slip applies when --slip is not given; --set changes any other setting of the world
+    path.write_text("set slip=0.3\n" + ENTRANCE)
+    assert main(["plan", "--map", str(path), "--executions", "2", "--set", "start_hold=1"]) == 0
+    assert "with slip 0.3, start_hold 1:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--slip", "1.5"], "argument --slip: must be at least 0 and at most 1"),
+    (["--start-hold", "-1"], "argument --start-hold: must be at least 0"),
+    (["--executions", "x"], "argument --executions: expected a whole number"),
+    (["--set", "slop=1"], "unknown setting 'slop'"),
+])
+def test_plan_command_with_bad_delay_options_exits_2_with_one_line(args, phrase, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["plan", "--map", "tunnel_to_goal", *args])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and phrase in err and len(err.strip().splitlines()) == 1
