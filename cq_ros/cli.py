@@ -351,7 +351,7 @@ def _plan(args) -> int:
 
 
 def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: int) -> None:
-    from .execute import execute_many, moves_can_fail, spread
+    from .execute import dependencies, execute_many, moves_can_fail, spread, stall_risk
 
     progress = _PlanProgress()
     try:
@@ -374,6 +374,11 @@ def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: in
     home = sum(e.home for e in executions)
     print(f"every AGV home in {home} of {runs}; stalled {sum(e.stalled for e in executions)}, "
           f"truncated at the step cap {sum(e.truncated for e in executions)}")
+    if moves_can_fail(settings):
+        cycle = stall_risk(dependencies(gridmap, the_plan))
+        print("the stretches between wait cells wait on each other in no cycle: no execution can stall" if not cycle
+              else "the stretches of " + ", ".join(f"agv{i + 1}" for i in cycle) + " wait on each other in a "
+              "cycle: an execution can stall")
 
 
 class _PlanProgress:

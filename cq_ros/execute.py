@@ -101,6 +101,40 @@ def dependencies(gridmap: GridMap, the_plan: Plan) -> Dependencies:
     return Dependencies(tuple(routes), tuple(tuple(a) for a in after), tuple(stretch_end), can_wait)
 
 
+def stall_risk(deps: Dependencies) -> list[int]:
+    """The AGVs whose stretches (from a wait cell or the start to the next wait cell or the goal) wait on
+    each other in a cycle; none: no execution of the plan can stall, whatever the delays.
+
+    Why: an AGV that sets out on a stretch moves until its end (its cells are released and stay so), so when
+    no AGV is under way, one whose next stretch waits only on stretches before it in an order without cycles
+    finds them all done, and sets out."""
+    starts = [[k for k in range(len(route) - 1) if k == 0 or deps.can_wait[route[k]]] for route in deps.routes]
+    stretch_of = {}  # (agent, route index entered) -> (agent, the index its stretch starts from)
+    for i, ks in enumerate(starts):
+        for k in ks:
+            for m in range(k + 1, deps.stretch_end[i][k] + 1):
+                stretch_of[(i, m)] = (i, k)
+    waits_on = {(i, k): set() for i, ks in enumerate(starts) for k in ks}
+    for i, ks in enumerate(starts):
+        for before, k in zip(ks, ks[1:]):
+            waits_on[(i, k)].add((i, before))
+        for k in ks:
+            for m in range(k + 1, deps.stretch_end[i][k] + 1):
+                dep = deps.after[i][m]
+                if dep is not None and dep[0] != i:
+                    # met when that AGV enters its next cell, on the stretch that holds that move; a visit
+                    # that never leaves (none in a plan the world carries out) holds the stretch for ever
+                    waits_on[(i, k)].add(stretch_of.get((dep[0], dep[1] + 1), (i, k)))
+    # Take away the stretches whose waits are all taken away; those left wait in a cycle.
+    left = dict(waits_on)
+    while True:
+        free = [g for g, on in left.items() if not on & left.keys()]
+        if not free:
+            return sorted({i for i, _ in left})
+        for g in free:
+            del left[g]
+
+
 def _arrives(routes, goals, visit: tuple[int, int]) -> bool:
     i, k = visit
     return k == len(routes[i]) - 1 and routes[i][k] == goals[i]

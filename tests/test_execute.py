@@ -4,7 +4,7 @@ hand-made maps (a corridor, an entrance, an open aisle), on warehouse_8, and thr
 import pytest
 
 from cq_ros.cli import main
-from cq_ros.execute import execute, execute_many, spread
+from cq_ros.execute import dependencies, execute, execute_many, spread, stall_risk
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.planner import Plan, plan, validate
 from cq_ros.settings import Settings
@@ -122,11 +122,8 @@ def test_the_same_seed_gives_the_same_execution_and_runs_draw_their_own_delays()
     assert execute_many(the_plan, m, settings, 5, 3)[2] == execute(the_plan, m, settings, 5, 2)
 
 
-def test_a_stall_is_detected_and_the_execution_stops():
-    # AGV 1 waits in (1,1) (walled north) for its whole stretch (1,2) (2,2) (2,1) to be released, the last
-    # by AGV 2 leaving (2,1); AGV 2, starting in (2,1) where it cannot wait, may enter (1,1) only once AGV 1
-    # has left it. The plan is fine by the clock (AGV 2 moves in as AGV 1 moves out), but once a move can fail
-    # neither AGV can move: a dependency cycle of stretches.
+def stalling_plan():
+    """A plan that the world carries out by the clock but that stalls the ADG's stretches: a 4x4 room."""
     m = parse_map("""\
 agent 1: start 1,1  goal 2,1
 agent 2: start 2,1  goal 1,1
@@ -142,7 +139,16 @@ agent 2: start 2,1  goal 1,1
 """)
     paths = ((m.index(1, 1), m.index(1, 2), m.index(2, 2), m.index(2, 1)), (m.index(2, 1), m.index(1, 1)))
     actions = tuple(tuple(m.neighbours[a].index(b) for a, b in zip(p, p[1:])) for p in paths)
-    by_hand = Plan(paths, actions, "by hand", 0)
+    return m, Plan(paths, actions, "by hand", 0)
+
+
+def test_a_stall_is_detected_and_the_execution_stops():
+    # AGV 1 waits in (1,1) (walled north) for its whole stretch (1,2) (2,2) (2,1) to be released, the last
+    # by AGV 2 leaving (2,1); AGV 2, starting in (2,1) where it cannot wait, may enter (1,1) only once AGV 1
+    # has left it. The plan is fine by the clock (AGV 2 moves in as AGV 1 moves out), but once a move can fail
+    # neither AGV can move: a dependency cycle of stretches.
+    m, by_hand = stalling_plan()
+    paths = by_hand.paths
     assert validate(m, by_hand) == [3, 1]
     assert execute(by_hand, m, Settings(), 0, 0).home
     e = execute(by_hand, m, Settings(slip=0.1), 0, 0)
@@ -168,6 +174,7 @@ def test_plan_command_prints_the_executions(tmp_path, capsys):
     assert "5 executions (seed 3, runs 0-4) with slip 0.2, start_hold 0: the action dependency graph" in out
     assert "collisions         0.00      0      0" in out
     assert "every AGV home in 5 of 5; stalled 0" in out
+    assert "wait on each other in no cycle: no execution can stall" in out
     m = parse_map(ENTRANCE)
     e = execute_many(plan(m, seed=3), m, Settings(slip=0.2), 3, 5)
     assert f"{'messages':<14} {spread(e)['messages'].mean:>8.2f}" in out
@@ -188,3 +195,14 @@ def test_plan_command_with_bad_delay_options_exits_2_with_one_line(args, phrase,
         main(["plan", "--map", "tunnel_to_goal", *args])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and phrase in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_shipped_warehouses_plans_cannot_stall_and_the_hand_made_cycle_is_found():
+    for name in ("warehouse_8", "warehouse_16"):
+        m = load_map(name)
+        assert stall_risk(dependencies(m, plan(m))) == []
+    for text in MAPS.values():
+        m = parse_map(text)
+        assert stall_risk(dependencies(m, plan(m))) == []
+    m, by_hand = stalling_plan()
+    assert stall_risk(dependencies(m, by_hand)) == [0, 1]
