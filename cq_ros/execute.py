@@ -33,7 +33,8 @@ with the plan shared in advance, nothing else needs to travel (an AGV's own prog
 Deadlock: the ADG of a collision-free plan has no cycle, but waiting for a whole stretch could make two
 AGVs wait on each other (each needing a cell of its stretch that the other must leave first by a move that
 waits on the first). Then no AGV would move again: the execution stops there, recorded as `stalled`, with
-the AGVs not home counted, rather than bump for ever.
+the AGVs not home counted, rather than bump for ever. `stall_risk` finds such cycles in a plan before any
+execution; where it finds none, no execution can stall.
 
 Every random choice is the world's (`GridWorld`, seeded with `cq_ros.engine.world_seed(seed, run)`), so
 execution `run` meets exactly the delays a learner's run `run` meets.
@@ -184,11 +185,13 @@ def execute(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, run
     paths = [[cell] for cell in world.cells]
     collisions = waits = delays = 0
     stalled = False
+    held = 0
     while not world.finished and world.t < world.step_cap:
-        joint = choose(world)
-        if not any(choose.moving):
+        joint, moving = choose(world)
+        if not moving:
             stalled = True
             break
+        held += sum(a is None and not done for a, done in zip(joint, world.done))
         world.step_joint(joint)
         collisions += world.last_collisions
         waits += world.last_bumps
@@ -197,7 +200,7 @@ def execute(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, run
         for i, path in enumerate(paths):
             if world.arrival[i] is None or len(path) <= world.arrival[i]:
                 path.append(world.cells[i])
-    return Execution(tuple(map(tuple, paths)), tuple(world.arrival), collisions, waits, choose.held, delays,
+    return Execution(tuple(map(tuple, paths)), tuple(world.arrival), collisions, waits, held, delays,
                      choose.messages, stalled, world.truncated)
 
 
@@ -206,12 +209,11 @@ class _Clock:
 
     def __init__(self, the_plan: Plan):
         self.actions = the_plan.actions
-        self.held = self.messages = 0
+        self.messages = 0
 
-    def __call__(self, world: GridWorld) -> list[int | None]:
-        joint = [None if world.done[i] else acts[world.t] for i, acts in enumerate(self.actions)]
-        self.moving = [a is not None for a in joint]
-        return joint
+    def __call__(self, world: GridWorld) -> tuple[list[int | None], bool]:
+        """The joint action, and whether anyone moves (always, by the plan's clock)."""
+        return [None if world.done[i] else acts[world.t] for i, acts in enumerate(self.actions)], True
 
     def moved(self, world: GridWorld) -> None:
         pass
@@ -224,7 +226,7 @@ class _AdgRule:
         self.nbr = gridmap.neighbours
         self.deps = deps
         self.at = [0] * gridmap.n_agents  # each AGV's index on its route
-        self.held = self.messages = 0
+        self.messages = 0
         # how many AGVs wait on each visit's leaving: the messages its AGV sends then
         self.waiting_on = [[0] * len(route) for route in deps.routes]
         for j, waits in enumerate(deps.after):
@@ -236,10 +238,11 @@ class _AdgRule:
         dep = self.deps.after[i][k]
         return dep is None or self.at[dep[0]] > dep[1]
 
-    def __call__(self, world: GridWorld) -> list[int | None]:
+    def __call__(self, world: GridWorld) -> tuple[list[int | None], bool]:
+        """The joint action (None: held at the start), and whether any AGV sets out or is under way."""
         deps, at, nbr = self.deps, self.at, self.nbr
         joint: list[int | None] = [None] * len(at)
-        self.moving = [False] * len(at)
+        moving = False
         for i, k in enumerate(at):
             if world.done[i]:
                 continue
@@ -248,12 +251,10 @@ class _AdgRule:
                   or all(self.released(i, m) for m in range(k + 1, deps.stretch_end[i][k] + 1)))
             if go:
                 joint[i] = nbr[cell].index(route[k + 1])
-                self.moving[i] = True
+                moving = True
             elif deps.can_wait[cell]:
                 joint[i] = next(a for a, there in enumerate(nbr[cell]) if there == cell)  # a bump: the wait
-            else:
-                self.held += 1
-        return joint
+        return joint, moving
 
     def moved(self, world: GridWorld) -> None:
         deps, at = self.deps, self.at

@@ -103,6 +103,18 @@ def test_an_agv_stops_only_in_a_cell_where_it_can_wait():
             assert all(not (path[t] == path[t + 1] and path[t] in no_wait) for t in range(left, len(path) - 1))
 
 
+def test_an_agv_that_starts_where_it_cannot_wait_is_held_there_until_its_stretch_is_released():
+    # AGV 2 starts in (1,3), without a wall, and goes west through (1,1), which AGV 1 leaves at step 1 by the
+    # plan's clock. Under the ADG it may set out only once AGV 1 has left: it sends no action meanwhile.
+    m = parse_map("agent 1: start 1,1  goal 1,5\nagent 2: start 1,3  goal 1,0\n" + OPEN_AISLE.split("\n", 4)[4])
+    the_plan = plan(m)
+    start = m.index(1, 3)
+    assert the_plan.paths[1][:2] == (start, m.index(1, 2)) and m.index(1, 1) in the_plan.paths[1]
+    for e in execute_many(the_plan, m, Settings(slip=0.1), seed=0, runs=10):
+        assert e.held >= 1 and e.paths[1][:2] == (start, start)
+        assert e.collisions == 0 and e.home
+
+
 @pytest.mark.parametrize("name", MAPS)
 def test_with_no_delays_the_execution_is_exactly_the_plan(name):
     m = parse_map(MAPS[name])
@@ -152,7 +164,7 @@ def test_a_stall_is_detected_and_the_execution_stops():
     assert validate(m, by_hand) == [3, 1]
     assert execute(by_hand, m, Settings(), 0, 0).home
     e = execute(by_hand, m, Settings(slip=0.1), 0, 0)
-    assert e.stalled and not e.home and e.arrivals == (None, None) and e.collisions == 0
+    assert e.stalled and not e.home and e.arrivals == (None, None) and e.collisions == e.held == 0
     assert e.paths == ((paths[0][0],), (paths[1][0],))  # stopped at once, not bumping for ever
 
 
