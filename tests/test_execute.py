@@ -168,6 +168,18 @@ def test_a_stall_is_detected_and_the_execution_stops():
     assert e.paths == ((paths[0][0],), (paths[1][0],))  # stopped at once, not bumping for ever
 
 
+def test_agvs_sharing_a_goal_both_arrive_without_waiting_on_each_other_there():
+    # tunnel_to_goal: both AGVs end in (2,0), the goal of both, one following the other through the tunnel.
+    m = load_map("tunnel_to_goal")
+    the_plan = plan(m)
+    goal = m.goals[0]
+    deps = dependencies(m, the_plan)
+    arrivals = [(i, len(route) - 1) for i, route in enumerate(deps.routes)]
+    assert m.goals[1] == goal and deps.after[1][-1] != arrivals[0] and deps.after[0][-1] != arrivals[1]
+    for e in execute_many(the_plan, m, Settings(slip=0.2, start_hold=3), seed=11, runs=10):
+        assert e.collisions == 0 and e.home and [path[-1] for path in e.paths] == [goal, goal]
+
+
 def test_warehouse_8_under_slip_is_collision_free_and_every_agv_home():
     m = load_map("warehouse_8")
     the_plan = plan(m)
