@@ -363,7 +363,8 @@ def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: in
     print(f"\n{runs} executions (seed {seed}, runs 0-{runs - 1}) with slip {settings.slip:g}, start_hold "
           f"{settings.start_hold}: {how}")
     print(f"{'':<14} {'mean':>8} {'min':>6} {'max':>6}")
-    notes = {"waits": "wall bumps while waiting", "held": "steps at a start without a wall, no action sent",
+    notes = {"waits": "wall bumps while waiting", "held": "steps staying where no wall is, no action sent",
+             "stalls": "steps no AGV could set out, one set out under the bare ADG",
              "delays": "moves the delays failed", "messages": "one per cross-agent dependency, on leaving the cell"}
     for name, figure in spread(executions).items():
         label = name.replace("_", " ")
@@ -372,11 +373,11 @@ def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: in
         else:
             print(f"{label:<14} {figure.mean:>8.2f} {figure.low:>6g} {figure.high:>6g}  {notes.get(name, '')}".rstrip())
     home = sum(e.home for e in executions)
-    print(f"every AGV home in {home} of {runs}; stalled {sum(e.stalled for e in executions)}, "
+    print(f"every AGV home in {home} of {runs}; stuck {sum(e.stuck for e in executions)}, "
           f"truncated at the step cap {sum(e.truncated for e in executions)}")
     if moves_can_fail(settings):
         cycle = stall_risk(dependencies(gridmap, the_plan))
-        print("the stretches between wait cells wait on each other in no cycle: no execution can stall" if not cycle
+        print("the stretches between wait cells wait on each other in no cycle: no execution stalls" if not cycle
               else "the stretches of " + ", ".join(f"agv{i + 1}" for i in cycle) + " wait on each other in a "
               "cycle: an execution can stall")
 

@@ -15,10 +15,10 @@ about half the aisle cells of a warehouse are not. So an AGV in a wait cell, or 
 when every cell of its route up to and including the next wait cell (or its goal) is released; until then
 it waits there by bumping. Between wait cells it moves every step and never has to stop: those cells are
 released, and every AGV the plan sends through them later waits for it to leave. A delay there is
-involuntary and the ADG keeps the others behind it. The one place an AGV may have to stay without a wall
-is its start: one that starts in a cell it cannot wait in, whose first stretch is not yet released, is not
-dispatched: it sends no action (the world keeps it, as it keeps any AGV whose action did not come, and it
-pays reward_step); such steps are counted as `held`.
+involuntary and the ADG keeps the others behind it. Where an AGV must stay in a cell without a wall, it
+sends no action (the world keeps it, as it keeps any AGV whose action did not come, and it pays
+reward_step), counted as `held`: at its start, when that has no wall and its first stretch is not yet
+released (it is not dispatched yet), and after a stall (below).
 
 When no move can fail (slip 0 and start_hold 0), the plan's own clock keeps every order (the world carries
 the plan out: `cq_ros.planner.validate`), so the AGVs follow the plan step by step and send nothing: with no
@@ -30,11 +30,15 @@ AGV the plan sends in next; the later AGV moves on when it holds the messages of
 would be a std_msgs/UInt32MultiArray (cell, visit) on the later AGV's own topic, reliable, so none is lost:
 with the plan shared in advance, nothing else needs to travel (an AGV's own progress is its own).
 
-Deadlock: the ADG of a collision-free plan has no cycle, but waiting for a whole stretch could make two
-AGVs wait on each other (each needing a cell of its stretch that the other must leave first by a move that
-waits on the first). Then no AGV would move again: the execution stops there, recorded as `stalled`, with
-the AGVs not home counted, rather than bump for ever. `stall_risk` finds such cycles in a plan before any
-execution; where it finds none, no execution can stall.
+Stalls: waiting for a whole stretch can make AGVs wait on each other in a cycle (each needs a cell of its
+stretch that the next must leave first; on warehouse_32 a loop of AGVs round a two-lane cross-aisle does).
+When no AGV sets out and none is under way, the AGV whose next move comes first in the plan among those
+whose next cell alone is released sets out (the bare ADG) and holds where its next cell is not yet
+released; that is counted in `stalls`. The bare ADG has a cycle only where the plan moves AGVs round a
+loop of cells all in one step (which the world allows and no move that can fail survives); an execution
+that meets one stops, recorded as `stuck`, with the AGVs not home counted, rather than wait for ever.
+`stall_risk` finds the cycles of stretches in a plan before any execution; where it finds none, no
+execution stalls.
 
 Every random choice is the world's (`GridWorld`, seeded with `cq_ros.engine.world_seed(seed, run)`), so
 execution `run` meets exactly the delays a learner's run `run` meets.
@@ -58,10 +62,11 @@ class Dependencies:
     """The ADG of a plan, per AGV and per index of its route (its cells without the plan's waits).
 
     `after[i][k]` is the visit (agent, route index) that must have left the cell before AGV i enters
-    `routes[i][k]`, or None; `stretch_end[i][k]` the route index at which AGV i can next stop, after k: the
-    next wait cell or its goal."""
+    `routes[i][k]`, or None; `entered[i][k]` the step the plan enters it; `stretch_end[i][k]` the route index
+    at which AGV i can next stop, after k: the next wait cell or its goal."""
 
     routes: tuple[tuple[int, ...], ...]
+    entered: tuple[tuple[int, ...], ...]
     after: tuple[tuple[tuple[int, int] | None, ...], ...]
     stretch_end: tuple[tuple[int, ...], ...]
     can_wait: tuple[bool, ...]
@@ -69,15 +74,12 @@ class Dependencies:
 
 def dependencies(gridmap: GridMap, the_plan: Plan) -> Dependencies:
     can_wait = tuple(any(there == cell for there in nbr) for cell, nbr in enumerate(gridmap.neighbours))
-    routes, visits = [], []  # visits: (step the plan enters the cell, agent, route index)
+    routes, entered, visits = [], [], []  # visits: (step the plan enters the cell, agent, route index)
     for i, path in enumerate(the_plan.paths):
-        route = [path[0]]
-        visits.append((0, i, 0))
-        for t in range(1, len(path)):
-            if path[t] != path[t - 1]:
-                route.append(path[t])
-                visits.append((t, i, len(route) - 1))
-        routes.append(tuple(route))
+        steps = [t for t in range(len(path)) if t == 0 or path[t] != path[t - 1]]
+        routes.append(tuple(path[t] for t in steps))
+        entered.append(tuple(steps))
+        visits += [(t, i, k) for k, t in enumerate(steps)]
     goals = gridmap.goals
     last_visit: dict[int, tuple[int, int]] = {}  # cell -> the visit that the next one there waits on
     after = [[None] * len(route) for route in routes]
@@ -99,7 +101,8 @@ def dependencies(gridmap: GridMap, the_plan: Plan) -> Dependencies:
             if can_wait[route[k]]:
                 nxt = k
         stretch_end.append(tuple(ends))
-    return Dependencies(tuple(routes), tuple(tuple(a) for a in after), tuple(stretch_end), can_wait)
+    return Dependencies(tuple(routes), tuple(entered), tuple(tuple(a) for a in after), tuple(stretch_end),
+                        can_wait)
 
 
 def stall_risk(deps: Dependencies) -> list[int]:
@@ -150,10 +153,11 @@ class Execution:
     arrivals: tuple[int | None, ...]
     collisions: int  # colliding pairs, summed over steps
     waits: int  # wall bumps spent waiting
-    held: int  # steps an AGV at its start could not wait there and sent no action
+    held: int  # steps an AGV stayed in a cell without a wall, sending no action
     delays: int  # moves the world's delays failed
     messages: int  # dependency messages sent
-    stalled: bool  # no AGV could move any more (see the module's docstring)
+    stalls: int  # steps no AGV set out or was under way, so one set out under the bare ADG
+    stuck: bool  # no AGV could move any more, even under the bare ADG (see the module's docstring)
     truncated: bool  # the step cap came first
 
     @property
@@ -184,12 +188,12 @@ def execute(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, run
         choose = _Clock(the_plan)
     paths = [[cell] for cell in world.cells]
     collisions = waits = delays = 0
-    stalled = False
+    stuck = False
     held = 0
     while not world.finished and world.t < world.step_cap:
         joint, moving = choose(world)
         if not moving:
-            stalled = True
+            stuck = True
             break
         held += sum(a is None and not done for a, done in zip(joint, world.done))
         world.step_joint(joint)
@@ -201,7 +205,7 @@ def execute(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, run
             if world.arrival[i] is None or len(path) <= world.arrival[i]:
                 path.append(world.cells[i])
     return Execution(tuple(map(tuple, paths)), tuple(world.arrival), collisions, waits, held, delays,
-                     choose.messages, stalled, world.truncated)
+                     choose.messages, choose.stalls, stuck, world.truncated)
 
 
 class _Clock:
@@ -209,7 +213,7 @@ class _Clock:
 
     def __init__(self, the_plan: Plan):
         self.actions = the_plan.actions
-        self.messages = 0
+        self.messages = self.stalls = 0
 
     def __call__(self, world: GridWorld) -> tuple[list[int | None], bool]:
         """The joint action, and whether anyone moves (always, by the plan's clock)."""
@@ -226,7 +230,7 @@ class _AdgRule:
         self.nbr = gridmap.neighbours
         self.deps = deps
         self.at = [0] * gridmap.n_agents  # each AGV's index on its route
-        self.messages = 0
+        self.messages = self.stalls = 0
         # how many AGVs wait on each visit's leaving: the messages its AGV sends then
         self.waiting_on = [[0] * len(route) for route in deps.routes]
         for j, waits in enumerate(deps.after):
@@ -239,22 +243,36 @@ class _AdgRule:
         return dep is None or self.at[dep[0]] > dep[1]
 
     def __call__(self, world: GridWorld) -> tuple[list[int | None], bool]:
-        """The joint action (None: held at the start), and whether any AGV sets out or is under way."""
+        """The joint action (None: held in a cell without a wall), and whether any AGV moves."""
         deps, at, nbr = self.deps, self.at, self.nbr
         joint: list[int | None] = [None] * len(at)
         moving = False
         for i, k in enumerate(at):
             if world.done[i]:
                 continue
-            route, cell = deps.routes[i], deps.routes[i][k]
-            go = (not (k == 0 or deps.can_wait[cell])  # between wait cells: released when it set out
-                  or all(self.released(i, m) for m in range(k + 1, deps.stretch_end[i][k] + 1)))
+            cell = deps.routes[i][k]
+            if k == 0 or deps.can_wait[cell]:
+                go = all(self.released(i, m) for m in range(k + 1, deps.stretch_end[i][k] + 1))
+            else:  # under way: its cells were released when it set out, unless it set out after a stall
+                go = self.released(i, k + 1)
             if go:
-                joint[i] = nbr[cell].index(route[k + 1])
+                joint[i] = self.move(i)
                 moving = True
             elif deps.can_wait[cell]:
                 joint[i] = next(a for a, there in enumerate(nbr[cell]) if there == cell)  # a bump: the wait
+        if not moving:
+            ready = [(deps.entered[i][k + 1], i) for i, k in enumerate(at)
+                     if not world.done[i] and self.released(i, k + 1)]
+            if ready:
+                self.stalls += 1
+                first = min(ready)[1]
+                joint[first] = self.move(first)
+                moving = True
         return joint, moving
+
+    def move(self, i: int) -> int:
+        k = self.at[i]
+        return self.nbr[self.deps.routes[i][k]].index(self.deps.routes[i][k + 1])
 
     def moved(self, world: GridWorld) -> None:
         deps, at = self.deps, self.at
@@ -279,7 +297,7 @@ def execute_many(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int
     return out
 
 
-FIGURES = ("collisions", "makespan", "sum_of_costs", "waits", "held", "delays", "messages")
+FIGURES = ("collisions", "makespan", "sum_of_costs", "waits", "held", "stalls", "delays", "messages")
 
 
 @dataclass(frozen=True)
