@@ -364,7 +364,7 @@ def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: in
           f"{settings.start_hold}: {how}")
     print(f"{'':<14} {'mean':>8} {'min':>6} {'max':>6}")
     notes = {"waits": "wall bumps while waiting", "held": "steps staying where no wall is, no action sent",
-             "stalls": "steps no AGV could set out, one set out under the bare ADG",
+             "stalls": "AGVs waiting on each other in a cycle, one sets out under the bare ADG",
              "delays": "moves the delays failed", "messages": "one per cross-agent dependency, on leaving the cell"}
     for name, figure in spread(executions).items():
         label = name.replace("_", " ")

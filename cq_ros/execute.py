@@ -32,9 +32,10 @@ with the plan shared in advance, nothing else needs to travel (an AGV's own prog
 
 Stalls: waiting for a whole stretch can make AGVs wait on each other in a cycle (each needs a cell of its
 stretch that the next must leave first; on warehouse_32 a loop of AGVs round a two-lane cross-aisle does).
-When no AGV sets out and none is under way, the AGV whose next move comes first in the plan among those
-whose next cell alone is released sets out (the bare ADG) and holds where its next cell is not yet
-released; that is counted in `stalls`. The bare ADG has a cycle only where the plan moves AGVs round a
+When AGVs wait on each other in a cycle (each for a cell that the next must leave first), none of them will
+move again by itself, whatever the others do: then, among the AGVs waiting on such a cycle, the one whose
+next move comes first in the plan and whose next cell alone is released sets out (the bare ADG) and holds
+where its next cell is not yet released; that is counted in `stalls`. The bare ADG has a cycle only where the plan moves AGVs round a
 loop of cells all in one step (which the world allows and no move that can fail survives); an execution
 that meets one stops, recorded as `stuck`, with the AGVs not home counted, rather than wait for ever.
 `stall_risk` finds the cycles of stretches in a plan before any execution; where it finds none, no
@@ -156,7 +157,7 @@ class Execution:
     held: int  # steps an AGV stayed in a cell without a wall, sending no action
     delays: int  # moves the world's delays failed
     messages: int  # dependency messages sent
-    stalls: int  # steps no AGV set out or was under way, so one set out under the bare ADG
+    stalls: int  # steps AGVs waited on each other in a cycle, so one set out under the bare ADG
     stuck: bool  # no AGV could move any more, even under the bare ADG (see the module's docstring)
     truncated: bool  # the step cap came first
 
@@ -247,27 +248,28 @@ class _AdgRule:
         deps, at, nbr = self.deps, self.at, self.nbr
         joint: list[int | None] = [None] * len(at)
         moving = False
+        waits_on: dict[int, set[int]] = {}  # AGV that waits -> the AGVs whose leaving it waits for
         for i, k in enumerate(at):
             if world.done[i]:
                 continue
             cell = deps.routes[i][k]
-            if k == 0 or deps.can_wait[cell]:
-                go = all(self.released(i, m) for m in range(k + 1, deps.stretch_end[i][k] + 1))
-            else:  # under way: its cells were released when it set out, unless it set out after a stall
-                go = self.released(i, k + 1)
-            if go:
+            # under way: its cells were released when it set out, unless it set out to break a stall
+            ahead = deps.stretch_end[i][k] if k == 0 or deps.can_wait[cell] else k + 1
+            blocking = {deps.after[i][m][0] for m in range(k + 1, ahead + 1) if not self.released(i, m)}
+            if not blocking:
                 joint[i] = self.move(i)
                 moving = True
-            elif deps.can_wait[cell]:
+                continue
+            waits_on[i] = blocking
+            if deps.can_wait[cell]:
                 joint[i] = next(a for a, there in enumerate(nbr[cell]) if there == cell)  # a bump: the wait
-        if not moving:
-            ready = [(deps.entered[i][k + 1], i) for i, k in enumerate(at)
-                     if not world.done[i] and self.released(i, k + 1)]
-            if ready:
-                self.stalls += 1
-                first = min(ready)[1]
-                joint[first] = self.move(first)
-                moving = True
+        stalled = _waiting_in_cycles(waits_on)
+        ready = [(deps.entered[i][at[i] + 1], i) for i in stalled if self.released(i, at[i] + 1)]
+        if ready:
+            self.stalls += 1
+            first = min(ready)[1]
+            joint[first] = self.move(first)
+            moving = True
         return joint, moving
 
     def move(self, i: int) -> int:
@@ -284,6 +286,17 @@ class _AdgRule:
             elif world.cells[i] != route[k]:
                 raise AssertionError(f"agv{i + 1} left its route at step {world.t} (an executor bug)")
 
+
+
+def _waiting_in_cycles(waits_on: dict[int, set[int]]) -> set[int]:
+    """The AGVs that wait, directly or not, on AGVs waiting in a cycle: none of them will move again by
+    itself (an AGV needs all it waits on to move)."""
+    stalled = set(waits_on)
+    while True:
+        free = {i for i in stalled if not waits_on[i] & stalled}
+        if not free:
+            return stalled
+        stalled -= free
 
 
 def execute_many(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, runs: int,
