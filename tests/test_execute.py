@@ -134,9 +134,7 @@ def test_the_same_seed_gives_the_same_execution_and_runs_draw_their_own_delays()
     assert execute_many(the_plan, m, settings, 5, 3)[2] == execute(the_plan, m, settings, 5, 2)
 
 
-def stalling_plan():
-    """A plan that the world carries out by the clock but that stalls the ADG's stretches: a 4x4 room."""
-    m = parse_map("""\
+STALLING_MAP = """\
 agent 1: start 1,1  goal 2,1
 agent 2: start 2,1  goal 1,1
 +-+-+-+-+
@@ -148,10 +146,19 @@ agent 2: start 2,1  goal 1,1
 + + + + +
 |. . . .|
 +-+-+-+-+
-""")
+"""
+
+
+def plan_by_hand(m, paths):
+    actions = tuple(tuple(m.neighbours[a].index(b) for a, b in zip(path, path[1:])) for path in paths)
+    return Plan(tuple(paths), actions, "by hand", 0)
+
+
+def stalling_plan():
+    """A plan that the world carries out by the clock but that stalls the ADG's stretches: a 4x4 room."""
+    m = parse_map(STALLING_MAP)
     paths = ((m.index(1, 1), m.index(1, 2), m.index(2, 2), m.index(2, 1)), (m.index(2, 1), m.index(1, 1)))
-    actions = tuple(tuple(m.neighbours[a].index(b) for a, b in zip(p, p[1:])) for p in paths)
-    return m, Plan(paths, actions, "by hand", 0)
+    return m, plan_by_hand(m, paths)
 
 
 def test_a_stall_is_broken_by_the_bare_adg():
@@ -170,6 +177,21 @@ def test_a_stall_is_broken_by_the_bare_adg():
     assert any(e.held for e in executions)
 
 
+def test_a_cycle_is_broken_at_once_while_other_agvs_still_move():
+    # The stalling plan with a third AGV walking along the bottom row: AGVs 1 and 2 will not move by
+    # themselves whatever AGV 3 does, so AGV 1 sets out at the first step, not once AGV 3 has arrived.
+    _, by_hand = stalling_plan()
+    m3 = parse_map(STALLING_MAP.replace("agent 2: start 2,1  goal 1,1\n",
+                                        "agent 2: start 2,1  goal 1,1\nagent 3: start 3,0  goal 3,3\n"))
+    row = tuple(m3.index(3, col) for col in range(4))
+    paths = (*by_hand.paths, row)
+    three = plan_by_hand(m3, paths)
+    assert validate(m3, three) == [3, 1, 3]
+    e = execute(three, m3, Settings(slip=1e-9), 0, 0)
+    assert e.delays == 0 and e.stalls == 1 and e.home and e.collisions == 0
+    assert e.paths[0][1] == paths[0][1] and e.paths[2] == row  # AGV 1 set out at step 1, beside AGV 3
+
+
 def test_agvs_moving_round_a_loop_in_one_step_are_stuck_once_a_move_can_fail():
     # Four AGVs turn round a 2x2 room all in one step: the world allows it (no two end in one cell, none
     # swap), but each must wait for the AGV ahead to leave, and that one for the next: the bare ADG's cycle.
@@ -185,7 +207,7 @@ agent 4: start 1,0  goal 0,0
 +-+-+
 """)
     paths = tuple((start, goal) for start, goal in zip(m.starts, m.goals))
-    turn = Plan(paths, tuple((m.neighbours[a].index(b),) for a, b in paths), "by hand", 0)
+    turn = plan_by_hand(m, paths)
     assert validate(m, turn) == [1, 1, 1, 1]
     e = execute(turn, m, Settings(slip=0.1), 0, 0)
     assert e.stuck and not e.home and e.collisions == 0 and e.paths == tuple((start,) for start in m.starts)
