@@ -235,6 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seeded executions of the plan under those delays, kept in order by its action "
                         "dependency graph (cq_ros.execute); execution r draws the delays of a learner's run r "
                         "(default 100; 0: none)")
+    p.add_argument("--stop-anywhere", action="store_true",
+                   help="let an executing AGV wait in a cell without a wall by sending no action (a stay the "
+                        "learners do not have): what the world's lack of a wait action costs the executions")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="change a setting of the executions' world (repeatable); `cq-ros settings` lists them")
 

@@ -73,7 +73,8 @@ class Dependencies:
     can_wait: tuple[bool, ...]
 
 
-def dependencies(gridmap: GridMap, the_plan: Plan) -> Dependencies:
+def dependencies(gridmap: GridMap, the_plan: Plan, stop_anywhere: bool = False) -> Dependencies:
+    """The plan's ADG; with `stop_anywhere` every stretch is one cell long (see `execute`)."""
     can_wait = tuple(any(there == cell for there in nbr) for cell, nbr in enumerate(gridmap.neighbours))
     routes, entered, visits = [], [], []  # visits: (step the plan enters the cell, agent, route index)
     for i, path in enumerate(the_plan.paths):
@@ -99,7 +100,7 @@ def dependencies(gridmap: GridMap, the_plan: Plan) -> Dependencies:
         ends, nxt = [0] * len(route), len(route) - 1
         for k in range(len(route) - 1, -1, -1):
             ends[k] = nxt
-            if can_wait[route[k]]:
+            if can_wait[route[k]] or stop_anywhere:
                 nxt = k
         stretch_end.append(tuple(ends))
     return Dependencies(tuple(routes), tuple(entered), tuple(tuple(a) for a in after), tuple(stretch_end),
@@ -178,11 +179,16 @@ def moves_can_fail(settings: Settings) -> bool:
     return settings.slip > 0 or settings.start_hold > 0
 
 
-def execute(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, run: int) -> Execution:
-    """Execution `run` of `the_plan` in the world of `settings`, drawing run `run`'s delays of `seed`."""
+def execute(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, run: int,
+            stop_anywhere: bool = False) -> Execution:
+    """Execution `run` of `the_plan` in the world of `settings`, drawing run `run`'s delays of `seed`.
+
+    `stop_anywhere` measures what the world's lack of a wait action costs: an AGV sets out as soon as its
+    next cell is released and, where it must wait in a cell without a wall, sends no action (`held`), a
+    stay the learners do not have."""
     world = GridWorld(gridmap, settings, seed=world_seed(seed, run))
     world.reset_joint()
-    deps = dependencies(gridmap, the_plan)
+    deps = dependencies(gridmap, the_plan, stop_anywhere)
     if moves_can_fail(settings):
         choose = _AdgRule(gridmap, deps)
     else:
@@ -300,13 +306,13 @@ def _waiting_in_cycles(waits_on: dict[int, set[int]]) -> set[int]:
 
 
 def execute_many(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, runs: int,
-                 progress: Callable[[int], None] | None = None) -> list[Execution]:
+                 progress: Callable[[int], None] | None = None, stop_anywhere: bool = False) -> list[Execution]:
     """Executions 0..runs-1 (execution r draws the delays a learner's run r draws)."""
     out = []
     for run in range(runs):
         if progress:
             progress(run)
-        out.append(execute(the_plan, gridmap, settings, seed, run))
+        out.append(execute(the_plan, gridmap, settings, seed, run, stop_anywhere))
     return out
 
 

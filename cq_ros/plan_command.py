@@ -47,18 +47,21 @@ def run(args) -> int:
                             for a, a_cell, b in zip(actions, path, path[1:]))
             print(f"agv{i + 1} {gridmap.cells[path[0]]} -> {gridmap.cells[path[-1]]}: {moves or '(at its goal)'}")
     if args.executions:
-        _print_executions(result, gridmap, settings, args.seed, args.executions)
+        _print_executions(result, gridmap, settings, args.seed, args.executions, args.stop_anywhere)
     return 0
 
 
-def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: int) -> None:
+def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: int, stop_anywhere: bool) -> None:
     progress = PlanProgress()
     try:
-        executions = execute_many(the_plan, gridmap, settings, seed, runs, lambda done: progress("executions", done, runs))
+        executions = execute_many(the_plan, gridmap, settings, seed, runs,
+                                  lambda done: progress("executions", done, runs), stop_anywhere)
     finally:
         progress.close()
     how = ("the action dependency graph keeps the plan's order at every shared cell" if moves_can_fail(settings)
            else "no move can fail, so the AGVs follow the plan's clock")
+    if stop_anywhere and moves_can_fail(settings):
+        how += ", and an AGV may wait where no wall is (sending no action)"
     print(f"\n{runs} executions (seed {seed}, runs 0-{runs - 1}) with slip {settings.slip:g}, start_hold "
           f"{settings.start_hold}: {how}")
     print(f"{'':<14} {'mean':>8} {'min':>6} {'max':>6}")
@@ -75,7 +78,7 @@ def _print_executions(the_plan, gridmap, settings: Settings, seed: int, runs: in
     print(f"every AGV home in {home} of {runs}; stuck {sum(e.stuck for e in executions)}, "
           f"truncated at the step cap {sum(e.truncated for e in executions)}")
     if moves_can_fail(settings):
-        cycle = stall_risk(dependencies(gridmap, the_plan))
+        cycle = stall_risk(dependencies(gridmap, the_plan, stop_anywhere))
         print("the stretches between wait cells wait on each other in no cycle: no execution stalls" if not cycle
               else "the stretches of " + ", ".join(f"agv{i + 1}" for i in cycle) + " wait on each other in a "
               "cycle: an execution can stall")

@@ -115,6 +115,24 @@ def test_an_agv_that_starts_where_it_cannot_wait_is_held_there_until_its_stretch
         assert e.collisions == 0 and e.home
 
 
+def test_stopping_anywhere_sets_out_on_the_next_cell_alone_and_holds_where_no_wall_is():
+    # The stalling plan under stop_anywhere: AGV 1 sets out at once (its next cell (1,2) is released), no
+    # stall, and where a delay of AGV 2 keeps (2,1) occupied AGV 1 holds in a cell without a wall.
+    m, by_hand = stalling_plan()
+    assert stall_risk(dependencies(m, by_hand, stop_anywhere=True)) == []
+    executions = execute_many(by_hand, m, Settings(slip=0.3), seed=2, runs=10, stop_anywhere=True)
+    for e in executions:
+        assert e.stalls == e.waits == e.collisions == 0 and e.home
+        assert visit_order(e.paths) == visit_order(by_hand.paths)
+    assert any(e.held for e in executions)
+    # on the open aisle it waits less than the rule that stops only at walls, at the same delays
+    m = parse_map(OPEN_AISLE)
+    the_plan = plan(m)
+    walls, anywhere = (execute_many(the_plan, m, Settings(slip=0.2), 4, 20, stop_anywhere=flag) for flag in (False, True))
+    assert sum(e.sum_of_costs for e in anywhere) < sum(e.sum_of_costs for e in walls)
+    assert all(e.collisions == 0 and e.home for e in walls + anywhere)
+
+
 @pytest.mark.parametrize("name", MAPS)
 def test_with_no_delays_the_execution_is_exactly_the_plan(name):
     m = parse_map(MAPS[name])
