@@ -215,7 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p, runs=10, episodes=10_000)
 
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
-                                    "for the learners): makespan, sum of costs, arrival steps")
+                                    "for the learners): makespan, sum of costs, arrival steps; then the plan "
+                                    "executed under the world's delays")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
     p.add_argument("--seed", type=int, default=0, help="seed of the priority orders and LNS rounds (default 0)")
     p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=1000, metavar="N",

@@ -114,7 +114,13 @@ def stall_risk(deps: Dependencies) -> list[int]:
     Why: an AGV that sets out on a stretch moves until its end (its cells are released and stay so), so when
     no AGV is under way, one whose next stretch waits only on stretches before it in an order without cycles
     finds them all done, and sets out."""
-    starts = [[k for k in range(len(route) - 1) if k == 0 or deps.can_wait[route[k]]] for route in deps.routes]
+    starts = []  # per AGV, the route indices its stretches start from
+    for ends in deps.stretch_end:
+        ks, k = [], 0
+        while k < len(ends) - 1:
+            ks.append(k)
+            k = ends[k]
+        starts.append(ks)
     stretch_of = {}  # (agent, route index entered) -> (agent, the index its stretch starts from)
     for i, ks in enumerate(starts):
         for k in ks:
