@@ -4,11 +4,13 @@ graph, record writes a rosbag2 that rosbags reads back with the right types, QoS
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import threading
+import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import pytest
 import rclpy
@@ -29,9 +31,29 @@ PERIOD_S = 0.05  # the talker publishes every 50 ms
 @dataclass
 class Talker:
     namespace: str  # '/tools_<hex>', unique to the test
+    publishers: tuple = ()  # the talker's, for a test to see what a subscriber has been sent
+    ticks: list = field(default_factory=lambda: [0])  # [ticks published so far], counted by the talker's thread
 
     def topic(self, relative: str) -> str:
         return f"{self.namespace}/{relative}"
+
+    def heard(self, timeout_s: float) -> bool:
+        """Wait (bounded) until every topic has a subscriber that has acknowledged two ticks published after
+        it matched: a recorder started beside the talker has then recorded every topic."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + timeout_s
+        while not all(p.get_subscription_count() for p in self.publishers):
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.05)
+        matched_at = self.ticks[0]
+        while self.ticks[0] < matched_at + 2:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.05)
+        left = max(0.0, deadline - time.monotonic())
+        return all(p.wait_for_all_acked(Duration(seconds=left)) for p in self.publishers)
 
 
 @pytest.fixture
@@ -44,15 +66,15 @@ def talker(ros_context):
     position = node.create_publisher(POSITION.msg_type, position_topic(2), POSITION.qos)
     wrong = node.create_publisher(POSITION.msg_type, position_topic(1), POSITION.qos)
     stats = node.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
-    step = 0
+    talker = Talker(namespace, (position, wrong, stats))
 
     def tick() -> None:
-        nonlocal step
+        step = talker.ticks[0]
         position.publish(encode(Position(agent=2, episode=0, step=step, row=1, col=3)))
         wrong.publish(encode(Position(agent=2, episode=0, step=step, row=1, col=3)))
         stats.publish(encode(WorldStats(episode=step, steps=5, truncated=False, collisions=1, missed_actions=0,
                                         returns=(-1.0, 2.5))))
-        step += 1
+        talker.ticks[0] = step + 1
 
     node.create_timer(PERIOD_S, tick)
     executor = SingleThreadedExecutor(context=ros_context)
@@ -66,7 +88,7 @@ def talker(ros_context):
     thread = threading.Thread(target=spin)
     thread.start()
     try:
-        yield Talker(namespace)
+        yield talker
     finally:
         # Jazzy order (DESIGN.md field notes): the spinning thread, the executor, the node; the fixture
         # ros_context shuts the context down after.
@@ -159,8 +181,22 @@ def test_record_writes_a_bag_that_rosbags_reads_back(talker, tmp_path, storage, 
 
     bag = tmp_path / "bag"
     position, stats = talker.topic("agv2/position"), talker.topic("world/stats")
-    limit = ["--topics", position, stats, "--count", "30", "--duration", "30"] if explicit else ["--duration", "4"]
-    done = cq_ros("record", "--out", str(bag), "--storage", storage, *limit)
+    if explicit:
+        done = cq_ros("record", "--out", str(bag), "--storage", storage, "--topics", position, stats, "--count", "30",
+                      "--duration", str(TOOL_TIMEOUT_S / 2))
+    else:  # every topic found: stopped (Ctrl-C) once the recorder has heard each, however long that took
+        recorder = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "record", "--out", str(bag), "--storage",
+                                     storage, "--duration", str(TOOL_TIMEOUT_S)], stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+        try:
+            assert talker.heard(TOOL_TIMEOUT_S), "the recorder never subscribed to every topic"
+            recorder.send_signal(signal.SIGINT)
+            stdout, stderr = recorder.communicate(timeout=TOOL_TIMEOUT_S)
+        finally:
+            if recorder.poll() is None:
+                recorder.kill()
+                recorder.wait()
+        done = subprocess.CompletedProcess(recorder.args, recorder.returncode, stdout, stderr)
     assert done.returncode == 0, done.stderr
     recorded = _read_bag(bag)
     if explicit:
