@@ -64,10 +64,14 @@ class WorldLink:
         return True
 
     def judge(self, agent: int, fb: Any, cell: int, expected: tuple[int, int] | None) -> str:
-        """'play' a feedback that is the expected one (or when none is), 'adopt' a later one the world vouches
-        for; '' for one dropped (counted) or held until the world vouches for it (`vouched`)."""
+        """'play' a feedback that is the expected one, 'adopt' a later one the world vouches for (or any, when
+        none is expected: a node resuming from its checkpoint); '' for one dropped (counted) or held until the
+        world vouches for it (`vouched`)."""
         stamp = (fb.episode, fb.step)
-        if expected is None or stamp == expected:
+        if expected is None:  # resuming (from a checkpoint): joining the world where it is, a catch-up too
+            self._drop_held()
+            return "adopt"
+        if stamp == expected:
             self._drop_held()
             return "play"
         if stamp < expected:

@@ -600,6 +600,17 @@ def test_catching_up_across_episodes_sends_the_statistics_of_every_episode_left_
     assert sent(effects) == [Action(1, 5, 1, 1)] and d.expect == (5, 2)
 
 
+def test_a_restart_from_a_checkpoint_counts_its_catch_up():
+    """Issue 20: a node resumed from its checkpoint joins the world where it is, counted as caught_up as a
+    restart without one is (it was not)."""
+    d = AgentDriver(Stub(), 1, episodes=5, linger=0, resync=True)
+    assert sent(d.on_feedback(1, fb(1, 2, 7, 0, 1))) == [Action(1, 2, 7, 1)]
+    assert d.counters() == {"caught_up": 1}
+    central = CentralDriver(make_learner("jsa", THREE, Settings(), 0, 0, 0), episodes=5, resync=True)
+    central.on_feedback(3, fb(3, 2, 6, 2, 2))
+    assert central.counters() == {"caught_up": 1}
+
+
 def test_a_restart_without_a_checkpoint_starts_a_fresh_learner_at_the_worlds_step(tmp_path):
     values = {name: default for name, (default, _) in PARAMETERS.items()}
     cfg = agent_config({**values, "agent_id": 1, "checkpoint": str(tmp_path / "none_yet.pkl")})

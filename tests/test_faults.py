@@ -283,7 +283,7 @@ def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_
 ])
 def test_bad_parameters_on_the_command_line_are_one_line_and_exit_2(module, args, message):
     done = subprocess.run([sys.executable, "-m", module, "--ros-args", *args], capture_output=True, text=True,
-                          timeout=60)
+                          timeout=180)
     assert done.returncode == 2, done.stderr
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
 
@@ -342,6 +342,18 @@ def wait_for(predicate, timeout_s: float, what: str) -> None:
         time.sleep(0.05)
 
 
+def stop_launcher(launcher) -> None:
+    """Ctrl-C to a launcher still running (it stops its children), then SIGKILL if it is not gone within 30 s
+    (its children then get SIGTERM from the kernel: PR_SET_PDEATHSIG)."""
+    if launcher.poll() is None:
+        launcher.send_signal(signal.SIGINT)
+        try:
+            launcher.wait(30)
+        except subprocess.TimeoutExpired:
+            launcher.kill()
+            launcher.wait()
+
+
 def text_of(path) -> str:
     try:
         return path.read_text(errors="replace")
@@ -379,9 +391,11 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
              "--no-figures", *[a for s in sets for a in ("--set", s)]], stdout=subprocess.DEVNULL, stderr=stderr)
     pid = None
     try:
-        wait_for(lambda: re.search(rf"\b{stopped} pid (\d+)", text_of(err)), 60.0, "process list from the launcher")
+        wait_for(lambda: re.search(rf"\b{stopped} pid (\d+)", text_of(err)) or launcher.poll() is not None,
+                 LAUNCH_TIMEOUT_S, "process list from the launcher")
+        assert launcher.poll() is None, text_of(err)
         pid = int(re.search(rf"\b{stopped} pid (\d+)", text_of(err)).group(1))
-        wait_for(lambda: "stepping" in text_of(out / "logs" / "world.log"), 60.0, "first step")
+        wait_for(lambda: "stepping" in text_of(out / "logs" / "world.log"), LAUNCH_TIMEOUT_S, "first step")
         for _ in range(stalls):
             os.kill(pid, signal.SIGSTOP)
             time.sleep(stall_s)  # the fault itself: this long stopped
@@ -394,9 +408,7 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
                 os.kill(pid, signal.SIGCONT)  # never leave a stopped process behind
             except ProcessLookupError:
                 pass
-        if launcher.poll() is None:
-            launcher.send_signal(signal.SIGINT)  # the launcher stops its children
-            launcher.wait(30)
+        stop_launcher(launcher)
     manifest = json.loads((out / "manifest.json").read_text())
     offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, STALL_EPISODES)
     assert read_rows(out / "episodes.csv") == [(int(e[0]), int(e[1]), bool(e[5])) for e in offline.episodes]
@@ -496,13 +508,13 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
                  "--episodes", str(episodes), "--seed", "1", "--out", str(out), "--no-figures",
                  *[a for s in STALL_SETTINGS for a in ("--set", s)]], stdout=subprocess.DEVNULL, stderr=stderr)
         try:
-            wait_for(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "five rows")
+            wait_for(lambda: text_of(out / "episodes.csv").count("\n") > 5 or launcher.poll() is not None,
+                     LAUNCH_TIMEOUT_S, "five rows")
+            assert launcher.poll() is None, text_of(err)
             fill(disk)
             code = launcher.wait(LAUNCH_TIMEOUT_S)
         finally:
-            if launcher.poll() is None:
-                launcher.send_signal(signal.SIGINT)
-                launcher.wait(30)
+            stop_launcher(launcher)
         lines = text_of(err).strip().splitlines()
         rows = read_rows(out / "episodes.csv")
         manifest = json.loads((out / "manifest.json").read_text())
