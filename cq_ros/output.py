@@ -35,7 +35,7 @@ def check_folder(folder: str | os.PathLike, what: str = "output folder") -> Path
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise OutputError(f"{what} {folder}: cannot write there: {os_reason(e)}") from None
+        raise OutputError(f"cannot make {what} {folder}: {os_reason(e)}") from None
     probe_folder(folder, what)
     return folder
 

@@ -81,7 +81,7 @@ from world_node.lockstep import world_config
 from .commands import StopSignals, environment, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
-    EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, write_ended_early, write_launch_results,
+    EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, write_ended_early, write_heard,
 )
 
 __all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
@@ -436,8 +436,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     rows.close()
     try:
-        result = write_launch_results(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started,
-                                      listener, learners, list(nodes)[1:], node_info(), run_info)
+        result = write_heard(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started,
+                             listener, learners, list(nodes)[1:], node_info(), run_info, episodes_written=True)
         rows.free()
         if figures:
             from cq_ros.plots import write_figures  # matplotlib only where figures are wanted

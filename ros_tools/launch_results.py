@@ -32,7 +32,7 @@ from msgs_spec import (
     decode_agent_stats, decode_world_stats,
 )
 
-__all__ = ["RESERVE_NAME", "RESERVE_BYTES", "StatsListener", "EpisodeRows", "LaunchResult", "write_launch_results",
+__all__ = ["RESERVE_NAME", "RESERVE_BYTES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
            "write_ended_early", "checkpoint_failures"]
 
 RESERVE_NAME = ".reserve"  # in the result directory while the launch runs
@@ -193,12 +193,14 @@ def checkpoint_failures(counters: dict[str, int]) -> list[str]:
     return out
 
 
-def write_launch_results(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
-                         wall: float, listener: StatsListener, learners: list[int], learner_nodes: list[str],
-                         nodes: dict, run_info: dict) -> LaunchResult:
-    """observe.csv, greedy.csv and manifest.json from the statistics heard (episodes.csv is written already,
-    by EpisodeRows): the first `episodes` (learning) and the greedy ones after them (ros_tools.launch says
-    what comes from where). OSError if the disk refuses them."""
+def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
+                wall: float, listener: StatsListener, learners: list[int], learner_nodes: list[str],
+                nodes: dict, run_info: dict, *, episodes_written: bool = False) -> LaunchResult:
+    """episodes.csv (unless `episodes_written`: a launch's EpisodeRows wrote it), observe.csv, greedy.csv and
+    manifest.json from the statistics heard: the first `episodes` (learning) and the greedy ones after them
+    (ros_tools.launch says what comes from where); `nodes` is the manifest's account of the nodes (a launch's
+    commands and exit codes), run_info the run's own entries. `cq-ros collect` (ros_tools.collect) writes
+    through it too. OSError if the disk refuses them."""
     played = range(listener.episodes)
     world = [listener.world[e] for e in played]
     per_learner = [[listener.agents[k][e] for k in learners] for e in played]
@@ -216,7 +218,7 @@ def write_launch_results(out: Path, gridmap: GridMap, algo: str, episodes: int, 
         world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher={"dropped": listener.drops.as_counters()})
-    write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=True)
+    write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=episodes_written)
     return LaunchResult(out, table, greedy, manifest)
 
 
