@@ -266,6 +266,41 @@ def test_a_second_system_on_the_same_domain_and_namespace_is_refused(ros_domain_
             rclpy.try_shutdown(context=ctx)
 
 
+def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything(system_in, ros_domain_id,
+                                                                                   spin_until):
+    """Issue 20: a second world in the namespace of a running system finds that system's agents connected at
+    once; it refuses (exit 2) before its first step, so none of its messages reaches them, and the system's
+    run is the engine's."""
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    algo, episodes = "cq", 20
+    system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], world_extra={"step_timeout": 10.0})
+    assert spin_until(system.executor, lambda: system.world.core.episode >= 1, RUN_TIMEOUT_S)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=ros_domain_id)
+    second = other = None
+    try:
+        second = WorldNode(context=ctx, parameter_overrides=parameters(map=CASE[0], episodes=episodes, seed=CASE[1],
+                                                                       startup_timeout=RUN_TIMEOUT_S))
+        other = SingleThreadedExecutor(context=ctx)
+        other.add_node(second)
+        deadline = time.monotonic() + RUN_TIMEOUT_S
+        while not second.done.done() and time.monotonic() < deadline:
+            system.executor.spin_once(timeout_sec=0.01)
+            other.spin_once(timeout_sec=0.01)
+        assert second.done.done() and second.done.result() == 2
+        assert second.core.episode == -1  # it never began: no message of it went out
+    finally:
+        if other is not None:
+            other.shutdown()
+        if second is not None:
+            second.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    finish(system, spin_until)
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
+
+
 def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_path):
     (tmp_path / "agv1.pkl.x1y2z3.tmp").write_bytes(b"a save killed mid-write")
     node = AgentNode(context=ros_context, parameter_overrides=parameters(

@@ -85,6 +85,14 @@ class WorldNode(Node):
     def _wait_for_agents(self) -> None:
         missing = self._missing()
         if not missing:
+            # Another world's heartbeat here is a second system in our namespace, whose agents are the ones
+            # connected: refuse in one line before sending any of them a message.
+            if self.count_publishers(HEARTBEAT_TOPIC) > 1:
+                self.get_logger().error(f"another world publishes {self.resolve_topic_name(HEARTBEAT_TOPIC)} on "
+                                        "this ROS_DOMAIN_ID: a second system in this namespace? refusing to start; "
+                                        "give this one another namespace or domain id")
+                self._finish(2)
+                return
             self._replace_timer(self.core.tick_period, self._tick)
             self.get_logger().info("every agent is connected: stepping")
             self._publish(self.core.begin())
