@@ -267,8 +267,9 @@ def in_short(out: Path, data, regimes: dict, variants: list[Variant]) -> list[st
     lines.append("- **Independent learners**, last 10% of episodes: "
                  + ", ".join(f"{m} {v:.2f}" for m, v in indep.items()) + " collisions per episode (claim 3)."
                  + ("" if at is None else " **After 2000 episodes on tunnel_to_goal_3** (episodes 1901-2000) JS "
-                    f"needs {at['js'][1]:.1f} steps per episode, JSA {at['jsa'][1]:.1f} and CQ {at['cq'][1]:.1f} "
-                    "(claim 4)."))
+                    f"collides {at['js'][0]:.3f} times per episode, JSA {at['jsa'][0]:.3f} and CQ {at['cq'][0]:.3f} "
+                    f"(in {at['js'][1]:.1f}, {at['jsa'][1]:.1f} and {at['cq'][1]:.1f} steps): claim 4, judged on "
+                    f"collisions as Fig. 3 plots them, {'holds' if joint_learners_slow(at) else 'does not hold'}."))
     for name, d in regimes.items():
         settled = {t: settled_at(d, t) for t in THRESHOLDS}
         first = settled[THRESHOLDS[0]]
@@ -364,15 +365,20 @@ def _at_2000(data) -> dict[str, tuple[float, float]] | None:
                    float(data[("tunnel_to_goal_3", algo)]["steps"][:, 1900:2000].mean())) for algo in ("js", "jsa", "cq")}
 
 
+def joint_learners_slow(at: dict[str, tuple[float, float]]) -> bool:
+    """Claim 4, judged as Fig. 3 plots it: JS and JSA both collide more than CQ in episodes 1901-2000."""
+    return all(at[a][0] > at["cq"][0] for a in ("js", "jsa"))
+
+
 def _claim_joint_learners_slow(data) -> str:
-    """JS and JSA "still haven't learnt a good policy after 2000 episodes" on TunnelToGoal_3."""
+    """JS and JSA "still haven't learnt a good policy after 2000 episodes" on TunnelToGoal_3 (Fig. 3)."""
     at = _at_2000(data)
     if at is None:
         return "4. *JS and JSA are still poor after 2000 episodes on TunnelToGoal_3*: not measured (fewer than 2000 episodes)."
-    ok = all(at[a][0] > at["cq"][0] or at[a][1] > 1.2 * at["cq"][1] for a in ("js", "jsa"))
-    return ("4. *JS and JSA are still poor after 2000 episodes on TunnelToGoal_3*: "
-            f"{_verdict(ok)} (poor = more collisions than CQ or 20% more steps). Episodes 1901-2000: "
-            + "; ".join(f"{a} {c:.3f} collisions and {s:.1f} steps per episode" for a, (c, s) in at.items()) + ".")
+    return ("4. *JS and JSA are still poor after 2000 episodes on TunnelToGoal_3*, judged on collisions as Fig. 3 "
+            f"plots them (poor = more collisions than CQ): {_verdict(joint_learners_slow(at))}. Episodes 1901-2000, "
+            "collisions per episode (steps per episode beside): "
+            + "; ".join(f"{a} {c:.3f} ({s:.1f} steps)" for a, (c, s) in at.items()) + ".")
 
 
 def _claim_entrance(out: Path) -> str:

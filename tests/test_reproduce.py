@@ -1,5 +1,6 @@
 """The verdicts of `cq-ros reproduce`, computed on synthetic results where each claim is known to hold and
-known not to hold: claims 1 and 2 at both thresholds, and where CQ keeps its joint states (claim 6)."""
+known not to hold: claims 1 and 2 at both thresholds, claim 4 on collisions, and where CQ keeps its joint
+states (claim 6)."""
 
 import csv
 
@@ -11,6 +12,7 @@ from cq_ros.reproduce import (
     PAPER_MAPS,
     claim_collision_free,
     _claim_entrance,
+    _claim_joint_learners_slow,
     entrance_share,
     settled_at,
     sooner_than_cq,
@@ -79,3 +81,20 @@ def test_claim_6_share_of_joint_states_at_the_tunnel_entrance(tmp_path):
     write_observations(tmp_path / "far", [((0, 10), 5.0), ((4, 9), 4.0), ((2, 4), 1.0)])
     assert entrance_share(tmp_path / "far")[0] == 0.1
     assert "**does not hold**. 10% " in _claim_entrance(tmp_path / "far")
+
+
+def at_2000(collisions: dict[str, float], steps: dict[str, float]) -> dict:
+    """tunnel_to_goal_3 runs of 2000 episodes with these collisions and steps per episode throughout."""
+    return {("tunnel_to_goal_3", a): {"collisions": np.full((2, 2000), collisions[a]), "steps": np.full((2, 2000), steps[a])}
+            for a in ("js", "jsa", "cq")}
+
+
+def test_claim_4_is_judged_on_collisions_as_fig_3_plots_them_with_steps_beside():
+    long_routes = {"js": 21.3, "jsa": 23.2, "cq": 15.3}
+    # Far longer routes but fewer collisions than CQ: not poor on Fig. 3's measure.
+    fewer = _claim_joint_learners_slow(at_2000({"js": 0.01, "jsa": 0.02, "cq": 0.1}, long_routes))
+    assert "**does not hold**" in fewer and "js 0.010 (21.3 steps)" in fewer
+    # One of the two colliding less than CQ is enough for the claim to fail.
+    assert "**does not hold**" in _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.05, "cq": 0.1}, long_routes))
+    more = _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.2, "cq": 0.1}, {a: 15.0 for a in long_routes}))
+    assert "**holds**" in more and "cq 0.100 (15.0 steps)" in more
