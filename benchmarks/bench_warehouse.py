@@ -47,7 +47,7 @@ def greedy_play(team: Team) -> tuple[bool, int]:
     greedy = copy.deepcopy(team)
     greedy.world.step_cap = GREEDY_CAP
     for learner in greedy.learners:
-        learner.epsilon = 0.0
+        learner.make_greedy()  # as the engine's greedy episodes: epsilon 0, frozen unless eval_learning
         learner.__dict__.pop("observe", None)  # the counting wrapper would call the original learner
     episode = greedy.episode()
     cost = sum(GREEDY_CAP if t is None else t for t in greedy.world.arrival)

@@ -43,6 +43,17 @@ def _algos(text: str) -> list[str]:
     return algos
 
 
+def _seeds(text: str) -> list[int]:
+    """Comma-separated whole numbers, each once."""
+    try:
+        seeds = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas, got {text!r}") from None
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"a seed is given twice in {text!r}")
+    return seeds
+
+
 def _number(low: float, high: float | None = None, kind: type = float, strict: bool = False):
     """An argparse type: a number of `kind` in [low, high] (low excluded when `strict`)."""
     def parse(text: str):
@@ -246,6 +257,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="result directory")
     _add_run_options(p, runs=10, episodes=10_000)
     p.add_argument("--no-sweep", dest="sweep", action="store_false", help="skip the settings sweep")
+    p.add_argument("--seeds", type=_seeds, default=None, metavar="S,S,...",
+                   help="master seeds, instead of --seed: the grid runs once per seed (the first's in OUT, the "
+                        "others' in OUT/seed_S), and when the collision averages settle (claims 1 and 2) is quoted "
+                        "as a range over them, which takes at least 3 (e.g. 0,1,2)")
     _add_ros_parsers(sub)
     return parser
 
@@ -315,8 +330,9 @@ def _dispatch(args) -> int:
         from .reproduce import reproduce
 
         # The paper's maps carry no defaults of their own.
-        report = reproduce(args.out, args.runs, args.episodes, args.seed, Settings().with_overrides(args.overrides),
-                           workers=args.jobs, force=args.force, sweep=args.sweep)
+        report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
+                           Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
+                           sweep=args.sweep)
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
