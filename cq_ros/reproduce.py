@@ -60,9 +60,11 @@ def decaying(settings: Settings, episodes: int) -> Settings:
 
 
 def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int = 0, settings: Settings = Settings(),
-              workers: int | None = None, force: bool = False, sweep: bool = True, figures: bool = True) -> Path:
-    """Run the grid, again with exploration that stops (in decay/), and the sweep; write every map's results
-    and figures and REPORT.md; returns its path."""
+              workers: int | None = None, force: bool = False, sweep: bool = True, figures: bool = True,
+              cluster: str | None = None) -> Path:
+    """Run the grid, again with exploration that stops (in decay/), and the sweep, on `workers` local processes
+    or on the Dask scheduler at `cluster`; write every map's results and figures and REPORT.md; returns its
+    path."""
     out = prepare_output(out, force)
     started = time.perf_counter()
     decay = decaying(settings, episodes)
@@ -73,7 +75,7 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int = 0, 
     for v in variants:
         jobs += [Job(SWEEP_MAP, "cq", r, episodes, seed, settings.with_overrides(v.changes)) for r in range(runs)]
     jobs = list(dict.fromkeys(jobs))  # the "defaults" variant is the grid's own CQ runs on the sweep map
-    results = run_jobs(jobs, workers, label="reproduce")
+    results, executed_on = run_jobs(jobs, workers, label="reproduce", cluster=cluster)
     wall = time.perf_counter() - started
 
     for where, grid_settings in grids.items():
@@ -82,14 +84,15 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int = 0, 
             mine = [results[j] for j in jobs if j.map_name == m and j.settings == grid_settings]
             (out / where / m).mkdir(parents=True, exist_ok=True)
             write_results(out / where / m, gridmap, mine,
-                          manifest_for(gridmap, ALGORITHMS, runs, episodes, seed, grid_settings, wall))
+                          manifest_for(gridmap, ALGORITHMS, runs, episodes, seed, grid_settings, wall, executed_on))
     for v in variants:
         changed = settings.with_overrides(v.changes)
         mine = [results[j] for j in jobs if j.map_name == SWEEP_MAP and j.settings == changed and j.algo == "cq"]
         where = out / "sweep" / v.name
         where.mkdir(parents=True, exist_ok=True)
         write_results(where, load_map(SWEEP_MAP), mine,
-                      manifest_for(load_map(SWEEP_MAP), ["cq"], runs, episodes, seed, changed, wall, variant=v.name))
+                      manifest_for(load_map(SWEEP_MAP), ["cq"], runs, episodes, seed, changed, wall, executed_on,
+                                   variant=v.name))
     if figures:
         from .plots import write_figures
 
@@ -97,7 +100,8 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int = 0, 
             for m in PAPER_MAPS:
                 write_figures(out / where / m)
     report = out / "REPORT.md"
-    report.write_text(render_report(out, runs, episodes, seed, settings, variants, time.perf_counter() - started))
+    report.write_text(render_report(out, runs, episodes, seed, settings, variants, time.perf_counter() - started,
+                                    executed_on))
     return report
 
 
@@ -118,7 +122,7 @@ def _grid_data(where: Path):
 
 
 def render_report(out: Path, runs: int, episodes: int, seed: int, settings: Settings, variants: list[Variant],
-                  wall: float) -> str:
+                  wall: float, executed_on: dict | None = None) -> str:
     data = _grid_data(out)
     decay = decaying(settings, episodes)
     regimes = {exploration(settings): data, exploration(decay): _grid_data(out / "decay")}
@@ -129,7 +133,7 @@ def render_report(out: Path, runs: int, episodes: int, seed: int, settings: Sett
         "",
         f"Command: `cq-ros reproduce --out {out.name} --runs {runs} --episodes {episodes} --seed {seed}`"
         + (f" with settings changed from the defaults: {_changes(settings)}" if _changes(settings) else ""),
-        f"Wall time: {wall:.0f} s on {v['cores']} cores ({v['machine']}, Python {v['python']}, "
+        f"Wall time: {wall:.0f} s on {_where(executed_on, v)} ({v['machine']}, Python {v['python']}, "
         f"cq_ros {v['cq_ros']}). Every parameter and seed is in each map's `manifest.json`.",
         "",
         "Collisions are counted per episode as colliding pairs; \"collision-free from\" is the first episode after "
@@ -162,6 +166,12 @@ def render_report(out: Path, runs: int, episodes: int, seed: int, settings: Sett
     if variants:
         lines += ["", *_sweep_section(out, variants)]
     return "\n".join(lines) + "\n"
+
+
+def _where(executed_on: dict | None, v: dict) -> str:
+    if executed_on and executed_on.get("where") == "dask":
+        return f"the Dask cluster at {executed_on['scheduler']} ({len(executed_on['workers'])} workers)"
+    return f"{v['cores']} cores"
 
 
 def settled_at(data, threshold: float) -> dict[tuple[str, str], int | None]:
