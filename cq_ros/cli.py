@@ -11,8 +11,10 @@ import sys
 import time
 from pathlib import Path
 
+from .cluster import ClusterError, scheduler_address
 from .gridmap import MapError, available_maps, load_map
 from .learners import ALGORITHMS, LEARNERS
+from .runner import RunFailed
 from .settings import Settings, SettingsError, run_settings
 from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
 
@@ -88,7 +90,11 @@ def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> No
     p.add_argument("--runs", type=_positive, default=runs, help=f"independent runs (default {runs})")
     p.add_argument("--episodes", type=_positive, default=episodes, help=f"episodes per run (default {episodes})")
     p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
-    p.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    where.add_argument("--cluster", type=scheduler_address, default=None, metavar="ADDRESS",
+                       help="run on the workers of a running Dask scheduler, tcp://HOST:PORT (needs the extra "
+                            "cq-ros[cluster]; docs/cluster.md)")
     _add_settings_options(p)
 
 
@@ -273,6 +279,10 @@ def main(argv: list[str] | None = None) -> int:
         return _dispatch(args)
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
+    except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run
+        parser.exit(1, f"{e.details}cq-ros {args.command}: error: {e}\n")
+    except ClusterError as e:
+        parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -322,7 +332,7 @@ def _dispatch(args) -> int:
         # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
         settings = run_settings(load_map(args.map), args.overrides)
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures)
+                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
         print(format_console_table(load_episodes(out / "episodes.csv")))
         print(f"results: {out}")
         return 0
@@ -332,7 +342,7 @@ def _dispatch(args) -> int:
         # The paper's maps carry no defaults of their own.
         report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
                            Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
-                           sweep=args.sweep)
+                           sweep=args.sweep, cluster=args.cluster)
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)

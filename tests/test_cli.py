@@ -155,7 +155,7 @@ def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
 
     # enough episodes (about half a second at ~8,000 a second) that the runs cannot end within one interval
     jobs = [Job("grid_game_2", "cq", r, 1500, 0, Settings(eval_episodes=0)) for r in range(3)]
-    results = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
+    results, _ = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
     assert len(results) == 3
     lines = capsys.readouterr().err.splitlines()
     pattern = re.compile(r"test: runs (\d)/3, episodes ([\d,]+)/4,500, [\d,]+ episodes/s, \d+ s elapsed, "
