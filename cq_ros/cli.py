@@ -8,12 +8,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 import time
 from pathlib import Path
 
 from tqdm import tqdm
 
-from .gridmap import ACTIONS, MapError, available_maps, load_map
+from .gridmap import ACTIONS, MapError, available_maps, load_map, parse_map
 from .learners import ALGORITHMS, LEARNERS
 from .settings import Settings, SettingsError, run_settings
 from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
@@ -78,11 +79,12 @@ def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> No
 def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> None:
     p.add_argument("--runs", type=_positive, default=runs, help=f"independent runs (default {runs})")
     p.add_argument("--episodes", type=_positive, default=episodes, help=f"episodes per run (default {episodes})")
-    p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
     p.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
     _add_settings_options(p)
 
 
+_seed = _number(0, kind=int)  # numpy's SeedSequence takes no negative seed
 # ROS_DOMAIN_ID: Fast DDS derives its ports from it; 0..232 is the range that works on Linux.
 _domain_id = _number(0, 232, kind=int)
 _seconds = _number(0, strict=True)
@@ -100,7 +102,7 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--algo", type=_algo, required=True, help=f"one of {','.join(ALGORITHMS)}")
     p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/)")
     p.add_argument("--episodes", type=_positive, default=500, help="episodes (default 500)")
-    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="master seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
     p.add_argument("--namespace", default=None, help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
@@ -165,7 +167,7 @@ def _add_ros_parsers(sub) -> None:
     source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
     p.add_argument("--algo", type=_algo, default="cq", help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
     p.add_argument("--episodes", type=_positive, default=100, help="with --map: episodes to learn (default 100)")
-    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="with --map: master seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
                    help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
     p.add_argument("--greedy", action="store_true",
@@ -185,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("maps", help="list the shipped maps with their cells and agents")
     p = sub.add_parser("show", help="draw a map in the terminal")
     p.add_argument("map", help="a shipped map name or a path to a map file")
-    sub.add_parser("settings", help="list every setting with its default")
+    sub.add_parser("settings", help="list every setting with its default and description")
 
     p = sub.add_parser("generate", help="generate a map (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
@@ -200,7 +202,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
     p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
-    p.add_argument("--seed", type=int, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+
+    p = sub.add_parser("import", help="convert a map from another format into ours (print it, or write it with --out)")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="FORMAT", parser_class=_Parser)
+    p = kinds.add_parser("movingai", help="a MovingAI .map (and the first N tasks of a .scen) as a map of ours",
+                         description="Convert a MovingAI grid (. G passable, @ O T blocked; S and W rejected) and, "
+                         "with --scen, its first N tasks (x the column, y the row, 0-based from the top left) into "
+                         "our map format (cq_ros.movingai). A fault is one line naming the file and line.")
+    p.add_argument("map", type=Path, metavar="MAP.map", help="a MovingAI map file")
+    p.add_argument("--scen", type=Path, default=None, metavar="FILE.scen",
+                   help="a MovingAI scenario: its first --agents tasks become the agents (default: none, the "
+                        "drawing only, to which agent lines must be added)")
+    p.add_argument("--agents", type=_positive, default=None, metavar="N", help="with --scen: the tasks to take")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
 
@@ -215,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
                                     "for the learners): makespan, sum of costs, arrival steps")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--seed", type=int, default=0, help="seed of the priority orders and LNS rounds (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the priority orders and LNS rounds (default 0)")
     p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=1000, metavar="N",
                    help="search nodes of the optimal conflict-based search before falling back on prioritized "
                         "planning (default 1000; 0: skip it)")
@@ -266,9 +282,12 @@ def _dispatch(args) -> int:
         return 0
     if args.command == "generate":
         return _generate(args)
+    if args.command == "import":
+        return _import(args)
     if args.command == "settings":
         for key, value in Settings().as_dict().items():
             print(f"{key} = {value}")
+            print(textwrap.fill(Settings.describe(key), width=100, initial_indent="    ", subsequent_indent="    "))
         return 0
     if args.command == "plan":
         return _plan(args)
@@ -282,13 +301,12 @@ def _dispatch(args) -> int:
         return _hosts(args)
     if args.command == "experiment":
         from .experiment import experiment
-        from .summary import format_console_table, load_episodes
 
         # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
         settings = run_settings(load_map(args.map), args.overrides)
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
                          workers=args.jobs, force=args.force, figures=args.figures)
-        print(format_console_table(load_episodes(out / "episodes.csv")))
+        _print_summary(out)
         print(f"results: {out}")
         return 0
     if args.command == "reproduce":
@@ -300,6 +318,16 @@ def _dispatch(args) -> int:
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
+
+
+def _print_summary(out: Path) -> None:
+    """The table of a result directory's episodes and the greedy policy's line per algorithm (experiment and
+    launch alike)."""
+    from .summary import format_console_table, greedy_lines, load_episodes
+
+    print(format_console_table(load_episodes(out / "episodes.csv")))
+    for line in greedy_lines(out / "greedy.csv"):
+        print(line)
 
 
 def _plan(args) -> int:
@@ -363,20 +391,49 @@ class _PlanProgress:
 
 
 def _generate(args) -> int:
-    text = warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed)
-    if args.out is None:
-        sys.stdout.write(text)
-        return 0
-    if args.out.exists() and not args.out.is_file():
-        raise FileExistsError(f"{args.out} is not a file")
-    if args.out.exists() and not args.force:
-        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
-    try:
-        args.out.write_text(text, encoding="utf-8")
-    except OSError as e:
-        raise ValueError(f"cannot write {args.out}: {e.strerror or e}") from None
-    print(f"wrote {args.out}", file=sys.stderr)
+    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed), args.out, args.force)
     return 0
+
+
+def _import(args) -> int:
+    from .movingai import map_text, read_map, read_scenario
+
+    if (args.scen is None) != (args.agents is None):
+        raise ValueError("--scen and --agents go together: the scenario and how many of its tasks to take")
+    if args.out is not None:
+        _check_writable(args.out, args.force)  # before the work: a large map takes seconds to read
+    gridmap = read_map(args.map)
+    tasks = read_scenario(args.scen, gridmap, args.agents) if args.scen is not None else []
+    command = " ".join(["cq-ros", "import", "movingai", args.map.name]
+                       + ([f"--scen {args.scen.name} --agents {args.agents}"] if tasks else []))
+    text = map_text(gridmap, tasks, command, args.scen)
+    if not tasks:
+        print("cq-ros import: the map has no agents yet: add lines `agent K: start ROW,COL  goal ROW,COL`, or "
+              "give --scen FILE --agents N", file=sys.stderr)
+    else:
+        parse_map(text, source=str(args.out or "<import>"))  # our own loader accepts what we write
+    _write_map(text, args.out, args.force)
+    return 0
+
+
+def _check_writable(out: Path, force: bool) -> None:
+    if out.exists() and not out.is_file():
+        raise FileExistsError(f"{out} is not a file")
+    if out.exists() and not force:
+        raise FileExistsError(f"{out} exists; pass --force to overwrite it")
+
+
+def _write_map(text: str, out: Path | None, force: bool) -> None:
+    """`text` on stdout (out None) or into file `out`, which must be new unless `force`."""
+    if out is None:
+        sys.stdout.write(text)
+        return
+    _check_writable(out, force)
+    try:
+        out.write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise ValueError(f"cannot write {out}: {e.strerror or e}") from None
+    print(f"wrote {out}", file=sys.stderr)
 
 
 # The ROS commands import rclpy (through ros_tools) only when they run: the rest of cq_ros
@@ -407,8 +464,6 @@ def _launch(args) -> int:
     from ros_tools.hosts import HostsError, check_can_make_hosts, find_hosts
     from ros_tools.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
 
-    from .summary import format_console_table, load_episodes
-
     # Settings fields (over the map's defaults) and node parameters alike
     settings, node_parameters = split_sets(args.overrides, load_map(args.map))
     hosts = None
@@ -434,11 +489,7 @@ def _launch(args) -> int:
     except LaunchError as e:
         print(f"cq-ros launch: error: {e}", file=sys.stderr)
         return 1
-    print(format_console_table(load_episodes(result.out / "episodes.csv")))
-    if len(result.greedy):
-        steps, collisions = result.greedy[:, 0], result.greedy[:, 1]
-        print(f"greedy policy, {len(result.greedy)} episodes: {collisions.mean():.2f} collisions/ep, "
-              f"{steps.mean():.1f} steps/ep, {int(result.greedy[:, 5].sum())} truncated")
+    _print_summary(result.out)
     for node, cost in result.manifest["communication"].items():
         print(f"{node}: {cost['peer_messages']} peer position messages, "
               f"{cost['subscriptions_created']} subscriptions created")

@@ -159,7 +159,7 @@ def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_
         greedy = next(csv.DictReader(f))
     communication = json.loads((out / "manifest.json").read_text())["communication"]
     assert "collisions/ep (last 10%)" in stdout and f"results: {out}" in stdout
-    assert re.search(rf"greedy policy, {greedy['episodes']} episodes: {float(greedy['collisions']):.2f} "
+    assert re.search(rf"greedy policy, cq, 1 run x {greedy['episodes']} episodes: {float(greedy['collisions']):.2f} "
                      rf"collisions/ep, {float(greedy['steps']):.1f} steps/ep", stdout)
     for node, cost in communication.items():
         assert (f"{node}: {cost['peer_messages']} peer position messages, "
