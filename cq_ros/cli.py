@@ -98,11 +98,21 @@ def _add_domain_option(p: argparse.ArgumentParser) -> None:
 def _add_ros_parsers(sub) -> None:
     p = sub.add_parser("launch", help="run one algorithm on one map as ROS 2 nodes (a world process and one "
                                       "process per AGV) and write results and figures")
-    p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--algo", type=_algo, required=True, help=f"one of {','.join(ALGORITHMS)}")
-    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/)")
-    p.add_argument("--episodes", type=_positive, default=500, help="episodes (default 500)")
-    p.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
+    p.add_argument("--map", default=None, help="a shipped map name or a path to a map file (required unless "
+                                                "--params-file)")
+    p.add_argument("--algo", type=_algo, default=None, help=f"one of {','.join(ALGORITHMS)} (required unless "
+                                                             "--params-file)")
+    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/; the "
+                                                           "system it ran in its params.yaml)")
+    p.add_argument("--params-file", type=Path, default=None, metavar="FILE",
+                   help="start the system a params.yaml describes (as every launch writes it: map, algorithm, "
+                        "episodes, seed, settings and node parameters, under any namespace) instead of --map, "
+                        "--algo, --episodes, --seed, --set")
+    p.add_argument("--key", type=Path, default=None, metavar="FILE",
+                   help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
+                        "(default: a key of the launch's own, removed at its end)")
+    p.add_argument("--episodes", type=_positive, default=None, help="episodes (default 500)")
+    p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
     p.add_argument("--namespace", default=None, help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
@@ -123,6 +133,20 @@ def _add_ros_parsers(sub) -> None:
                    help="with --hosts: multicast discovery on the subnet, or unicast to ROS_STATIC_PEERS only")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_settings_options(p, nodes=True)
+
+    p = sub.add_parser("collect", help="listen to a system started by hand (its statistics) and write what a "
+                                       "launch writes: episodes.csv, greedy.csv, observe.csv, manifest.json")
+    p.add_argument("--out", type=Path, required=True, help="result directory")
+    p.add_argument("--namespace", default=None, help="the system's namespace (default: the one system on the domain)")
+    p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
+                   help="seconds to look for the system before giving up (default 60)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
+    _add_domain_option(p)
+
+    p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
+                                   "cq-ros launch --key FILE)")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE", help="the key file to make (mode 0600; "
+                                                                            "never overwritten)")
 
     p = sub.add_parser("hosts", help="make or remove hosts for --hosts: network namespaces joined by a bridge, "
                                      "addresses from 198.18.0.0/15 (root)")
@@ -299,6 +323,14 @@ def _dispatch(args) -> int:
         return _launch(args)
     if args.command == "hosts":
         return _hosts(args)
+    if args.command == "collect":
+        return _collect(args)
+    if args.command == "key":
+        from ros_tools.system_file import make_key
+
+        print(f"wrote {make_key(args.out)} (readable by you only): name it as key_file in a params file, or "
+              "cq-ros launch --key FILE")
+        return 0
     if args.command == "experiment":
         from .experiment import experiment
 
@@ -464,8 +496,10 @@ def _launch(args) -> int:
     from ros_tools.hosts import HostsError, check_can_make_hosts, find_hosts
     from ros_tools.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
 
+    _system_arguments(args)
     # Settings fields (over the map's defaults) and node parameters alike
     settings, node_parameters = split_sets(args.overrides, load_map(args.map))
+    node_parameters = {**node_parameters, **args.node_parameters}
     hosts = None
     if args.hosts is not None:
         try:
@@ -482,7 +516,7 @@ def _launch(args) -> int:
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
                         peer_linger_steps=args.peer_linger_steps, compose=args.compose,
                         executor=args.executor, node_parameters=node_parameters, force=args.force,
-                        figures=args.figures, hosts=hosts, discovery=args.discovery)
+                        figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)
         return 130
@@ -495,6 +529,48 @@ def _launch(args) -> int:
               f"{cost['subscriptions_created']} subscriptions created")
     print(f"results: {result.out}")
     return 0
+
+
+def _collect(args) -> int:
+    from ros_tools.collect import collect
+    from ros_tools.launch import Interrupted, LaunchError
+
+    try:
+        out = collect(args.out, domain_id=args.domain_id, namespace=args.namespace, force=args.force,
+                      wait_s=args.wait)
+    except Interrupted as e:
+        print(f"cq-ros collect: {e}", file=sys.stderr)
+        return 130
+    except LaunchError as e:
+        print(f"cq-ros collect: error: {e}", file=sys.stderr)
+        return 1
+    _print_summary(out)
+    print(f"results: {out}")
+    return 0
+
+
+def _system_arguments(args) -> None:
+    """A launch's map, algorithm, episodes, seed, settings, node parameters and key: from its options, or from
+    the system file --params-file names (ros_tools.system_file), which then excludes those options."""
+    args.node_parameters = {}
+    if args.params_file is None:
+        if args.map is None or args.algo is None:
+            raise ValueError("--map and --algo are required (or --params-file FILE, a system as a launch writes it)")
+        args.episodes = 500 if args.episodes is None else args.episodes
+        args.seed = 0 if args.seed is None else args.seed
+        return
+    from ros_tools.system_file import read_system
+
+    given = [f"--{name}" for name in ("map", "algo", "episodes", "seed", "key") if getattr(args, name) is not None]
+    if args.overrides:
+        given.append("--set")
+    if given:
+        raise ValueError(f"--params-file gives the system: drop {', '.join(given)} (or edit the file)")
+    system = read_system(args.params_file)
+    args.map, args.algo, args.episodes, args.seed, args.key = (system.map, system.algo, system.episodes,
+                                                               system.seed, system.key_file)
+    args.overrides = [f"{k}={v}" for k, v in system.settings.items()]
+    args.node_parameters = system.node_parameters
 
 
 def _render(args) -> int:

@@ -143,10 +143,17 @@ def describe_parameters(kind: str) -> str:
 
 
 def help_requested(argv: list[str]) -> bool:
-    """Whether `argv` (sys.argv) asks for -h or --help outside its --ros-args."""
-    from rclpy.utilities import remove_ros_args
-
-    return any(arg in ("-h", "--help") for arg in remove_ros_args(argv)[1:])
+    """Whether `argv` (sys.argv) asks for -h or --help outside its --ros-args ... [--] (read here, not by rcl:
+    bad ROS arguments are run_node's to report)."""
+    among_ros = False
+    for arg in argv[1:]:
+        if arg == "--ros-args":
+            among_ros = True
+        elif arg == "--":
+            among_ros = False
+        elif not among_ros and arg in ("-h", "--help"):
+            return True
+    return False
 
 
 def print_help(usage: str, kinds: tuple[str, ...]) -> None:

@@ -141,9 +141,9 @@ def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it
 
 
 def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(capsys):
-    from ros_tools.launch import _Progress
+    from ros_tools.launch import Progress
 
-    bar = _Progress("tunnel_to_goal cq", episodes=6, learning=4, enabled=True)  # stderr is not a terminal here
+    bar = Progress("tunnel_to_goal cq", episodes=6, learning=4, enabled=True)  # stderr is not a terminal here
     for done in range(1, 7):
         bar.update(done, collisions=done, joint_states=1, peer_messages=2 * done)
     bar.close()
