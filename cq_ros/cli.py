@@ -574,9 +574,10 @@ def _system_arguments(args) -> None:
 
 
 def _render(args) -> int:
-    from .render import DPI, check_output, engine_frames, frames_from, lattice, write_animation
+    from .render import DPI, check_output, cut_by_bag, engine_frames, frames_from, lattice, write_animation
 
     check_output(args.out)
+    cut = None
     if args.map is not None:
         gridmap = load_map(args.map)
         settings = run_settings(gridmap, args.overrides)
@@ -608,10 +609,13 @@ def _render(args) -> int:
             raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
         occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
+        cut = cut_by_bag(scenes, episode)
+        if cut:
+            _note(f"episode {episode} is cut by the bag: {cut}")
     _note(f"drawing {len(frames)} steps to {args.out}")
     out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps, dpi=args.dpi or DPI,
                           progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
-    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames" + (" (cut by the bag)" if args.bag and cut else ""))
     return 0
 
 
