@@ -12,9 +12,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from tqdm import tqdm
-
-from .gridmap import ACTIONS, MapError, available_maps, load_map, parse_map
+from .gridmap import MapError, available_maps, load_map, parse_map
 from .learners import ALGORITHMS, LEARNERS
 from .settings import Settings, SettingsError, run_settings
 from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
@@ -227,6 +225,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
     p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
+                   help="delays: the map's default `slip` (a move fails with probability P; default 0)")
+    p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
+                   help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
 
@@ -253,7 +255,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p, runs=10, episodes=10_000)
 
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
-                                    "for the learners): makespan, sum of costs, arrival steps")
+                                    "for the learners): makespan, sum of costs, arrival steps; then the plan "
+                                    "executed under the world's delays")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the priority orders and LNS rounds (default 0)")
     p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=1000, metavar="N",
@@ -265,6 +268,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
     p.add_argument("--show", action="store_true",
                    help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
+    p.add_argument("--slip", type=_number(0, 1), default=None, metavar="P",
+                   help="execute the plan where a move fails with probability P (default: the map's own slip)")
+    p.add_argument("--start-hold", type=_number(0, kind=int), default=None, metavar="H",
+                   help="execute the plan where each AGV's first 0..H moves fail (default: the map's own)")
+    p.add_argument("--executions", type=_number(0, kind=int), default=100, metavar="N",
+                   help="seeded executions of the plan under those delays, kept in order by its action "
+                        "dependency graph (cq_ros.execute); execution r draws the delays of a learner's run r "
+                        "(default 100; 0: none)")
+    p.add_argument("--stop-anywhere", action="store_true",
+                   help="let an executing AGV wait in a cell without a wall by sending no action (a stay the "
+                        "learners do not have): what the world's lack of a wait action costs the executions")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a setting of the executions' world (repeatable); `cq-ros settings` lists them")
 
     p = sub.add_parser("reproduce", help="the paper's grid (4 maps x 5 algorithms), figures and REPORT.md")
     p.add_argument("--out", type=Path, required=True, help="result directory")
@@ -289,10 +305,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def _dispatch(args) -> int:
     if args.command == "maps":
-        print(f"{'map':<18} {'cells':>5} {'agents':>6}")
-        for name in available_maps():
+        names = available_maps()
+        width = max(len(name) for name in names)
+        print(f"{'map':<{width}} {'cells':>5} {'agents':>6}")
+        for name in names:
             m = load_map(name)
-            print(f"{name:<18} {m.n_cells:>5} {m.n_agents:>6}")
+            print(f"{name:<{width}} {m.n_cells:>5} {m.n_agents:>6}")
         return 0
     if args.command == "show":
         m = load_map(args.map)
@@ -314,7 +332,9 @@ def _dispatch(args) -> int:
             print(textwrap.fill(Settings.describe(key), width=100, initial_indent="    ", subsequent_indent="    "))
         return 0
     if args.command == "plan":
-        return _plan(args)
+        from .plan_command import run
+
+        return run(args)
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
     if args.command == "render":
@@ -362,68 +382,9 @@ def _print_summary(out: Path) -> None:
         print(line)
 
 
-def _plan(args) -> int:
-    from .planner import NoPlan, PlanError, distances_to, plan, validate
-
-    gridmap = load_map(args.map)
-    started = time.perf_counter()
-    progress = _PlanProgress()
-    try:
-        result = plan(gridmap, args.seed, args.cbs_nodes, args.orders, args.rounds, progress)
-    except NoPlan as e:
-        print(f"cq-ros plan: {e} (--cbs-nodes and --orders search longer)", file=sys.stderr)
-        return 1
-    finally:
-        progress.close()
-    seconds = time.perf_counter() - started
-    try:
-        arrivals = validate(gridmap, result)
-    except PlanError as e:
-        print(f"cq-ros plan: the world rejects the plan (a planner bug): {e}", file=sys.stderr)
-        return 1
-    alone = sum(distances_to(gridmap, goal)[start] for start, goal in zip(gridmap.starts, gridmap.goals))
-    least = "the least possible" if result.optimal else f"the least possible is at least {result.lower_bound}"
-    print(f"{gridmap.name}: {gridmap.n_agents} agents, {result.method}")
-    print(f"makespan {result.makespan}, sum of costs {result.sum_of_costs} ({least}; each agent alone: {alone:g})")
-    print("arrival steps: " + ", ".join(f"agv{i + 1} {step}" for i, step in enumerate(arrivals)))
-    print(f"planning time {seconds:.2f} s; replayed through the world: every agent at its goal, no collision")
-    if args.show:
-        for i, (path, actions) in enumerate(zip(result.paths, result.actions)):
-            moves = "".join(ACTIONS[a][0] if b != a_cell else ACTIONS[a][0].lower()
-                            for a, a_cell, b in zip(actions, path, path[1:]))
-            print(f"agv{i + 1} {gridmap.cells[path[0]]} -> {gridmap.cells[path[-1]]}: {moves or '(at its goal)'}")
-    return 0
-
-
-class _PlanProgress:
-    """The planner's progress on stderr: a tqdm bar per phase on a terminal, a plain line at most every 30 s
-    elsewhere."""
-
-    def __init__(self):
-        self.tty = sys.stderr.isatty()
-        self.bar = None
-        self.phase = None
-        self.last_line = time.monotonic()
-
-    def __call__(self, phase: str, done: int, total: int) -> None:
-        if self.tty:
-            if phase != self.phase:
-                self.close()
-                self.bar = tqdm(total=total, desc=f"plan: {phase}", leave=False)
-            self.bar.update(done - self.bar.n)
-        elif time.monotonic() - self.last_line >= 30:
-            print(f"cq-ros plan: {phase} {done}/{total}", file=sys.stderr, flush=True)
-            self.last_line = time.monotonic()
-        self.phase = phase
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-            self.bar = None
-
-
 def _generate(args) -> int:
-    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed), args.out, args.force)
+    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold),
+               args.out, args.force)
     return 0
 
 

@@ -2,7 +2,7 @@
 
 A map becomes plain integer tables (cell index -> the cell each action leads to) so that the world, the
 learners and the ROS nodes all share one numbering of states and none of them re-derives the geometry.
-The format is described in ``maps/README.md`` of the reference data; in short::
+The format is described in ``cq_ros/maps/README.md``; in short::
 
     agent 1: start ROW,COL  goal ROW,COL
     set reward_step=-1         optional: a default of this map for a cq_ros.settings.Settings field

@@ -3,7 +3,7 @@ exploration that stops, a settings sweep and REPORT.md, in which every claim of 
 checked against the numbers measured.
 
 The verdicts are computed, not written: a claim that does not reproduce says so, with its figure. So is
-the report's "In short" section, which the README quotes word for word (tests/test_docs.py checks it).
+the report's "In short" section, which docs/choices.md quotes word for word (tests/test_docs.py checks it).
 """
 
 from __future__ import annotations
@@ -247,11 +247,11 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
     return lines
 
 
-# --- "In short": the findings the README quotes -----------------------------------------------------------
+# --- "In short": the findings docs/choices.md quotes --------------------------------------------------
 
 
 def in_short(out: Path, data, regimes: dict, variants: list[Variant]) -> list[str]:
-    """The findings, each sentence computed from the results (the README quotes them word for word)."""
+    """The findings, each sentence computed from the results (docs/choices.md quotes them word for word)."""
     metrics = {(x.map, x.algo): x for x in compute_metrics(data)}
     tail = {m: metrics[(m, "cq")].collisions_tail for m in PAPER_MAPS}
     n_cells = load_map("tunnel_to_goal_3").n_cells

@@ -4,7 +4,7 @@ The pip Fast DDS has no DDS-Security and rclpy 7.1.6's message info names no pub
 tell who wrote a message. With a per-run key, shared through a file only the user can read, it can tell
 who could not have: the codec appends HMAC-SHA256 (truncated to 128 bits, as RFC 2104 allows) over the
 payload's layout label and values, and a receiver holding the key drops any message without a matching
-one (`WireError("unauthenticated")`). The key authenticates; it does not hide (README, "Limits").
+one (`WireError("unauthenticated")`). The key authenticates; it does not hide (docs/ros.md, "Limits").
 """
 
 from __future__ import annotations
