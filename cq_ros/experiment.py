@@ -72,7 +72,10 @@ def prepare_output(out: Path, force: bool) -> Path:
         raise ResultExists(f"output {out} is a file, not a directory")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise ResultExists(f"output directory {out} is not empty; choose another or pass --force to overwrite")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # e.g. a parent that is a file, or no permission: one line, not a traceback
+        raise ResultExists(f"cannot make output directory {out}: {e.strerror or e}") from None
     return out
 
 
