@@ -404,9 +404,9 @@ def read_rows(path) -> list[tuple[int, int, bool]]:
 
 @pytest.mark.parametrize("stopped, sets, stalls, stall_s", [
     # the world, stopped past its step_timeout with the agents' actions waiting in its queue
-    ("world", ("step_timeout=1.0",), 3, 2.0),
+    ("world", ("step_timeout=3.0",), 3, 4.0),
     # an agent, stopped past its own feedback_timeout with the world's heartbeats waiting in its queue
-    ("agv1", ("step_timeout=8.0", "feedback_timeout=1.0", "heartbeat_period=0.2"), 2, 3.0),
+    ("agv1", ("step_timeout=10.0", "feedback_timeout=2.0", "heartbeat_period=0.2"), 2, 4.0),
 ], ids=["world", "agent"])
 def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, stopped, sets, stalls, stall_s):
     """Issue 20: kill -STOP, then -CONT, of one node process of a real `cq-ros launch`, several times. A stalled

@@ -96,7 +96,7 @@ def finish(system: System, spin_until) -> System:
     assert spin_until(system.executor, system.finished, RUN_TIMEOUT_S), "the run did not finish in time"
     episodes = system.world.config.total_episodes
     everything = [system.world_stats, *system.agent_stats.values()]
-    assert spin_until(system.executor, lambda: all(len(got) >= episodes for got in everything), 5.0), \
+    assert spin_until(system.executor, lambda: all(len(got) >= episodes for got in everything), 30.0), \
         [len(got) for got in everything]
     assert system.world.done.result() == 0 and all(a.done.result() == 0 for a in system.agents)
     return system
