@@ -114,10 +114,10 @@ def test_reproduce_and_bench_warehouse_run_on_the_cluster_too(cluster, tmp_path)
 
 
 def test_a_failing_run_is_named_with_the_workers_traceback(cluster):
-    jobs = [Job("tunnel_to_goal", "cq", 0, 50, 0), Job("tunnel_to_goal", "sarsa", 1, 50, 0)]
+    jobs = [Job("grid_game_2", "cq", 0, 20, 0), Job("grid_game_2", "sarsa", 1, 20, 0)]
     with pytest.raises(RunFailed) as failed:
         run_jobs(jobs, cluster=cluster.address)
-    assert str(failed.value).startswith("run failed: map tunnel_to_goal, algo sarsa, run 1: ")
+    assert str(failed.value).startswith("run failed: map grid_game_2, algo sarsa, run 1: ")
     assert "cq_ros/engine.py" in failed.value.details and "make_learners" in failed.value.details
 
 
