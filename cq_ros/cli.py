@@ -12,8 +12,10 @@ import textwrap
 import time
 from pathlib import Path
 
+from .cluster import ClusterError, scheduler_address
 from .gridmap import MapError, available_maps, load_map, parse_map
 from .learners import ALGORITHMS, LEARNERS
+from .runner import RunFailed
 from .settings import Settings, SettingsError, run_settings
 from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
 
@@ -42,6 +44,17 @@ def _algos(text: str) -> list[str]:
         what = ", ".join(unknown) if unknown else repr(text)
         raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(LEARNERS)}")
     return algos
+
+
+def _seeds(text: str) -> list[int]:
+    """Comma-separated whole numbers, each once."""
+    try:
+        seeds = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas, got {text!r}") from None
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"a seed is given twice in {text!r}")
+    return seeds
 
 
 def _number(low: float, high: float | None = None, kind: type = float, strict: bool = False):
@@ -78,7 +91,11 @@ def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> No
     p.add_argument("--runs", type=_positive, default=runs, help=f"independent runs (default {runs})")
     p.add_argument("--episodes", type=_positive, default=episodes, help=f"episodes per run (default {episodes})")
     p.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
-    p.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    where.add_argument("--cluster", type=scheduler_address, default=None, metavar="ADDRESS",
+                       help="run on the workers of a running Dask scheduler, tcp://HOST:PORT (needs the extra "
+                            "cq-ros[cluster]; docs/cluster.md)")
     _add_settings_options(p)
 
 
@@ -297,6 +314,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="result directory")
     _add_run_options(p, runs=10, episodes=10_000)
     p.add_argument("--no-sweep", dest="sweep", action="store_false", help="skip the settings sweep")
+    p.add_argument("--seeds", type=_seeds, default=None, metavar="S,S,...",
+                   help="master seeds, instead of --seed: the grid runs once per seed (the first's in OUT, the "
+                        "others' in OUT/seed_S), and when the collision averages settle (claims 1 and 2) is quoted "
+                        "as a range over them, which takes at least 3 (e.g. 0,1,2)")
     _add_ros_parsers(sub)
     return parser
 
@@ -309,6 +330,10 @@ def main(argv: list[str] | None = None) -> int:
         return _dispatch(args)
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
+    except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run
+        parser.exit(1, f"{e.details}cq-ros {args.command}: error: {e}\n")
+    except ClusterError as e:
+        parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -359,7 +384,7 @@ def _dispatch(args) -> int:
         # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
         settings = run_settings(load_map(args.map), args.overrides)
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures)
+                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
         _print_summary(out)
         print(f"results: {out}")
         return 0
@@ -367,8 +392,9 @@ def _dispatch(args) -> int:
         from .reproduce import reproduce
 
         # The paper's maps carry no defaults of their own.
-        report = reproduce(args.out, args.runs, args.episodes, args.seed, Settings().with_overrides(args.overrides),
-                           workers=args.jobs, force=args.force, sweep=args.sweep)
+        report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
+                           Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
+                           sweep=args.sweep, cluster=args.cluster)
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)

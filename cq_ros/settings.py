@@ -73,6 +73,10 @@ class Settings:
     eval_episodes: int = setting(
         20, "after the last episode, this many episodes of the greedy policy (epsilon 0) on a copy of the "
             "learners: what was learnt, without the collisions that exploration causes")
+    eval_learning: int = setting(
+        1, "what the greedy copy does with what it sees: 1, it goes on learning (t-tests, marking, confidence, "
+           "updates); 0, it is frozen and only acts, so the greedy episodes show exactly the policy the learning "
+           "episodes left")
     slip: float = setting(
         0.0, "delays (cq_ros.world; 0: deterministic, as in the paper): the probability that an AGV's move fails "
              "at a step (it stays: a person in the aisle, a wheel slipping)")
@@ -101,6 +105,7 @@ class Settings:
         _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
         _check(self.start_hold >= 0, "start_hold", self.start_hold, "at least 0")
         _check(self.eval_episodes >= 0, "eval_episodes", self.eval_episodes, "at least 0")
+        _check(self.eval_learning in (0, 1), "eval_learning", self.eval_learning, "0 or 1")
         for f in fields(self):
             value = getattr(self, f.name)
             _check(math.isfinite(value), f.name, value, "a finite number")

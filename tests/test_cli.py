@@ -123,23 +123,26 @@ def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_t
 
 
 def test_reproduce_small_grid_writes_a_report_with_every_claim(tmp_path):
-    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "30", "--no-sweep",
-                 "--set", "step_cap=300"]) == 0
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "10", "--no-sweep",
+                 "--set", "step_cap=50", "--seeds", "5,6,7"]) == 0
     report = (tmp_path / "r" / "REPORT.md").read_text()
     for n in range(1, 8):
         assert f"\n{n}. *" in report
-    assert "holds" in report
-    for claim in (1, 2):  # at both thresholds, with fixed and with decaying exploration
+    assert "holds" in report and "--seeds 5,6,7" in report
+    for claim in (1, 2):  # at both thresholds, with fixed and with decaying exploration, judged over the seeds
         section = report.split(f"\n{claim}. *")[1].split(f"\n{claim + 1}. *")[0]
         assert section.count("below 0.05: **") == section.count("below 0.1: **") == 2
-        assert "epsilon 0.1 fixed" in section and "epsilon falling to 0 by episode 15" in section
-    assert "## In short\n\n- **" in report
+        assert "epsilon 0.1 fixed" in section and "epsilon falling to 0 by episode 5" in section
+    assert "## In short\n\n- **" in report and "## Collision-free from, over seeds 5, 6, 7\n" in report
     for where in ("", "decay/"):
         for m in ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr"):
             assert (tmp_path / "r" / where / m / "episodes.csv").exists()
             assert (tmp_path / "r" / where / m / "collisions_log.png").exists()
+            for other in (6, 7):  # the other seeds' grids: tables, no figures
+                assert json.loads((tmp_path / "r" / f"seed_{other}" / where / m / "manifest.json").read_text())["seed"] == other
+    assert json.loads((tmp_path / "r" / "isr" / "manifest.json").read_text())["seed"] == 5
     decay = json.loads((tmp_path / "r" / "decay" / "isr" / "manifest.json").read_text())["settings"]
-    assert decay["epsilon_decay_episodes"] == 15 and decay["step_cap"] == 300  # at most 500
+    assert decay["epsilon_decay_episodes"] == 5 and decay["step_cap"] == 50  # at most 500
 
 
 def test_every_command_taking_a_map_accepts_a_path_to_a_copied_map(tmp_path, capsys):
@@ -167,7 +170,7 @@ def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
 
     # enough episodes (about half a second at ~8,000 a second) that the runs cannot end within one interval
     jobs = [Job("grid_game_2", "cq", r, 1500, 0, Settings(eval_episodes=0)) for r in range(3)]
-    results = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
+    results, _ = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
     assert len(results) == 3
     lines = capsys.readouterr().err.splitlines()
     pattern = re.compile(r"test: runs (\d)/3, episodes ([\d,]+)/4,500, [\d,]+ episodes/s, \d+ s elapsed, "
