@@ -201,6 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
     p.add_argument("--seed", type=int, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
+                   help="delays: the map's default `slip` (a move fails with probability P; default 0)")
+    p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
+                   help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
 
@@ -363,7 +367,7 @@ class _PlanProgress:
 
 
 def _generate(args) -> int:
-    text = warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed)
+    text = warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold)
     if args.out is None:
         sys.stdout.write(text)
         return 0

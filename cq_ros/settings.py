@@ -59,10 +59,16 @@ class Settings:
     # agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and updates
     # the most confident alone, which is blind to the peers the others name.
     cq_all_met: int = 1
+    # CQ's W1 (ours, 0 is the paper's): 0, the first N rewards of each (cell, action); 1, the rewards of acting
+    # alone there (the world's reward for the move with nobody else, a share slip of them delayed), so that a
+    # conflict present from the start, as under delays, shows as a drop.
+    cq_w1_alone: int = 0
     # LoC: active perception is TRUE when a peer is at most this many cells away (Manhattan), i.e.
     # close enough to collide this step; choosing COORDINATE costs this much of the learner's reward.
     loc_range: int = 2
     loc_cost: float = 0.1
+    # near (the baseline that watches every peer in range at every step): the range, Manhattan cells.
+    near_range: int = 2
     # Episodes end when all agents are at their goals or after this many steps (recorded as truncated).
     step_cap: int = 5000
     # After the last episode, this many episodes of the greedy policy (epsilon 0) on a copy of the
@@ -87,8 +93,10 @@ class Settings:
                (self.conf_drop, self.conf_init, self.conf_max), "ordered")
         _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
         _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
+        _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
+        _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
         _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
         _check(self.start_hold >= 0, "start_hold", self.start_hold, "at least 0")

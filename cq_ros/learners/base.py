@@ -62,6 +62,7 @@ class Learner:
         self.rng = random.Random(seed)
         self.peers = tuple(j for j in range(n_agents) if j != agent)
         self.joint_plays = 0  # times this learner acted on information about its peers
+        self.heard = 0  # peer positions its decisions took in (the communication cost)
         self.episodes_played = 0
 
     def observe(self, cell: Hashable) -> tuple[int, ...]:

@@ -33,6 +33,7 @@ class JointStateQ(Learner):
         self.row = row
         self.a = epsilon_greedy(row, self.epsilon, self.rng)
         self.joint_plays += 1
+        self.heard += len(peer_cells)
         return self.a
 
     def learn(self, reward, next_cell, done):

@@ -36,6 +36,7 @@ class LearningOfCoordination(Learner):
             self.move = self.choice
             return self.move
         self.joint_plays += 1
+        self.heard += len(peer_cells)
         near = tuple((j, c) for j, c in sorted(peer_cells.items()) if self.map.distance(self.s, c) <= self.range)
         if near:  # ActivePercept = TRUE
             self.x = (self.s, near)
