@@ -161,7 +161,12 @@ def main(argv: list[str]) -> int:
     stale = 0
     for path in pages():
         text = path.read_text(encoding="utf-8")
-        for name, held, made in blocks(text):
+        try:
+            found = blocks(text)
+        except (OSError, ValueError, KeyError) as exc:  # a data file missing or not what its command writes
+            print(f"docs/figures.py: {path.relative_to(DOCS.parent)}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return 1
+        for name, held, made in found:
             ok = held == made
             stale += not ok
             print(f"{path.relative_to(DOCS.parent)}: {name}: {'matches its data' if ok else 'STALE'}")
