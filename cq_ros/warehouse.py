@@ -32,7 +32,7 @@ import textwrap
 from .gridmap import GridMap, _render, _STEPS, parse_map
 from .settings import Settings, SettingsError
 
-__all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "MAP_DEFAULTS", "default_aisles", "warehouse_command", "warehouse_map",
+__all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "DELAYED_COLLISION", "MAP_DEFAULTS", "default_aisles", "warehouse_command", "warehouse_map",
            "warehouse_text"]
 
 DEFAULT_AISLE_LENGTH = 6
@@ -96,6 +96,13 @@ def _layout(aisles: int, aisle_length: int) -> tuple[int, int, set[frozenset[Cel
 
 
 # Setting -> why, for the delays a generated map may carry (cq_ros.world, "Delays"); written only when asked for.
+# With any delay the map also carries DELAYED_COLLISION: following an AGV directly costs, in expectation, the
+# slip times the collision penalty (the one ahead is delayed and rear-ended), against one step lost by waiting;
+# with the default -10 at slip 0.1 the two are equal, and no learner learns to keep its distance.
+DELAYED_COLLISION = ("-30", "collisions cost -30, not -10: behind an AGV that may be delayed with probability p, "
+                            "moving on costs p times the penalty in expectation and waiting one step, so waiting "
+                            "pays only where the penalty exceeds 1/p steps; -30 makes it pay for slips down to "
+                            "0.04 (at 0.1 and -10 the two are even)")
 DELAY_DEFAULTS = {
     "slip": "AGVs are delayed: at every step an AGV's move fails with this probability and it stays (a person "
             "in the aisle, a wheel slipping), so a meeting's timing is not known in advance",
@@ -158,6 +165,8 @@ def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | N
                    for k, (s, g) in enumerate(zip(starts, goals), start=1)]
     set_lines = ["# Map defaults (`--set` overrides them)."]
     chosen = {**MAP_DEFAULTS, **{k: (f"{v:g}", DELAY_DEFAULTS[k]) for k, v in delays.items() if v}}
+    if slip or start_hold:
+        chosen["reward_collision"] = DELAYED_COLLISION
     for key, (value, why) in chosen.items():
         set_lines += [f"# {line}" for line in textwrap.wrap(f"{why[0].upper()}{why[1:]}.", 100)]
         set_lines.append(f"set {key}={value}")
