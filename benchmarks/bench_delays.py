@@ -10,6 +10,10 @@ in the same delayed world):
 - heard/step: peer positions the learners took in per joint step (all agents together), while learning and in
   the greedy episodes: CQ's looks against `near`, which looks at every peer within 2 cells at every step;
 - exploring collisions: per episode over the last 10% of learning.
+The algorithm `adg` is the yardstick that is not learned: the planner's plan carried out by its action
+dependency graph under the same delays (cq_ros.execute; run r of a seed draws the delays a learner's run r
+draws), one execution per run: its greedy columns are the execution's, and heard/step its dependency messages
+per step.
 
     python benchmarks/bench_delays.py [--maps warehouse_8] [--algos indep,near,loc,cq] [--slips 0,0.1]
         [--seeds 0,1,2] [--runs 10] [--episodes 2000] [--jobs 2] [--set KEY=VALUE ...]
@@ -27,6 +31,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from tqdm import tqdm
 
 from cq_ros.engine import Team, greedy_team, make_learners, world_seed
+from cq_ros.execute import execute
 from cq_ros.gridmap import load_map
 from cq_ros.planner import plan
 from cq_ros.settings import SettingsError, run_settings
@@ -36,6 +41,12 @@ from cq_ros.world import GridWorld
 def one_run(map_name: str, algo: str, slip: float, seed: int, run: int, episodes: int, overrides: list[str]) -> dict:
     gridmap = load_map(map_name)
     settings = run_settings(gridmap, [*overrides, f"slip={slip}"])
+    if algo == "adg":
+        done = execute(plan(gridmap), gridmap, settings, seed, run)
+        steps = max(a or done.paths[i].__len__() - 1 for i, a in enumerate(done.arrivals))
+        cost = sum(len(path) - 1 if a is None else a for path, a in zip(done.paths, done.arrivals))
+        return {"explore": 0.0, "heard": 0.0, "g_heard": done.messages / max(1, steps),
+                "g_collisions": float(done.collisions), "g_cost": float(cost), "g_home": done.home}
     team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, run)),
                 make_learners(algo, gridmap, settings, seed, run))
     tail = max(1, episodes // 10)
@@ -94,10 +105,12 @@ def main() -> None:
             for slip in slips:
                 run_settings(load_map(name), [*args.overrides, f"slip={slip}"])
         for algo in algos:
-            make_learners(algo, load_map(maps[0]), run_settings(load_map(maps[0])), 0, 0)
+            if algo != "adg":
+                make_learners(algo, load_map(maps[0]), run_settings(load_map(maps[0])), 0, 0)
     except (SettingsError, ValueError, KeyError) as e:
         parser.error(str(e))
 
+    print("python benchmarks/bench_delays.py " + " ".join(sys.argv[1:]))
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; seeds {args.seeds} x "
           f"{args.runs} runs x {args.episodes} episodes" + (f"; settings: {' '.join(args.overrides)}" if args.overrides else ""))
     planned = {}

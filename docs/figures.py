@@ -129,8 +129,22 @@ def warehouses() -> str:
     return "\n".join(lines) + "\n"
 
 
+def delays() -> str:
+    """What benchmarks/bench_delays.py printed, a table per file of docs/data/delays/ (its first line the
+    machine and the run's settings, its next the planner's figures, then the run's time and the table)."""
+    out = []
+    for path in sorted((DATA / "delays").glob("*.txt")):
+        lines = path.read_text(encoding="utf-8").splitlines()
+        table = [line for line in lines if line.startswith("|")]
+        notes = [line for line in lines if not line.startswith("|") and line.strip()]
+        command = notes[0] if notes and notes[0].startswith("python ") else ""
+        out += ([f"`{command}`", ""] if command else []) + table + ["", "; ".join(n for n in notes if n != command)
+                                                                    + ".", ""]
+    return "\n".join(out)
+
+
 FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens,
-                                         "warehouses": warehouses}
+                                         "warehouses": warehouses, "delays": delays}
 
 
 def blocks(page: str) -> list[tuple[str, str, str]]:

@@ -908,3 +908,34 @@ def test_cq_w1_alone_marks_a_conflict_that_was_there_from_the_start():
             step(learner, 0, ELSEWHERE if k % 3 else {1: 1, 2: 5}, -10.0 if k % 3 == 0 else 0.0, 0 if k % 3 == 0 else 1)
         marked[alone] = bool(learner.q_joint)
     assert marked == {0: False, 1: True}
+
+
+# --- the greedy evaluation: learning or frozen (eval_learning) --------------------------------------------
+
+KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "pending", "conflict_at")
+
+
+def kept(learner) -> bytes:
+    """Everything a learner keeps from step to step but its rng and counters."""
+    return pickle.dumps({k: v for k, v in vars(learner).items() if k in KEPT})
+
+
+@pytest.mark.parametrize("algo", sorted(LEARNERS))
+@pytest.mark.parametrize("eval_learning", [0, 1])
+def test_a_frozen_greedy_copy_only_acts_and_a_learning_one_learns(algo, eval_learning):
+    gm = load_map("tunnel_to_goal")
+    settings = Settings(window=10, step_cap=300, eval_learning=eval_learning)
+    team = Team(GridWorld(gm, settings, seed=0), make_learners(algo, gm, settings, seed=4, run=0))
+    for _ in range(150):
+        team.episode()
+    trained = [kept(learner) for learner in team.learners]
+    greedy = engine.greedy_team(team)
+    assert all(learner.epsilon == 0.0 for learner in greedy.learners)
+    played = [greedy.episode() for _ in range(3)]
+    assert [kept(learner) for learner in team.learners] == trained  # the run itself is never touched
+    after = [kept(learner) for learner in greedy.learners]
+    assert (after == trained) == (eval_learning == 0)
+    if eval_learning == 0:
+        assert len({e.states for e in played}) == 1  # a frozen LoC, near or CQ makes no joint state, drops none
+        if algo in ("cq", "fcq"):
+            assert sum(e.joint_plays for e in played) > 0  # it acted on its joint states, without touching them

@@ -85,6 +85,8 @@ class CQLearner(Learner):
         return self.rows[0] if len(self.rows) == 1 else [min(q) for q in zip(*self.rows)]
 
     def learn(self, reward, next_cell, done):
+        if not self.learning:
+            return
         s, a = self.s, self.a
         target = reward if done else reward + self.gamma * max(self.q_local[next_cell])
         sample = self.sample(reward, target)
@@ -158,15 +160,17 @@ class CQLearner(Learner):
         return made
 
     def _meet(self, s, peer_cells):
-        """The joint states of cell s met now, the most confident first (the first marked among equals)."""
+        """The joint states of cell s met now, the most confident first (the first marked among equals);
+        their confidence rises, the others' falls, unless the learner is frozen."""
         st = self.settings
         met = []
         for js in list(self.marked[s]):
             _, j, c = js
             if peer_cells[j] == c:
-                self.confidence[js] = min(st.conf_max, self.confidence[js] + st.conf_up)
                 met.append(js)
-            else:
+                if self.learning:
+                    self.confidence[js] = min(st.conf_max, self.confidence[js] + st.conf_up)
+            elif self.learning:
                 self.confidence[js] -= st.conf_down
                 if self.confidence[js] < st.conf_drop:
                     self._forget(js)

@@ -36,7 +36,9 @@ class NearQ(Learner):
             self.joint_plays += 1
             row = self.q_near.get((self.s, near))
             if row is None:
-                row = self.q_near[(self.s, near)] = list(self.q_local[self.s])
+                row = list(self.q_local[self.s])
+                if self.learning:
+                    self.q_near[(self.s, near)] = row
         else:
             row = self.q_local[self.s]
         if self.pending is not None:
@@ -48,6 +50,8 @@ class NearQ(Learner):
         return self.a
 
     def learn(self, reward, next_cell, done):
+        if not self.learning:
+            return
         if done:
             q_update(self.row, self.a, reward, self.alpha)
         else:
