@@ -328,6 +328,9 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
         return _dispatch(args)
+    except BrokenPipeError:  # the reader left (`cq-ros maps | head`): nothing to tell it; no traceback at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
     except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run
