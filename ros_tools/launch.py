@@ -79,7 +79,7 @@ from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import world_config
 
-from .commands import StopSignals, environment, ros_session, spin_until
+from .commands import StopSignals, ToolError, environment, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
     EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, write_ended_early, write_heard,
@@ -341,7 +341,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
-           discovery: str = "subnet", key_file: str | os.PathLike | None = None) -> LaunchResult:
+           discovery: str = "subnet", key_file: str | os.PathLike | None = None,
+           view_port: int | None = None) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -352,7 +353,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     Every launch writes the system it ran to DIR/params.yaml (ros_tools.system_file). `key_file` (made by `cq-ros
     key`) keys the run and is named there and kept; without it the launch makes a key of its own and removes
-    it at the end.
+    it at the end. `view_port`: also serve the run to Foxglove there (ros_tools.view, the extra `view`).
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
     a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
@@ -429,6 +430,15 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
             hidden=False) as (node, executor):
         listener = StatsListener(node, gridmap, episodes + settings.eval_episodes)
+        server = None
+        if view_port is not None:  # a live view in Foxglove (ros_tools.view), relayed by the listener's node
+            from .view import serve
+
+            try:
+                server, _ = serve(node, f"/{namespace}", port=view_port, n_agents=gridmap.n_agents)
+            except ToolError as e:
+                raise LaunchError(str(e)) from None
+            tqdm.write(f"cq-ros launch: Foxglove view on ws://127.0.0.1:{server.port}", file=sys.stderr)
         bar = Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
         try:
             for child in children:
@@ -458,6 +468,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             _stop(children)
             if not kept_key:
                 key_file.unlink(missing_ok=True)
+            if server is not None:
+                server.stop()
             bar.close()
 
     rows.close()
