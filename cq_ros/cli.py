@@ -8,11 +8,14 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 import time
 from pathlib import Path
 
-from .gridmap import MapError, available_maps, load_map
+from .cluster import ClusterError, scheduler_address
+from .gridmap import MapError, available_maps, load_map, parse_map
 from .learners import ALGORITHMS, LEARNERS
+from .runner import RunFailed
 from .settings import Settings, SettingsError, run_settings
 from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
 
@@ -87,11 +90,16 @@ def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> No
 def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> None:
     p.add_argument("--runs", type=_positive, default=runs, help=f"independent runs (default {runs})")
     p.add_argument("--episodes", type=_positive, default=episodes, help=f"episodes per run (default {episodes})")
-    p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
-    p.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    p.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    where.add_argument("--cluster", type=scheduler_address, default=None, metavar="ADDRESS",
+                       help="run on the workers of a running Dask scheduler, tcp://HOST:PORT (needs the extra "
+                            "cq-ros[cluster]; docs/cluster.md)")
     _add_settings_options(p)
 
 
+_seed = _number(0, kind=int)  # numpy's SeedSequence takes no negative seed
 # ROS_DOMAIN_ID: Fast DDS derives its ports from it; 0..232 is the range that works on Linux.
 _domain_id = _number(0, 232, kind=int)
 _seconds = _number(0, strict=True)
@@ -105,11 +113,23 @@ def _add_domain_option(p: argparse.ArgumentParser) -> None:
 def _add_ros_parsers(sub) -> None:
     p = sub.add_parser("launch", help="run one algorithm on one map as ROS 2 nodes (a world process and one "
                                       "process per AGV) and write results and figures")
-    p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--algo", type=_algo, required=True, help=f"one of {','.join(ALGORITHMS)}")
-    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/)")
-    p.add_argument("--episodes", type=_positive, default=500, help="episodes (default 500)")
-    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="master seed (default 0)")
+    p.add_argument("--map", default=None, help="a shipped map name or a path to a map file (required unless "
+                                                "--params-file)")
+    p.add_argument("--algo", type=_algo, default=None, help=f"one of {','.join(ALGORITHMS)} (required unless "
+                                                             "--params-file)")
+    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/; the "
+                                                           "system it ran in its params.yaml)")
+    p.add_argument("--params-file", type=Path, default=None, metavar="FILE",
+                   help="start the system a params.yaml describes (as every launch writes it: map, algorithm, "
+                        "episodes, seed, settings and node parameters, under any namespace) instead of --map, "
+                        "--algo, --episodes, --seed, --set")
+    p.add_argument("--key", type=Path, default=None, metavar="FILE",
+                   help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
+                        "(default: a key of the launch's own, removed at its end)")
+    p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
+                   help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`)")
+    p.add_argument("--episodes", type=_positive, default=None, help="episodes (default 500)")
+    p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
     p.add_argument("--namespace", default=None, help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
@@ -130,6 +150,29 @@ def _add_ros_parsers(sub) -> None:
                    help="with --hosts: multicast discovery on the subnet, or unicast to ROS_STATIC_PEERS only")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_settings_options(p, nodes=True)
+
+    p = sub.add_parser("collect", help="listen to a system started by hand (its statistics) and write what a "
+                                       "launch writes: episodes.csv, greedy.csv, observe.csv, manifest.json")
+    p.add_argument("--out", type=Path, required=True, help="result directory")
+    p.add_argument("--namespace", default=None, help="the system's namespace (default: the one system on the domain)")
+    p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
+                   help="seconds to look for the system before giving up (default 60)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
+    _add_domain_option(p)
+
+    p = sub.add_parser("view", help="a live view in Foxglove: a Foxglove WebSocket server relaying a running "
+                                    "system's topics with their ROS 2 schemas, until Ctrl-C (extra `view`)")
+    p.add_argument("--namespace", default=None, help="the system's namespace (default: the one system on the domain)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--port", type=_number(0, 65535, kind=int), default=8765, help="port (default 8765; 0: any free)")
+    p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
+                   help="seconds to look for the system before giving up (default 60)")
+    _add_domain_option(p)
+
+    p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
+                                   "cq-ros launch --key FILE)")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE", help="the key file to make (mode 0600; "
+                                                                            "never overwritten)")
 
     p = sub.add_parser("hosts", help="make or remove hosts for --hosts: network namespaces joined by a bridge, "
                                      "addresses from 198.18.0.0/15 (root)")
@@ -174,7 +217,7 @@ def _add_ros_parsers(sub) -> None:
     source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
     p.add_argument("--algo", type=_algo, default="cq", help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
     p.add_argument("--episodes", type=_positive, default=100, help="with --map: episodes to learn (default 100)")
-    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="with --map: master seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
                    help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
     p.add_argument("--greedy", action="store_true",
@@ -194,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("maps", help="list the shipped maps with their cells and agents")
     p = sub.add_parser("show", help="draw a map in the terminal")
     p.add_argument("map", help="a shipped map name or a path to a map file")
-    sub.add_parser("settings", help="list every setting with its default")
+    sub.add_parser("settings", help="list every setting with its default and description")
 
     p = sub.add_parser("generate", help="generate a map (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
@@ -209,11 +252,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
     p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
-    p.add_argument("--seed", type=int, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
     p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
                    help="delays: the map's default `slip` (a move fails with probability P; default 0)")
     p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
                    help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+
+    p = sub.add_parser("import", help="convert a map from another format into ours (print it, or write it with --out)")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="FORMAT", parser_class=_Parser)
+    p = kinds.add_parser("movingai", help="a MovingAI .map (and the first N tasks of a .scen) as a map of ours",
+                         description="Convert a MovingAI grid (. G passable, @ O T blocked; S and W rejected) and, "
+                         "with --scen, its first N tasks (x the column, y the row, 0-based from the top left) into "
+                         "our map format (cq_ros.movingai). A fault is one line naming the file and line.")
+    p.add_argument("map", type=Path, metavar="MAP.map", help="a MovingAI map file")
+    p.add_argument("--scen", type=Path, default=None, metavar="FILE.scen",
+                   help="a MovingAI scenario: its first --agents tasks become the agents (default: none, the "
+                        "drawing only, to which agent lines must be added)")
+    p.add_argument("--agents", type=_positive, default=None, metavar="N", help="with --scen: the tasks to take")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
 
@@ -229,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "for the learners): makespan, sum of costs, arrival steps; then the plan "
                                     "executed under the world's delays")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--seed", type=int, default=0, help="seed of the priority orders and LNS rounds (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the priority orders and LNS rounds (default 0)")
     p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=1000, metavar="N",
                    help="search nodes of the optimal conflict-based search before falling back on prioritized "
                         "planning (default 1000; 0: skip it)")
@@ -273,12 +330,17 @@ def main(argv: list[str] | None = None) -> int:
         return _dispatch(args)
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
+    except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run
+        parser.exit(1, f"{e.details}cq-ros {args.command}: error: {e}\n")
+    except ClusterError as e:
+        parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
 
 
 def _dispatch(args) -> int:
+    from . import ros_commands  # imports no ROS until one of its commands runs
     if args.command == "maps":
         names = available_maps()
         width = max(len(name) for name in names)
@@ -299,31 +361,31 @@ def _dispatch(args) -> int:
         return 0
     if args.command == "generate":
         return _generate(args)
+    if args.command == "import":
+        return _import(args)
     if args.command == "settings":
         for key, value in Settings().as_dict().items():
             print(f"{key} = {value}")
+            print(textwrap.fill(Settings.describe(key), width=100, initial_indent="    ", subsequent_indent="    "))
         return 0
     if args.command == "plan":
         from .plan_command import run
 
         return run(args)
     if args.command in ("echo", "topics", "nodes", "record"):
-        return _ros_tool(args)
+        return ros_commands.ros_tool(args)
     if args.command == "render":
         return _render(args)
-    if args.command == "launch":
-        return _launch(args)
-    if args.command == "hosts":
-        return _hosts(args)
+    if args.command in ("launch", "hosts", "collect", "key", "view"):
+        return getattr(ros_commands, args.command)(args)
     if args.command == "experiment":
         from .experiment import experiment
-        from .summary import format_console_table, load_episodes
 
         # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
         settings = run_settings(load_map(args.map), args.overrides)
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures)
-        print(format_console_table(load_episodes(out / "episodes.csv")))
+                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
+        _print_summary(out)
         print(f"results: {out}")
         return 0
     if args.command == "reproduce":
@@ -332,100 +394,74 @@ def _dispatch(args) -> int:
         # The paper's maps carry no defaults of their own.
         report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
                            Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
-                           sweep=args.sweep)
+                           sweep=args.sweep, cluster=args.cluster)
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
 
 
+def _print_summary(out: Path) -> None:
+    """The table of a result directory's episodes and the greedy policy's line per algorithm (experiment and
+    launch alike)."""
+    from .summary import format_console_table, greedy_lines, load_episodes
+
+    print(format_console_table(load_episodes(out / "episodes.csv")))
+    for line in greedy_lines(out / "greedy.csv"):
+        print(line)
+
+
 def _generate(args) -> int:
-    text = warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold)
-    if args.out is None:
+    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold),
+               args.out, args.force)
+    return 0
+
+
+def _import(args) -> int:
+    from .movingai import map_text, read_map, read_scenario
+
+    if (args.scen is None) != (args.agents is None):
+        raise ValueError("--scen and --agents go together: the scenario and how many of its tasks to take")
+    if args.out is not None:
+        _check_writable(args.out, args.force)  # before the work: a large map takes seconds to read
+    gridmap = read_map(args.map)
+    tasks = read_scenario(args.scen, gridmap, args.agents) if args.scen is not None else []
+    command = " ".join(["cq-ros", "import", "movingai", args.map.name]
+                       + ([f"--scen {args.scen.name} --agents {args.agents}"] if tasks else []))
+    text = map_text(gridmap, tasks, command, args.scen)
+    if not tasks:
+        print("cq-ros import: the map has no agents yet: add lines `agent K: start ROW,COL  goal ROW,COL`, or "
+              "give --scen FILE --agents N", file=sys.stderr)
+    else:
+        parse_map(text, source=str(args.out or "<import>"))  # our own loader accepts what we write
+    _write_map(text, args.out, args.force)
+    return 0
+
+
+def _check_writable(out: Path, force: bool) -> None:
+    if out.exists() and not out.is_file():
+        raise FileExistsError(f"{out} is not a file")
+    if out.exists() and not force:
+        raise FileExistsError(f"{out} exists; pass --force to overwrite it")
+
+
+def _write_map(text: str, out: Path | None, force: bool) -> None:
+    """`text` on stdout (out None) or into file `out`, which must be new unless `force`."""
+    if out is None:
         sys.stdout.write(text)
-        return 0
-    if args.out.exists() and not args.out.is_file():
-        raise FileExistsError(f"{args.out} is not a file")
-    if args.out.exists() and not args.force:
-        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
+        return
+    _check_writable(out, force)
     try:
-        args.out.write_text(text, encoding="utf-8")
+        out.write_text(text, encoding="utf-8")
     except OSError as e:
-        raise ValueError(f"cannot write {args.out}: {e.strerror or e}") from None
-    print(f"wrote {args.out}", file=sys.stderr)
-    return 0
-
-
-# The ROS commands import rclpy (through ros_tools) only when they run: the rest of cq_ros
-# works without it.
-
-
-def _hosts(args) -> int:
-    from ros_tools.hosts import HostsError, existing_prefixes, hosts_down, hosts_up
-
-    try:
-        if args.action == "up":
-            print(hosts_up(args.agents, args.prefix).describe())
-        elif args.action == "down":
-            if args.prefix is None:
-                raise HostsError("down needs --prefix (`cq-ros hosts list` shows the sets)")
-            gone = hosts_down(args.prefix)
-            print(f"removed {', '.join(gone)}" if gone else f"no hosts {args.prefix}: nothing to remove")
-        else:
-            for prefix, names in existing_prefixes().items():
-                print(f"{prefix}: {', '.join(names)}")
-    except HostsError as e:
-        print(f"cq-ros hosts: error: {e}", file=sys.stderr)
-        return 2
-    return 0
-
-
-def _launch(args) -> int:
-    from ros_tools.hosts import HostsError, check_can_make_hosts, find_hosts
-    from ros_tools.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
-
-    from .summary import format_console_table, load_episodes
-
-    # Settings fields (over the map's defaults) and node parameters alike
-    settings, node_parameters = split_sets(args.overrides, load_map(args.map))
-    hosts = None
-    if args.hosts is not None:
-        try:
-            check_can_make_hosts()
-            hosts = find_hosts(args.hosts)
-        except HostsError as e:
-            raise ValueError(e) from None
-        check_hosts(hosts, load_map(args.map), args.algo, args.discovery)
-        if hosts.current_host() != "world":  # the launcher listens on the world's host: run there
-            sys.stdout.flush()
-            os.execvp("ip", [*hosts.exec_on("world"), sys.executable, "-m", "cq_ros.cli", *args.argv])
-    try:
-        result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
-                        domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps, compose=args.compose,
-                        executor=args.executor, node_parameters=node_parameters, force=args.force,
-                        figures=args.figures, hosts=hosts, discovery=args.discovery)
-    except Interrupted as e:
-        print(f"cq-ros launch: {e}", file=sys.stderr)
-        return 130
-    except LaunchError as e:
-        print(f"cq-ros launch: error: {e}", file=sys.stderr)
-        return 1
-    print(format_console_table(load_episodes(result.out / "episodes.csv")))
-    if len(result.greedy):
-        steps, collisions = result.greedy[:, 0], result.greedy[:, 1]
-        print(f"greedy policy, {len(result.greedy)} episodes: {collisions.mean():.2f} collisions/ep, "
-              f"{steps.mean():.1f} steps/ep, {int(result.greedy[:, 5].sum())} truncated")
-    for node, cost in result.manifest["communication"].items():
-        print(f"{node}: {cost['peer_messages']} peer position messages, "
-              f"{cost['subscriptions_created']} subscriptions created")
-    print(f"results: {result.out}")
-    return 0
+        raise ValueError(f"cannot write {out}: {e.strerror or e}") from None
+    print(f"wrote {out}", file=sys.stderr)
 
 
 def _render(args) -> int:
-    from .render import DPI, check_output, engine_frames, frames_from, lattice, write_animation
+    from .render import DPI, check_output, cut_by_bag, engine_frames, frames_from, lattice, write_animation
 
     check_output(args.out)
+    cut = None
     if args.map is not None:
         gridmap = load_map(args.map)
         settings = run_settings(gridmap, args.overrides)
@@ -457,10 +493,13 @@ def _render(args) -> int:
             raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
         occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
+        cut = cut_by_bag(scenes, episode)
+        if cut:
+            _note(f"episode {episode} is cut by the bag: {cut}")
     _note(f"drawing {len(frames)} steps to {args.out}")
     out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps, dpi=args.dpi or DPI,
                           progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
-    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames" + (" (cut by the bag)" if args.bag and cut else ""))
     return 0
 
 
@@ -479,25 +518,6 @@ def _every_30_s(line: str):
 
 def _note(line: str) -> None:
     print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
-
-
-def _ros_tool(args) -> int:
-    from ros_tools import commands as tools
-
-    try:
-        if args.command == "echo":
-            tools.echo(args.topic, count=args.count, timeout_s=args.timeout, domain_id=args.domain_id)
-        elif args.command == "topics":
-            tools.topics(show_types=args.show_types, wait_s=args.wait, domain_id=args.domain_id)
-        elif args.command == "nodes":
-            tools.nodes(all_nodes=args.all_nodes, wait_s=args.wait, domain_id=args.domain_id)
-        else:
-            tools.record(args.out, topics=args.topics, duration_s=args.duration, count=args.count,
-                         storage=args.storage, domain_id=args.domain_id)
-    except tools.ToolError as e:
-        print(f"cq-ros {args.command}: error: {e}", file=sys.stderr)
-        return 1
-    return 0
 
 
 if __name__ == "__main__":

@@ -169,6 +169,17 @@ def _render(
     return ["".join(line).rstrip() for line in canvas]
 
 
+def draw_cells(height: int, width: int, cells: frozenset[tuple[int, int]] | set[tuple[int, int]]) -> list[str]:
+    """The drawing (lines of the map format) of a height x width grid whose world is `cells` (row, col), a
+    wall wherever a cell of it meets the edge or a cell outside it (a map importer's drawing)."""
+
+    def is_open(row: int, col: int, action: int) -> bool:
+        d_row, d_col = _STEPS[action]
+        return (row + d_row, col + d_col) in cells
+
+    return _render(height, width, {cell: "." for cell in cells}, is_open)
+
+
 # --- parsing ---------------------------------------------------------------------------------------
 
 

@@ -72,10 +72,10 @@ def seed_dir(out: Path, seeds: Sequence[int], seed: int) -> Path:
 
 def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Sequence[int] = 0,
               settings: Settings = Settings(), workers: int | None = None, force: bool = False, sweep: bool = True,
-              figures: bool = True) -> Path:
+              figures: bool = True, cluster: str | None = None) -> Path:
     """Run the grid, again with exploration that stops (in decay/), for each master seed in `seed` (one or
-    several), and the sweep (first seed); write every map's results and figures (first seed) and REPORT.md;
-    returns its path."""
+    several), and the sweep (first seed), on `workers` local processes or on the Dask scheduler at `cluster`;
+    write every map's results and figures (first seed) and REPORT.md; returns its path."""
     seeds = (seed,) if isinstance(seed, int) else tuple(dict.fromkeys(seed))
     out = prepare_output(out, force)
     started = time.perf_counter()
@@ -87,7 +87,7 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
     for v in variants:
         jobs += [Job(SWEEP_MAP, "cq", r, episodes, seeds[0], settings.with_overrides(v.changes)) for r in range(runs)]
     jobs = list(dict.fromkeys(jobs))  # the "defaults" variant is the grid's own CQ runs on the sweep map
-    results = run_jobs(jobs, workers, label="reproduce")
+    results, executed_on = run_jobs(jobs, workers, label="reproduce", cluster=cluster)
     wall = time.perf_counter() - started
 
     for sd in seeds:
@@ -98,7 +98,7 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
                 folder = seed_dir(out, seeds, sd) / where / m
                 folder.mkdir(parents=True, exist_ok=True)
                 write_results(folder, gridmap, mine,
-                              manifest_for(gridmap, ALGORITHMS, runs, episodes, sd, grid_settings, wall))
+                              manifest_for(gridmap, ALGORITHMS, runs, episodes, sd, grid_settings, wall, executed_on))
     for v in variants:
         changed = settings.with_overrides(v.changes)
         mine = [results[j] for j in jobs
@@ -106,7 +106,8 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
         where = out / "sweep" / v.name
         where.mkdir(parents=True, exist_ok=True)
         write_results(where, load_map(SWEEP_MAP), mine, manifest_for(load_map(SWEEP_MAP), ["cq"], runs, episodes,
-                                                                     seeds[0], changed, wall, variant=v.name))
+                                                                     seeds[0], changed, wall, executed_on,
+                                                                     variant=v.name))
     if figures:
         from .plots import write_figures
 
@@ -114,7 +115,8 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
             for m in PAPER_MAPS:
                 write_figures(out / where / m)
     report = out / "REPORT.md"
-    report.write_text(render_report(out, runs, episodes, seeds, settings, variants, time.perf_counter() - started))
+    report.write_text(render_report(out, runs, episodes, seeds, settings, variants, time.perf_counter() - started,
+                                    executed_on))
     return report
 
 
@@ -135,7 +137,7 @@ def _grid_data(where: Path):
 
 
 def render_report(out: Path, runs: int, episodes: int, seeds: Sequence[int], settings: Settings,
-                  variants: list[Variant], wall: float) -> str:
+                  variants: list[Variant], wall: float, executed_on: dict | None = None) -> str:
     seeds = tuple(seeds)
     data = _grid_data(out)
     decay = decaying(settings, episodes)
@@ -150,7 +152,7 @@ def render_report(out: Path, runs: int, episodes: int, seeds: Sequence[int], set
         "",
         f"Command: `cq-ros reproduce --out {out.name} --runs {runs} --episodes {episodes} {seeding}`"
         + (f" with settings changed from the defaults: {_changes(settings)}" if _changes(settings) else ""),
-        f"Wall time: {wall:.0f} s on {v['cores']} cores ({v['machine']}, Python {v['python']}, "
+        f"Wall time: {wall:.0f} s on {_where(executed_on, v)} ({v['machine']}, Python {v['python']}, "
         f"cq_ros {v['cq_ros']}). Every parameter and seed is in each map's `manifest.json`. The greedy episodes "
         + ("go on learning" if settings.eval_learning else "are played frozen") + f" (eval_learning={settings.eval_learning}).",
         "",
@@ -330,7 +332,6 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
 def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: list[Variant]) -> list[str]:
     """The findings, each sentence computed from the results (docs/choices.md quotes them word for word)."""
     metrics = {(x.map, x.algo): x for x in compute_metrics(data)}
-    tail = {m: metrics[(m, "cq")].collisions_tail for m in PAPER_MAPS}
     n_cells = load_map("tunnel_to_goal_3").n_cells
     cq_states = metrics[("tunnel_to_goal_3", "cq")].final_states / 2
     share, _ = entrance_share(out)
@@ -512,3 +513,9 @@ def _sweep_section(out: Path, variants: list[Variant]) -> list[str]:
         lines.append(f"| {v.name} | {v.why} | {m.collisions_tail:.3f} ± {m.collisions_tail_std:.3f} | "
                      f"{m.final_states:.1f} | {m.joint_plays_tail:.2f} |")
     return lines
+
+
+def _where(executed_on: dict | None, v: dict) -> str:
+    if executed_on and executed_on.get("where") == "dask":
+        return f"the Dask cluster at {executed_on['scheduler']} ({len(executed_on['workers'])} workers)"
+    return f"{v['cores']} cores"

@@ -35,6 +35,28 @@ _FAST_DTYPE = np.dtype([(name, "f8" if name == "return" else "i8") for name in _
 _ANY_DTYPE = np.dtype([(name, "f8") for name in _NUMERIC])
 
 
+def greedy_lines(path: str | os.PathLike) -> list[str]:
+    """One line per algorithm of a greedy.csv (`cq-ros experiment` and `cq-ros launch` end with them): the
+    greedy policy's collisions and steps per episode over every run's greedy episodes, and how many were
+    truncated. An algorithm without greedy episodes (eval_episodes 0) has no line."""
+    totals: dict[str, list[float]] = {}  # algo -> [runs, episodes, collisions, steps, truncated]
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            n = int(row["episodes"])
+            if n == 0:
+                continue
+            t = totals.setdefault(row["algo"], [0, 0, 0.0, 0.0, 0])
+            t[0] += 1
+            t[1] += n
+            t[2] += float(row["collisions"]) * n
+            t[3] += float(row["steps"]) * n
+            t[4] += int(row["truncated"])
+    return [f"greedy policy, {algo}, {runs} run{'s' if runs > 1 else ''} x {episodes // runs} episodes: "
+            f"{collisions / episodes:.2f} collisions/ep, {steps / episodes:.1f} steps/ep, {truncated} truncated"
+            for algo, (runs, episodes, collisions, steps, truncated) in sorted(totals.items(),
+                                                                               key=lambda kv: algo_sort_key(kv[0]))]
+
+
 def algo_sort_key(algo: str) -> tuple[int, str]:
     return (ALGO_ORDER.index(algo) if algo in ALGO_ORDER else len(ALGO_ORDER), algo)
 
