@@ -51,6 +51,7 @@ import os
 import random
 import re
 import secrets
+import shutil
 import signal
 import subprocess
 import sys
@@ -83,7 +84,7 @@ from .commands import StopSignals, environment, ros_session, spin_until
 from .hosts import Hosts
 
 __all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
-           "node_specs", "node_commands", "compose_command", "check_hosts", "launch"]
+           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -210,6 +211,13 @@ def _params(values: dict[str, Any]) -> list[str]:
     return [arg for k, v in values.items() for arg in ("-p", f"{k}:={_param(v)}")]
 
 
+def agent_nodes(gridmap: GridMap, algo: str) -> list[tuple[str, dict[str, int]]]:
+    """The agent nodes of a launch: (node name, its agent_id parameter, if any)."""
+    if LEARNERS[algo].central:
+        return [("jsa", {})]  # one node moves every AGV; agent_id stays 0
+    return [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
+
+
 def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
                step_timeout: float, peer_linger_steps: int | None = None,
                node_parameters: dict[str, Any] | None = None,
@@ -229,10 +237,7 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
                                       "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1,
                                       **to_world, **changed})}
-    if LEARNERS[algo].central:
-        agents = [("jsa", {})]  # one node moves every AGV; agent_id stays 0
-    else:
-        agents = [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
+    agents = agent_nodes(gridmap, algo)
     linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
     for name, ident in agents:
         nodes[name] = ("agent_node", {
@@ -393,7 +398,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
-           discovery: str = "subnet") -> LaunchResult:
+           discovery: str = "subnet", start_from: str | os.PathLike | None = None) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -402,14 +407,19 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     With `hosts` (ros_tools.hosts, one per AGV of the map), each node runs on its own host, found by
     `discovery` ("subnet" or "static", see ros_tools.hosts.DISCOVERY); the launcher must run on the world's.
 
-    Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
-    a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
+    `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
+    ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
+
+    Bad input (map, algorithm, setting, namespace, an output that is not ours to write, a missing checkpoint)
+    raises ValueError or a subclass before any process starts; LaunchError/Interrupted after every child has
+    been stopped."""
     gridmap = load_map(map_name)
     settings = run_settings(gridmap) if settings is None else settings
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
     executor_name = executor_kind(executor)
+    start_with = [] if start_from is None else _checkpoints(Path(start_from), gridmap, algo)
     node_parameters = {"step_timeout": float(step_timeout),
                        **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
                        **({} if markers else {"markers": False}), **(node_parameters or {})}
@@ -435,6 +445,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     children = [compose_command(nodes, namespace, out)] if compose else node_commands(nodes, namespace, out)
     for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
         (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
+    for given in start_with:
+        shutil.copyfile(given, out / "checkpoints" / given.name)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
            "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
     listener_env: dict[str, str] = {}
@@ -487,6 +499,15 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
         write_figures(out, map_loader=lambda _name: gridmap)  # a map file is known by its name only here
     return result
+
+
+def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
+    """The checkpoint of every agent node of this launch in `folder`; ValueError naming the first missing."""
+    paths = [folder / f"{name}.pkl" for name, _ in agent_nodes(gridmap, algo)]
+    for path in paths:
+        if not path.is_file():
+            raise ValueError(f"start_from {os.fspath(folder)!r}: no checkpoint {path.name} for node {path.stem}")
+    return paths
 
 
 def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings, wall: float,
