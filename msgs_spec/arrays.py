@@ -25,6 +25,7 @@ its serialized bytes alike.
 
 from __future__ import annotations
 
+import math
 import operator
 import struct
 from dataclasses import dataclass
@@ -93,6 +94,71 @@ class ArrayLayout:
     @cached_property
     def _converters(self) -> tuple[tuple[str, Callable[[str, Any], Any]], ...]:
         return tuple((name, CONVERT[kind]) for name, kind in zip(self.fields, self.field_kinds))
+
+    @cached_property
+    def _types(self) -> tuple[type, ...]:
+        """The exact Python type of each field's value in a payload built as the nodes build them."""
+        return tuple({"int": int, "float": float, "flag": bool}[kind] for kind in self.field_kinds)
+
+    @cached_property
+    def _ints(self) -> tuple[Callable[[tuple], Any], struct.Struct]:
+        """(the int fields' values of a values tuple, their int32 Struct): packing them checks their range."""
+        at = [i for i, kind in enumerate(self.field_kinds) if kind == "int"]
+        return (lambda values: tuple(values[i] for i in at)), struct.Struct(f"<{len(at)}i")
+
+    @cached_property
+    def _floats_at(self) -> tuple[int, ...]:
+        return tuple(i for i, kind in enumerate(self.field_kinds) if kind == "float")
+
+    @cached_property
+    def _mac_struct(self) -> struct.Struct:
+        """The MAC's words as the data holds them: int32 (two's complement: the unsigned word's bytes) or whole
+        float64."""
+        return struct.Struct(f"<{MAC_WORDS}{'I' if self._code == 'i' else 'd'}")
+
+    def packed(self, payload: Any) -> tuple[tuple, bytes]:
+        """(field values, their packed bytes) of a payload of this layout, checked as a decoder would check
+        them (WireError otherwise): the MAC is made over the bytes, which the wire carries as they are."""
+        if type(payload) is not self.payload:
+            raise WireError("wrong_type", f"expected {self.payload.__name__}, got {type(payload).__name__}")
+        values = self._values(payload)
+        if not self._plain(values):  # converted (e.g. numpy numbers, a whole float), or the check's own error
+            payload = _typed(self, values)
+            values = self._values(payload)
+        _validate(payload, None, None, None, None)
+        return values, self._struct.pack(*values)
+
+    def _plain(self, values: tuple) -> bool:
+        """Every value of exactly its field's type, the ints in int32 range, the floats finite: as _typed would
+        give them back."""
+        if tuple(map(type, values)) != self._types:
+            return False
+        ints, int32 = self._ints
+        try:
+            int32.pack(*ints(values))
+        except struct.error:
+            return False
+        return all(math.isfinite(values[i]) for i in self._floats_at)
+
+    def from_floats(self, values: tuple) -> Any:
+        """The payload of a float64 array's field values when each is what its field holds (a whole number in
+        int32 range, a finite float, a flag 0 or 1): as _typed gives it, in one pass; None otherwise (then
+        _typed says which check fails, in the decoders' order)."""
+        out = []
+        for v, kind in zip(values, self.field_kinds):
+            if kind == "int":
+                if not (-INT32_MAX - 1 <= v <= INT32_MAX and v.is_integer()):
+                    return None
+                out.append(int(v))
+            elif kind == "float":
+                if not math.isfinite(v):
+                    return None
+                out.append(v)
+            elif v == 1.0 or v == 0.0:
+                out.append(v == 1.0)
+            else:
+                return None
+        return self.payload(*out)
 
     def pack(self, values) -> bytes:
         """The field values as the MAC reads them (little-endian int32 or float64)."""
@@ -214,16 +280,19 @@ def _mac_data(layout: ArrayLayout, words: tuple[int, ...]) -> list:
     return [w - (1 << 32) if w > INT32_MAX else w for w in words]
 
 
+def _mac(layout: ArrayLayout, key: bytes, packed: bytes) -> bytes:
+    """The MAC of the packed values, as the bytes that follow them on the wire."""
+    return layout._mac_struct.pack(*mac_words(key, layout.label, packed))
+
+
 def _wire_values(layout: ArrayLayout, payload: Any, key: bytes | None) -> list:
-    """The array's data for `payload`: its checked field values, then the MAC's words when keyed."""
-    if type(payload) is not layout.payload:
-        raise WireError("wrong_type", f"expected {layout.payload.__name__}, got {type(payload).__name__}")
-    typed = _typed(layout, layout._values(payload))
-    _validate(typed, None, None, None, None)
+    """The array's data for `payload` (as a message object holds it): its checked field values, then the MAC's
+    words when keyed."""
+    values, packed = layout.packed(payload)
     convert = float if layout.ros_type is Float64MultiArray else int
-    data = [convert(v) for v in layout._values(typed)]
+    data = [convert(v) for v in values]
     if key is not None:
-        data += _mac_data(layout, mac_words(key, layout.label, layout.pack(data)))
+        data += _mac_data(layout, mac_words(key, layout.label, packed))
     return data
 
 
@@ -238,14 +307,31 @@ def encode_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) ->
 
 
 def serialize_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) -> bytes:
-    """The bytes rclpy would serialize `encode_array(layout, payload, key)` to (alignment bytes zero)."""
-    head, _, pad, values = layout.frame(key is not None)
-    return head + bytes(pad) + values.pack(*_wire_values(layout, payload, key))
+    """The bytes rclpy would serialize `encode_array(layout, payload, key)` to (alignment bytes zero): the
+    layout's frame, the packed values and the MAC over those very bytes."""
+    head, _, pad, _ = layout.frame(key is not None)
+    _, packed = layout.packed(payload)
+    return head + bytes(pad) + packed + (_mac(layout, key, packed) if key is not None else b"")
 
 
 def decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: int | None,
-                  episode: int | None, step: int | None, key: bytes | None = None) -> Any:
-    keyed, data = _raw_data(layout, msg) if type(msg) is bytes else _message_data(layout, msg)
+                 episode: int | None, step: int | None, key: bytes | None = None) -> Any:
+    framed = _framed(layout, msg) if type(msg) is bytes else None
+    if framed is not None:  # the bytes as our nodes send them: values and MAC read and checked in place
+        keyed, start = framed
+        end = start + layout._struct.size
+        if key is not None:
+            if not keyed:
+                raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
+            if _mac(layout, key, msg[start:end]) != msg[end:]:
+                raise WireError("unauthenticated", "the MAC does not match the run's key")
+        values = layout._struct.unpack_from(msg, start)
+        # int32 values read from the wire are ints in range: only a float64 layout's need converting
+        payload = layout.payload(*values) if layout._code == "i" else (layout.from_floats(values)
+                                                                        or _typed(layout, values))
+        _validate(payload, bounds, agent, episode, step)
+        return payload
+    keyed, data = _message_data(layout, _deserialized(layout, msg) if type(msg) is bytes else msg)
     if key is not None:
         if not keyed:
             raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
@@ -260,21 +346,25 @@ def decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: in
     return payload
 
 
-def _raw_data(layout: ArrayLayout, raw: bytes) -> tuple[bool, list]:
-    """(keyed, data) of a serialized message (a raw subscription's): read straight from the bytes when they
-    are in one of the layout's two forms (`ArrayLayout.frame`), else deserialized and checked as a message,
-    so that anything else is refused exactly as the message would be."""
+def _framed(layout: ArrayLayout, raw: bytes) -> tuple[bool, int] | None:
+    """(keyed, where the values start) when a serialized message (a raw subscription's) is in one of the
+    layout's two forms (`ArrayLayout.frame`); None otherwise."""
     for keyed in (True, False):
         head, (a, b), pad, values = layout.frame(keyed)
         if len(raw) == len(head) + pad + values.size and raw[:a] == head[:a] and raw[b:len(head)] == head[b:]:
-            return keyed, list(values.unpack_from(raw, len(head) + pad))
+            return keyed, len(head) + pad
+    return None
+
+
+def _deserialized(layout: ArrayLayout, raw: bytes) -> Any:
+    """The message of serialized bytes in no form of the layout's, to be checked as a message, so that they are
+    refused exactly as it would be."""
     from rclpy.serialization import deserialize_message
 
     try:
-        msg = deserialize_message(raw, layout.ros_type)
+        return deserialize_message(raw, layout.ros_type)
     except Exception as e:  # rclpy raises its own errors for bytes that are no such message
         raise WireError("malformed", f"not a serialized {layout.ros_type.__name__}: {e}") from None
-    return _message_data(layout, msg)
 
 
 def _message_data(layout: ArrayLayout, msg: Any) -> tuple[bool, list]:

@@ -3,28 +3,10 @@
 The entry points over every payload; the array payloads' codec is msgs_spec.arrays, the statistics'
 msgs_spec.stats, the value checks both share msgs_spec.checks.
 
-Every decoder validates and raises only `WireError` for any input (whatever the message holds), with the
-first failing check in this order: type, layout, length, numbers (finite, integer, int32 range), agent id,
-action / cell range, episode, step. Encoders refuse what no decoder would accept (bad values, not context),
-so a sender's bug shows at the sender.
-
-Array layouts (one dimension; its label lists the fields in order, so `ros2 topic echo` is self-describing):
-
-    Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated"
-    Position  std_msgs/Int32MultiArray    label "agent,episode,step,row,col"
-    Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
-    Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step"
-
-Keyed (msgs_spec.auth): with the run's key the label ends in ",mac0,mac1,mac2,mac3" and the data holds the
-MAC's four 32-bit words after the fields (as int32 in an Int32 array, as whole numbers in a Float64 one). A
-decoder given the key refuses any other message as `unauthenticated`; one without the key accepts both forms
-and checks no MAC (the tools, nodes started by hand without a key).
+Every decoder validates and raises only `WireError` for any input; the array layouts, the keyed form and the
+serialized bytes the nodes publish are described in msgs_spec.arrays.
 
 Statistics: diagnostic_msgs/DiagnosticArray holding one DiagnosticStatus whose `values` are KeyValue pairs.
-
-Nodes publish `serialize(payload)`: for an array payload the bytes rclpy would make of `encode(payload)`,
-built without a message object; they read with raw subscriptions, and every array decoder takes a message or
-its serialized bytes alike.
 """
 
 from __future__ import annotations
