@@ -6,17 +6,22 @@ leave agent_id out: one central node drives every AGV.
 --params-file, -r __ns:=/name and -r __node:=agvK work as for any ROS 2 node.
 Exit codes: 0 last episode played, 1 no valid message from the world for feedback_timeout, 2 a bad parameter
 or checkpoint (one line on stderr), 130 interrupted (Ctrl-C, SIGTERM).
+-h, --help: this text and every parameter with its type, default and description; starts nothing.
 """
 
 import sys
 
 from cq_ros.settings import SettingsError
+from node_runtime.parameters import help_requested, print_help
 from node_runtime.run import run_node
 
 from .node import AgentNode
 
 
 def main() -> int:
+    if help_requested(sys.argv):
+        print_help(__doc__, ("agent",))
+        return 0
     return run_node(AgentNode, "agent_node", (SettingsError,))
 
 

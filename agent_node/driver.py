@@ -12,7 +12,7 @@ The drivers decide everything the agent node does and return it as effects for t
 
 Greedy evaluation: after its `episodes` learning episodes a driver plays `eval_episodes` more, as
 `cq_ros.engine.greedy_episodes` does after `run`: on a deep copy of the learner with epsilon 0 (learning goes
-on inside the copy), so its random stream continues exactly as the engine's copy does. The world plays
+on inside the copy unless the setting eval_learning is 0), so its random stream continues exactly as the engine's copy does. The world plays
 them as ordinary episodes (episode indices episodes..episodes+eval_episodes-1) and the AgentStats go on.
 
 The pieces they share have their own modules: `effects` (what a driver returns), `world_link` (liveness and
@@ -200,12 +200,13 @@ def _after_episode(driver: "AgentDriver | CentralDriver", episode: int) -> Effec
 def _greedy_from(driver: "AgentDriver | CentralDriver", episode: int) -> None:
     """Before playing `episode`: past the learning episodes, switch once to the greedy copy of the learner.
 
-    Exactly what cq_ros.engine.greedy_episodes does (a deep copy, then epsilon 0), so the copy's random
+    Exactly what cq_ros.engine.greedy_episodes does (a deep copy, then Learner.make_greedy: epsilon 0, frozen
+    unless eval_learning), so the copy's random
     stream continues as the engine's does; the learner checkpointed before stays the trained one. The copy
     keeps joint_plays, so the per-episode counts (joint_plays - _plays_before) go on unchanged."""
     if episode >= driver.episodes and not driver.greedy:
         driver.learner = copy.deepcopy(driver.learner)
-        driver.learner.epsilon = 0.0
+        driver.learner.make_greedy()
         driver.greedy = True
 
 

@@ -6,7 +6,7 @@ for JS, which needs every peer at every step). The
 default, 0, is the design's rule: an agent listens to a peer only while it stands in a state that names it.
 A new subscription waits for the match and the reliable handshake before the latched sample arrives, while
 a kept one costs a message a step: lingering saves subscriptions, not messages, and LoC, which re-decides
-COORDINATE every step, gains most from it. The measured costs are in the README ("Who listens to whom").
+COORDINATE every step, gains most from it. The measured costs are in docs/ros.md ("Who listens to whom").
 
 Positions (`PeerView`) are kept per stamp from the step the agent decides at onwards: an older one is dropped
 and counted (`stale_*`), a second one for a stamp already heard with another cell too (`conflicting`: the

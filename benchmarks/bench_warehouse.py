@@ -1,6 +1,8 @@
 """Warehouse scaling: every learner on the 8-, 16- and 32-AGV warehouses, against a planner that is not learned.
 
-One row per map and algorithm, averaged over runs (each run in a fresh process, so its peak memory is its own):
+One row per map and algorithm, averaged over runs (each run in a fresh process with --jobs, so its peak memory
+is its own; on a Dask cluster, --cluster, a worker plays run after run, and the peak is the process's
+high-water mark reset at the run's start, so it can include what an earlier run left allocated):
 - home at ep: the first checkpoint (every --check-every learning episodes) at which the greedy policy brings
   every AGV home with no collision ("-" if it never did);
 - greedy: the greedy policy at the end: runs that got all home with no collision, and its sum of costs
@@ -14,7 +16,7 @@ the row says where.
 
     python benchmarks/bench_warehouse.py [--maps warehouse_8,warehouse_16,warehouse_32]
         [--algos indep,js,jsa,loc,cq] [--runs 3] [--episodes 2000] [--check-every 100] [--budget 600] [--jobs 2]
-        [--set KEY=VALUE ...]
+        [--cluster tcp://HOST:PORT] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -23,19 +25,17 @@ import argparse
 import copy
 import os
 import platform
-import resource
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
+from dataclasses import dataclass
 
-from tqdm import tqdm
-
+from cq_ros.cluster import ClusterError, scheduler_address
 from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.learners import ALGORITHMS
 from cq_ros.learners.jsa import MAX_AGENTS
 from cq_ros.planner import plan
+from cq_ros.runner import RunFailed, run_all
 from cq_ros.settings import SettingsError, run_settings
 from cq_ros.world import GridWorld
 
@@ -47,21 +47,47 @@ def greedy_play(team: Team) -> tuple[bool, int]:
     greedy = copy.deepcopy(team)
     greedy.world.step_cap = GREEDY_CAP
     for learner in greedy.learners:
-        learner.epsilon = 0.0
+        learner.make_greedy()  # as the engine's greedy episodes: epsilon 0, frozen unless eval_learning
         learner.__dict__.pop("observe", None)  # the counting wrapper would call the original learner
     episode = greedy.episode()
     cost = sum(GREEDY_CAP if t is None else t for t in greedy.world.arrival)
     return greedy.world.finished and episode.collisions == 0, cost
 
 
-def one_run(map_name: str, algo: str, run: int, episodes: int, check_every: int, budget: float, seed: int,
-            overrides: list[str]) -> dict:
-    gridmap = load_map(map_name)
-    if algo == "jsa" and gridmap.n_agents > MAX_AGENTS:
+@dataclass(frozen=True)
+class BenchRun:
+    map_name: str
+    algo: str
+    run: int
+    episodes: int
+    check_every: int
+    budget: float
+    seed: int
+    overrides: tuple[str, ...]
+
+
+def reset_peak_memory() -> None:
+    """The process's high-water mark of resident memory set back to what it holds now (Linux 4.0 on)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass  # elsewhere the peak stays the process's own since it started
+
+
+def peak_mib() -> float:
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024
+
+
+def one_run(job: BenchRun, on_episode) -> dict:
+    reset_peak_memory()
+    gridmap, run, seed = load_map(job.map_name), job.run, job.seed
+    if job.algo == "jsa" and gridmap.n_agents > MAX_AGENTS:
         return {"stopped": f"4^{gridmap.n_agents} joint actions per joint state (at most {MAX_AGENTS} agents)"}
-    settings = run_settings(gridmap, overrides)
+    settings = run_settings(gridmap, list(job.overrides))
     team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, run)),
-                make_learners(algo, gridmap, settings, seed, run))
+                make_learners(job.algo, gridmap, settings, seed, run))
     looks = [0, 0]  # peer positions asked for, agent-steps
 
     def counted(observe):
@@ -76,21 +102,22 @@ def one_run(map_name: str, algo: str, run: int, episodes: int, check_every: int,
         learner.observe = counted(learner.observe)
     home_at, stopped, steps, learning = None, None, 0, 0.0
     begun = time.process_time()  # CPU seconds: the budget and the rate do not hang on the machine's load
-    for episode in range(1, episodes + 1):
+    for episode in range(1, job.episodes + 1):
         started = time.process_time()
         steps += team.episode().steps
         learning += time.process_time() - started
-        if home_at is None and episode % check_every == 0 and greedy_play(team)[0]:
+        on_episode()
+        if home_at is None and episode % job.check_every == 0 and greedy_play(team)[0]:
             home_at = episode
-        if time.process_time() - begun > budget:  # greedy checks count: copying JS's tables is no small cost
-            stopped = f"{budget:.0f} CPU s budget at episode {episode}"
+        if time.process_time() - begun > job.budget:  # greedy checks count: copying JS's tables is no small cost
+            stopped = f"{job.budget:.0f} CPU s budget at episode {episode}"
             break
     home, cost = greedy_play(team)
     return {
         "home_at": home_at, "home": home, "cost": cost, "stopped": stopped,
         "states": sum(learner.state_count() for learner in team.learners) / len(team.learners),
         "peers": looks[0] / max(1, looks[1]) if not team.central else gridmap.n_agents - 1,
-        "rate": steps / learning, "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "rate": steps / learning, "peak_mib": peak_mib(),
     }
 
 
@@ -119,7 +146,10 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=2000)
     parser.add_argument("--check-every", type=int, default=100)
     parser.add_argument("--budget", type=float, default=600.0, help="CPU seconds of learning and greedy checks per run at most")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count())
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=int, default=os.cpu_count())
+    where.add_argument("--cluster", type=scheduler_address, metavar="ADDRESS",
+                       help="run on the workers of a running Dask scheduler, tcp://HOST:PORT")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="change a setting over the maps' own (repeatable), as in cq-ros experiment")
@@ -142,15 +172,17 @@ def main() -> None:
         print(f"{name}: planner ({the_plan.method}) makespan {max(the_plan.arrivals)}, sum of costs "
               f"{planned[name]} (at least {the_plan.lower_bound}), {time.perf_counter() - started:.1f} s")
 
-    jobs = [(m, a, r) for m in maps for a in algos for r in range(args.runs)]
+    jobs = [BenchRun(m, a, r, args.episodes, args.check_every, args.budget, args.seed, tuple(args.overrides))
+            for m in maps for a in algos for r in range(args.runs)]
+    try:
+        ran = run_all(jobs, one_run, args.jobs, args.cluster, label="runs", fresh_process=True)
+    except RunFailed as e:
+        sys.exit(f"{e.details}bench_warehouse: error: {e}")
+    except ClusterError as e:
+        sys.exit(f"bench_warehouse: error: {e}")
     results: dict[tuple[str, str], list[dict]] = {}
-    # a fresh process per run: its peak memory is its own
-    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn"), max_tasks_per_child=1) as pool:
-        futures = {pool.submit(one_run, m, a, r, args.episodes, args.check_every, args.budget, args.seed,
-                               args.overrides): (m, a)
-                   for m, a, r in jobs}
-        for future in tqdm(as_completed(futures), total=len(jobs), desc="runs", file=sys.stderr):
-            results.setdefault(futures[future], []).append(future.result())
+    for job, result in zip(jobs, ran.results):
+        results.setdefault((job.map_name, job.algo), []).append(result)
 
     print("| map | algo | home at ep (runs) | greedy home | greedy cost / planner | states/agent | peers/step "
           "| steps/s | peak MiB |")

@@ -9,7 +9,7 @@ taken directly as AgentNode._take_unannounced takes them), and those that took o
 
 rclpy's EventsExecutor sets the middleware's new-message callback on a subscription after the node made it;
 rmw_fastrtps (Jazzy) reads the unread count before it turns its data-available listener on, so a sample landing
-between the two is never announced (README, "Composed mode"). A waitset executor asks the reader itself.
+between the two is never announced (docs/ros.md, "Composed mode"). A waitset executor asks the reader itself.
 
     python benchmarks/latched_race.py                      # 20000 subscriptions, both executors
     python benchmarks/latched_race.py -n 5000 --executors events

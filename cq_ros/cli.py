@@ -8,13 +8,14 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 import time
 from pathlib import Path
 
-from tqdm import tqdm
-
-from .gridmap import ACTIONS, MapError, available_maps, load_map
+from .cluster import ClusterError, scheduler_address
+from .gridmap import MapError, available_maps, load_map, parse_map
 from .learners import ALGORITHMS, LEARNERS
+from .runner import RunFailed
 from .settings import Settings, SettingsError, run_settings
 from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
 
@@ -43,6 +44,17 @@ def _algos(text: str) -> list[str]:
         what = ", ".join(unknown) if unknown else repr(text)
         raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(LEARNERS)}")
     return algos
+
+
+def _seeds(text: str) -> list[int]:
+    """Comma-separated whole numbers, each once."""
+    try:
+        seeds = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas, got {text!r}") from None
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"a seed is given twice in {text!r}")
+    return seeds
 
 
 def _number(low: float, high: float | None = None, kind: type = float, strict: bool = False):
@@ -78,11 +90,16 @@ def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> No
 def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> None:
     p.add_argument("--runs", type=_positive, default=runs, help=f"independent runs (default {runs})")
     p.add_argument("--episodes", type=_positive, default=episodes, help=f"episodes per run (default {episodes})")
-    p.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
-    p.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    p.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
+    where.add_argument("--cluster", type=scheduler_address, default=None, metavar="ADDRESS",
+                       help="run on the workers of a running Dask scheduler, tcp://HOST:PORT (needs the extra "
+                            "cq-ros[cluster]; docs/cluster.md)")
     _add_settings_options(p)
 
 
+_seed = _number(0, kind=int)  # numpy's SeedSequence takes no negative seed
 # ROS_DOMAIN_ID: Fast DDS derives its ports from it; 0..232 is the range that works on Linux.
 _domain_id = _number(0, 232, kind=int)
 _seconds = _number(0, strict=True)
@@ -96,11 +113,21 @@ def _add_domain_option(p: argparse.ArgumentParser) -> None:
 def _add_ros_parsers(sub) -> None:
     p = sub.add_parser("launch", help="run one algorithm on one map as ROS 2 nodes (a world process and one "
                                       "process per AGV) and write results and figures")
-    p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--algo", type=_algo, required=True, help=f"one of {','.join(ALGORITHMS)}")
-    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/)")
-    p.add_argument("--episodes", type=_positive, default=500, help="episodes (default 500)")
-    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="master seed (default 0)")
+    p.add_argument("--map", default=None, help="a shipped map name or a path to a map file (required unless "
+                                                "--params-file)")
+    p.add_argument("--algo", type=_algo, default=None, help=f"one of {','.join(ALGORITHMS)} (required unless "
+                                                             "--params-file)")
+    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/; the "
+                                                           "system it ran in its params.yaml)")
+    p.add_argument("--params-file", type=Path, default=None, metavar="FILE",
+                   help="start the system a params.yaml describes (as every launch writes it: map, algorithm, "
+                        "episodes, seed, settings and node parameters, under any namespace) instead of --map, "
+                        "--algo, --episodes, --seed, --set")
+    p.add_argument("--key", type=Path, default=None, metavar="FILE",
+                   help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
+                        "(default: a key of the launch's own, removed at its end)")
+    p.add_argument("--episodes", type=_positive, default=None, help="episodes (default 500)")
+    p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
     p.add_argument("--namespace", default=None, help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
@@ -121,6 +148,20 @@ def _add_ros_parsers(sub) -> None:
                    help="with --hosts: multicast discovery on the subnet, or unicast to ROS_STATIC_PEERS only")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_settings_options(p, nodes=True)
+
+    p = sub.add_parser("collect", help="listen to a system started by hand (its statistics) and write what a "
+                                       "launch writes: episodes.csv, greedy.csv, observe.csv, manifest.json")
+    p.add_argument("--out", type=Path, required=True, help="result directory")
+    p.add_argument("--namespace", default=None, help="the system's namespace (default: the one system on the domain)")
+    p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
+                   help="seconds to look for the system before giving up (default 60)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
+    _add_domain_option(p)
+
+    p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
+                                   "cq-ros launch --key FILE)")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE", help="the key file to make (mode 0600; "
+                                                                            "never overwritten)")
 
     p = sub.add_parser("hosts", help="make or remove hosts for --hosts: network namespaces joined by a bridge, "
                                      "addresses from 198.18.0.0/15 (root)")
@@ -165,7 +206,7 @@ def _add_ros_parsers(sub) -> None:
     source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
     p.add_argument("--algo", type=_algo, default="cq", help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
     p.add_argument("--episodes", type=_positive, default=100, help="with --map: episodes to learn (default 100)")
-    p.add_argument("--seed", type=_number(0, kind=int), default=0, help="with --map: master seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
                    help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
     p.add_argument("--greedy", action="store_true",
@@ -185,7 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("maps", help="list the shipped maps with their cells and agents")
     p = sub.add_parser("show", help="draw a map in the terminal")
     p.add_argument("map", help="a shipped map name or a path to a map file")
-    sub.add_parser("settings", help="list every setting with its default")
+    sub.add_parser("settings", help="list every setting with its default and description")
 
     p = sub.add_parser("generate", help="generate a map (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
@@ -200,7 +241,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
     p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
-    p.add_argument("--seed", type=int, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
+                   help="delays: the map's default `slip` (a move fails with probability P; default 0)")
+    p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
+                   help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+
+    p = sub.add_parser("import", help="convert a map from another format into ours (print it, or write it with --out)")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="FORMAT", parser_class=_Parser)
+    p = kinds.add_parser("movingai", help="a MovingAI .map (and the first N tasks of a .scen) as a map of ours",
+                         description="Convert a MovingAI grid (. G passable, @ O T blocked; S and W rejected) and, "
+                         "with --scen, its first N tasks (x the column, y the row, 0-based from the top left) into "
+                         "our map format (cq_ros.movingai). A fault is one line naming the file and line.")
+    p.add_argument("map", type=Path, metavar="MAP.map", help="a MovingAI map file")
+    p.add_argument("--scen", type=Path, default=None, metavar="FILE.scen",
+                   help="a MovingAI scenario: its first --agents tasks become the agents (default: none, the "
+                        "drawing only, to which agent lines must be added)")
+    p.add_argument("--agents", type=_positive, default=None, metavar="N", help="with --scen: the tasks to take")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
 
@@ -213,9 +272,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(p, runs=10, episodes=10_000)
 
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
-                                    "for the learners): makespan, sum of costs, arrival steps")
+                                    "for the learners): makespan, sum of costs, arrival steps; then the plan "
+                                    "executed under the world's delays")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--seed", type=int, default=0, help="seed of the priority orders and LNS rounds (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the priority orders and LNS rounds (default 0)")
     p.add_argument("--cbs-nodes", type=_number(0, kind=int), default=1000, metavar="N",
                    help="search nodes of the optimal conflict-based search before falling back on prioritized "
                         "planning (default 1000; 0: skip it)")
@@ -225,11 +285,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
     p.add_argument("--show", action="store_true",
                    help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
+    p.add_argument("--slip", type=_number(0, 1), default=None, metavar="P",
+                   help="execute the plan where a move fails with probability P (default: the map's own slip)")
+    p.add_argument("--start-hold", type=_number(0, kind=int), default=None, metavar="H",
+                   help="execute the plan where each AGV's first 0..H moves fail (default: the map's own)")
+    p.add_argument("--executions", type=_number(0, kind=int), default=100, metavar="N",
+                   help="seeded executions of the plan under those delays, kept in order by its action "
+                        "dependency graph (cq_ros.execute); execution r draws the delays of a learner's run r "
+                        "(default 100; 0: none)")
+    p.add_argument("--stop-anywhere", action="store_true",
+                   help="let an executing AGV wait in a cell without a wall by sending no action (a stay the "
+                        "learners do not have): what the world's lack of a wait action costs the executions")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a setting of the executions' world (repeatable); `cq-ros settings` lists them")
 
     p = sub.add_parser("reproduce", help="the paper's grid (4 maps x 5 algorithms), figures and REPORT.md")
     p.add_argument("--out", type=Path, required=True, help="result directory")
     _add_run_options(p, runs=10, episodes=10_000)
     p.add_argument("--no-sweep", dest="sweep", action="store_false", help="skip the settings sweep")
+    p.add_argument("--seeds", type=_seeds, default=None, metavar="S,S,...",
+                   help="master seeds, instead of --seed: the grid runs once per seed (the first's in OUT, the "
+                        "others' in OUT/seed_S), and when the collision averages settle (claims 1 and 2) is quoted "
+                        "as a range over them, which takes at least 3 (e.g. 0,1,2)")
     _add_ros_parsers(sub)
     return parser
 
@@ -242,6 +319,10 @@ def main(argv: list[str] | None = None) -> int:
         return _dispatch(args)
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
+    except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run
+        parser.exit(1, f"{e.details}cq-ros {args.command}: error: {e}\n")
+    except ClusterError as e:
+        parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -249,10 +330,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def _dispatch(args) -> int:
     if args.command == "maps":
-        print(f"{'map':<18} {'cells':>5} {'agents':>6}")
-        for name in available_maps():
+        names = available_maps()
+        width = max(len(name) for name in names)
+        print(f"{'map':<{width}} {'cells':>5} {'agents':>6}")
+        for name in names:
             m = load_map(name)
-            print(f"{name:<18} {m.n_cells:>5} {m.n_agents:>6}")
+            print(f"{name:<{width}} {m.n_cells:>5} {m.n_agents:>6}")
         return 0
     if args.command == "show":
         m = load_map(args.map)
@@ -266,12 +349,17 @@ def _dispatch(args) -> int:
         return 0
     if args.command == "generate":
         return _generate(args)
+    if args.command == "import":
+        return _import(args)
     if args.command == "settings":
         for key, value in Settings().as_dict().items():
             print(f"{key} = {value}")
+            print(textwrap.fill(Settings.describe(key), width=100, initial_indent="    ", subsequent_indent="    "))
         return 0
     if args.command == "plan":
-        return _plan(args)
+        from .plan_command import run
+
+        return run(args)
     if args.command in ("echo", "topics", "nodes", "record"):
         return _ros_tool(args)
     if args.command == "render":
@@ -280,103 +368,91 @@ def _dispatch(args) -> int:
         return _launch(args)
     if args.command == "hosts":
         return _hosts(args)
+    if args.command == "collect":
+        return _collect(args)
+    if args.command == "key":
+        from ros_tools.system_file import make_key
+
+        print(f"wrote {make_key(args.out)} (readable by you only): name it as key_file in a params file, or "
+              "cq-ros launch --key FILE")
+        return 0
     if args.command == "experiment":
         from .experiment import experiment
-        from .summary import format_console_table, load_episodes
 
         # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
         settings = run_settings(load_map(args.map), args.overrides)
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures)
-        print(format_console_table(load_episodes(out / "episodes.csv")))
+                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
+        _print_summary(out)
         print(f"results: {out}")
         return 0
     if args.command == "reproduce":
         from .reproduce import reproduce
 
         # The paper's maps carry no defaults of their own.
-        report = reproduce(args.out, args.runs, args.episodes, args.seed, Settings().with_overrides(args.overrides),
-                           workers=args.jobs, force=args.force, sweep=args.sweep)
+        report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
+                           Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
+                           sweep=args.sweep, cluster=args.cluster)
         print(f"report: {report}")
         return 0
     raise AssertionError(args.command)
 
 
-def _plan(args) -> int:
-    from .planner import NoPlan, PlanError, distances_to, plan, validate
+def _print_summary(out: Path) -> None:
+    """The table of a result directory's episodes and the greedy policy's line per algorithm (experiment and
+    launch alike)."""
+    from .summary import format_console_table, greedy_lines, load_episodes
 
-    gridmap = load_map(args.map)
-    started = time.perf_counter()
-    progress = _PlanProgress()
-    try:
-        result = plan(gridmap, args.seed, args.cbs_nodes, args.orders, args.rounds, progress)
-    except NoPlan as e:
-        print(f"cq-ros plan: {e} (--cbs-nodes and --orders search longer)", file=sys.stderr)
-        return 1
-    finally:
-        progress.close()
-    seconds = time.perf_counter() - started
-    try:
-        arrivals = validate(gridmap, result)
-    except PlanError as e:
-        print(f"cq-ros plan: the world rejects the plan (a planner bug): {e}", file=sys.stderr)
-        return 1
-    alone = sum(distances_to(gridmap, goal)[start] for start, goal in zip(gridmap.starts, gridmap.goals))
-    least = "the least possible" if result.optimal else f"the least possible is at least {result.lower_bound}"
-    print(f"{gridmap.name}: {gridmap.n_agents} agents, {result.method}")
-    print(f"makespan {result.makespan}, sum of costs {result.sum_of_costs} ({least}; each agent alone: {alone:g})")
-    print("arrival steps: " + ", ".join(f"agv{i + 1} {step}" for i, step in enumerate(arrivals)))
-    print(f"planning time {seconds:.2f} s; replayed through the world: every agent at its goal, no collision")
-    if args.show:
-        for i, (path, actions) in enumerate(zip(result.paths, result.actions)):
-            moves = "".join(ACTIONS[a][0] if b != a_cell else ACTIONS[a][0].lower()
-                            for a, a_cell, b in zip(actions, path, path[1:]))
-            print(f"agv{i + 1} {gridmap.cells[path[0]]} -> {gridmap.cells[path[-1]]}: {moves or '(at its goal)'}")
-    return 0
-
-
-class _PlanProgress:
-    """The planner's progress on stderr: a tqdm bar per phase on a terminal, a plain line at most every 30 s
-    elsewhere."""
-
-    def __init__(self):
-        self.tty = sys.stderr.isatty()
-        self.bar = None
-        self.phase = None
-        self.last_line = time.monotonic()
-
-    def __call__(self, phase: str, done: int, total: int) -> None:
-        if self.tty:
-            if phase != self.phase:
-                self.close()
-                self.bar = tqdm(total=total, desc=f"plan: {phase}", leave=False)
-            self.bar.update(done - self.bar.n)
-        elif time.monotonic() - self.last_line >= 30:
-            print(f"cq-ros plan: {phase} {done}/{total}", file=sys.stderr, flush=True)
-            self.last_line = time.monotonic()
-        self.phase = phase
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-            self.bar = None
+    print(format_console_table(load_episodes(out / "episodes.csv")))
+    for line in greedy_lines(out / "greedy.csv"):
+        print(line)
 
 
 def _generate(args) -> int:
-    text = warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed)
-    if args.out is None:
-        sys.stdout.write(text)
-        return 0
-    if args.out.exists() and not args.out.is_file():
-        raise FileExistsError(f"{args.out} is not a file")
-    if args.out.exists() and not args.force:
-        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
-    try:
-        args.out.write_text(text, encoding="utf-8")
-    except OSError as e:
-        raise ValueError(f"cannot write {args.out}: {e.strerror or e}") from None
-    print(f"wrote {args.out}", file=sys.stderr)
+    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold),
+               args.out, args.force)
     return 0
+
+
+def _import(args) -> int:
+    from .movingai import map_text, read_map, read_scenario
+
+    if (args.scen is None) != (args.agents is None):
+        raise ValueError("--scen and --agents go together: the scenario and how many of its tasks to take")
+    if args.out is not None:
+        _check_writable(args.out, args.force)  # before the work: a large map takes seconds to read
+    gridmap = read_map(args.map)
+    tasks = read_scenario(args.scen, gridmap, args.agents) if args.scen is not None else []
+    command = " ".join(["cq-ros", "import", "movingai", args.map.name]
+                       + ([f"--scen {args.scen.name} --agents {args.agents}"] if tasks else []))
+    text = map_text(gridmap, tasks, command, args.scen)
+    if not tasks:
+        print("cq-ros import: the map has no agents yet: add lines `agent K: start ROW,COL  goal ROW,COL`, or "
+              "give --scen FILE --agents N", file=sys.stderr)
+    else:
+        parse_map(text, source=str(args.out or "<import>"))  # our own loader accepts what we write
+    _write_map(text, args.out, args.force)
+    return 0
+
+
+def _check_writable(out: Path, force: bool) -> None:
+    if out.exists() and not out.is_file():
+        raise FileExistsError(f"{out} is not a file")
+    if out.exists() and not force:
+        raise FileExistsError(f"{out} exists; pass --force to overwrite it")
+
+
+def _write_map(text: str, out: Path | None, force: bool) -> None:
+    """`text` on stdout (out None) or into file `out`, which must be new unless `force`."""
+    if out is None:
+        sys.stdout.write(text)
+        return
+    _check_writable(out, force)
+    try:
+        out.write_text(text, encoding="utf-8")
+    except OSError as e:
+        raise ValueError(f"cannot write {out}: {e.strerror or e}") from None
+    print(f"wrote {out}", file=sys.stderr)
 
 
 # The ROS commands import rclpy (through ros_tools) only when they run: the rest of cq_ros
@@ -407,10 +483,10 @@ def _launch(args) -> int:
     from ros_tools.hosts import HostsError, check_can_make_hosts, find_hosts
     from ros_tools.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
 
-    from .summary import format_console_table, load_episodes
-
+    _system_arguments(args)
     # Settings fields (over the map's defaults) and node parameters alike
     settings, node_parameters = split_sets(args.overrides, load_map(args.map))
+    node_parameters = {**node_parameters, **args.node_parameters}
     hosts = None
     if args.hosts is not None:
         try:
@@ -427,18 +503,14 @@ def _launch(args) -> int:
                         domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
                         peer_linger_steps=args.peer_linger_steps, compose=args.compose,
                         executor=args.executor, node_parameters=node_parameters, force=args.force,
-                        figures=args.figures, hosts=hosts, discovery=args.discovery)
+                        figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key)
     except Interrupted as e:
         print(f"cq-ros launch: {e}", file=sys.stderr)
         return 130
     except LaunchError as e:
         print(f"cq-ros launch: error: {e}", file=sys.stderr)
         return 1
-    print(format_console_table(load_episodes(result.out / "episodes.csv")))
-    if len(result.greedy):
-        steps, collisions = result.greedy[:, 0], result.greedy[:, 1]
-        print(f"greedy policy, {len(result.greedy)} episodes: {collisions.mean():.2f} collisions/ep, "
-              f"{steps.mean():.1f} steps/ep, {int(result.greedy[:, 5].sum())} truncated")
+    _print_summary(result.out)
     for node, cost in result.manifest["communication"].items():
         print(f"{node}: {cost['peer_messages']} peer position messages, "
               f"{cost['subscriptions_created']} subscriptions created")
@@ -446,10 +518,53 @@ def _launch(args) -> int:
     return 0
 
 
+def _collect(args) -> int:
+    from ros_tools.collect import collect
+    from ros_tools.launch import Interrupted, LaunchError
+
+    try:
+        out = collect(args.out, domain_id=args.domain_id, namespace=args.namespace, force=args.force,
+                      wait_s=args.wait)
+    except Interrupted as e:
+        print(f"cq-ros collect: {e}", file=sys.stderr)
+        return 130
+    except LaunchError as e:
+        print(f"cq-ros collect: error: {e}", file=sys.stderr)
+        return 1
+    _print_summary(out)
+    print(f"results: {out}")
+    return 0
+
+
+def _system_arguments(args) -> None:
+    """A launch's map, algorithm, episodes, seed, settings, node parameters and key: from its options, or from
+    the system file --params-file names (ros_tools.system_file), which then excludes those options."""
+    args.node_parameters = {}
+    if args.params_file is None:
+        if args.map is None or args.algo is None:
+            raise ValueError("--map and --algo are required (or --params-file FILE, a system as a launch writes it)")
+        args.episodes = 500 if args.episodes is None else args.episodes
+        args.seed = 0 if args.seed is None else args.seed
+        return
+    from ros_tools.system_file import read_system
+
+    given = [f"--{name}" for name in ("map", "algo", "episodes", "seed", "key") if getattr(args, name) is not None]
+    if args.overrides:
+        given.append("--set")
+    if given:
+        raise ValueError(f"--params-file gives the system: drop {', '.join(given)} (or edit the file)")
+    system = read_system(args.params_file)
+    args.map, args.algo, args.episodes, args.seed, args.key = (system.map, system.algo, system.episodes,
+                                                               system.seed, system.key_file)
+    args.overrides = [f"{k}={v}" for k, v in system.settings.items()]
+    args.node_parameters = system.node_parameters
+
+
 def _render(args) -> int:
-    from .render import DPI, check_output, engine_frames, frames_from, lattice, write_animation
+    from .render import DPI, check_output, cut_by_bag, engine_frames, frames_from, lattice, write_animation
 
     check_output(args.out)
+    cut = None
     if args.map is not None:
         gridmap = load_map(args.map)
         settings = run_settings(gridmap, args.overrides)
@@ -481,10 +596,13 @@ def _render(args) -> int:
             raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
         occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
+        cut = cut_by_bag(scenes, episode)
+        if cut:
+            _note(f"episode {episode} is cut by the bag: {cut}")
     _note(f"drawing {len(frames)} steps to {args.out}")
     out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps, dpi=args.dpi or DPI,
                           progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
-    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames")
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames" + (" (cut by the bag)" if args.bag and cut else ""))
     return 0
 
 

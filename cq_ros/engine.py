@@ -112,11 +112,11 @@ class Team:
 
 
 def greedy_team(team: Team) -> Team:
-    """A copy of the team whose learners act at epsilon 0 (the learnt policy without exploration), so the run
-    itself is left exactly as it was."""
+    """A copy of the team whose learners act at epsilon 0 (the learnt policy without exploration), frozen
+    unless settings.eval_learning (Learner.make_greedy), so the run itself is left exactly as it was."""
     greedy = copy.deepcopy(team)
     for learner in greedy.learners:
-        learner.epsilon = 0.0
+        learner.make_greedy()
     return greedy
 
 

@@ -1,4 +1,4 @@
-"""Experiments: many (algorithm, run) pairs spread over the cores, written as result files.
+"""Experiments: many (algorithm, run) pairs spread over the cores or a Dask cluster, written as result files.
 
 A result directory holds `episodes.csv` (one row per algorithm, run and episode), `observe.csv`
 (the joint states each CQ agent keeps at the end of each run, for Fig. 5b), `greedy.csv` (per run,
@@ -11,29 +11,30 @@ from __future__ import annotations
 
 import csv
 import json
-import multiprocessing
 import os
 import platform
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from functools import partial
 from importlib import metadata
 from pathlib import Path
-
-from tqdm import tqdm
 
 from . import __version__
 from .engine import RunResult, run
 from .gridmap import GridMap, load_map
 from .learners import LEARNERS
+from .runner import run_all
 from .settings import Settings, run_settings
 
 EPISODE_COLUMNS = ("map", "algo", "run", "episode", "steps", "collisions", "joint_plays", "states", "return", "truncated")
 GREEDY_COLUMNS = ("map", "algo", "run", "episodes", "collisions", "steps", "truncated")
 OBSERVE_COLUMNS = ("map", "algo", "run", "agent", "row", "col", "peer", "peer_row", "peer_col", "confidence")
+# The manifest's fields that are the run's own circumstances: all the others are the same, byte for byte,
+# whether the runs executed in one process, with --jobs or on a cluster.
+CIRCUMSTANCES = ("command", "finished_at", "wall_time_s", "executed_on")
 
 
 class ResultExists(FileExistsError):
@@ -50,88 +51,18 @@ class Job:
     settings: Settings = field(default_factory=Settings)
 
 
-class Progress:
-    """Episodes and runs done, with the rate and the time left, on stderr: a tqdm bar on a terminal;
-    elsewhere (a log, CI, a pipe) a plain line at the start, then every `interval` seconds, and at the end."""
-
-    def __init__(self, label: str, episodes: int, runs: int, interval: float = 30.0):
-        self.label, self.episodes, self.runs, self.interval = label, episodes, runs, interval
-        self.tty = sys.stderr.isatty()
-        self.bar = tqdm(total=episodes, desc=label, unit="episode", disable=not self.tty)
-        self.started = self.shown_at = time.monotonic()
-        self.done = self.runs_done = 0
-        if not self.tty:
-            self._line()
-
-    def update(self, episodes_done: int, runs_done: int) -> None:
-        if self.tty:
-            self.bar.set_postfix_str(f"runs {runs_done}/{self.runs}", refresh=False)
-            self.bar.update(episodes_done - self.done)
-        self.done, self.runs_done = episodes_done, runs_done
-        if not self.tty and time.monotonic() - self.shown_at >= self.interval:
-            self._line()
-
-    def close(self) -> None:
-        self.bar.close()
-        if not self.tty:
-            self._line()
-
-    def _line(self) -> None:
-        now = time.monotonic()
-        self.shown_at, elapsed = now, now - self.started
-        rate = self.done / elapsed if elapsed > 0 else 0.0
-        left = f"{(self.episodes - self.done) / rate:.0f} s left" if rate > 0 else "time left unknown"
-        print(f"{self.label}: runs {self.runs_done}/{self.runs}, episodes {self.done:,}/{self.episodes:,}, "
-              f"{rate:,.0f} episodes/s, {elapsed:.0f} s elapsed, {left}", file=sys.stderr, flush=True)
+def _play(maps: dict[str, GridMap], job: Job, on_episode: Callable[[], None]) -> RunResult:
+    return run(job.algo, maps[job.map_name], job.settings, job.seed, job.run, job.episodes, on_episode)
 
 
-# In a worker process: the episodes played by every worker, shared with the parent for its progress.
-_episodes_played = None
-
-
-def _count_in(counter) -> None:
-    global _episodes_played
-    _episodes_played = counter
-
-
-def _count_episode() -> None:
-    with _episodes_played.get_lock():
-        _episodes_played.value += 1
-
-
-def _play(job: Job, on_episode: Callable[[], None] = _count_episode) -> tuple[Job, RunResult, float]:
-    started = time.perf_counter()
-    result = run(job.algo, load_map(job.map_name), job.settings, job.seed, job.run, job.episodes, on_episode)
-    return job, result, time.perf_counter() - started
-
-
-def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs",
-             progress_interval: float = 30.0) -> dict[Job, RunResult]:
-    """Play every job, in parallel where there is more than one core, showing progress (see Progress).
-    Each worker counts its episodes in one shared counter, which the parent reads while it waits."""
-    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
-    results: dict[Job, RunResult] = {}
-    progress = Progress(label, sum(job.episodes for job in jobs), len(jobs), progress_interval)
-    if workers == 1:
-        def played_one() -> None:
-            progress.update(progress.done + 1, len(results))
-
-        for job in jobs:
-            job, result, _ = _play(job, played_one)
-            results[job] = result
-            progress.update(progress.done, len(results))
-    else:
-        counter = multiprocessing.Value("q", 0)
-        with ProcessPoolExecutor(max_workers=workers, initializer=_count_in, initargs=(counter,)) as pool:
-            pending = {pool.submit(_play, job) for job in jobs}
-            while pending:
-                done, pending = wait(pending, timeout=min(1.0, progress_interval), return_when=FIRST_COMPLETED)
-                for future in done:
-                    job, result, _ = future.result()
-                    results[job] = result
-                progress.update(counter.value, len(results))
-    progress.close()
-    return results
+def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs", progress_interval: float = 30.0,
+             cluster: str | None = None) -> tuple[dict[Job, RunResult], dict]:
+    """Play every job (cq_ros.runner: in this process, on `workers` local processes, or on the Dask scheduler at
+    `cluster`), showing progress; each job's result, and where they ran (the manifest's `executed_on`).
+    The maps travel with the jobs, read here once: a worker on another machine needs no map file."""
+    maps = {job.map_name: load_map(job.map_name) for job in jobs}
+    ran = run_all(jobs, partial(_play, maps), workers, cluster, label, progress_interval)
+    return dict(zip(jobs, ran.results)), ran.executed_on
 
 
 def prepare_output(out: Path, force: bool) -> Path:
@@ -141,7 +72,10 @@ def prepare_output(out: Path, force: bool) -> Path:
         raise ResultExists(f"output {out} is a file, not a directory")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise ResultExists(f"output directory {out} is not empty; choose another or pass --force to overwrite")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # e.g. a parent that is a file, or no permission: one line, not a traceback
+        raise ResultExists(f"cannot make output directory {out}: {e.strerror or e}") from None
     return out
 
 
@@ -173,7 +107,7 @@ def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifes
 
 
 def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, settings: Settings,
-                 wall_time: float, **extra) -> dict:
+                 wall_time: float, executed_on: dict, **extra) -> dict:
     return {
         "map": gridmap.name,
         "map_source": str(Path(gridmap.source).resolve()) if Path(gridmap.source).is_file() else gridmap.source,
@@ -192,6 +126,7 @@ def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, s
         "command": sys.argv,
         "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "wall_time_s": round(wall_time, 2),
+        "executed_on": executed_on,
         **extra,
     }
 
@@ -209,18 +144,19 @@ def versions() -> dict:
 
 def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: int, out: Path,
                settings: Settings | None = None, workers: int | None = None, force: bool = False,
-               figures: bool = True) -> Path:
+               figures: bool = True, cluster: str | None = None) -> Path:
     """Run every algorithm on one map and write the result directory; returns it. Without `settings`, the
-    run's are the map's (`cq_ros.settings.run_settings`)."""
+    run's are the map's (`cq_ros.settings.run_settings`). The runs go to `workers` local processes, or to the
+    Dask scheduler at `cluster`."""
     gridmap = load_map(map_name)
     settings = run_settings(gridmap) if settings is None else settings
     out = prepare_output(out, force)
     started = time.perf_counter()
     jobs = [Job(str(map_name), a, r, episodes, seed, settings) for a in algos for r in range(runs)]
-    results = run_jobs(jobs, workers, label=gridmap.name)
+    results, executed_on = run_jobs(jobs, workers, label=gridmap.name, cluster=cluster)
     wall = time.perf_counter() - started
     write_results(out, gridmap, list(results.values()),
-                  manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, workers=workers))
+                  manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, executed_on))
     if figures:
         from .plots import write_figures  # matplotlib only where figures are wanted
 

@@ -2,7 +2,7 @@
 
 A map becomes plain integer tables (cell index -> the cell each action leads to) so that the world, the
 learners and the ROS nodes all share one numbering of states and none of them re-derives the geometry.
-The format is described in ``maps/README.md`` of the reference data; in short::
+The format is described in ``cq_ros/maps/README.md``; in short::
 
     agent 1: start ROW,COL  goal ROW,COL
     set reward_step=-1         optional: a default of this map for a cq_ros.settings.Settings field
@@ -167,6 +167,17 @@ def _render(
             if not is_open(row, col, action):
                 canvas[2 * row + 1 + d_row][2 * col + 1 + d_col] = "-" if d_row else "|"
     return ["".join(line).rstrip() for line in canvas]
+
+
+def draw_cells(height: int, width: int, cells: frozenset[tuple[int, int]] | set[tuple[int, int]]) -> list[str]:
+    """The drawing (lines of the map format) of a height x width grid whose world is `cells` (row, col), a
+    wall wherever a cell of it meets the edge or a cell outside it (a map importer's drawing)."""
+
+    def is_open(row: int, col: int, action: int) -> bool:
+        d_row, d_col = _STEPS[action]
+        return (row + d_row, col + d_col) in cells
+
+    return _render(height, width, {cell: "." for cell in cells}, is_open)
 
 
 # --- parsing ---------------------------------------------------------------------------------------

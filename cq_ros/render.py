@@ -21,7 +21,7 @@ from .gridmap import GridMap
 from .settings import Settings
 from .world import GridWorld
 
-__all__ = ["Frame", "lattice", "engine_frames", "frames_from", "check_output", "write_animation", "FORMATS"]
+__all__ = ["Frame", "lattice", "engine_frames", "frames_from", "cut_by_bag", "check_output", "write_animation", "FORMATS"]
 
 FORMATS = {".gif": "pillow", ".mp4": "ffmpeg"}  # output suffix -> matplotlib animation writer
 CELL_INCHES = 0.6
@@ -139,6 +139,21 @@ def frames_from(scenes: Iterable[Any], looks: Iterable[Any]) -> list[Frame]:
         if look.peers:
             by_step.setdefault((look.episode, look.step), {})[look.agent] = tuple(look.peers)
     return [Frame(s.episode, s.step, tuple(s.cells), by_step.get((s.episode, s.step), {})) for s in scenes]
+
+
+def cut_by_bag(scenes: list[Any], episode: int) -> str | None:
+    """How a bag's `scenes` (.episode, .step, .cells, .goals, in the bag's order) cut `episode`, or None when
+    they hold all of it: its first step is not step 0 (the recording began after it did), or it is the bag's
+    last episode and its last scene has an AGV short of its goal (the recording ended first, or the episode
+    ran to the step cap)."""
+    mine = [s for s in scenes if s.episode == episode]
+    cuts = []
+    if mine[0].step != 0:
+        cuts.append(f"the bag starts it at step {mine[0].step}, not 0")
+    if scenes[-1].episode == episode and tuple(mine[-1].cells) != tuple(mine[-1].goals):
+        cuts.append(f"the bag ends at its step {mine[-1].step} with AGVs short of their goals (the recording "
+                    "stopped first, or the episode ran to the step cap)")
+    return "; ".join(cuts) or None
 
 
 def check_output(path: Path) -> str:

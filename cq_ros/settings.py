@@ -1,5 +1,5 @@
 """Every tunable number of an experiment in one flat, typed record: the paper's settings where it gives
-them, our choices where it does not (README, "Defaults"), each written into every result manifest.
+them, our choices where it does not (docs/choices.md), each written into every result manifest.
 
 `Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
 parameters reach it, so a bad key or value is reported the same way everywhere. `run_settings` is the one
@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -22,57 +22,67 @@ class SettingsError(ValueError):
     """A setting that does not exist or a value of the wrong type or range."""
 
 
+def setting(default, doc: str):
+    """A field of Settings with its description: one source for `cq-ros settings`, the nodes' parameter
+    descriptors (node_runtime.parameters) and the docs. A new setting is one more line of this."""
+    return field(default=default, metadata={"doc": doc})
+
+
 @dataclass(frozen=True)
 class Settings:
-    # The paper's: learning rate, fixed epsilon-greedy exploration, CQ's window size.
-    alpha: float = 0.1
-    epsilon: float = 0.1
-    # Not in the paper: 0 keeps epsilon fixed (the paper's); N > 0 lowers it linearly from `epsilon` after
-    # each episode, to 0 from episode N on, so that exploration stops.
-    epsilon_decay_episodes: int = 0
-    window: int = 60
-    # Not in the paper: discount, significance of both t-tests.
-    gamma: float = 0.9
-    significance: float = 0.05
-    # Rewards (not in the paper): each agent's own reward per step.
-    reward_step: float = 0.0
-    reward_wall: float = -1.0
-    reward_collision: float = -10.0
-    reward_goal: float = 10.0
-    # CQ's confidence in a marked joint state (not in the paper): starts at conf_init, rises by conf_up
-    # (at most conf_max) when the joint state is met, falls by conf_down when its local state is met
-    # without it, and the joint state is dropped when it falls below conf_drop.
-    conf_init: float = 1.0
-    conf_up: float = 0.5
-    conf_down: float = 0.02
-    conf_max: float = 10.0
-    conf_drop: float = 0.0
-    # CQ's bootstrap (ours; 0 is the paper's): 0, every update bootstraps from Q_k of the next cell, since
-    # the agent cannot know yet whether it will act on a joint state there; 1, the update waits one step
-    # and bootstraps from the row the agent then acts on (Q^j where a joint state is met), so waiting in
-    # a joint state is valued as waiting, not as the free road Q_k of the same cell promises.
-    cq_bootstrap_acted: int = 1
-    # CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict
-    # is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is).
-    cq_mark_range: int = 2
-    # Several marked joint states of one cell met at once (three or more agents; the paper is silent): 1, the
-    # agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and updates
-    # the most confident alone, which is blind to the peers the others name.
-    cq_all_met: int = 1
-    # LoC: active perception is TRUE when a peer is at most this many cells away (Manhattan), i.e.
-    # close enough to collide this step; choosing COORDINATE costs this much of the learner's reward.
-    loc_range: int = 2
-    loc_cost: float = 0.1
-    # Episodes end when all agents are at their goals or after this many steps (recorded as truncated).
-    step_cap: int = 5000
-    # After the last episode, this many episodes of the greedy policy (epsilon 0) on a copy of the
-    # learners: what was learnt, without the collisions that exploration causes.
-    eval_episodes: int = 20
-    # Delays (cq_ros.world; 0: deterministic, as in the paper): the probability that an AGV's move fails at a
-    # step (it stays: a person in the aisle, a wheel slipping), and the longest hold at the start of an
-    # episode (each AGV's first 0..start_hold moves fail, uniformly drawn: a slow load at the dock).
-    slip: float = 0.0
-    start_hold: int = 0
+    alpha: float = setting(0.1, "learning rate (the paper's)")
+    epsilon: float = setting(0.1, "epsilon-greedy exploration (the paper's: fixed 0.1)")
+    epsilon_decay_episodes: int = setting(
+        0, "0 keeps epsilon fixed (the paper's); N > 0 lowers it linearly from `epsilon` after each episode, to 0 "
+           "from episode N on, so that exploration stops (not in the paper)")
+    window: int = setting(60, "CQ's window size: samples in W1 and in W2 (the paper's)")
+    gamma: float = setting(0.9, "discount (not in the paper)")
+    significance: float = setting(0.05, "significance level of both of CQ's t-tests (not in the paper)")
+    reward_step: float = setting(0.0, "each agent's own reward per step (not in the paper; warehouses: -1)")
+    reward_wall: float = setting(-1.0, "reward for bumping into a wall (the agent stays; not in the paper)")
+    reward_collision: float = setting(-10.0, "reward for a collision (the agents stay; not in the paper)")
+    reward_goal: float = setting(10.0, "reward for reaching the goal (not in the paper)")
+    conf_init: float = setting(1.0, "CQ's confidence in a newly marked joint state (not in the paper)")
+    conf_up: float = setting(0.5, "CQ's confidence rise when a marked joint state is met (at most conf_max)")
+    conf_down: float = setting(0.02, "CQ's confidence fall when its local state is met without the joint state")
+    conf_max: float = setting(10.0, "CQ's highest confidence in a joint state")
+    conf_drop: float = setting(0.0, "a marked joint state whose confidence falls below this is dropped")
+    cq_bootstrap_acted: int = setting(
+        1, "CQ's bootstrap (ours; 0 is the paper's): 0, every update bootstraps from Q_k of the next cell, since "
+           "the agent cannot know yet whether it will act on a joint state there; 1, the update waits one step "
+           "and bootstraps from the row the agent then acts on (Q^j where a joint state is met), so waiting in a "
+           "joint state is valued as waiting, not as the free road Q_k of the same cell promises")
+    cq_mark_range: int = setting(
+        2, "CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict "
+           "is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is)")
+    cq_all_met: int = setting(
+        1, "several marked joint states of one cell met at once (three or more agents; the paper is silent): 1, "
+           "the agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and "
+           "updates the most confident alone, which is blind to the peers the others name")
+    cq_w1_alone: int = setting(
+        0, "CQ's W1 (ours, 0 is the paper's): 0, the first N rewards of each (cell, action); 1, the rewards of "
+           "acting alone there (the world's reward for the move with nobody else, a share slip of them delayed), "
+           "so that a conflict present from the start, as under delays, shows as a drop")
+    loc_range: int = setting(2, "LoC: active perception is TRUE when a peer is at most this many cells away "
+                                "(Manhattan), i.e. close enough to collide this step")
+    loc_cost: float = setting(0.1, "LoC: what choosing COORDINATE costs of the learner's reward")
+    near_range: int = setting(2, "near (the baseline that watches every peer in range at every step): the range, "
+                                 "Manhattan cells")
+    step_cap: int = setting(5000, "an episode ends when all agents are at their goals or after this many steps "
+                                  "(recorded as truncated)")
+    eval_episodes: int = setting(
+        20, "after the last episode, this many episodes of the greedy policy (epsilon 0) on a copy of the "
+            "learners: what was learnt, without the collisions that exploration causes")
+    eval_learning: int = setting(
+        1, "what the greedy copy does with what it sees: 1, it goes on learning (t-tests, marking, confidence, "
+           "updates); 0, it is frozen and only acts, so the greedy episodes show exactly the policy the learning "
+           "episodes left")
+    slip: float = setting(
+        0.0, "delays (cq_ros.world; 0: deterministic, as in the paper): the probability that an AGV's move fails "
+             "at a step (it stays: a person in the aisle, a wheel slipping)")
+    start_hold: int = setting(
+        0, "delays: the longest hold at the start of an episode (each AGV's first 0..start_hold moves fail, "
+           "uniformly drawn: a slow load at the dock)")
 
     def __post_init__(self):
         _check(0.0 < self.alpha <= 1.0, "alpha", self.alpha, "in (0, 1]")
@@ -87,18 +97,26 @@ class Settings:
                (self.conf_drop, self.conf_init, self.conf_max), "ordered")
         _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
         _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
+        _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
+        _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
         _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
         _check(self.start_hold >= 0, "start_hold", self.start_hold, "at least 0")
         _check(self.eval_episodes >= 0, "eval_episodes", self.eval_episodes, "at least 0")
+        _check(self.eval_learning in (0, 1), "eval_learning", self.eval_learning, "0 or 1")
         for f in fields(self):
             value = getattr(self, f.name)
             _check(math.isfinite(value), f.name, value, "a finite number")
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    @staticmethod
+    def describe(name: str) -> str:
+        """The description of setting `name` (KeyError for a name that is no setting)."""
+        return _FIELDS[name].metadata["doc"]
 
     def with_overrides(self, pairs: list[str] | dict) -> "Settings":
         """A copy with `key=value` strings (or a dict) applied; SettingsError names a bad key or value."""
@@ -110,6 +128,9 @@ class Settings:
                 raise SettingsError(f"unknown setting {key!r}; settings are: {', '.join(sorted(types))}")
             changes[key] = coerce(key, value, int if types[key] in ("int", int) else float)
         return dataclasses.replace(self, **changes)
+
+
+_FIELDS = {f.name: f for f in fields(Settings)}
 
 
 def run_settings(gridmap: "GridMap", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:

@@ -35,6 +35,28 @@ _FAST_DTYPE = np.dtype([(name, "f8" if name == "return" else "i8") for name in _
 _ANY_DTYPE = np.dtype([(name, "f8") for name in _NUMERIC])
 
 
+def greedy_lines(path: str | os.PathLike) -> list[str]:
+    """One line per algorithm of a greedy.csv (`cq-ros experiment` and `cq-ros launch` end with them): the
+    greedy policy's collisions and steps per episode over every run's greedy episodes, and how many were
+    truncated. An algorithm without greedy episodes (eval_episodes 0) has no line."""
+    totals: dict[str, list[float]] = {}  # algo -> [runs, episodes, collisions, steps, truncated]
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            n = int(row["episodes"])
+            if n == 0:
+                continue
+            t = totals.setdefault(row["algo"], [0, 0, 0.0, 0.0, 0])
+            t[0] += 1
+            t[1] += n
+            t[2] += float(row["collisions"]) * n
+            t[3] += float(row["steps"]) * n
+            t[4] += int(row["truncated"])
+    return [f"greedy policy, {algo}, {runs} run{'s' if runs > 1 else ''} x {episodes // runs} episodes: "
+            f"{collisions / episodes:.2f} collisions/ep, {steps / episodes:.1f} steps/ep, {truncated} truncated"
+            for algo, (runs, episodes, collisions, steps, truncated) in sorted(totals.items(),
+                                                                               key=lambda kv: algo_sort_key(kv[0]))]
+
+
 def algo_sort_key(algo: str) -> tuple[int, str]:
     return (ALGO_ORDER.index(algo) if algo in ALGO_ORDER else len(ALGO_ORDER), algo)
 
@@ -256,14 +278,14 @@ def _metrics(key: tuple[str, str], runs: Runs, window: int, threshold: float, ta
 _TEXT_COLUMNS = 2  # map and algo are left-aligned, the numbers right-aligned
 
 
-def _headers(tail: float) -> list[str]:
+def _headers(tail: float, settled: bool = True) -> list[str]:
     last = f"last {tail:.0%}"
     return [
         "map",
         "algo",
         "runs x episodes",
         f"collisions/ep ({last})",
-        "collision-free from ep",
+        *["collision-free from ep"] * settled,
         "final states",
         f"joint plays/ep ({last})",
         "joint plays/ep (all)",
@@ -272,13 +294,15 @@ def _headers(tail: float) -> list[str]:
     ]
 
 
-def summary_table(data: Episodes, window: int = 100, threshold: float = 0.05, tail: float = 0.1) -> str:
-    """A Markdown table of ``compute_metrics`` (one row per map and algorithm) with a note on its terms."""
-    headers = _headers(tail)
-    rows = _cells(compute_metrics(data, window, threshold, tail))
+def summary_table(data: Episodes, window: int = 100, threshold: float = 0.05, tail: float = 0.1,
+                  settled: bool = True) -> str:
+    """A Markdown table of ``compute_metrics`` (one row per map and algorithm) with a note on its terms;
+    without the "collision-free from" column if not ``settled`` (one seed's crossing, which moves with the seed)."""
+    headers = _headers(tail, settled)
+    rows = _cells(compute_metrics(data, window, threshold, tail), settled)
     align = ["---"] * _TEXT_COLUMNS + ["---:"] * (len(headers) - _TEXT_COLUMNS)
     lines = [_markdown_row(headers), _markdown_row(align), *(_markdown_row(row) for row in rows)]
-    return "\n".join(lines) + "\n\n" + _note(window, threshold, tail) + "\n"
+    return "\n".join(lines) + "\n\n" + _note(window, threshold, tail, settled) + "\n"
 
 
 def format_console_table(data: Episodes, window: int = 100, threshold: float = 0.05, tail: float = 0.1) -> str:
@@ -290,14 +314,14 @@ def format_console_table(data: Episodes, window: int = 100, threshold: float = 0
     return "\n".join(lines) + "\n\n" + _note(window, threshold, tail) + "\n"
 
 
-def _cells(metrics: list[Metrics]) -> list[list[str]]:
+def _cells(metrics: list[Metrics], settled: bool = True) -> list[list[str]]:
     return [
         [
             m.map,
             m.algo,
             f"{m.runs} x {m.episodes}",
             f"{_number(m.collisions_tail)} ± {_number(m.collisions_tail_std)}",
-            "never" if m.settled_episode is None else str(m.settled_episode),
+            *["never" if m.settled_episode is None else str(m.settled_episode)] * settled,
             _number(m.final_states),
             _number(m.joint_plays_tail),
             _number(m.joint_plays_all),
@@ -313,12 +337,12 @@ def _number(x: float) -> str:
     return f"{x:.0f}" if abs(x) >= 1000 else f"{x:.3g}"
 
 
-def _note(window: int, threshold: float, tail: float) -> str:
+def _note(window: int, threshold: float, tail: float, settled: bool = True) -> str:
     return (
         f"Collisions per episode over the last {tail:.0%} of episodes as mean ± s.d. over runs. "
-        f"Collision-free from = first episode from which the {window}-episode trailing mean of the "
-        f"run-mean collisions stays below {threshold:g} ('never' if it is not below at the end). "
-        "Final states = local plus joint states of all agents after the last episode, mean over runs."
+        + (f"Collision-free from = first episode from which the {window}-episode trailing mean of the "
+           f"run-mean collisions stays below {threshold:g} ('never' if it is not below at the end). " if settled else "")
+        + "Final states = local plus joint states of all agents after the last episode, mean over runs."
     )
 
 

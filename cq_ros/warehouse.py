@@ -30,19 +30,20 @@ import random
 import textwrap
 
 from .gridmap import GridMap, _render, _STEPS, parse_map
+from .settings import Settings, SettingsError
 
-__all__ = ["DEFAULT_AISLE_LENGTH", "MAP_DEFAULTS", "default_aisles", "warehouse_command", "warehouse_map",
+__all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "DELAYED_COLLISION", "MAP_DEFAULTS", "default_aisles", "warehouse_command", "warehouse_map",
            "warehouse_text"]
 
 DEFAULT_AISLE_LENGTH = 6
 # Setting -> (value, why). On warehouse_16, indep with reward_step=-1 and gamma 0.9 ran 924 of 1,000 episodes
-# to the 5,000-step cap; with gamma 0.98, 17 of 3,000, and every greedy policy got all home (README, Use).
+# to the 5,000-step cap; with gamma 0.98, 17 of 3,000, and every greedy policy got all home (docs/warehouses.md, "The maps").
 MAP_DEFAULTS = {
     "reward_step": ("-1", "steps cost: with free steps, learners wander in the safe cross-aisles rather than "
                           "cross an entrance where they have collided"),
     "gamma": ("0.98", "a goal 30 steps away is discounted by 0.9^30 = 0.04 at the paper's gamma, too little to "
                       "tell arriving from wandering for ever; by 0.98^30 = 0.55 here"),
-    # Measured on warehouse_16, 10 runs x 2,000 episodes per seed (README, Warehouses): CQ's greedy policies were
+    # Measured on warehouse_16, 10 runs x 2,000 episodes per seed (docs/warehouses.md): CQ's greedy policies were
     # collision-free in 17 of 20 runs at a fixed 0.1 (seeds 0, 1), in 48 of 50 with epsilon at 0 by episode 2,000
     # (seeds 0-4), and in 50 of 50 by episode 1,500.
     "epsilon_decay_episodes": ("1500", "exploration falls to 0 by episode 1,500, so that the last 500 of 2,000 "
@@ -94,9 +95,28 @@ def _layout(aisles: int, aisle_length: int) -> tuple[int, int, set[frozenset[Cel
     return height, width, passages, docks, sorted(bays)
 
 
-def warehouse_command(agents: int, aisles: int, aisle_length: int, seed: int) -> str:
+# Setting -> why, for the delays a generated map may carry (cq_ros.world, "Delays"); written only when asked for.
+# With any delay the map also carries DELAYED_COLLISION: following an AGV directly costs, in expectation, the
+# slip times the collision penalty (the one ahead is delayed and rear-ended), against one step lost by waiting;
+# with the default -10 at slip 0.1 the two are equal, and no learner learns to keep its distance.
+DELAYED_COLLISION = ("-30", "collisions cost -30, not -10: behind an AGV that may be delayed with probability p, "
+                            "moving on costs p times the penalty in expectation and waiting one step, so waiting "
+                            "pays only where the penalty exceeds 1/p steps; -30 makes it pay for slips down to "
+                            "0.04 (at 0.1 and -10 the two are even)")
+DELAY_DEFAULTS = {
+    "slip": "AGVs are delayed: at every step an AGV's move fails with this probability and it stays (a person "
+            "in the aisle, a wheel slipping), so a meeting's timing is not known in advance",
+    "start_hold": "each AGV waits 0 to this many steps at its dock before its first move (a slow load), drawn "
+                  "anew every episode",
+}
+
+
+def warehouse_command(agents: int, aisles: int, aisle_length: int, seed: int, slip: float = 0.0,
+                      start_hold: int = 0) -> str:
     """The `cq-ros generate` command line that makes this warehouse (written in the map's header)."""
-    return f"cq-ros generate warehouse --agents {agents} --aisles {aisles} --aisle-length {aisle_length} --seed {seed}"
+    delays = (f" --slip {slip:g}" if slip else "") + (f" --start-hold {start_hold}" if start_hold else "")
+    return (f"cq-ros generate warehouse --agents {agents} --aisles {aisles} --aisle-length {aisle_length} "
+            f"--seed {seed}{delays}")
 
 
 def _sizes(agents: int, aisles: int | None, aisle_length: int | None) -> tuple[int, int]:
@@ -109,10 +129,17 @@ def _sizes(agents: int, aisles: int | None, aisle_length: int | None) -> tuple[i
     return aisles, aisle_length
 
 
-def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | None = None, seed: int = 0) -> str:
+def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | None = None, seed: int = 0,
+                   slip: float = 0.0, start_hold: int = 0) -> str:
     """A generated warehouse as map text. ``aisles`` defaults to ``default_aisles(agents)``, ``aisle_length``
-    to DEFAULT_AISLE_LENGTH. ValueError names what does not fit (too few bays or docks for the agents)."""
+    to DEFAULT_AISLE_LENGTH; ``slip`` and ``start_hold``, when not 0, become map defaults (DELAY_DEFAULTS).
+    ValueError names what does not fit (too few bays or docks for the agents, a delay out of range)."""
     aisles, aisle_length = _sizes(agents, aisles, aisle_length)
+    delays = {"slip": slip, "start_hold": start_hold}
+    try:
+        Settings().with_overrides(delays)
+    except SettingsError as e:
+        raise ValueError(str(e)) from None
     height, width, passages, docks, bays = _layout(aisles, aisle_length)
     for what, places in (("pick stations (one per aisle row)", bays), ("dock cells on the cross-aisles", docks)):
         if agents > len(places):
@@ -130,14 +157,17 @@ def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | N
     header = [
         f"# Generated warehouse, {agents} AGVs: {aisles} two-lane aisles of {aisle_length} cells between shelf racks",
         "# ('#'), each joined to the two-lane cross-aisles (top and bottom) by one-lane entrances.",
-        f"# Generated by: {warehouse_command(agents, aisles, aisle_length, seed)}",
+        f"# Generated by: {warehouse_command(agents, aisles, aisle_length, seed, slip, start_hold)}",
         "# Starts on the cross-aisles (docks); each goal is a bay cut into a rack (a pick station), open only to",
         "# its aisle, where a parked AGV blocks nobody.",
     ]
     agent_lines = [f"agent {k}: start {s[0]},{s[1]}  goal {g[0]},{g[1]}"
                    for k, (s, g) in enumerate(zip(starts, goals), start=1)]
     set_lines = ["# Map defaults (`--set` overrides them)."]
-    for key, (value, why) in MAP_DEFAULTS.items():
+    chosen = {**MAP_DEFAULTS, **{k: (f"{v:g}", DELAY_DEFAULTS[k]) for k, v in delays.items() if v}}
+    if slip or start_hold:
+        chosen["reward_collision"] = DELAYED_COLLISION
+    for key, (value, why) in chosen.items():
         set_lines += [f"# {line}" for line in textwrap.wrap(f"{why[0].upper()}{why[1:]}.", 100)]
         set_lines.append(f"set {key}={value}")
     drawing = _render(height, width, dict.fromkeys(world, "."), is_open)
@@ -156,8 +186,9 @@ def _check_parked(gridmap: GridMap, seed: int) -> None:
 
 
 def warehouse_map(agents: int, aisles: int | None = None, aisle_length: int | None = None, seed: int = 0,
-                  name: str | None = None) -> GridMap:
+                  name: str | None = None, slip: float = 0.0, start_hold: int = 0) -> GridMap:
     """The generated warehouse, parsed (named ``warehouse_<agents>`` unless ``name`` is given)."""
     aisles, aisle_length = _sizes(agents, aisles, aisle_length)
-    return parse_map(warehouse_text(agents, aisles, aisle_length, seed), name=name or f"warehouse_{agents}",
-                     source=f"<{warehouse_command(agents, aisles, aisle_length, seed)}>")
+    return parse_map(warehouse_text(agents, aisles, aisle_length, seed, slip, start_hold),
+                     name=name or f"warehouse_{agents}",
+                     source=f"<{warehouse_command(agents, aisles, aisle_length, seed, slip, start_hold)}>")

@@ -13,7 +13,7 @@ See msgs_spec/README.md (its tables are generated from this code; `python -m msg
                      source=feedback_topic(k))
 """
 
-from .auth import KeyFileError, new_key_file, read_key
+from .auth import KeyFileError, new_key_file, read_key, write_key_file
 from .codec import (
     ACTION_LAYOUT, AGENT_STATS_KEYS, ARRAY_LAYOUTS, FEEDBACK_LAYOUT, HEARTBEAT_LAYOUT, POSITION_LAYOUT,
     WORLD_STATS_KEYS, WORLD_STATS_NAME, ArrayLayout, agent_stats_name, check_sequence, decode, decode_action,
@@ -38,7 +38,7 @@ __all__ = [
     "NORTH", "EAST", "SOUTH", "WEST", "ACTIONS", "ACTION_NAMES", "INT32_MAX",
     "Bounds", "Feedback", "Position", "Action", "Heartbeat", "MarkedJointState", "AgentStats", "WorldStats",
     # auth
-    "KeyFileError", "new_key_file", "read_key",
+    "KeyFileError", "new_key_file", "read_key", "write_key_file",
     # errors
     "KINDS", "WireError", "DropCounter",
     # codec

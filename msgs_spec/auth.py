@@ -4,7 +4,7 @@ The pip Fast DDS has no DDS-Security and rclpy 7.1.6's message info names no pub
 tell who wrote a message. With a per-run key, shared through a file only the user can read, it can tell
 who could not have: the codec appends HMAC-SHA256 (truncated to 128 bits, as RFC 2104 allows) over the
 payload's layout label and values, and a receiver holding the key drops any message without a matching
-one (`WireError("unauthenticated")`). The key authenticates; it does not hide (README, "Limits").
+one (`WireError("unauthenticated")`). The key authenticates; it does not hide (docs/ros.md, "Limits").
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import tempfile
 from functools import lru_cache
 from pathlib import Path
 
-__all__ = ["KEY_BYTES", "MAC_WORDS", "KeyFileError", "new_key_file", "read_key", "mac_words"]
+__all__ = ["KEY_BYTES", "MAC_WORDS", "KeyFileError", "new_key_file", "write_key_file", "read_key", "mac_words"]
 
 KEY_BYTES = 32
 MAC_WORDS = 4  # 128 bits as four 32-bit words, appended to the array's data
@@ -33,9 +33,24 @@ class KeyFileError(ValueError):
 def new_key_file(directory: str | os.PathLike | None = None) -> Path:
     """A fresh random key in a new file readable by this user only (mode 0600, as mkstemp creates it)."""
     fd, path = tempfile.mkstemp(prefix="cq_ros_key_", suffix=".hex", dir=directory)
+    _write_key(fd)
+    return Path(path)
+
+
+def write_key_file(path: str | os.PathLike) -> Path:
+    """A fresh random key in the new file `path` (mode 0600; an existing file is never overwritten), for a
+    system kept in a parameters file (`cq-ros key --out FILE`); KeyFileError naming the file otherwise."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as e:
+        raise KeyFileError(f"cannot make key file {os.fspath(path)!r}: {e.strerror}") from None
+    _write_key(fd)
+    return Path(path)
+
+
+def _write_key(fd: int) -> None:
     with os.fdopen(fd, "w") as f:
         f.write(secrets.token_hex(KEY_BYTES) + "\n")
-    return Path(path)
 
 
 def read_key(path: str | os.PathLike) -> bytes:

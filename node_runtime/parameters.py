@@ -10,6 +10,7 @@ launcher sends each node only its own.
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import fields
 from typing import Any
 
@@ -19,14 +20,14 @@ from cq_ros.settings import Settings, SettingsError
 from msgs_spec import KeyFileError, read_key
 
 __all__ = ["WORLD_PARAMETERS", "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters",
-           "undeclared_overrides", "read_key_parameter"]
+           "undeclared_overrides", "read_key_parameter", "describe_parameters", "help_requested", "print_help"]
 
 
 def _with_settings(use: str, table: dict[str, tuple[Any, str]]) -> dict[str, tuple[Any, str]]:
     """`table` and every field of Settings as a parameter of the same name and type (`use`: what the node
     makes of them)."""
-    return {**table, **{f.name: (f.default, f"cq_ros.settings.Settings.{f.name} ({use}); not given: the map's "
-                                            "default, else this one") for f in fields(Settings)}}
+    return {**table, **{f.name: (f.default, f"{Settings.describe(f.name)}; setting {f.name} ({use}); not given: "
+                                            "the map's default, else this one") for f in fields(Settings)}}
 
 
 # Every parameter of the world node (with the Settings fields: _with_settings).
@@ -125,3 +126,40 @@ def read_key_parameter(path: str) -> bytes | None:
         return read_key(path) if path else None
     except KeyFileError as e:
         raise SettingsError(str(e)) from None
+
+
+# The ROS 2 type each parameter's default gives it, as `ros2 param describe` names it.
+_ROS_TYPES = {bool: "bool", int: "integer", float: "double", str: "string"}
+
+
+def describe_parameters(kind: str) -> str:
+    """Every parameter of node kind `kind`, one entry each: name, ROS type, default, then its description
+    indented (what `--help` on a node prints; the descriptors hold the same text)."""
+    lines = []
+    for name, (default, description) in PARAMETERS[kind].items():
+        lines.append(f"  {name} ({_ROS_TYPES[type(default)]}, default {default!r})")
+        lines.extend(textwrap.wrap(description, width=100, initial_indent=" " * 6, subsequent_indent=" " * 6))
+    return "\n".join(lines)
+
+
+def help_requested(argv: list[str]) -> bool:
+    """Whether `argv` (sys.argv) asks for -h or --help outside its --ros-args ... [--] (read here, not by rcl:
+    bad ROS arguments are run_node's to report)."""
+    among_ros = False
+    for arg in argv[1:]:
+        if arg == "--ros-args":
+            among_ros = True
+        elif arg == "--":
+            among_ros = False
+        elif not among_ros and arg in ("-h", "--help"):
+            return True
+    return False
+
+
+def print_help(usage: str, kinds: tuple[str, ...]) -> None:
+    """The `--help` of a node program: its usage (the module docstring), then the parameters of each node
+    kind it runs; nothing is started."""
+    print(usage.strip())
+    for kind in kinds:
+        print(f"\nParameters of the {kind} node (-p NAME:=VALUE, or a --params-file):")
+        print(describe_parameters(kind))

@@ -12,6 +12,7 @@ EventsExecutor unless $CQ_ROS_EXECUTOR says `single`) until every node is done; 
 largest of theirs (0 every node finished its last episode, 1 one gave up, 2 a bad parameter or node name,
 130 Ctrl-C or SIGTERM). An exception in any node's callback ends the process with its traceback after the
 executor, the nodes and the context are shut down in that order.
+-h, --help: this text and every parameter of both node kinds; starts nothing.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from rclpy.validate_node_name import validate_node_name
 
 from agent_node import AgentNode
 from cq_ros.settings import SettingsError
+from node_runtime.parameters import help_requested, print_help
 from node_runtime.run import run_node
 from world_node import WorldNode
 
@@ -62,6 +64,9 @@ def make_nodes(names: list[str], **kwargs) -> list[Node]:
 
 
 def main() -> int:
+    if help_requested(sys.argv):
+        print_help(__doc__, ("world", "agent"))
+        return 0
     names = remove_ros_args(sys.argv)[1:]
     try:
         check_names(names)

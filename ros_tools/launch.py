@@ -14,7 +14,8 @@ subscription) and so does every agent (it holds its statistics until its own pub
 listener, and waits for that before it exits; only the publisher's side of a match says that a message will
 arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
 With `--compose` the one child is a container (ros_tools.compose) holding every node, each reading its
-parameters under its own name in DIR/params.yaml; the nodes and the protocol are the same.
+system's DIR/params.yaml (which every launch writes: ros_tools.system_file) and its own launch_params.yaml;
+the nodes and the protocol are the same.
 
 Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
 for a run (timeouts, heartbeat, linger, checkpoints: `SETTABLE`), checked by the nodes' own rules before
@@ -76,15 +77,17 @@ from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_namespace,
     agent_stats_topic, decode_agent_stats, decode_world_stats, new_key_file,
 )
-from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS
+from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key_parameter
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import world_config
 
 from .commands import StopSignals, environment, ros_session, spin_until
 from .hosts import Hosts
+from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
 __all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "LaunchResult", "Child", "split_sets",
-           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch"]
+           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener",
+           "Progress", "write_heard"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -229,7 +232,11 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     defaults = run_settings(gridmap)
     changed = {f.name: getattr(settings, f.name) for f in fields(Settings)
                if getattr(settings, f.name) != getattr(defaults, f.name)}
-    common = {"map": str(map_name), "episodes": episodes, "seed": seed, "run": 0,
+    # A map file by its absolute path, so that the system file (params.yaml) starts it from anywhere.
+    where = Path(map_name)
+    map_ref = str(where.resolve()) if isinstance(map_name, os.PathLike) or where.suffix == ".txt" or \
+        len(where.parts) > 1 else str(map_name)
+    common = {"map": map_ref, "episodes": episodes, "seed": seed, "run": 0,
               **({"key_file": str(key_file)} if key_file else {})}
     node_parameters = node_parameters or {}
     to_world = {k: v for k, v in node_parameters.items() if k in WORLD_PARAMETERS}
@@ -262,14 +269,20 @@ def node_commands(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, 
     return children
 
 
-def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path) -> Child:
-    """Every node in one process (`python -m ros_tools.compose`), each reading its parameters under its own
-    name in DIR/params.yaml (written here)."""
-    params = {f"/{namespace}/{name}": {"ros__parameters": values} for name, (_, values) in nodes.items()}
-    path = out / "params.yaml"
-    path.write_text(yaml.safe_dump(params, sort_keys=False))
+def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path,
+                    launch_only: frozenset[str] = LAUNCH_ONLY) -> Child:
+    """Every node in one process (`python -m ros_tools.compose`), reading the system's DIR/params.yaml
+    (ros_tools.system_file) and then what is this launch's alone (`launch_only`: checkpoints, listeners, a
+    temporary key) from DIR/logs/launch_params.yaml, both written here."""
+    system = write_system(out / SYSTEM_FILE, nodes, launch_only)
+    own = {f"/**/{name}": {"ros__parameters": {k: v for k, v in values.items() if k in launch_only}}
+           for name, (_, values) in nodes.items()}
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    launch_file = out / "logs" / "launch_params.yaml"
+    launch_file.write_text(yaml.safe_dump(own, sort_keys=False))
     return Child("container", [sys.executable, "-m", "ros_tools.compose", *nodes, *_ros_args(namespace),
-                               "--params-file", str(path)], out / "logs" / "container.log")
+                               "--params-file", str(system), "--params-file", str(launch_file)],
+                 out / "logs" / "container.log")
 
 
 def _stop(children: list[Child]) -> None:
@@ -353,7 +366,7 @@ class StatsListener:
 # -- progress ----------------------------------------------------------------------------------------------
 
 
-class _Progress:
+class Progress:
     """A tqdm bar on a terminal; otherwise a plain line every 5% of the episodes (and at the last). It counts
     every episode; the label says "greedy" once the learning episodes (the first `learning`) are over."""
 
@@ -398,7 +411,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
-           discovery: str = "subnet", start_from: str | os.PathLike | None = None) -> LaunchResult:
+           discovery: str = "subnet", key_file: str | os.PathLike | None = None,
+           start_from: str | os.PathLike | None = None) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -406,6 +420,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     With `hosts` (ros_tools.hosts, one per AGV of the map), each node runs on its own host, found by
     `discovery` ("subnet" or "static", see ros_tools.hosts.DISCOVERY); the launcher must run on the world's.
+
+    Every launch writes the system it ran to DIR/params.yaml (ros_tools.system_file). `key_file` (made by `cq-ros
+    key`) keys the run and is named there and kept; without it the launch makes a key of its own and removes
+    it at the end.
 
     `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
     ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
@@ -434,15 +452,23 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         check_hosts(hosts, gridmap, algo, discovery)
         if hosts.current_host() != "world":
             raise ValueError(f"the launcher must run on the world's host: ip netns exec {hosts.namespace('world')} ...")
+    if key_file is not None:
+        read_key_parameter(os.fspath(key_file))  # a missing or readable-by-others key fails before any work
     if domain_id is None:
         domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
     out = prepare_output(Path(out), force)
     for sub in ("logs", "checkpoints"):
         (out / sub).mkdir(exist_ok=True)
-    key_file = new_key_file()
+    kept_key = key_file is not None  # the system's own key (cq-ros key), named in params.yaml and kept
+    key_file = Path(key_file).resolve() if kept_key else new_key_file()
     nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
                        node_parameters, key_file)
-    children = [compose_command(nodes, namespace, out)] if compose else node_commands(nodes, namespace, out)
+    launch_only = LAUNCH_ONLY if kept_key else LAUNCH_ONLY | {"key_file"}
+    if compose:
+        children = [compose_command(nodes, namespace, out, launch_only)]
+    else:
+        write_system(out / SYSTEM_FILE, nodes, launch_only)
+        children = node_commands(nodes, namespace, out)
     for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
         (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
     for given in start_with:
@@ -462,7 +488,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
             hidden=False) as (node, executor):
         listener = StatsListener(node, gridmap, episodes + settings.eval_episodes)
-        bar = _Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
+        bar = Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
         try:
             for child in children:
                 child.start(env)
@@ -482,7 +508,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                           f"(logs in {out / 'logs'})") from None
         finally:
             _stop(children)
-            key_file.unlink(missing_ok=True)
+            if not kept_key:
+                key_file.unlink(missing_ok=True)
             bar.close()
 
     on_hosts = {} if hosts is None else {"hosts": {"prefix": hosts.prefix, "discovery": discovery,
@@ -492,8 +519,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                     step_timeout_s=node_parameters["step_timeout"], **on_hosts,
                     peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
-    result = _write(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
-                    learners, list(nodes)[1:], children, run_info)
+    ran = {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
+           for c in children}
+    result = write_heard(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, listener,
+                         learners, list(nodes)[1:], ran, run_info)
     if figures:
         from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
 
@@ -510,11 +539,13 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
     return paths
 
 
-def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings, wall: float,
-           listener: StatsListener, learners: list[int], learner_nodes: list[str], children: list[Child],
-           run_info: dict) -> LaunchResult:
+def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings, wall: float,
+                listener: StatsListener, learners: list[int], learner_nodes: list[str], nodes: dict,
+                run_info: dict) -> LaunchResult:
     """episodes.csv, observe.csv, greedy.csv and manifest.json from the statistics heard: the first `episodes`
-    (learning) and the greedy ones after them (see the module docstring for what comes from where)."""
+    (learning) and the greedy ones after them (see the module docstring for what comes from where); `nodes`
+    is the manifest's account of the nodes (a launch's commands and exit codes), run_info the run's own
+    entries. `cq-ros collect` (ros_tools.collect) writes through it too."""
     played = range(listener.episodes)
     world = [listener.world[e] for e in played]
     per_learner = [[listener.agents[k][e] for k in learners] for e in played]
@@ -527,8 +558,7 @@ def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, set
     final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
     manifest = manifest_for(
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
-        nodes={c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
-               for c in children},
+        nodes=nodes,
         communication={name: {"subscriptions_created": s.subscriptions_created,
                               "subscriptions_active": s.subscriptions_active,
                               "peer_messages": s.peer_messages, "counters": dict(s.counters)}
@@ -540,7 +570,7 @@ def _write(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, set
     return LaunchResult(out, table, greedy, manifest)
 
 
-def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: _Progress,
+def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
            learners: list[int]) -> None:
     """Spin the listener until every child has exited 0; LaunchError/Interrupted as soon as one fails."""
     world_done_at = None

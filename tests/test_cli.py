@@ -12,6 +12,7 @@ import pytest
 
 from cq_ros.cli import main
 from cq_ros.gridmap import load_map
+from cq_ros.settings import Settings
 
 
 def run_cli(*args):
@@ -56,6 +57,9 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         (["experiment", "--map", "grid_game_2", "--set", "window=2.5", "--out", "X"], "window takes an integer"),
         (["experiment", "--map", "grid_game_2", "--set", "alpha=abc", "--out", "X"], "alpha takes a number"),
         (["experiment", "--map", "grid_game_2", "--set", "gamma=1.5", "--out", "X"], "gamma must be in [0, 1)"),
+        (["experiment", "--map", "grid_game_2", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
+        (["reproduce", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
+        (["generate", "warehouse", "--agents", "8", "--seed", "-2", "--out", "X"], "--seed: must be at least 0"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
@@ -71,6 +75,9 @@ def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
 def test_output_that_is_a_file_or_a_result_is_never_overwritten(tmp_path):
     a_file = tmp_path / "file"
     a_file.write_text("mine")
+    inside = run_cli("experiment", "--map", "grid_game_2", "--out", str(a_file / "res"))
+    assert inside.returncode == 2 and "cannot make output directory" in inside.stderr
+    assert len(inside.stderr.strip().splitlines()) == 1
     result = run_cli("experiment", "--map", "grid_game_2", "--runs", "1", "--episodes", "5", "--out", str(a_file))
     assert result.returncode == 2 and "is a file" in result.stderr
     assert a_file.read_text() == "mine"
@@ -85,11 +92,19 @@ def test_output_that_is_a_file_or_a_result_is_never_overwritten(tmp_path):
     assert (out / "episodes.csv").read_text() == before
 
 
-def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_the_same_file(tmp_path):
+def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_the_same_file(tmp_path, capsys):
     args = ["experiment", "--map", "tunnel_to_goal", "--algo", "cq,indep,loc", "--runs", "2", "--episodes", "60",
             "--seed", "5", "--set", "window=10"]
     first, second = tmp_path / "a", tmp_path / "b"
     assert main([*args, "--out", str(first)]) == 0
+    # It ends with the greedy policy's line per algorithm, as a launch does (summary.greedy_lines).
+    stdout = capsys.readouterr().out
+    for algo in ("indep", "loc", "cq"):
+        runs = [r for r in csv.DictReader(open(first / "greedy.csv")) if r["algo"] == algo]
+        collisions = sum(float(r["collisions"]) for r in runs) / 2
+        steps = sum(float(r["steps"]) for r in runs) / 2
+        assert (f"greedy policy, {algo}, 2 runs x 20 episodes: {collisions:.2f} collisions/ep, {steps:.1f} steps/ep, "
+                f"{sum(int(r['truncated']) for r in runs)} truncated") in stdout
     assert main([*args, "--out", str(second), "--jobs", "1", "--no-figures"]) == 0
     assert (first / "episodes.csv").read_bytes() == (second / "episodes.csv").read_bytes()
     assert (first / "observe.csv").read_bytes() == (second / "observe.csv").read_bytes()
@@ -108,23 +123,26 @@ def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_t
 
 
 def test_reproduce_small_grid_writes_a_report_with_every_claim(tmp_path):
-    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "30", "--no-sweep",
-                 "--set", "step_cap=300"]) == 0
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "10", "--no-sweep",
+                 "--set", "step_cap=50", "--seeds", "5,6,7"]) == 0
     report = (tmp_path / "r" / "REPORT.md").read_text()
     for n in range(1, 8):
         assert f"\n{n}. *" in report
-    assert "holds" in report
-    for claim in (1, 2):  # at both thresholds, with fixed and with decaying exploration
+    assert "holds" in report and "--seeds 5,6,7" in report
+    for claim in (1, 2):  # at both thresholds, with fixed and with decaying exploration, judged over the seeds
         section = report.split(f"\n{claim}. *")[1].split(f"\n{claim + 1}. *")[0]
         assert section.count("below 0.05: **") == section.count("below 0.1: **") == 2
-        assert "epsilon 0.1 fixed" in section and "epsilon falling to 0 by episode 15" in section
-    assert "## In short\n\n- **" in report
+        assert "epsilon 0.1 fixed" in section and "epsilon falling to 0 by episode 5" in section
+    assert "## In short\n\n- **" in report and "## Collision-free from, over seeds 5, 6, 7\n" in report
     for where in ("", "decay/"):
         for m in ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr"):
             assert (tmp_path / "r" / where / m / "episodes.csv").exists()
             assert (tmp_path / "r" / where / m / "collisions_log.png").exists()
+            for other in (6, 7):  # the other seeds' grids: tables, no figures
+                assert json.loads((tmp_path / "r" / f"seed_{other}" / where / m / "manifest.json").read_text())["seed"] == other
+    assert json.loads((tmp_path / "r" / "isr" / "manifest.json").read_text())["seed"] == 5
     decay = json.loads((tmp_path / "r" / "decay" / "isr" / "manifest.json").read_text())["settings"]
-    assert decay["epsilon_decay_episodes"] == 15 and decay["step_cap"] == 300  # at most 500
+    assert decay["epsilon_decay_episodes"] == 5 and decay["step_cap"] == 50  # at most 500
 
 
 def test_every_command_taking_a_map_accepts_a_path_to_a_copied_map(tmp_path, capsys):
@@ -152,7 +170,7 @@ def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
 
     # enough episodes (about half a second at ~8,000 a second) that the runs cannot end within one interval
     jobs = [Job("grid_game_2", "cq", r, 1500, 0, Settings(eval_episodes=0)) for r in range(3)]
-    results = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
+    results, _ = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
     assert len(results) == 3
     lines = capsys.readouterr().err.splitlines()
     pattern = re.compile(r"test: runs (\d)/3, episodes ([\d,]+)/4,500, [\d,]+ episodes/s, \d+ s elapsed, "
@@ -163,3 +181,12 @@ def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
     assert episodes[0] == 0 and episodes[-1] == 4500 and parsed[-1].group(1) == "3"
     assert episodes == sorted(episodes)
     assert any(0 < e < 4500 for e in episodes), lines  # lines while the runs were going, not only at the ends
+
+
+def test_settings_lists_every_setting_with_its_default_and_description(capsys):
+    assert main(["settings"]) == 0
+    out = capsys.readouterr().out
+    for name, value in Settings().as_dict().items():
+        described = re.search(rf"^{name} = {re.escape(str(value))}\n((?:    .*\n)+)", out, re.M)
+        assert described, name
+        assert " ".join(described.group(1).split()) == Settings.describe(name)

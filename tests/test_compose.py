@@ -23,6 +23,7 @@ from rclpy.context import Context
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
+from cq_ros.warehouse import warehouse_text
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
     decode_world_stats
 from node_runtime.run import make_executor, spin_nodes
@@ -176,3 +177,30 @@ def test_the_container_exits_2_with_one_line_for_bad_input(args, message):
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and message in done.stderr, done.stderr
 
+
+
+@pytest.mark.parametrize("compose", [True, False], ids=["composed", "process_per_node"])
+def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
+    """Delays come from the world's own seeded RNG (cq_ros.world, "Delays"), so a launch of a delayed warehouse
+    file (its `set slip` and `set start_hold` lines) draws exactly the offline run's delays, greedy episodes
+    included."""
+    path = tmp_path / "delayed.txt"
+    path.write_text(warehouse_text(3, aisles=2, aisle_length=3, seed=5, slip=0.2, start_hold=2))
+    out, namespace = tmp_path / "result", f"delayed_{uuid.uuid4().hex[:8]}"
+    sets = ["eval_episodes=2", "step_cap=300", "epsilon_decay_episodes=0"]
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", *(["--compose"] * compose), "--map", str(path),
+                           "--algo", "cq", "--episodes", "12", "--seed", str(SEED), "--out", str(out),
+                           "--namespace", namespace, "--no-figures", *[a for s in sets for a in ("--set", s)]],
+                          capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    gridmap = load_map(path)
+    settings = run_settings(gridmap, sets)
+    assert (settings.slip, settings.start_hold) == (0.2, 2)
+    offline = run("cq", gridmap, settings, SEED, 0, 12)
+    with open(out / "episodes.csv", newline="") as f:
+        rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
+    assert rows == [(int(e[0]), int(e[1]), int(e[2])) for e in offline.episodes]
+    with open(out / "greedy.csv", newline="") as f:
+        greedy = [(r["steps"], r["collisions"]) for r in csv.DictReader(f)]
+    assert greedy == [(f"{offline.greedy[:, 0].mean():g}", f"{offline.greedy[:, 1].mean():g}")]
+    assert json.loads((out / "manifest.json").read_text())["world"]["missed_actions"] == 0

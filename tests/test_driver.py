@@ -473,6 +473,9 @@ CASES += [(algo, "grid_game_2", 1, 60, {"window": 5, "eval_episodes": 3}) for al
 CASES += [("cq", "tunnel_to_goal", 4, 40, {"window": 10, "step_cap": 500, "eval_episodes": 2})]
 # Slipping moves draw from the world's RNG, which the greedy episodes go on drawing from.
 CASES += [("cq", "grid_game_2", 1, 60, {"window": 5, "eval_episodes": 3, "slip": 0.2})]
+# A frozen greedy copy (eval_learning 0): CQ's confidence and LoC's new joint states stay as learnt, alike.
+CASES += [("cq", "tunnel_to_goal", 4, 40, {"window": 10, "step_cap": 500, "eval_episodes": 2, "eval_learning": 0}),
+          ("loc", "grid_game_2", 1, 60, {"window": 5, "eval_episodes": 3, "eval_learning": 0})]
 
 
 @pytest.mark.parametrize("algo,map_name,seed,episodes,overrides", CASES)

@@ -164,9 +164,9 @@ def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it
 
 
 def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(capsys):
-    from ros_tools.launch import _Progress
+    from ros_tools.launch import Progress
 
-    bar = _Progress("tunnel_to_goal cq", episodes=6, learning=4, enabled=True)  # stderr is not a terminal here
+    bar = Progress("tunnel_to_goal cq", episodes=6, learning=4, enabled=True)  # stderr is not a terminal here
     for done in range(1, 7):
         bar.update(done, collisions=done, joint_states=1, peer_messages=2 * done)
     bar.close()
@@ -182,7 +182,7 @@ def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_
         greedy = next(csv.DictReader(f))
     communication = json.loads((out / "manifest.json").read_text())["communication"]
     assert "collisions/ep (last 10%)" in stdout and f"results: {out}" in stdout
-    assert re.search(rf"greedy policy, {greedy['episodes']} episodes: {float(greedy['collisions']):.2f} "
+    assert re.search(rf"greedy policy, cq, 1 run x {greedy['episodes']} episodes: {float(greedy['collisions']):.2f} "
                      rf"collisions/ep, {float(greedy['steps']):.1f} steps/ep", stdout)
     for node, cost in communication.items():
         assert (f"{node}: {cost['peer_messages']} peer position messages, "

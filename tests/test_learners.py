@@ -24,6 +24,7 @@ from cq_ros.learners.indep import IndependentQ
 from cq_ros.learners.js import JointStateQ
 from cq_ros.learners.jsa import MAX_AGENTS, JointStateActionQ
 from cq_ros.learners.loc import COORDINATE, LearningOfCoordination
+from cq_ros.learners.near import NearQ
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 
@@ -862,3 +863,90 @@ def test_fcq_windows_keep_sampled_q_values_where_cq_keeps_rewards():
     gamma = settings.gamma
     assert learners[CQLearner].windows[0 * N_MOVES + EAST].w1 == [-1.0, 2.0]
     assert learners[FutureCQLearner].windows[0 * N_MOVES + EAST].w1 == [-1.0 + gamma * 4.0, 2.0]
+
+
+# --- near: every peer in range, every step ------------------------------------------------------------
+
+
+def test_near_conditions_on_the_peers_in_range_only_and_hears_only_them():
+    learner = NearQ(0, ROW3, Settings(**GREEDY, near_range=2), seed=1)
+    assert learner.observe(0) == (1, 2)  # it must know where everyone is to know who is near
+    learner.act({1: 2, 2: 5})  # agent 1 is 2 cells away, agent 2 five
+    assert learner.heard == 1 and learner.joint_plays == 1
+    assert list(learner.q_near) == [(0, ((1, 2),))]
+    learner.learn(-1.0, 1, False)
+    learner.observe(1)
+    learner.act({1: 4, 2: 5})  # nobody within 2 of cell 1: the cell's own row
+    assert learner.heard == 1 and learner.joint_plays == 1 and learner.state_count() == ROW3.n_cells + 1
+
+
+def test_near_finishes_a_steps_update_from_the_next_state_it_sees():
+    learner = NearQ(0, ROW3, Settings(**GREEDY, alpha=1.0, gamma=0.5), seed=1)
+    learner.observe(0)
+    a = learner.act({1: 1, 2: 5})
+    row = learner.q_near[(0, ((1, 1),))]
+    learner.learn(-10.0, 0, False)
+    assert row[a] == 0.0  # waiting for the next state
+    learner.q_local[0] = [4.0, 4.0, 4.0, 4.0]
+    learner.observe(0)
+    learner.act({1: 4, 2: 5})  # the next state: nobody near, Q of the cell
+    assert row[a] == -10.0 + 0.5 * 4.0
+
+
+# --- CQ's W1 under delays --------------------------------------------------------------------------------
+
+
+def test_cq_w1_alone_holds_what_acting_alone_earns_a_share_slip_delayed():
+    st = dict(GREEDY, window=10, slip=0.2, reward_step=-1.0, reward_wall=-2.0, reward_goal=7.0)
+    learner = CQLearner(0, ROW2, Settings(**st, cq_w1_alone=1), seed=1)
+    west_of_0, east_of_0, into_goal = learner.windows[0 * 4 + WEST], learner.windows[0 * 4 + EAST], \
+        learner.windows[4 * 4 + EAST]
+    assert all(w.n1 == 10 for w in learner.windows)  # W1 full from the start
+    assert west_of_0.sum1 == 2 * -1.0 + 8 * -2.0  # a bump, 2 of 10 delayed
+    assert east_of_0.sum1 == 10 * -1.0
+    assert into_goal.sum1 == 2 * -1.0 + 8 * 7.0  # cell 4 -> 5, agent 0's goal
+    plain = CQLearner(0, ROW2, Settings(**st), seed=1)
+    assert all(w.n1 == 0 for w in plain.windows)
+
+
+def test_cq_w1_alone_marks_a_conflict_that_was_there_from_the_start():
+    """A collision one step in three from the first episode on: W1 of the first rewards holds it too, so the
+    rewards never drop against it; against acting alone they have."""
+    marked = {}
+    for alone in (0, 1):
+        learner = cq(ROW3, window=10, cq_w1_alone=alone)
+        for k in range(60):
+            step(learner, 0, ELSEWHERE if k % 3 else {1: 1, 2: 5}, -10.0 if k % 3 == 0 else 0.0, 0 if k % 3 == 0 else 1)
+        marked[alone] = bool(learner.q_joint)
+    assert marked == {0: False, 1: True}
+
+
+# --- the greedy evaluation: learning or frozen (eval_learning) --------------------------------------------
+
+KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "pending", "conflict_at")
+
+
+def kept(learner) -> bytes:
+    """Everything a learner keeps from step to step but its rng and counters."""
+    return pickle.dumps({k: v for k, v in vars(learner).items() if k in KEPT})
+
+
+@pytest.mark.parametrize("algo", sorted(LEARNERS))
+@pytest.mark.parametrize("eval_learning", [0, 1])
+def test_a_frozen_greedy_copy_only_acts_and_a_learning_one_learns(algo, eval_learning):
+    gm = load_map("tunnel_to_goal")
+    settings = Settings(window=10, step_cap=300, eval_learning=eval_learning)
+    team = Team(GridWorld(gm, settings, seed=0), make_learners(algo, gm, settings, seed=4, run=0))
+    for _ in range(150):
+        team.episode()
+    trained = [kept(learner) for learner in team.learners]
+    greedy = engine.greedy_team(team)
+    assert all(learner.epsilon == 0.0 for learner in greedy.learners)
+    played = [greedy.episode() for _ in range(3)]
+    assert [kept(learner) for learner in team.learners] == trained  # the run itself is never touched
+    after = [kept(learner) for learner in greedy.learners]
+    assert (after == trained) == (eval_learning == 0)
+    if eval_learning == 0:
+        assert len({e.states for e in played}) == 1  # a frozen LoC, near or CQ makes no joint state, drops none
+        if algo in ("cq", "fcq"):
+            assert sum(e.joint_plays for e in played) > 0  # it acted on its joint states, without touching them

@@ -7,7 +7,8 @@ import random
 
 import pytest
 
-from cq_ros.cli import _PlanProgress, main
+from cq_ros.cli import main
+from cq_ros.plan_command import PlanProgress
 from cq_ros.gridmap import available_maps, load_map, parse_map
 from cq_ros.planner import NoPlan, Plan, PlanError, conflict_based_search, distances_to, plan, prioritized, validate
 from cq_ros.world import N_ACTIONS, GridWorld
@@ -294,7 +295,7 @@ def test_plan_command_without_a_plan_exits_1_and_with_bad_arguments_2(tmp_path, 
 
 
 def test_plan_progress_off_a_terminal_is_a_plain_line_at_most_every_30_s(capsys):
-    progress = _PlanProgress()
+    progress = PlanProgress()
     progress("cbs", 100, 2000)
     assert capsys.readouterr().err == ""  # not yet 30 s
     progress.last_line -= 30

@@ -1,5 +1,6 @@
 """The verdicts of `cq-ros reproduce`, computed on synthetic results where each claim is known to hold and
-known not to hold: claims 1 and 2 at both thresholds, and where CQ keeps its joint states (claim 6)."""
+known not to hold: claims 1 and 2 at both thresholds and over seeds (judged only over at least 3), claim 4
+on collisions, and where CQ keeps its joint states (claim 6)."""
 
 import csv
 
@@ -11,6 +12,9 @@ from cq_ros.reproduce import (
     PAPER_MAPS,
     claim_collision_free,
     _claim_entrance,
+    _claim_joint_learners_slow,
+    _regime_finding,
+    over_seeds,
     entrance_share,
     settled_at,
     sooner_than_cq,
@@ -20,11 +24,13 @@ EPISODES = 1000
 
 
 def collisions_until(episode: int | None, after: float = 0.0, runs: int = 3) -> dict:
-    """Runs that collide twice per episode, then `after` per episode from `episode` on (None: never calm)."""
+    """Runs that collide twice per episode, then `after` per episode from `episode` on (None: never calm); the
+    other columns constant."""
     values = np.full((runs, EPISODES), 2.0)
     if episode is not None:
         values[:, episode - 1:] = after
-    return {"collisions": values}
+    return {"collisions": values, **{c: np.full((runs, EPISODES), 1.0) for c in ("steps", "joint_plays", "states")},
+            "truncated": np.zeros((runs, EPISODES))}
 
 
 def grid(cq: int | None, others: dict[str, int | None], cq_after: float = 0.0) -> dict:
@@ -79,3 +85,37 @@ def test_claim_6_share_of_joint_states_at_the_tunnel_entrance(tmp_path):
     write_observations(tmp_path / "far", [((0, 10), 5.0), ((4, 9), 4.0), ((2, 4), 1.0)])
     assert entrance_share(tmp_path / "far")[0] == 0.1
     assert "**does not hold**. 10% " in _claim_entrance(tmp_path / "far")
+
+
+def at_2000(collisions: dict[str, float], steps: dict[str, float]) -> dict:
+    """tunnel_to_goal_3 runs of 2000 episodes with these collisions and steps per episode throughout."""
+    return {("tunnel_to_goal_3", a): {"collisions": np.full((2, 2000), collisions[a]), "steps": np.full((2, 2000), steps[a])}
+            for a in ("js", "jsa", "cq")}
+
+
+def test_claim_4_is_judged_on_collisions_as_fig_3_plots_them_with_steps_beside():
+    long_routes = {"js": 21.3, "jsa": 23.2, "cq": 15.3}
+    # Far longer routes but fewer collisions than CQ: not poor on Fig. 3's measure.
+    fewer = _claim_joint_learners_slow(at_2000({"js": 0.01, "jsa": 0.02, "cq": 0.1}, long_routes))
+    assert "**does not hold**" in fewer and "js 0.010 (21.3 steps)" in fewer
+    # One of the two colliding less than CQ is enough for the claim to fail.
+    assert "**does not hold**" in _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.05, "cq": 0.1}, long_routes))
+    more = _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.2, "cq": 0.1}, {a: 15.0 for a in long_routes}))
+    assert "**holds**" in more and "cq 0.100 (15.0 steps)" in more
+
+
+def test_a_crossing_is_quoted_as_a_range_over_seeds_naming_those_where_it_never_comes():
+    assert over_seeds([141, 233, None], (0, 1, 2)) == "episodes 141-233 (never at seed 2)"
+    assert over_seeds([None, 90, None], (4, 5, 6)) == "episode 90 (never at seeds 4, 6)"
+    assert over_seeds([None, None, None], (0, 1, 2)) == "never"
+    assert over_seeds([7, 7, 7], (0, 1, 2)) == "episode 7"
+
+
+def test_claims_1_and_2_are_judged_over_three_seeds_and_not_on_one():
+    seeds = [grid(200, {"js": 400}), grid(400, {"js": 150}), grid(300, {"js": 500})]  # js first at the second
+    one = _regime_finding("fixed", seeds[:1], (0,))
+    assert "not judged" in one and not any(f"episode {n}" in one for n in (200, 400, 150))  # no crossing quoted
+    three = _regime_finding("fixed", seeds, (0, 1, 2))
+    assert "below 0.05: grid_game_2 episodes 297-497" in three  # calm from 200-400, the 100-episode average later
+    assert "Claim 1 (CQ collision-free on all four maps) holds below 0.05" in three
+    assert "claim 2 (CQ there before every baseline) does not hold (holds at 2 of 3 seeds) below 0.05" in three

@@ -154,3 +154,15 @@ def test_run_settings_puts_the_maps_defaults_under_the_users_overrides():
         manifest = manifest_for(warehouse, ["cq"], 1, 1, 0, run_settings(warehouse, overrides), 0.0)
         assert manifest["map_defaults"] == {"reward_step": -1.0, "window": 30}
         assert manifest["settings_from_map"] == from_map
+
+
+def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():
+    from node_runtime.parameters import PARAMETERS
+
+    for name in FIELDS:
+        description = Settings.describe(name)
+        assert len(description) > 15, name  # a sentence, not a placeholder
+        for table in PARAMETERS.values():
+            assert table[name][1].startswith(description)
+    with pytest.raises(KeyError):
+        Settings.describe("no_such_setting")

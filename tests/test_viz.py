@@ -16,7 +16,7 @@ from PIL import Image
 
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
-from cq_ros.render import CELL_INCHES, DPI, engine_frames, frames_from, lattice
+from cq_ros.render import CELL_INCHES, DPI, cut_by_bag, engine_frames, frames_from, lattice
 from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz
@@ -134,11 +134,24 @@ def test_a_recorded_bag_replays_the_run_and_renders_as_a_gif(system_in, tmp_path
     done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", "--bag", str(bag), "--out", str(gif)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+    assert "cut by the bag" not in done.stderr + done.stdout  # the bag holds every step of the run
     with Image.open(gif) as image:  # one frame per step of the last episode, at the size the map asks
         assert image.format == "GIF" and image.n_frames == len(last)
         gridmap = load_map(map_name)
         assert image.size == (round(max(3.0, gridmap.width * CELL_INCHES) * DPI),
                               round(max(2.5, gridmap.height * CELL_INCHES + 0.5) * DPI))
+
+
+def test_render_says_when_the_bag_cut_the_episode_it_draws():
+    from types import SimpleNamespace as Scene
+
+    goals = ((0, 2), (2, 2))
+    whole = [Scene(episode=3, step=t, cells=((0, t), (2, t)), goals=goals) for t in range(3)]
+    assert cut_by_bag(whole, 3) is None
+    assert "starts it at step 1, not 0" in cut_by_bag(whole[1:], 3)
+    assert "ends at its step 1 with AGVs short of their goals" in cut_by_bag(whole[:2], 3)
+    later = [*whole[:2], Scene(episode=4, step=0, cells=((0, 0), (2, 0)), goals=goals)]
+    assert cut_by_bag(later, 3) is None  # ended short of the goals, but the next episode began: the step cap
 
 
 def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):

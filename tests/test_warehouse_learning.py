@@ -20,3 +20,17 @@ def test_cq_greedy_policy_brings_every_agv_of_a_small_warehouse_home(seed):
     # home by a route, not by a walk: within twice the longest shortest path of any AGV
     longest = max(gridmap.distance(s, g) for s, g in zip(gridmap.starts, gridmap.goals))
     assert steps.max() <= 2 * longest + 4
+
+
+def test_on_a_small_delayed_warehouse_cq_collides_less_than_independent_learners():
+    """Where AGVs are delayed (slip 0.1, the generator's delayed defaults), looking pays: summed over six
+    consecutive seeds (map and learners alike), none chosen to pass, CQ's greedy policy collides less than
+    the independent learners' (17 against 43 greedy collisions when first run, 2026-12-01)."""
+    collisions = {"cq": 0.0, "indep": 0.0}
+    for seed in range(6):
+        gridmap = warehouse_map(6, aisles=2, aisle_length=4, seed=seed, slip=0.1)
+        settings = run_settings(gridmap, {"eval_episodes": 20, "step_cap": 1000, "epsilon_decay_episodes": 750})
+        for algo in collisions:
+            result = engine.run(algo, gridmap, settings, seed=seed, run_index=0, episodes=1000)
+            collisions[algo] += result.greedy[:, 1].sum()
+    assert collisions["cq"] < collisions["indep"], collisions

@@ -6,17 +6,22 @@ and -r __ns:=/name work as for any ROS 2 node.
 Exit codes: 0 all episodes played, 1 the agents never all connected (startup_timeout), 2 a bad parameter
 (one line on stderr) or another world in the same namespace and domain at start, 130 interrupted (Ctrl-C,
 SIGTERM).
+-h, --help: this text and every parameter with its type, default and description; starts nothing.
 """
 
 import sys
 
 from cq_ros.settings import SettingsError
+from node_runtime.parameters import help_requested, print_help
 from node_runtime.run import run_node
 
 from .node import WorldNode
 
 
 def main() -> int:
+    if help_requested(sys.argv):
+        print_help(__doc__, ("world",))
+        return 0
     return run_node(WorldNode, "world_node", (SettingsError,))
 
 

@@ -49,6 +49,7 @@ class Learner:
     name = "base"
     central = False  # True: one learner moves every agent (its cell is the tuple of all cells)
     joint_state = False  # True: every state is a joint state (no local table; sees every peer every step)
+    learning = True  # False: frozen (a greedy copy under eval_learning=0): it acts, and nothing it keeps changes
 
     def __init__(self, agent: int, gridmap: GridMap, settings: Settings, seed: int):
         self.agent = agent
@@ -62,6 +63,7 @@ class Learner:
         self.rng = random.Random(seed)
         self.peers = tuple(j for j in range(n_agents) if j != agent)
         self.joint_plays = 0  # times this learner acted on information about its peers
+        self.heard = 0  # peer positions its decisions took in (the communication cost)
         self.episodes_played = 0
 
     def observe(self, cell: Hashable) -> tuple[int, ...]:
@@ -80,6 +82,13 @@ class Learner:
         decay = self.settings.epsilon_decay_episodes
         if decay:
             self.epsilon = min(self.epsilon, self.settings.epsilon * max(0.0, 1.0 - self.episodes_played / decay))
+
+    def make_greedy(self) -> None:
+        """Make this learner (a copy: the trained one is left as it is) the greedy evaluator: epsilon 0, and
+        frozen unless settings.eval_learning. The engine and the agent driver both switch through here, so
+        their greedy episodes stay the same."""
+        self.epsilon = 0.0
+        self.learning = bool(self.settings.eval_learning)
 
     def state_count(self) -> int:
         """The size of the state space this learner conditions on now (local plus joint)."""

@@ -15,7 +15,12 @@ the next cell, since the agent cannot know it will need coordination at the next
 its peers at the start of its next step, before acting. For a collision this is also the joint state
 the agent acted in, since colliding agents stay where they were.
 
-Three choices of ours, each a setting whose other value is the paper's reading (README, "Choices"): only
+Under delays (cq_w1_alone, ours, off by default): W1 can be filled with what acting alone earns instead of
+the first N rewards, since where AGVs are delayed a conflict is there from the first episode on and the
+first rewards are no measure of being alone (the earlier CQ-learning of De Hauwere et al. 2010 took W1 from
+a single-agent phase).
+
+Three choices of ours, each a setting whose other value is the paper's reading (docs/choices.md): only
 the peers within `cq_mark_range` cells are marked; an update waits one step and bootstraps from the row
 the agent then acts on (`cq_bootstrap_acted`), so waiting in a joint state is not valued by Q_k's free
 road; and where several joint states are met at once, the agent acts on the elementwise minimum of their
@@ -38,6 +43,8 @@ class CQLearner(Learner):
         self.marked: dict[int, list[tuple]] = {}  # cell -> its joint states
         self.watch: dict[int, tuple[int, ...]] = {}  # cell -> the peers its joint states name
         self.windows = [RewardWindows(st.window) for _ in range(self.n_cells * N_MOVES)]  # W1, W2 per (s, a)
+        if st.cq_w1_alone:
+            self._fill_w1_alone()
         self.test = ConflictTest(st.window, st.significance)
         self.conflict_at = None  # a cell whose conflict is marked as soon as the peers are seen
         self.rows: list[list[float]] = []  # the rows acted on: Q_k of the cell, or Q^j of the joint states met
@@ -50,6 +57,7 @@ class CQLearner(Learner):
         return self.watch.get(cell, ())
 
     def act(self, peer_cells):
+        self.heard += len(peer_cells)
         if self.conflict_at is not None:
             marked = self._mark(self.conflict_at, peer_cells)
             self.conflict_at = None
@@ -77,6 +85,8 @@ class CQLearner(Learner):
         return self.rows[0] if len(self.rows) == 1 else [min(q) for q in zip(*self.rows)]
 
     def learn(self, reward, next_cell, done):
+        if not self.learning:
+            return
         s, a = self.s, self.a
         target = reward if done else reward + self.gamma * max(self.q_local[next_cell])
         sample = self.sample(reward, target)
@@ -96,6 +106,20 @@ class CQLearner(Learner):
         best = max(self.q_local[next_cell] if next_row is None else next_row)
         for row in rows:
             q_update(row, a, reward + self.gamma * best, self.alpha)
+
+    def _fill_w1_alone(self):
+        """W1 of every (cell, action) holds what acting alone earns (cq_w1_alone): the world's reward for the
+        move with nobody else there, a share `slip` of them delayed (reward_step), so that a conflict present
+        from the first episodes on, as under delays, is a drop too, not the baseline it is measured from."""
+        st, nbr, goal = self.settings, self.map.neighbours, self.map.goals[self.agent]
+        delayed = round(st.window * st.slip)
+        for s in range(self.n_cells):
+            for a in range(N_MOVES):
+                to = nbr[s][a]
+                alone = st.reward_wall if to == s else st.reward_goal if to == goal else st.reward_step
+                w = self.windows[s * N_MOVES + a]
+                for k in range(st.window):
+                    w.add(st.reward_step if k < delayed else alone)
 
     @staticmethod
     def sample(reward, target):
@@ -136,15 +160,17 @@ class CQLearner(Learner):
         return made
 
     def _meet(self, s, peer_cells):
-        """The joint states of cell s met now, the most confident first (the first marked among equals)."""
+        """The joint states of cell s met now, the most confident first (the first marked among equals);
+        their confidence rises, the others' falls, unless the learner is frozen."""
         st = self.settings
         met = []
         for js in list(self.marked[s]):
             _, j, c = js
             if peer_cells[j] == c:
-                self.confidence[js] = min(st.conf_max, self.confidence[js] + st.conf_up)
                 met.append(js)
-            else:
+                if self.learning:
+                    self.confidence[js] = min(st.conf_max, self.confidence[js] + st.conf_up)
+            elif self.learning:
                 self.confidence[js] -= st.conf_down
                 if self.confidence[js] < st.conf_drop:
                     self._forget(js)

@@ -19,6 +19,8 @@ class IndependentQ(Learner):
         return self.a
 
     def learn(self, reward, next_cell, done):
+        if not self.learning:
+            return
         target = reward if done else reward + self.gamma * max(self.q_local[next_cell])
         q_update(self.q_local[self.s], self.a, target, self.alpha)
 

@@ -25,7 +25,9 @@ class JointStateQ(Learner):
         js = (self.s,) + tuple(peer_cells[j] for j in self.peers)
         row = self.q_joint.get(js)
         if row is None:
-            row = self.q_joint[js] = [0.0] * N_MOVES
+            row = [0.0] * N_MOVES
+            if self.learning:
+                self.q_joint[js] = row
         if self.pending is not None:
             prev, a, reward = self.pending
             q_update(prev, a, reward + self.gamma * max(row), self.alpha)
@@ -33,9 +35,12 @@ class JointStateQ(Learner):
         self.row = row
         self.a = epsilon_greedy(row, self.epsilon, self.rng)
         self.joint_plays += 1
+        self.heard += len(peer_cells)
         return self.a
 
     def learn(self, reward, next_cell, done):
+        if not self.learning:
+            return
         if done:
             q_update(self.row, self.a, reward, self.alpha)
         else:

@@ -28,7 +28,9 @@ class JointStateActionQ(Learner):
     def _row(self, js):
         row = self.q_joint.get(js)
         if row is None:
-            row = self.q_joint[js] = [0.0] * self.n_joint
+            row = [0.0] * self.n_joint
+            if self.learning:
+                self.q_joint[js] = row
         return row
 
     def observe(self, cells):
@@ -42,6 +44,8 @@ class JointStateActionQ(Learner):
         return self.a
 
     def learn(self, reward, next_cells, done):
+        if not self.learning:
+            return
         target = reward if done else reward + self.gamma * max(self._row(tuple(next_cells)))
         q_update(self.row, self.a, target, self.alpha)
 

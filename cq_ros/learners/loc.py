@@ -36,18 +36,23 @@ class LearningOfCoordination(Learner):
             self.move = self.choice
             return self.move
         self.joint_plays += 1
+        self.heard += len(peer_cells)
         near = tuple((j, c) for j, c in sorted(peer_cells.items()) if self.map.distance(self.s, c) <= self.range)
         if near:  # ActivePercept = TRUE
             self.x = (self.s, near)
             row = self.q_coord.get(self.x)
             if row is None:
-                row = self.q_coord[self.x] = self.q_local[self.s][:N_MOVES]
+                row = self.q_local[self.s][:N_MOVES]
+                if self.learning:
+                    self.q_coord[self.x] = row
             self.move = greedy(row, self.rng)
         else:
             self.move = greedy(self.q_local[self.s][:N_MOVES], self.rng)
         return self.move
 
     def learn(self, reward, next_cell, done):
+        if not self.learning:
+            return
         future = 0.0 if done else self.gamma * max(self.q_local[next_cell])
         if self.x is not None:
             q_update(self.q_coord[self.x], self.move, reward + future, self.alpha)

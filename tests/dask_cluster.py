@@ -1,0 +1,102 @@
+"""Test helper: a real Dask cluster, `dask scheduler` and `dask worker` processes, on 127.0.0.1 or on hosts made by
+`cq-ros hosts` (a command prefix `ip netns exec ...`). Each process is a process group of its own, killed on
+leaving the `with` block, even on failure; the scheduler also stops itself when idle and the workers when the
+scheduler is gone, should the test process itself be killed. Every wait is for a line a process writes, bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+DASK = str(Path(sys.executable).with_name("dask"))
+START_S = 120.0  # for a process to be up: 3-8 s each on 2 cores shared with other sessions
+REGISTERED = "Registered to:"  # a worker's log line once the scheduler has it
+
+
+class DaskCluster:
+    def __init__(self, folder: Path, host: str = "127.0.0.1", on: list[str] | None = None):
+        self.folder, self.host, self.on = Path(folder), host, list(on or [])
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.processes: list[subprocess.Popen] = []
+        self.address = ""
+
+    def __enter__(self) -> DaskCluster:
+        try:
+            self._start_scheduler()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _spawn(self, name: str, command: list[str], env: dict | None = None) -> subprocess.Popen:
+        log = open(self.folder / f"{name}.log", "w")
+        process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                   start_new_session=True, cwd=self.folder, env={**os.environ, **(env or {})})
+        log.close()
+        self.processes.append(process)
+        return process
+
+    def _start_scheduler(self) -> None:
+        file = self.folder / "scheduler.json"
+        process = self._spawn("scheduler", [*self.on, DASK, "scheduler", "--host", self.host, "--port", "0",
+                                            "--no-dashboard", "--scheduler-file", str(file), "--idle-timeout", "600"])
+        deadline = time.monotonic() + START_S
+        while True:  # the file appears once the scheduler listens; it may be read while still being written
+            try:
+                self.address = json.loads(file.read_text())["address"]
+                return
+            except (FileNotFoundError, ValueError, KeyError):
+                pass
+            if process.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"no Dask scheduler: {self.log('scheduler')[-2000:]}")
+            time.sleep(0.05)
+
+    def add_worker(self, *options: str, on: list[str] | None = None, wait: bool = True) -> subprocess.Popen:
+        """A worker of one thread (as docs/cluster.md says to start them), with no nanny, so that killing it is
+        losing it; returned once it has registered (unless not `wait`)."""
+        name = f"worker{len(self.processes)}"
+        process = self._spawn(name, [*(self.on if on is None else on), DASK, "worker", self.address,
+                                     "--nthreads", "1", "--no-nanny", "--no-dashboard", "--death-timeout", "60",
+                                     "--local-directory", str(self.folder / name), *options])
+        process.log_name = name
+        if wait:
+            self.wait_for_line(process, REGISTERED)
+        return process
+
+    def worker_address(self, worker: subprocess.Popen) -> str:
+        return re.search(r"Start worker at:\s+(\S+)", self.log(worker.log_name)).group(1)
+
+    def log(self, name: str) -> str:
+        try:
+            return (self.folder / f"{name}.log").read_text(errors="replace")
+        except FileNotFoundError:
+            return ""
+
+    def wait_for_line(self, process: subprocess.Popen, text: str, name: str | None = None) -> None:
+        name = name or process.log_name
+        deadline = time.monotonic() + START_S
+        while text not in self.log(name):
+            if process.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"{name} never logged {text!r}: {self.log(name)[-2000:]}")
+            time.sleep(0.05)
+
+    def kill(self, process: subprocess.Popen) -> None:
+        try:
+            os.killpg(process.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        process.wait(timeout=30)
+
+    def close(self) -> None:
+        for process in reversed(self.processes):
+            self.kill(process)
