@@ -556,8 +556,9 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
     kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
              m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
     final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
+    # where the run ran: its nodes (each named with its command under `nodes`), as experiment's manifest says it
     manifest = manifest_for(
-        gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
+        gridmap, [algo], 1, episodes, seed, settings, wall, {"where": "ros nodes"}, **run_info,
         nodes=nodes,
         communication={name: {"subscriptions_created": s.subscriptions_created,
                               "subscriptions_active": s.subscriptions_active,
