@@ -126,6 +126,8 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--key", type=Path, default=None, metavar="FILE",
                    help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
                         "(default: a key of the launch's own, removed at its end)")
+    p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
+                   help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`)")
     p.add_argument("--episodes", type=_positive, default=None, help="episodes (default 500)")
     p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
@@ -156,6 +158,15 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
                    help="seconds to look for the system before giving up (default 60)")
     p.add_argument("--force", action="store_true", help="overwrite an existing result directory")
+    _add_domain_option(p)
+
+    p = sub.add_parser("view", help="a live view in Foxglove: a Foxglove WebSocket server relaying a running "
+                                    "system's topics with their ROS 2 schemas, until Ctrl-C (extra `view`)")
+    p.add_argument("--namespace", default=None, help="the system's namespace (default: the one system on the domain)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--port", type=_number(0, 65535, kind=int), default=8765, help="port (default 8765; 0: any free)")
+    p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
+                   help="seconds to look for the system before giving up (default 60)")
     _add_domain_option(p)
 
     p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
@@ -317,6 +328,9 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
         return _dispatch(args)
+    except BrokenPipeError:  # the reader left (`cq-ros maps | head`): nothing to tell it; no traceback at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
     except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run
@@ -329,6 +343,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _dispatch(args) -> int:
+    from . import ros_commands  # imports no ROS until one of its commands runs
     if args.command == "maps":
         names = available_maps()
         width = max(len(name) for name in names)
@@ -361,21 +376,11 @@ def _dispatch(args) -> int:
 
         return run(args)
     if args.command in ("echo", "topics", "nodes", "record"):
-        return _ros_tool(args)
+        return ros_commands.ros_tool(args)
     if args.command == "render":
         return _render(args)
-    if args.command == "launch":
-        return _launch(args)
-    if args.command == "hosts":
-        return _hosts(args)
-    if args.command == "collect":
-        return _collect(args)
-    if args.command == "key":
-        from ros_tools.system_file import make_key
-
-        print(f"wrote {make_key(args.out)} (readable by you only): name it as key_file in a params file, or "
-              "cq-ros launch --key FILE")
-        return 0
+    if args.command in ("launch", "hosts", "collect", "key", "view"):
+        return getattr(ros_commands, args.command)(args)
     if args.command == "experiment":
         from .experiment import experiment
 
@@ -455,111 +460,6 @@ def _write_map(text: str, out: Path | None, force: bool) -> None:
     print(f"wrote {out}", file=sys.stderr)
 
 
-# The ROS commands import rclpy (through ros_tools) only when they run: the rest of cq_ros
-# works without it.
-
-
-def _hosts(args) -> int:
-    from ros_tools.hosts import HostsError, existing_prefixes, hosts_down, hosts_up
-
-    try:
-        if args.action == "up":
-            print(hosts_up(args.agents, args.prefix).describe())
-        elif args.action == "down":
-            if args.prefix is None:
-                raise HostsError("down needs --prefix (`cq-ros hosts list` shows the sets)")
-            gone = hosts_down(args.prefix)
-            print(f"removed {', '.join(gone)}" if gone else f"no hosts {args.prefix}: nothing to remove")
-        else:
-            for prefix, names in existing_prefixes().items():
-                print(f"{prefix}: {', '.join(names)}")
-    except HostsError as e:
-        print(f"cq-ros hosts: error: {e}", file=sys.stderr)
-        return 2
-    return 0
-
-
-def _launch(args) -> int:
-    from ros_tools.hosts import HostsError, check_can_make_hosts, find_hosts
-    from ros_tools.launch import Interrupted, LaunchError, check_hosts, launch, split_sets
-
-    _system_arguments(args)
-    # Settings fields (over the map's defaults) and node parameters alike
-    settings, node_parameters = split_sets(args.overrides, load_map(args.map))
-    node_parameters = {**node_parameters, **args.node_parameters}
-    hosts = None
-    if args.hosts is not None:
-        try:
-            check_can_make_hosts()
-            hosts = find_hosts(args.hosts)
-        except HostsError as e:
-            raise ValueError(e) from None
-        check_hosts(hosts, load_map(args.map), args.algo, args.discovery)
-        if hosts.current_host() != "world":  # the launcher listens on the world's host: run there
-            sys.stdout.flush()
-            os.execvp("ip", [*hosts.exec_on("world"), sys.executable, "-m", "cq_ros.cli", *args.argv])
-    try:
-        result = launch(args.map, args.algo, args.episodes, args.seed, args.out, settings,
-                        domain_id=args.domain_id, namespace=args.namespace, step_timeout=args.step_timeout,
-                        peer_linger_steps=args.peer_linger_steps, compose=args.compose,
-                        executor=args.executor, node_parameters=node_parameters, force=args.force,
-                        figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key)
-    except Interrupted as e:
-        print(f"cq-ros launch: {e}", file=sys.stderr)
-        return 130
-    except LaunchError as e:
-        print(f"cq-ros launch: error: {e}", file=sys.stderr)
-        return 1
-    _print_summary(result.out)
-    for node, cost in result.manifest["communication"].items():
-        print(f"{node}: {cost['peer_messages']} peer position messages, "
-              f"{cost['subscriptions_created']} subscriptions created")
-    print(f"results: {result.out}")
-    return 0
-
-
-def _collect(args) -> int:
-    from ros_tools.collect import collect
-    from ros_tools.launch import Interrupted, LaunchError
-
-    try:
-        out = collect(args.out, domain_id=args.domain_id, namespace=args.namespace, force=args.force,
-                      wait_s=args.wait)
-    except Interrupted as e:
-        print(f"cq-ros collect: {e}", file=sys.stderr)
-        return 130
-    except LaunchError as e:
-        print(f"cq-ros collect: error: {e}", file=sys.stderr)
-        return 1
-    _print_summary(out)
-    print(f"results: {out}")
-    return 0
-
-
-def _system_arguments(args) -> None:
-    """A launch's map, algorithm, episodes, seed, settings, node parameters and key: from its options, or from
-    the system file --params-file names (ros_tools.system_file), which then excludes those options."""
-    args.node_parameters = {}
-    if args.params_file is None:
-        if args.map is None or args.algo is None:
-            raise ValueError("--map and --algo are required (or --params-file FILE, a system as a launch writes it)")
-        args.episodes = 500 if args.episodes is None else args.episodes
-        args.seed = 0 if args.seed is None else args.seed
-        return
-    from ros_tools.system_file import read_system
-
-    given = [f"--{name}" for name in ("map", "algo", "episodes", "seed", "key") if getattr(args, name) is not None]
-    if args.overrides:
-        given.append("--set")
-    if given:
-        raise ValueError(f"--params-file gives the system: drop {', '.join(given)} (or edit the file)")
-    system = read_system(args.params_file)
-    args.map, args.algo, args.episodes, args.seed, args.key = (system.map, system.algo, system.episodes,
-                                                               system.seed, system.key_file)
-    args.overrides = [f"{k}={v}" for k, v in system.settings.items()]
-    args.node_parameters = system.node_parameters
-
-
 def _render(args) -> int:
     from .render import DPI, check_output, cut_by_bag, engine_frames, frames_from, lattice, write_animation
 
@@ -621,25 +521,6 @@ def _every_30_s(line: str):
 
 def _note(line: str) -> None:
     print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
-
-
-def _ros_tool(args) -> int:
-    from ros_tools import commands as tools
-
-    try:
-        if args.command == "echo":
-            tools.echo(args.topic, count=args.count, timeout_s=args.timeout, domain_id=args.domain_id)
-        elif args.command == "topics":
-            tools.topics(show_types=args.show_types, wait_s=args.wait, domain_id=args.domain_id)
-        elif args.command == "nodes":
-            tools.nodes(all_nodes=args.all_nodes, wait_s=args.wait, domain_id=args.domain_id)
-        else:
-            tools.record(args.out, topics=args.topics, duration_s=args.duration, count=args.count,
-                         storage=args.storage, domain_id=args.domain_id)
-    except tools.ToolError as e:
-        print(f"cq-ros {args.command}: error: {e}", file=sys.stderr)
-        return 1
-    return 0
 
 
 if __name__ == "__main__":

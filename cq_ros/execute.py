@@ -137,14 +137,7 @@ def stall_risk(deps: Dependencies) -> list[int]:
                     # met when that AGV enters its next cell, on the stretch that holds that move; a visit
                     # that never leaves (none in a plan the world carries out) holds the stretch for ever
                     waits_on[(i, k)].add(stretch_of.get((dep[0], dep[1] + 1), (i, k)))
-    # Take away the stretches whose waits are all taken away; those left wait in a cycle.
-    left = dict(waits_on)
-    while True:
-        free = [g for g, on in left.items() if not on & left.keys()]
-        if not free:
-            return sorted({i for i, _ in left})
-        for g in free:
-            del left[g]
+    return sorted({i for i, _ in _waiting_in_cycles(waits_on)})
 
 
 def _arrives(routes, goals, visit: tuple[int, int]) -> bool:
@@ -300,9 +293,9 @@ class _AdgRule:
 
 
 
-def _waiting_in_cycles(waits_on: dict[int, set[int]]) -> set[int]:
-    """The AGVs that wait, directly or not, on AGVs waiting in a cycle: none of them will move again by
-    itself (an AGV needs all it waits on to move)."""
+def _waiting_in_cycles(waits_on: dict) -> set:
+    """Those of `waits_on` (what waits -> what it waits on) that wait, directly or not, on a cycle of waits:
+    none of them will move by itself (each needs all it waits on to move first)."""
     stalled = set(waits_on)
     while True:
         free = {i for i in stalled if not waits_on[i] & stalled}

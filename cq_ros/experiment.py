@@ -107,7 +107,9 @@ def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifes
 
 
 def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, settings: Settings,
-                 wall_time: float, executed_on: dict, **extra) -> dict:
+                 wall_time: float, executed_on: dict | None = None, **extra) -> dict:
+    """The manifest of a result folder; `executed_on` says where the runs ran (cq_ros.runner), where they
+    ran elsewhere than in this process's own engine (a launch's nodes say so in their own entries)."""
     return {
         "map": gridmap.name,
         "map_source": str(Path(gridmap.source).resolve()) if Path(gridmap.source).is_file() else gridmap.source,
@@ -126,7 +128,7 @@ def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, s
         "command": sys.argv,
         "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "wall_time_s": round(wall_time, 2),
-        "executed_on": executed_on,
+        **({"executed_on": executed_on} if executed_on is not None else {}),
         **extra,
     }
 

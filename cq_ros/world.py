@@ -14,7 +14,7 @@ the list-based step the offline engine and the world node call. Rules (DESIGN.md
   learners independent of each other's progress, so that is what we do. JSA learns from the sum.
 - The episode ends when every agent is at its goal, or is truncated after `step_cap` steps.
 
-Delays (README, "Delays"; deterministic unless a setting asks): real AGVs are held up by a slow pick, a
+Delays (docs/warehouses.md, "Delays"; deterministic unless a setting asks): real AGVs are held up by a slow pick, a
 person in the aisle, a wheel slipping. A delayed AGV's move fails: it stays in its cell, as an AGV parked
 there, and gets `reward_step` (it lost a step; it bumped nothing). Anyone moving into its cell collides with
 it, and both get the collision penalty, as every collision is paid by both. Two kinds, both drawn from the

@@ -6,16 +6,18 @@ tests/test_docs.py fails when a block and its data disagree, so a figure cannot 
     python docs/figures.py            list every block, and whether it matches its data (exit 1 if not)
     python docs/figures.py --write    rewrite the blocks that do not
 
-Data: docs/reproduce/REPORT.md (what `cq-ros reproduce` wrote) and docs/data/<figure>/ (the files a command
-wrote, with the command in docs/data/<figure>/README.md).
+Data: docs/reproduce/REPORT.md (what `cq-ros reproduce` wrote) and docs/data/<figure>/<row>/, the files the
+commands of benchmarks/docs_data.py wrote (`python benchmarks/docs_data.py FIGURE` measures them again).
 """
 
 from __future__ import annotations
 
 import csv
+import gzip
 import json
 import re
 import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -77,6 +79,56 @@ def who_listens() -> str:
     return "\n".join(lines) + "\n"
 
 
+def _short(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def _span(values: list[float]) -> str:
+    low, high = _short(min(values)), _short(max(values))
+    return low if low == high else f"{low}-{high}"
+
+
+def warehouses() -> str:
+    """CQ against independent learners on the shipped warehouses: a row per algorithm of each folder of
+    docs/data/warehouses/, each what `cq-ros experiment` wrote there (manifest.json, greedy.csv and
+    episodes.csv.gz, its episodes.csv compressed) and plan.txt, what `cq-ros plan` printed for its map."""
+    from cq_ros.summary import compute_metrics, load_episodes
+
+    lines = ["| map | algo | runs x episodes | greedy: every AGV home, no collision, no truncation "
+             "| greedy steps/episode, per run (planner's makespan) | collisions/ep in the last 10% "
+             "| collision-free from episode |", "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    commands = []
+    for folder in sorted(p for p in (DATA / "warehouses").iterdir() if p.is_dir()):
+        manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
+        makespan = re.search(r"^makespan (\d+)", (folder / "plan.txt").read_text(encoding="utf-8"), flags=re.M)[1]
+        label = manifest["map"] + (f", seed {manifest['seed']}" if manifest["seed"] else "")
+        with tempfile.TemporaryDirectory() as scratch:
+            episodes = Path(scratch) / "episodes.csv"
+            episodes.write_bytes(gzip.decompress((folder / "episodes.csv.gz").read_bytes()))
+            metrics = {m.algo: m for m in compute_metrics(load_episodes(episodes))}
+        greedy = _rows(folder / "greedy.csv")
+        for algo in manifest["algos"]:
+            runs = [r for r in greedy if r["algo"] == algo]
+            home = [r for r in runs if float(r["truncated"]) == 0]
+            colliding = [float(r["collisions"]) for r in home if float(r["collisions"]) > 0]
+            ok = f"{len(home) - len(colliding)} of {len(runs)} runs"
+            if len(home) < len(runs) or colliding:
+                ok += f" (all home, no truncation in {len(home)}"
+                ok += f"; {_span(colliding)} collisions per greedy episode in {len(colliding)})" if colliding else ")"
+            m = metrics[algo]
+            settled = "never" if m.settled_episode is None else str(m.settled_episode)
+            lines.append(f"| {label} | {algo} | {m.runs} x {m.episodes} | {ok} "
+                         f"| {_span([float(r['steps']) for r in runs])} ({makespan}) "
+                         f"| {_short(m.collisions_tail)} ± {_short(m.collisions_tail_std)} | {settled} |")
+        commands.append("cq-ros " + " ".join(manifest["command"][1:]).split(" --out ")[0])
+    lines.append("")
+    lines.append("Made by " + ", ".join(f"`{c}`" for c in commands) + "; the planner's makespan by `cq-ros plan "
+                 "--map MAP`. Collisions per episode over the last 10% of learning episodes as mean ± s.d. over runs; "
+                 "collision-free from = the first episode from which the 100-episode trailing mean of the run-mean "
+                 "collisions stays below 0.05.")
+    return "\n".join(lines) + "\n"
+
+
 def delays() -> str:
     """What benchmarks/bench_delays.py printed, a table per file of docs/data/delays/ (its first line the
     machine and the run's settings, its next the planner's figures, then the run's time and the table)."""
@@ -91,7 +143,8 @@ def delays() -> str:
     return "\n".join(out)
 
 
-FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens, "delays": delays}
+FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens,
+                                         "warehouses": warehouses, "delays": delays}
 
 
 def blocks(page: str) -> list[tuple[str, str, str]]:
@@ -122,7 +175,12 @@ def main(argv: list[str]) -> int:
     stale = 0
     for path in pages():
         text = path.read_text(encoding="utf-8")
-        for name, held, made in blocks(text):
+        try:
+            found = blocks(text)
+        except (OSError, ValueError, KeyError) as exc:  # a data file missing or not what its command writes
+            print(f"docs/figures.py: {path.relative_to(DOCS.parent)}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return 1
+        for name, held, made in found:
             ok = held == made
             stale += not ok
             print(f"{path.relative_to(DOCS.parent)}: {name}: {'matches its data' if ok else 'STALE'}")

@@ -81,7 +81,7 @@ from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import world_config
 
-from .commands import StopSignals, environment, ros_session, spin_until
+from .commands import StopSignals, ToolError, environment, ros_session, spin_until
 from .hosts import Hosts
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
@@ -412,7 +412,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
            discovery: str = "subnet", key_file: str | os.PathLike | None = None,
-           start_from: str | os.PathLike | None = None) -> LaunchResult:
+           view_port: int | None = None, start_from: str | os.PathLike | None = None) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -423,7 +423,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     Every launch writes the system it ran to DIR/params.yaml (ros_tools.system_file). `key_file` (made by `cq-ros
     key`) keys the run and is named there and kept; without it the launch makes a key of its own and removes
-    it at the end.
+    it at the end. `view_port`: also serve the run to Foxglove there (ros_tools.view, the extra `view`).
 
     `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
     ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
@@ -488,6 +488,15 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
             hidden=False) as (node, executor):
         listener = StatsListener(node, gridmap, episodes + settings.eval_episodes)
+        server = None
+        if view_port is not None:  # a live view in Foxglove (ros_tools.view), relayed by the listener's node
+            from .view import serve
+
+            try:
+                server, _ = serve(node, f"/{namespace}", port=view_port, n_agents=gridmap.n_agents)
+            except ToolError as e:
+                raise LaunchError(str(e)) from None
+            tqdm.write(f"cq-ros launch: Foxglove view on ws://127.0.0.1:{server.port}", file=sys.stderr)
         bar = Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
         try:
             for child in children:
@@ -510,6 +519,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             _stop(children)
             if not kept_key:
                 key_file.unlink(missing_ok=True)
+            if server is not None:
+                server.stop()
             bar.close()
 
     on_hosts = {} if hosts is None else {"hosts": {"prefix": hosts.prefix, "discovery": discovery,
@@ -556,9 +567,8 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
     kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
              m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
     final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
-    # where the run ran: its nodes (each named with its command under `nodes`), as experiment's manifest says it
     manifest = manifest_for(
-        gridmap, [algo], 1, episodes, seed, settings, wall, {"where": "ros nodes"}, **run_info,
+        gridmap, [algo], 1, episodes, seed, settings, wall, **run_info,
         nodes=nodes,
         communication={name: {"subscriptions_created": s.subscriptions_created,
                               "subscriptions_active": s.subscriptions_active,

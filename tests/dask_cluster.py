@@ -43,6 +43,7 @@ class DaskCluster:
         process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                    start_new_session=True, cwd=self.folder, env={**os.environ, **(env or {})})
         log.close()
+        process.log_name = name
         self.processes.append(process)
         return process
 
@@ -50,6 +51,7 @@ class DaskCluster:
         file = self.folder / "scheduler.json"
         process = self._spawn("scheduler", [*self.on, DASK, "scheduler", "--host", self.host, "--port", "0",
                                             "--no-dashboard", "--scheduler-file", str(file), "--idle-timeout", "600"])
+        self.scheduler = process
         deadline = time.monotonic() + START_S
         while True:  # the file appears once the scheduler listens; it may be read while still being written
             try:
@@ -68,7 +70,6 @@ class DaskCluster:
         process = self._spawn(name, [*(self.on if on is None else on), DASK, "worker", self.address,
                                      "--nthreads", "1", "--no-nanny", "--no-dashboard", "--death-timeout", "60",
                                      "--local-directory", str(self.folder / name), *options])
-        process.log_name = name
         if wait:
             self.wait_for_line(process, REGISTERED)
         return process
@@ -82,13 +83,19 @@ class DaskCluster:
         except FileNotFoundError:
             return ""
 
-    def wait_for_line(self, process: subprocess.Popen, text: str, name: str | None = None) -> None:
-        name = name or process.log_name
+    def wait_for_line(self, process: subprocess.Popen, text: str) -> None:
+        name = process.log_name
         deadline = time.monotonic() + START_S
         while text not in self.log(name):
             if process.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"{name} never logged {text!r}: {self.log(name)[-2000:]}")
             time.sleep(0.05)
+
+    def remove(self, worker: subprocess.Popen) -> None:
+        """Kill a worker and return once the scheduler has let it go."""
+        address = self.worker_address(worker)
+        self.kill(worker)
+        self.wait_for_line(self.scheduler, f"Remove worker addr: {address}")
 
     def kill(self, process: subprocess.Popen) -> None:
         try:

@@ -1,8 +1,9 @@
 """The pages' figures are their data's: every block that docs/figures.py generates holds exactly what its data
 give (the reproduction's findings and table in docs/choices.md, from docs/reproduce/REPORT.md, which
-`cq-ros reproduce` computes from the results; who listens to whom in docs/ros.md, from launches under
-docs/data/). A figure written by hand would age as the code changes; `python docs/figures.py --write`
-rewrites the blocks after new data.
+`cq-ros reproduce` computes from the results; who listens to whom in docs/ros.md, the warehouse results and
+the learners under delays in docs/warehouses.md, from launches, experiments and benchmarks under docs/data/).
+A figure written by hand would age as the code changes; `python docs/figures.py --write` rewrites the blocks
+after new data.
 
 The README's Python examples run as written: a newcomer copies them first. The map format page that the
 shipped maps' headers point to ships beside them, and its example is a map the loader reads.
@@ -35,7 +36,8 @@ def test_every_generated_block_holds_what_its_data_give(page):
 
 def test_the_figures_stand_where_the_pages_say():
     found = {name: page.name for page in figures.pages() for name, _, _ in figures.blocks(page.read_text())}
-    assert found == {"reproduce": "choices.md", "who-listens": "ros.md"}
+    assert found == {"reproduce": "choices.md", "who-listens": "ros.md", "warehouses": "warehouses.md",
+                     "delays": "warehouses.md"}
 
 
 def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():

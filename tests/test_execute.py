@@ -269,6 +269,8 @@ def test_plan_command_prints_the_executions(tmp_path, capsys):
     path.write_text("set slip=0.3\n" + ENTRANCE)
     assert main(["plan", "--map", str(path), "--executions", "2", "--set", "start_hold=1"]) == 0
     assert "with slip 0.3, start_hold 1:" in capsys.readouterr().out
+    assert main(["plan", "--map", str(path), "--executions", "2", "--stop-anywhere"]) == 0
+    assert "and an AGV may wait where no wall is (sending no action)" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("args, phrase", [

@@ -1,0 +1,157 @@
+"""`cq-ros view` (ros_tools.view): a Foxglove WebSocket server relaying a system's topics. A client of the test's
+own speaking the Foxglove WebSocket protocol (the `websockets` package) finds the map's OccupancyGrid and the
+MarkerArray advertised with their ros2msg schemas, and decodes what it receives back into ROS messages; the
+latched map, published once before the client came, is sent again when it subscribes."""
+
+from __future__ import annotations
+
+import json
+import selectors
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+import uuid
+
+import pytest
+import rclpy
+
+pytest.importorskip("foxglove", reason="the `view` extra (make test installs it)")
+from websockets.sync.client import connect  # noqa: E402
+
+from nav_msgs.msg import OccupancyGrid  # noqa: E402
+from rclpy.serialization import deserialize_message  # noqa: E402
+from visualization_msgs.msg import MarkerArray  # noqa: E402
+
+from cq_ros.gridmap import load_map  # noqa: E402
+from cq_ros.render import lattice  # noqa: E402
+from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene  # noqa: E402
+
+START_S = 90.0  # bound on the view process starting and finding the system on 2 busy cores
+RECV_S = 30.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for_line(process: subprocess.Popen, phrase: str, timeout_s: float) -> str:
+    """The first stderr line of `process` holding `phrase` (bounded by timeout_s)."""
+    selector = selectors.DefaultSelector()
+    selector.register(process.stderr, selectors.EVENT_READ)
+    deadline, seen = time.monotonic() + timeout_s, []
+    while time.monotonic() < deadline:
+        if selector.select(timeout=0.5):
+            line = process.stderr.readline()
+            seen.append(line)
+            if phrase in line:
+                return line
+            if not line and process.poll() is not None:
+                break
+    raise AssertionError(f"no {phrase!r} from cq-ros view: {''.join(seen)}")
+
+
+def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S) -> dict[str, object]:
+    """Connect to the Foxglove server at `port` as a Foxglove client does, subscribe to the `wanted` topics (topic ->
+    ROS type) once advertised, each with its ros2msg schema and cdr encoding, and return the first message of
+    each, deserialized (each wait bounded by timeout_s)."""
+    with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+                 open_timeout=timeout_s) as ws:
+        channels: dict[int, dict] = {}
+        deadline = time.monotonic() + timeout_s
+        while {c["topic"] for c in channels.values()} < set(wanted):
+            assert time.monotonic() < deadline, f"advertised only {channels}"
+            frame = ws.recv(timeout=timeout_s)
+            if isinstance(frame, str) and json.loads(frame)["op"] == "advertise":
+                channels.update({c["id"]: c for c in json.loads(frame)["channels"]})
+        ours = {cid: c for cid, c in channels.items() if c["topic"] in wanted}
+        for c in ours.values():
+            assert c["encoding"] == "cdr" and c["schemaEncoding"] == "ros2msg"
+            assert c["schemaName"] == {OccupancyGrid: "nav_msgs/msg/OccupancyGrid",
+                                       MarkerArray: "visualization_msgs/msg/MarkerArray"}[wanted[c["topic"]]]
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": cid}
+                                                                for i, cid in enumerate(ours)]}))
+        topic_of = {i: ours[cid]["topic"] for i, cid in enumerate(ours)}
+        got: dict[str, object] = {}
+        while set(got) < set(wanted):
+            assert time.monotonic() < deadline + timeout_s, f"received only {list(got)}"
+            frame = ws.recv(timeout=timeout_s)
+            if isinstance(frame, bytes) and frame[0] == 0x01:  # message data: subscription id, log time, payload
+                subscription, _log_time = struct.unpack_from("<IQ", frame, 1)
+                topic = topic_of[subscription]
+                got[topic] = deserialize_message(frame[13:], wanted[topic])
+    return got
+
+
+def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, ros_domain_id):
+    from rclpy.executors import SingleThreadedExecutor
+
+    gridmap = load_map("grid_game_2")
+    ns = f"view_{uuid.uuid4().hex[:6]}"
+    world = rclpy.create_node("world", namespace=ns, context=ros_context)  # the system's world, as the relay finds it
+    map_pub = world.create_publisher(MAP.msg_type, MAP_TOPIC, MAP.qos)
+    map_pub.publish(MAP.encode(Occupancy(lattice(gridmap)), stamp=world.get_clock().now().to_msg()))
+    scene_pub = world.create_publisher(SCENE.msg_type, SCENE_TOPIC, SCENE.qos)
+    goals = tuple(gridmap.cells[g] for g in gridmap.goals)
+    starts = tuple(gridmap.cells[s] for s in gridmap.starts)
+    world.create_timer(0.2, lambda: scene_pub.publish(SCENE.encode(Scene(0, 0, starts, goals),
+                                                                   stamp=world.get_clock().now().to_msg())))
+    agent = rclpy.create_node("agv1", namespace=ns, context=ros_context)  # a system is a world and its agents
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(world)
+    stopping = threading.Event()
+
+    def spin() -> None:
+        while not stopping.is_set():
+            executor.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin)
+    spinner.start()
+
+    port = free_port()
+    viewer = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "view", "--domain-id", str(ros_domain_id),
+                               "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert f"relaying /{ns} on ws://127.0.0.1:{port}" in wait_for_line(viewer, "relaying", START_S)
+        # The map was published once, long before the client: it comes only if the relay sends it again.
+        got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray})
+        grid = got[f"/{ns}/world/map"]
+        assert MAP.decode(grid).lattice == lattice(gridmap)
+        markers = got[f"/{ns}/world/markers"]
+        assert SCENE.decode(markers) == Scene(0, 0, starts, goals)
+        viewer.send_signal(signal.SIGINT)
+        assert viewer.wait(timeout=30) == 0
+    finally:
+        if viewer.poll() is None:
+            viewer.kill()
+        viewer.communicate(timeout=30)
+        stopping.set()
+        spinner.join(timeout=10)
+        executor.shutdown()
+        world.destroy_node()
+        agent.destroy_node()
+
+
+def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
+    ns, port = f"lview_{uuid.uuid4().hex[:6]}", free_port()
+    launch = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "launch", "--map", "tunnel_to_goal", "--algo", "cq",
+                               "--episodes", "100000", "--compose", "--namespace", ns, "--view", str(port),
+                               "--no-figures", "--out", str(tmp_path / "r")], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        assert f"ws://127.0.0.1:{port}" in wait_for_line(launch, "Foxglove view on", START_S)
+        # The client comes before the nodes have started (their processes take seconds on 2 busy cores).
+        got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray}, START_S)
+        assert MAP.decode(got[f"/{ns}/world/map"]).lattice == lattice(load_map("tunnel_to_goal"))
+        assert len(SCENE.decode(got[f"/{ns}/world/markers"]).cells) == 2
+        launch.send_signal(signal.SIGINT)
+        assert launch.wait(timeout=60) == 130
+    finally:
+        if launch.poll() is None:
+            launch.kill()
+        launch.communicate(timeout=30)
