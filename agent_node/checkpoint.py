@@ -20,7 +20,7 @@ from cq_ros.gridmap import GridMap
 from cq_ros.learners import Learner
 from cq_ros.settings import SettingsError
 
-__all__ = ["save_checkpoint", "load_checkpoint", "remove_stale_temporaries"]
+__all__ = ["save_checkpoint", "save_checkpoints", "load_checkpoint", "remove_stale_temporaries"]
 
 _CHECKPOINT_FORMAT = 1
 
@@ -46,6 +46,13 @@ def save_checkpoint(path: str | os.PathLike, learner: Learner, episode: int) -> 
     except BaseException:
         os.unlink(tmp)
         raise
+
+
+def save_checkpoints(folder: str | os.PathLike, names: list[str], learners: list[Learner], episode: int) -> None:
+    """A checkpoint per learner, `<name>.pkl` in `folder`: learners trained elsewhere (an offline run) for nodes
+    of these names to start from (`ros_tools.launch.launch(start_from=folder)`)."""
+    for name, learner in zip(names, learners, strict=True):
+        save_checkpoint(os.path.join(folder, f"{name}.pkl"), learner, episode)
 
 
 def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:

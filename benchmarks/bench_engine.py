@@ -1,8 +1,10 @@
 """Offline engine speed: joint steps per second of every algorithm on tunnel_to_goal and tunnel_to_goal_3
-(one core, one run each, learning only: no greedy evaluation), CQ's ratio to independent learners, and optionally the wall time of the whole
-reproduce grid on all cores.
+(one core, one run each, learning only: no greedy evaluation), CQ's ratio to independent learners; the CPU
+cost per agent-step (a joint step's CPU time over the fleet) of indep and CQ on warehouse_8, _16 and _32 with
+the maps' own settings, and its ratio of warehouse_32 to warehouse_8 (1.0 for a step linear in the fleet);
+optionally the wall time of the whole reproduce grid on all cores.
 
-    python benchmarks/bench_engine.py [--episodes 3000] [--grid] [--grid-episodes 10000]
+    python benchmarks/bench_engine.py [--episodes 3000] [--warehouse-episodes 30] [--grid] [--grid-episodes 10000]
 """
 
 from __future__ import annotations
@@ -17,7 +19,9 @@ from pathlib import Path
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.learners import ALGORITHMS
-from cq_ros.settings import Settings
+from cq_ros.settings import Settings, run_settings
+
+WAREHOUSES = ("warehouse_8", "warehouse_16", "warehouse_32")
 
 
 def steps_per_second(algo: str, map_name: str, episodes: int, seed: int = 0) -> tuple[float, int]:
@@ -29,21 +33,44 @@ def steps_per_second(algo: str, map_name: str, episodes: int, seed: int = 0) -> 
     return steps / seconds, steps
 
 
+def cpu_per_agent_step(algo: str, map_name: str, episodes: int, seed: int = 0) -> tuple[float, int]:
+    """Microseconds of this process's CPU per agent-step (CPU time, not wall: other sessions' load on the
+    machine moves it less), and the joint steps played."""
+    gridmap = load_map(map_name)
+    started = time.process_time()
+    table = run(algo, gridmap, run_settings(gridmap, {"eval_episodes": 0}), seed, 0, episodes).episodes
+    seconds = time.process_time() - started
+    steps = int(table[:, 0].sum())
+    return seconds / (steps * gridmap.n_agents) * 1e6, steps
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=3000)
+    parser.add_argument("--warehouse-episodes", type=int, default=30)
     parser.add_argument("--grid", action="store_true", help="also time the full reproduce grid (minutes)")
     parser.add_argument("--grid-runs", type=int, default=10)
     parser.add_argument("--grid-episodes", type=int, default=10_000)
     args = parser.parse_args()
 
-    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+          f"load average {os.getloadavg()[0]:.2f}")
     for map_name in ("tunnel_to_goal", "tunnel_to_goal_3"):
         rates = {}
         for algo in ALGORITHMS:
             rates[algo], steps = steps_per_second(algo, map_name, args.episodes)
             print(f"{map_name:<17} {algo:<6} {rates[algo]:>10,.0f} joint steps/s  ({steps:,} steps, {args.episodes} episodes)")
         print(f"{map_name:<17} cq/indep speed ratio: {rates['cq'] / rates['indep']:.2f}")
+
+    for algo in ("indep", "cq"):
+        cost = {}
+        for map_name in WAREHOUSES:
+            cost[map_name], steps = cpu_per_agent_step(algo, map_name, args.warehouse_episodes)
+            print(f"{map_name:<17} {algo:<6} {cost[map_name]:>10.2f} us CPU per agent-step  "
+                  f"({steps:,} joint steps, {args.warehouse_episodes} episodes)", flush=True)
+        print(f"warehouse_32 / warehouse_8 {algo:<6} cost per agent-step: "
+              f"{cost['warehouse_32'] / cost['warehouse_8']:.2f}x")
+    print(f"load average {os.getloadavg()[0]:.2f}")
 
     if args.grid:
         from cq_ros.reproduce import reproduce

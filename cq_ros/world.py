@@ -55,26 +55,53 @@ def resolve_moves(cells: list[int], targets: list[int], goals: tuple[int, ...]) 
     """Where every agent ends, and the colliding pairs (i, j), i < j.
 
     `targets` is where each agent would go (its own cell if it stays). Agents in a colliding pair go
-    back to their cells; since no two agents ever share a cell other than a goal of both, going back
-    cannot create a new conflict among those who stayed, so the loop ends.
+    back to their cells, all of a round's at once, and the rules are checked again, until no colliding
+    agent is left away from its cell. Going back can only make a new same-cell clash in the cell gone
+    back to (a swap needs both agents to move), so each round looks only there: every agent goes back at
+    most once and a step costs time linear in the agents (plus the pairs found), where checking every
+    pair each round cost the square of the fleet. tests/test_world.py pins it to that pairwise resolver.
     """
     final = list(targets)
+    n = len(final)
+    edges = {(c, t) for c, t in zip(cells, final) if c != t}
+    swap = any((t, c) in edges for c, t in edges)
+    if not swap and len(set(final)) == n:
+        return final, set()  # the common step: every move ends in its own cell, nobody swaps
     pairs: set[tuple[int, int]] = set()
-    n = len(cells)
-    while True:
-        clash = set()
-        for i in range(n):
-            for j in range(i + 1, n):
-                same_cell = final[i] == final[j] and not (goals[i] == goals[j] == final[i])
-                swap = final[i] == cells[j] and final[j] == cells[i] and cells[i] != cells[j]
-                if same_cell or swap:
-                    pairs.add((i, j))
-                    clash.update((i, j))
-        moved_back = [i for i in clash if final[i] != cells[i]]
-        if not moved_back:
-            return final, pairs
-        for i in moved_back:
+    at: dict[int, list[int]] = {}  # cell -> the agents whose move ends there, in index order
+    for i, c in enumerate(final):
+        at.setdefault(c, []).append(i)
+    for c, group in at.items():
+        if len(group) > 1:
+            for k, i in enumerate(group):
+                for j in group[k + 1:]:
+                    if not goals[i] == goals[j] == c:
+                        pairs.add((i, j))
+    if swap:
+        movers: dict[tuple[int, int], list[int]] = {}
+        for i, (c, t) in enumerate(zip(cells, final)):
+            if c != t:
+                movers.setdefault((c, t), []).append(i)
+        for (c, t), forth in movers.items():
+            for i in forth:
+                for j in movers.get((t, c), ()):
+                    if i < j:
+                        pairs.add((i, j))
+    back = {i for pair in pairs for i in pair if final[i] != cells[i]}
+    while back:
+        for i in back:
+            at[final[i]].remove(i)
             final[i] = cells[i]
+            at.setdefault(final[i], []).append(i)
+        found = set()
+        for r in back:
+            c = cells[r]
+            for o in at[c]:
+                if o != r and not goals[o] == goals[r] == c:
+                    found.add((o, r) if o < r else (r, o))
+        pairs |= found
+        back = {i for pair in found for i in pair if final[i] != cells[i]}
+    return final, pairs
 
 
 class GridWorld:

@@ -55,6 +55,7 @@ import os
 import random
 import re
 import secrets
+import shutil
 import signal
 import subprocess
 import sys
@@ -87,8 +88,8 @@ from .launch_results import (
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
 __all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
-           "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener", "Progress",
-           "write_heard"]
+           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener",
+           "Progress", "write_heard"]
 
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
@@ -212,6 +213,13 @@ def _params(values: dict[str, Any]) -> list[str]:
     return [arg for k, v in values.items() for arg in ("-p", f"{k}:={_param(v)}")]
 
 
+def agent_nodes(gridmap: GridMap, algo: str) -> list[tuple[str, dict[str, int]]]:
+    """The agent nodes of a launch: (node name, its agent_id parameter, if any)."""
+    if LEARNERS[algo].central:
+        return [("jsa", {})]  # one node moves every AGV; agent_id stays 0
+    return [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
+
+
 def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
                step_timeout: float, peer_linger_steps: int | None = None,
                node_parameters: dict[str, Any] | None = None,
@@ -235,10 +243,7 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
                                       "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1,
                                       **to_world, **changed})}
-    if LEARNERS[algo].central:
-        agents = [("jsa", {})]  # one node moves every AGV; agent_id stays 0
-    else:
-        agents = [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
+    agents = agent_nodes(gridmap, algo)
     linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
     for name, ident in agents:
         nodes[name] = ("agent_node", {
@@ -342,7 +347,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
            discovery: str = "subnet", key_file: str | os.PathLike | None = None,
-           view_port: int | None = None) -> LaunchResult:
+           view_port: int | None = None, start_from: str | os.PathLike | None = None) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -355,14 +360,19 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     key`) keys the run and is named there and kept; without it the launch makes a key of its own and removes
     it at the end. `view_port`: also serve the run to Foxglove there (ros_tools.view, the extra `view`).
 
-    Bad input (map, algorithm, setting, namespace, an output that is not ours to write) raises ValueError or
-    a subclass before any process starts; LaunchError/Interrupted after every child has been stopped."""
+    `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
+    ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
+
+    Bad input (map, algorithm, setting, namespace, an output that is not ours to write, a missing checkpoint)
+    raises ValueError or a subclass before any process starts; LaunchError/Interrupted after every child has
+    been stopped."""
     gridmap = load_map(map_name)
     settings = run_settings(gridmap) if settings is None else settings
     if algo not in LEARNERS:
         raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
     make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
     executor_name = executor_kind(executor)
+    start_with = [] if start_from is None else _checkpoints(Path(start_from), gridmap, algo)
     node_parameters = {"step_timeout": float(step_timeout),
                        **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
                        **({} if markers else {"markers": False}), **(node_parameters or {})}
@@ -396,6 +406,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         children = node_commands(nodes, namespace, out)
     for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
         (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
+    for given in start_with:
+        shutil.copyfile(given, out / "checkpoints" / given.name)
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
            "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
     listener_env: dict[str, str] = {}
@@ -488,6 +500,15 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             print(f"cq-ros launch: warning: {name}: checkpoint {nodes[name][1]['checkpoint']} not written: "
                   f"{failure}; learning went on", file=sys.stderr)
     return result
+
+
+def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
+    """The checkpoint of every agent node of this launch in `folder`; ValueError naming the first missing."""
+    paths = [folder / f"{name}.pkl" for name, _ in agent_nodes(gridmap, algo)]
+    for path in paths:
+        if not path.is_file():
+            raise ValueError(f"start_from {os.fspath(folder)!r}: no checkpoint {path.name} for node {path.stem}")
+    return paths
 
 
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 import uuid
+from dataclasses import astuple
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,10 @@ from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
 from cq_ros.warehouse import warehouse_text
 from processes import alive_with
-from ros_tools.launch import node_commands, node_specs
+from agent_node.checkpoint import save_checkpoints
+from cq_ros.engine import Team, make_learners, world_seed
+from cq_ros.world import GridWorld
+from ros_tools.launch import agent_nodes, launch, node_commands, node_specs
 
 LAUNCH_TIMEOUT_S = 120.0  # bound on one launch; each below takes about 10 s on 2 busy cores
 SEED = 1
@@ -116,6 +120,25 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
         assert (out / "logs" / f"{node}.log").exists()
     for png in ("collisions.png", "steps.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_launch_started_from_an_offline_runs_checkpoints_goes_on_as_that_run(tmp_path):
+    # the learners of 60 offline episodes, checkpointed, then 15 more episodes offline and over ROS (composed)
+    gridmap = load_map("tunnel_to_goal")
+    settings = Settings().with_overrides(["step_cap=100", "reward_step=-1", "window=10", "eval_episodes=0"])
+    team = Team(GridWorld(gridmap, settings, seed=world_seed(SEED, 0)), make_learners("cq", gridmap, settings, SEED, 0))
+    for _ in range(60):
+        team.episode()
+    assert any(learner.joint_states() for learner in team.learners)  # it has learnt where to look
+    save_checkpoints(tmp_path, [name for name, _ in agent_nodes(gridmap, "cq")], team.learners, 59)
+    with pytest.raises(ValueError, match="no checkpoint agv1.pkl"):
+        launch("tunnel_to_goal", "cq", 15, SEED, tmp_path / "never", settings, start_from=tmp_path / "empty")
+    result = launch("tunnel_to_goal", "cq", 15, SEED, tmp_path / "ros", settings, compose=True, figures=False,
+                    progress=False, start_from=tmp_path)
+    team.world = GridWorld(gridmap, settings, seed=world_seed(SEED, 0))  # a fresh world, as the launch's
+    offline = np.array([astuple(team.episode()) for _ in range(15)], dtype=float)
+    np.testing.assert_array_equal(result.episodes, offline)
+    assert sum(c["peer_messages"] for c in result.manifest["communication"].values()) > 0
 
 
 def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it(tmp_path):

@@ -819,6 +819,17 @@ def test_engine_run_is_reproducible(algo):
     assert not np.array_equal(first.episodes, other.episodes)
 
 
+def test_engine_run_copies_the_team_only_to_play_greedy_episodes(monkeypatch):
+    copies = []
+    real = engine.greedy_team
+    monkeypatch.setattr(engine, "greedy_team", lambda team: copies.append(team) or real(team))
+    gm = load_map("grid_game_2")
+    assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 0}), 3, 0, 5).greedy.shape == (0, 6)
+    assert copies == []
+    assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 2}), 3, 0, 5).greedy.shape == (2, 6)
+    assert len(copies) == 1
+
+
 def test_make_learners_unknown_algorithm_names_the_algorithms():
     with pytest.raises(ValueError) as info:
         make_learners("dqn", load_map("grid_game_2"), Settings(), seed=0, run=0)

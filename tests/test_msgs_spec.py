@@ -520,6 +520,33 @@ def test_keyed_messages_round_trip_and_only_the_key_holder_checks_them(payload):
             decode(serialize_message(changed), key=KEY)
 
 
+@settings(max_examples=100, deadline=None)
+@given(st.binary(min_size=16, max_size=200), st.sampled_from([lay.label for lay in ms.ARRAY_LAYOUTS]),
+       st.binary(max_size=64))
+def test_the_mac_is_hmac_sha256_of_the_domain_label_and_values(key, label, packed):
+    import hmac
+    import struct
+
+    from msgs_spec.auth import mac_words
+    digest = hmac.new(key, b"cq_ros/mac/1\0" + label.encode() + b"\0" + packed, "sha256").digest()
+    assert mac_words(key, label, packed) == struct.unpack(">4I", digest[:16])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.floats(), st.integers(-2**31 - 2, 2**31 + 1).map(float), st.sampled_from([0.0, 1.0, -0.0])),
+                min_size=len(FB.fields), max_size=len(FB.fields)))
+def test_the_float_arrays_one_pass_reading_is_the_checked_one(values):
+    from msgs_spec.arrays import _typed
+    fast = FB.from_floats(tuple(values))
+    try:
+        checked = _typed(FB, values)
+    except ms.WireError:
+        assert fast is None
+    else:
+        kinds = [{"int": int, "float": float, "flag": bool}[kind] for kind in FB.field_kinds]
+        assert fast == checked and list(map(type, FB._values(fast))) == kinds
+
+
 def test_check_order_first_failure_wins():
     # unknown agent beats the action range and the step; the action range beats the step
     with pytest.raises(ms.WireError, match="unknown_agent"):

@@ -377,6 +377,63 @@ def test_resolve_moves_properties(args):
     assert resolve_moves(list(cells), list(targets), goals) == (final, pairs)
 
 
+def pairwise_resolver(cells, targets, goals):
+    """The resolver as it was before it was made linear in the agents (every pair checked each round,
+    colliders sent back, until no collider is away from its cell): the semantics resolve_moves keeps."""
+    final = list(targets)
+    pairs = set()
+    n = len(cells)
+    while True:
+        clash = set()
+        for i in range(n):
+            for j in range(i + 1, n):
+                same_cell = final[i] == final[j] and not (goals[i] == goals[j] == final[i])
+                swap = final[i] == cells[j] and final[j] == cells[i] and cells[i] != cells[j]
+                if same_cell or swap:
+                    pairs.add((i, j))
+                    clash.update((i, j))
+        moved_back = [i for i in clash if final[i] != cells[i]]
+        if not moved_back:
+            return final, pairs
+        for i in moved_back:
+            final[i] = cells[i]
+
+
+@st.composite
+def any_joint_moves(draw):
+    """Up to 24 agents on few cells, so chains, swaps, crowds and shared goals are common; cells may
+    repeat (more than the world allows), so the two resolvers are compared beyond the world's states."""
+    n = draw(st.integers(1, 24))
+    n_cells = draw(st.integers(1, 2 * n + 1))
+    cell = st.integers(0, n_cells - 1)
+    shared = draw(st.lists(cell, min_size=1, max_size=3))  # a few goals many agents share
+    goals = tuple(draw(st.lists(st.one_of(cell, st.sampled_from(shared)), min_size=n, max_size=n)))
+    cells = draw(st.lists(cell, min_size=n, max_size=n))
+    moves = draw(st.lists(st.one_of(st.none(), cell), min_size=n, max_size=n))  # None: stays
+    return cells, [c if m is None else m for c, m in zip(cells, moves)], goals
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(resolver_inputs(), any_joint_moves()))
+def test_resolve_moves_is_the_pairwise_resolver(args):
+    cells, targets, goals = args
+    assert resolve_moves(list(cells), list(targets), goals) == pairwise_resolver(cells, targets, goals)
+
+
+@pytest.mark.parametrize("map_name", ["warehouse_8", "warehouse_32"])
+def test_resolve_moves_is_the_pairwise_resolver_on_a_warehouse(map_name):
+    # a whole fleet walking at random from its starts (crowded at first), some standing still each step
+    gm = load_map(map_name)
+    rng = random.Random(7)
+    cells, clashes = list(gm.starts), 0
+    for _ in range(300):
+        targets = [c if rng.random() < 0.2 else gm.neighbours[c][rng.randrange(N_ACTIONS)] for c in cells]
+        final, pairs = resolve_moves(cells, targets, gm.goals)
+        assert (final, pairs) == pairwise_resolver(cells, targets, gm.goals)
+        cells, clashes = final, clashes + len(pairs)
+    assert clashes > 0  # the walk did meet collisions
+
+
 def test_resolve_moves_does_not_mutate_its_arguments():
     cells, targets, goals = [0, 1, 2], [1, 2, 2], (5, 5, 5)
     resolve_moves(cells, targets, goals)

@@ -1,0 +1,150 @@
+#!/usr/bin/env python3
+"""The messaging-only ceiling of a composed lockstep run: what the middleware allows, with our nodes taken out.
+
+One world node and N agent nodes in one process, as `cq-ros launch --compose` runs them, on the same topics
+(msgs_spec's names, types and QoS, the nodes' reader depth), publishing the serialized bytes of real keyed
+payloads (msgs_spec.serialize, so every message has its run's size) and reading them with raw subscriptions,
+on one EventsExecutor stepped with spin_once as node_runtime.run spins. A step: the world publishes every
+AGV's latched position, then every feedback; an agent answers its feedback with an action once it also
+holds its peers' positions of the step (`peers`: none, as independent learners, or every other agent's, as
+JS); the world steps again when every action is in. Nothing is decoded, checked, learnt or counted but the
+arrivals: the gap between this rate and a composed run's is our Python around each message.
+
+    python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all]
+
+Isolation: a random ROS_DOMAIN_ID in 40..99, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, its own rclpy Context;
+every wait is bounded (discovery, and each step).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import secrets
+import sys
+import time
+
+PEERS = ("none", "all")
+
+
+def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, step_timeout_s: float = 5.0,
+            discovery_timeout_s: float = 30.0) -> dict:
+    """Steps per second of the emulated lockstep (`steps` timed after `warmup`), and the deliveries a step."""
+    import rclpy
+
+    from msgs_spec import (
+        ACTION, FEEDBACK, POSITION, Action, Feedback, Position, action_topic, feedback_topic, position_topic,
+        serialize,
+    )
+    from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV, make_executor
+    from ros_tools.commands import environment
+
+    if peers not in PEERS:
+        raise ValueError(f"peers {peers!r}: choose from {', '.join(PEERS)}")
+    key = secrets.token_bytes(32)  # keyed messages, as a launch sends them (their MAC's words make them longer)
+    ids = range(1, agents + 1)
+    position = {k: serialize(Position(k, 0, 1, 0, 0), key=key) for k in ids}
+    feedback = {k: serialize(Feedback(k, 0, 1, 0, 0, -1.0), key=key) for k in ids}
+    action = {k: serialize(Action(k, 0, 1, 0), key=key) for k in ids}
+    watched = {k: [j for j in ids if j != k] if peers == "all" else [] for k in ids}
+    domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
+    namespace = f"/ceiling_{secrets.token_hex(4)}"
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", FASTDDS_PROFILE_ENV: os.environ.get(
+        FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))}
+    ctx = rclpy.Context()
+    with environment(**env):
+        rclpy.init(context=ctx, domain_id=domain)
+    nodes, executor = [], None
+    try:
+        def node(name):
+            made = rclpy.create_node(name, context=ctx, namespace=namespace, enable_rosout=False,
+                                     start_parameter_services=False)
+            nodes.append(made)
+            return made
+
+        world = node("world")
+        pub_position = {k: world.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in ids}
+        pub_feedback = {k: world.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in ids}
+        actions_in = [0]
+        subs = []
+        for k in ids:
+            subs.append(world.create_subscription(ACTION.msg_type, action_topic(k),
+                                                  lambda _raw: actions_in.__setitem__(0, actions_in[0] + 1),
+                                                  ACTION.reader_qos, raw=True))
+        need = {k: 1 + len(watched[k]) for k in ids}  # arrivals before agent k acts: its feedback and peers'
+        got = dict.fromkeys(ids, 0)
+        for k in ids:
+            agent = node(f"agv{k}")
+            pub = agent.create_publisher(ACTION.msg_type, action_topic(k), ACTION.qos)
+
+            def arrive(_raw, k=k, pub=pub):
+                got[k] += 1
+                if got[k] == need[k]:
+                    got[k] = 0
+                    pub.publish(action[k])
+
+            subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
+                                                  FEEDBACK.reader_qos, raw=True))
+            for j in watched[k]:
+                subs.append(agent.create_subscription(POSITION.msg_type, position_topic(j), arrive,
+                                                      POSITION.reader_qos, raw=True))
+        executor = make_executor("events", ctx)
+        for made in nodes:
+            executor.add_node(made)
+        deadline = time.monotonic() + discovery_timeout_s
+        publishers = [*pub_position.values(), *pub_feedback.values()]
+        while (any(p.get_subscription_count() < (1 if p in pub_feedback.values() else 0) for p in publishers)
+               or any(s.get_publisher_count() < 1 for s in subs)):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the ceiling's nodes did not discover each other within {discovery_timeout_s} s")
+            executor.spin_once(timeout_sec=0.01)
+
+        def step() -> None:
+            actions_in[0] = 0
+            for k in ids:
+                pub_position[k].publish(position[k])
+            for k in ids:
+                pub_feedback[k].publish(feedback[k])
+            stop_at = time.monotonic() + step_timeout_s
+            while actions_in[0] < agents:
+                if time.monotonic() > stop_at:
+                    raise RuntimeError(f"a ceiling step got {actions_in[0]} of {agents} actions in {step_timeout_s} s")
+                executor.spin_once(timeout_sec=step_timeout_s)
+
+        for _ in range(warmup):
+            step()
+        started, cpu = time.perf_counter(), time.process_time()
+        for _ in range(steps):
+            step()
+        seconds, cpu = time.perf_counter() - started, time.process_time() - cpu
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        for made in nodes:
+            made.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    return {"agents": agents, "peers": peers, "steps": steps, "seconds": seconds, "steps_per_s": steps / seconds,
+            "cpu_ms_per_step": cpu / steps * 1e3,
+            "messages_per_step": 3 * agents, "deliveries_per_step": 3 * agents + sum(map(len, watched.values()))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--agents", type=int, default=16)
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--peers", choices=PEERS, default="none")
+    args = ap.parse_args(argv)
+    if args.agents < 1 or args.steps < 1:
+        print("ceiling.py: --agents and --steps must be at least 1", file=sys.stderr)
+        return 2
+    r = ceiling(args.agents, args.steps, args.peers)
+    print(f"messaging-only ceiling, {r['agents']} agents, peers {r['peers']}: {r['steps_per_s']:,.0f} steps/s "
+          f"({r['steps']} steps in {r['seconds']:.2f} s, {r['cpu_ms_per_step']:.3f} ms of CPU a step; "
+          f"{r['deliveries_per_step']} deliveries a step); "
+          f"load average {os.getloadavg()[0]:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,301 @@
+"""The statistics' codec: WorldStats and AgentStats as a diagnostic_msgs/DiagnosticArray holding one
+DiagnosticStatus whose `values` are KeyValue pairs (the keys and what they hold: WORLD_STATS_KEYS,
+AGENT_STATS_KEYS); decoders check every key and value and raise only `WireError`."""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any, Mapping
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_nonneg, check_sequence
+from .errors import WireError
+from .payloads import AgentStats, Bounds, MarkedJointState, WorldStats
+
+__all__ = ["WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
+           "encode_world_stats", "decode_world_stats", "encode_agent_stats", "decode_agent_stats"]
+
+WORLD_STATS_NAME = "world/stats"
+
+
+def agent_stats_name(agent: int) -> str:
+    return f"agv{agent}/stats"
+
+
+# key -> (kind, meaning). Per-agent and open-ended keys are described by pattern.
+WORLD_STATS_KEYS: Mapping[str, tuple[str, str]] = {
+    "episode": ("int", "episode index, from 0"),
+    "steps": ("int", "joint steps taken in the episode"),
+    "truncated": ("bool", "true when the step cap ended the episode"),
+    "collisions": ("int", "collisions in the episode"),
+    "missed_actions": ("int", "actions that missed the step timeout (the agent stayed)"),
+    "duration_s": ("float", "wall-clock length of the episode, seconds"),
+    "return.agv<k>": ("float", "undiscounted return of agent k, one key per agent 1..N"),
+    "count.<name>": ("int", "further monotonic counters, e.g. count.dropped.stale_step"),
+}
+AGENT_STATS_KEYS: Mapping[str, tuple[str, str]] = {
+    "agent": ("int", "agent id, 1..N"),
+    "episode": ("int", "episode that just ended for this agent"),
+    "algorithm": ("str", "learner name, e.g. cq, indep, js, loc"),
+    "joint_plays": ("int", "times this episode the agent used global information / chose COORDINATE"),
+    "local_states": ("int", "local states in use"),
+    "joint_states": ("int", "joint states in use"),
+    "subscriptions_created": ("int", "peer position subscriptions created since start"),
+    "subscriptions_active": ("int", "peer position subscriptions alive now"),
+    "peer_messages": ("int", "peer position messages received since start"),
+    "marked.<i>": ("str", "marked joint state i (0..M-1): "
+                          "'cell=R,C peer=agvJ peer_cell=R,C confidence=X'"),
+    "count.<name>": ("int", "further monotonic counters, e.g. count.dropped.stale_step"),
+}
+
+_INT_RE = re.compile(r"-?[0-9]+")
+_NAME_RE = re.compile(r"[a-z0-9_][a-z0-9_.]*")
+_ALGO_RE = re.compile(r"[a-z][a-z0-9_]*")
+_RETURN_RE = re.compile(r"return\.agv([1-9][0-9]*)")
+_MARKED_KEY_RE = re.compile(r"marked\.(0|[1-9][0-9]*)")
+_MARKED_RE = re.compile(
+    r"cell=([0-9]+),([0-9]+) peer=agv([0-9]+) peer_cell=([0-9]+),([0-9]+) confidence=(\S+)")
+
+
+def _fmt_float(v: float) -> str:
+    return repr(float(v))  # shortest string that reads back to the same double
+
+
+def _parse_int(key: str, s: str) -> int:
+    if not _INT_RE.fullmatch(s):
+        try:  # tell a fraction or NaN apart from garbage
+            f = float(s)
+        except ValueError:
+            raise WireError("malformed", f"{key} = {s!r} is not an integer") from None
+        if not math.isfinite(f):
+            raise WireError("not_finite", f"{key} = {s!r}")
+        raise WireError("not_integer", f"{key} = {s!r}")
+    return as_int(key, int(s))
+
+
+def _parse_float(key: str, s: str) -> float:
+    try:
+        f = float(s)
+    except ValueError:
+        raise WireError("malformed", f"{key} = {s!r} is not a number") from None
+    if not math.isfinite(f):
+        raise WireError("not_finite", f"{key} = {s!r}")
+    return f
+
+
+def _parse_bool(key: str, s: str) -> bool:
+    if s == "true":
+        return True
+    if s == "false":
+        return False
+    raise WireError("malformed", f"{key} = {s!r}, must be true or false")
+
+
+def _counter_pairs(counters: Mapping[str, int]) -> list[tuple[str, str]]:
+    out = []
+    for name in sorted(counters):
+        if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+            raise WireError("malformed", f"counter name {name!r} must match {_NAME_RE.pattern}")
+        v = as_int(f"count.{name}", counters[name])
+        check_nonneg(f"count.{name}", v)
+        out.append((f"count.{name}", str(v)))
+    return out
+
+
+def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str, str]],
+               stamp: Time | None) -> DiagnosticArray:
+    status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=summary, hardware_id=hardware_id,
+                              values=[KeyValue(key=k, value=v) for k, v in pairs])
+    arr = DiagnosticArray(status=[status])
+    if stamp is not None:
+        arr.header.stamp = stamp
+    return arr
+
+
+def _stats_values(msg: Any) -> tuple[str, str, dict[str, str]]:
+    """(status name, hardware_id, key -> value) of a one-status DiagnosticArray; rejects repeated keys."""
+    if type(msg) is not DiagnosticArray:
+        raise WireError("wrong_type", f"expected DiagnosticArray, got {type(msg).__name__}")
+    try:
+        statuses = list(msg.status)
+        if len(statuses) != 1:
+            raise WireError("wrong_layout", f"{len(statuses)} statuses, expected exactly 1")
+        st = statuses[0]
+        values: dict[str, str] = {}
+        for kv in st.values:
+            if kv.key in values:
+                raise WireError("malformed", f"key {kv.key!r} repeated")
+            values[kv.key] = kv.value
+        return st.name, st.hardware_id, values
+    except (AttributeError, TypeError) as e:
+        raise WireError("malformed", f"unreadable message: {e}") from None
+
+
+def _take(values: dict[str, str], key: str) -> str:
+    try:
+        return values.pop(key)
+    except KeyError:
+        raise WireError("malformed", f"key {key!r} missing") from None
+
+
+def _take_counters(values: dict[str, str]) -> dict[str, int]:
+    counters = {}
+    for key in [k for k in values if k.startswith("count.")]:
+        name = key[len("count."):]
+        if not _NAME_RE.fullmatch(name):
+            raise WireError("malformed", f"counter key {key!r}")
+        v = _parse_int(key, values.pop(key))
+        check_nonneg(key, v)
+        counters[name] = v
+    return counters
+
+
+def _no_leftovers(values: dict[str, str]) -> None:
+    if values:
+        raise WireError("malformed", f"unknown keys {sorted(values)}")
+
+
+def encode_world_stats(s: WorldStats, *, stamp: Time | None = None) -> DiagnosticArray:
+    """`stamp`: header time (wall clock, e.g. node.get_clock().now().to_msg()); zero if None."""
+    if type(s) is not WorldStats:
+        raise WireError("wrong_type", f"expected WorldStats, got {type(s).__name__}")
+    ints = {k: as_int(k, getattr(s, k)) for k in ("episode", "steps", "collisions", "missed_actions")}
+    for k, v in ints.items():
+        check_nonneg(k, v)
+    truncated = as_flag("truncated", s.truncated)
+    returns = [as_float(f"return.agv{i + 1}", r) for i, r in enumerate(s.returns)]
+    if not returns:
+        raise WireError("malformed", "returns is empty (one per agent)")
+    duration = as_float("duration_s", s.duration_s)
+    if duration < 0:
+        raise WireError("out_of_range", f"duration_s = {duration}")
+    pairs = [("episode", str(ints["episode"])), ("steps", str(ints["steps"])),
+             ("truncated", "true" if truncated else "false"), ("collisions", str(ints["collisions"])),
+             ("missed_actions", str(ints["missed_actions"])), ("duration_s", _fmt_float(duration))]
+    pairs += [(f"return.agv{i + 1}", _fmt_float(r)) for i, r in enumerate(returns)]
+    pairs += _counter_pairs(s.counters)
+    end = "truncated at the step cap" if truncated else "all agents at their goals"
+    summary = (f"episode {ints['episode']}: {ints['steps']} steps, {ints['collisions']} collisions, "
+               f"{ints['missed_actions']} missed actions, {end}")
+    return _stats_msg(WORLD_STATS_NAME, "world", summary, pairs, stamp)
+
+
+def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
+                       episode: int | None = None) -> WorldStats:
+    name, hw, values = _stats_values(msg)
+    if name != WORLD_STATS_NAME or hw != "world":
+        raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "
+                                        f"expected {WORLD_STATS_NAME!r} 'world'")
+    ints = {}
+    for k in ("episode", "steps", "collisions", "missed_actions"):
+        ints[k] = _parse_int(k, _take(values, k))
+        check_nonneg(k, ints[k])
+    truncated = _parse_bool("truncated", _take(values, "truncated"))
+    duration = _parse_float("duration_s", _take(values, "duration_s"))
+    if duration < 0:
+        raise WireError("out_of_range", f"duration_s = {duration}")
+    found = {}
+    for key in [k for k in values if k.startswith("return.")]:
+        m = _RETURN_RE.fullmatch(key)
+        if not m:
+            raise WireError("malformed", f"key {key!r}, expected return.agv<k>")
+        found[int(m.group(1))] = _parse_float(key, values.pop(key))
+    n = len(found)
+    if n == 0 or set(found) != set(range(1, n + 1)):
+        raise WireError("malformed", f"return keys for agents {sorted(found)}, expected 1..{n or 'N'}")
+    if bounds is not None and n != bounds.n_agents:
+        raise WireError("unknown_agent" if n > bounds.n_agents else "malformed",
+                        f"returns for {n} agents, the world has {bounds.n_agents}")
+    counters = _take_counters(values)
+    _no_leftovers(values)
+    check_sequence(ints["episode"], None, episode, None)
+    return WorldStats(episode=ints["episode"], steps=ints["steps"], truncated=truncated,
+                      collisions=ints["collisions"], missed_actions=ints["missed_actions"],
+                      returns=tuple(found[k] for k in range(1, n + 1)), duration_s=duration,
+                      counters=counters)
+
+
+_AGENT_INT_KEYS = ("agent", "episode", "joint_plays", "local_states", "joint_states",
+                   "subscriptions_created", "subscriptions_active", "peer_messages")
+
+
+def _check_marked(m: MarkedJointState, agent: int, bounds: Bounds | None, where: str) -> MarkedJointState:
+    if type(m) is not MarkedJointState:
+        raise WireError("wrong_type", f"{where}: expected MarkedJointState, got {type(m).__name__}")
+    row, col, peer, prow, pcol = (as_int(f"{where}.{f}", getattr(m, f))
+                                  for f in ("row", "col", "peer", "peer_row", "peer_col"))
+    conf = as_float(f"{where}.confidence", m.confidence)
+    check_cell(row, col, bounds, f"{where} cell")
+    check_agent(peer, bounds, None, f"{where} peer")
+    if peer == agent:
+        raise WireError("malformed", f"{where}: peer {peer} is the agent itself")
+    check_cell(prow, pcol, bounds, f"{where} peer cell")
+    return MarkedJointState(row, col, peer, prow, pcol, conf)
+
+
+def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None) -> DiagnosticArray:
+    if type(s) is not AgentStats:
+        raise WireError("wrong_type", f"expected AgentStats, got {type(s).__name__}")
+    ints = {k: as_int(k, getattr(s, k)) for k in _AGENT_INT_KEYS}
+    check_agent(ints["agent"], None, None)
+    for k in _AGENT_INT_KEYS[1:]:
+        check_nonneg(k, ints[k])
+    if not isinstance(s.algorithm, str) or not _ALGO_RE.fullmatch(s.algorithm):
+        raise WireError("malformed", f"algorithm {s.algorithm!r} must match {_ALGO_RE.pattern}")
+    marked = [_check_marked(m, ints["agent"], None, f"marked.{i}") for i, m in enumerate(s.marked)]
+    pairs = [(k, str(ints[k])) for k in _AGENT_INT_KEYS[:2]] + [("algorithm", s.algorithm)]
+    pairs += [(k, str(ints[k])) for k in _AGENT_INT_KEYS[2:]]
+    pairs += [(f"marked.{i}", f"cell={m.row},{m.col} peer=agv{m.peer} peer_cell={m.peer_row},{m.peer_col} "
+                              f"confidence={_fmt_float(m.confidence)}") for i, m in enumerate(marked)]
+    pairs += _counter_pairs(s.counters)
+    summary = (f"agv{ints['agent']} ({s.algorithm}) episode {ints['episode']}: {ints['joint_plays']} joint "
+               f"plays, {len(marked)} marked joint states, {ints['subscriptions_active']} live subscriptions")
+    return _stats_msg(agent_stats_name(ints["agent"]), f"agv{ints['agent']}", summary, pairs, stamp)
+
+
+def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, agent: int | None = None,
+                       episode: int | None = None) -> AgentStats:
+    name, hw, values = _stats_values(msg)
+    m = re.fullmatch(r"agv([0-9]+)/stats", name)
+    if not m or hw != f"agv{m.group(1)}":
+        raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "
+                                        "expected 'agv<k>/stats' 'agv<k>'")
+    ints = {}
+    for k in _AGENT_INT_KEYS:
+        ints[k] = _parse_int(k, _take(values, k))
+    check_agent(ints["agent"], bounds, agent)
+    if int(m.group(1)) != ints["agent"]:
+        raise WireError("wrong_agent", f"status {name!r} carries agent {ints['agent']}")
+    for k in _AGENT_INT_KEYS[1:]:
+        check_nonneg(k, ints[k])
+    algorithm = _take(values, "algorithm")
+    if not _ALGO_RE.fullmatch(algorithm):
+        raise WireError("malformed", f"algorithm {algorithm!r}")
+    found = {}
+    for key in [k for k in values if k.startswith("marked.")]:
+        km = _MARKED_KEY_RE.fullmatch(key)
+        if not km:
+            raise WireError("malformed", f"key {key!r}, expected marked.<i>")
+        text = values.pop(key)
+        vm = _MARKED_RE.fullmatch(text)
+        if not vm:
+            raise WireError("malformed", f"{key} = {text!r}")
+        r, c, p, pr, pc = (as_int(key, int(g)) for g in vm.groups()[:5])
+        conf = _parse_float(f"{key}.confidence", vm.group(6))
+        found[int(km.group(1))] = _check_marked(MarkedJointState(r, c, p, pr, pc, conf), ints["agent"],
+                                                bounds, key)
+    if set(found) != set(range(len(found))):
+        raise WireError("malformed", f"marked indices {sorted(found)}, expected 0..{len(found) - 1}")
+    counters = _take_counters(values)
+    _no_leftovers(values)
+    check_sequence(ints["episode"], None, episode, None)
+    return AgentStats(agent=ints["agent"], episode=ints["episode"], algorithm=algorithm,
+                      joint_plays=ints["joint_plays"], local_states=ints["local_states"],
+                      joint_states=ints["joint_states"], subscriptions_created=ints["subscriptions_created"],
+                      subscriptions_active=ints["subscriptions_active"], peer_messages=ints["peer_messages"],
+                      marked=tuple(found[i] for i in range(len(found))), counters=counters)
+
+
