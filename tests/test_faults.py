@@ -133,6 +133,9 @@ def test_junk_bursts_of_100_messages_per_step_on_every_topic_change_nothing(syst
     pubs = [(kind, k, spec.msg_type, injector.create_publisher(spec.msg_type, topic(k), spec.qos))
             for kind, spec, topic in (("feedback", FEEDBACK, feedback_topic), ("position", POSITION, position_topic),
                                       ("action", ACTION, action_topic)) for k in (1, 2)]
+    # A heartbeat writer seen before the world's first step is a second world, which it refuses to run beside
+    # (test_a_second_world_beside...): this one joins once the run is under way.
+    assert spin_until(system.executor, lambda: world.core.episode >= 0, RUN_TIMEOUT_S)
     beat = injector.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
     done = set()
 

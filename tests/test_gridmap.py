@@ -66,7 +66,8 @@ def test_reference_map_sizes(name, n_cells):
 
 
 def test_available_maps_lists_the_shipped_maps():
-    assert available_maps() == sorted(REFERENCE_CELLS) + ["warehouse_16", "warehouse_32", "warehouse_8"]
+    assert available_maps() == sorted(REFERENCE_CELLS) + ["warehouse_16", "warehouse_16_delayed", "warehouse_32",
+                                                        "warehouse_8", "warehouse_8_delayed"]
 
 
 @pytest.mark.parametrize("name", available_maps())

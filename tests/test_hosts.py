@@ -293,7 +293,10 @@ def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_wa
     assert re.fullmatch(r"cq-ros launch: error: agv1 \(pid \d+\) exited with code 1 after \d+/1020 episodes "
                         r"\(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)", last), last
     assert "(feedback_timeout=5.0): giving up" in (out / "logs" / "agv1.log").read_text()
-    assert not (out / "episodes.csv").exists()  # a failed launch writes no results
+    # a failed launch keeps the rows it heard, one per episode, and writes no manifest: it did not finish
+    heard = int(re.search(r"after (\d+)/1020 episodes", last)[1])
+    assert len((out / "episodes.csv").read_text().splitlines()) == 1 + heard >= 1 + 6
+    assert not (out / "manifest.json").exists()
     gridmap = load_map("tunnel_to_goal")
     for k in (1, 2):  # each agent's last checkpoint, written before the cut, loads whole
         learner, episode = load_checkpoint(out / "checkpoints" / f"agv{k}.pkl", "indep", gridmap, k - 1)

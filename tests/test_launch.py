@@ -240,7 +240,11 @@ def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
     assert re.fullmatch(r"cq-ros launch: error: agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) "
                         r"after \d+/100020 episodes \(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)",
                         last), last
-    assert not (out / "episodes.csv").exists()
+    # what was heard is kept (the launcher writes each episode's row as it comes), and no more: the run did
+    # not finish, so there is no manifest
+    heard = int(re.search(r"after (\d+)/100020 episodes", last)[1])
+    assert len((out / "episodes.csv").read_text().splitlines()) == 1 + heard
+    assert not (out / "manifest.json").exists()
 
 
 def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):

@@ -8,14 +8,14 @@ range, step by step (`heard`): the least that a learner watching every peer with
 
 A state with no peer in range is the cell alone (`q_local`); a new state with peers (`q_near`) starts as a
 copy of its cell's row. As in JS, the next state includes the peers in range then, seen only at the next
-`act`, so a step's update is finished there (at once, without bootstrap, when the agent reaches its goal;
-a step cut by the step cap is left out).
+`act`, where a step's update is finished (`next_state.NextStateLearner`).
 """
 
-from .base import Learner, N_MOVES, epsilon_greedy, q_update
+from .base import N_MOVES
+from .next_state import NextStateLearner
 
 
-class NearQ(Learner):
+class NearQ(NextStateLearner):
     name = "near"
 
     def __init__(self, *args, **kwargs):
@@ -23,7 +23,6 @@ class NearQ(Learner):
         self.range = self.settings.near_range
         self.q_local = [[0.0] * N_MOVES for _ in range(self.n_cells)]
         self.q_near: dict[tuple, list[float]] = {}
-        self.pending = None  # (row, action, reward) waiting for the next state
 
     def observe(self, cell):
         self.s = cell
@@ -41,25 +40,7 @@ class NearQ(Learner):
                     self.q_near[(self.s, near)] = row
         else:
             row = self.q_local[self.s]
-        if self.pending is not None:
-            prev, a, reward = self.pending
-            q_update(prev, a, reward + self.gamma * max(row), self.alpha)
-            self.pending = None
-        self.row = row
-        self.a = epsilon_greedy(row, self.epsilon, self.rng)
-        return self.a
-
-    def learn(self, reward, next_cell, done):
-        if not self.learning:
-            return
-        if done:
-            q_update(self.row, self.a, reward, self.alpha)
-        else:
-            self.pending = (self.row, self.a, reward)
-
-    def end_episode(self):
-        super().end_episode()
-        self.pending = None
+        return self.act_on(row)
 
     def state_count(self):
         return self.n_cells + len(self.q_near)
