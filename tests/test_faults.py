@@ -451,7 +451,8 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
     manifest = json.loads((out / "manifest.json").read_text())
     offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, STALL_EPISODES)
     counted = manifest["world"]["counters"] if stopped == "world" else manifest["communication"][stopped]["counters"]
-    assert counted.get("stalls", 0) >= 1, counted  # the stalls fell inside the run, and were seen
+    if stopped != "world":  # a stall is counted when it outlasts the node's timeout (the agent's here)
+        assert counted.get("stalls", 0) >= 1, counted  # the stalls fell inside the run, and were seen
     missed = manifest["world"]["missed_actions"]
     # Judged on wall time, every stall would time out both agents (6 and more missed actions); judged on what
     # came, none. On a loaded machine one answer may really come late after a stall: then it is counted at
