@@ -1,8 +1,9 @@
 """Shared fixtures: every test session talks on its own ROS 2 graph, on this host only.
 
 Before any test runs (so before any rclpy.init, in this process or in a node process a test starts, which
-inherits the environment): a random ROS_DOMAIN_ID in 100..200 for the session, discovery kept to this host
-(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), and ROS logs in a temporary directory instead of ~/.ros.
+inherits the environment): a random ROS_DOMAIN_ID in 100..200 for the session (the next ones for the other
+pytest-xdist workers), discovery kept to this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), and ROS logs in
+a temporary directory instead of ~/.ros.
 """
 
 from __future__ import annotations
@@ -17,14 +18,25 @@ from typing import Callable
 import pytest
 
 _LOG_DIR: str | None = None
+_DOMAIN_BASE = "CQ_ROS_TEST_DOMAIN_BASE"
 
 
 def pytest_configure(config: pytest.Config) -> None:
     global _LOG_DIR
     _LOG_DIR = tempfile.mkdtemp(prefix="cq_ros_test_ros_log_")
-    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(100, 200))
+    os.environ["ROS_DOMAIN_ID"] = str(_domain_id())
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ["ROS_LOG_DIR"] = _LOG_DIR
+
+
+def _domain_id() -> int:
+    """A domain of the session's own: pytest-xdist's controller draws a base (before it starts its workers,
+    which inherit it) and worker gw<i> takes base + i, so no two workers of one session share a graph."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is None:
+        os.environ[_DOMAIN_BASE] = str(random.SystemRandom().randint(100, 200))
+        return int(os.environ[_DOMAIN_BASE])
+    return int(os.environ[_DOMAIN_BASE]) + int(worker.removeprefix("gw"))
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
