@@ -11,7 +11,6 @@ Needs root and the `ip` command (skipped otherwise, with the reason); CI here ru
 from __future__ import annotations
 
 import csv
-import io
 import ipaddress
 import json
 import os
@@ -299,7 +298,8 @@ def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_wa
     # finish. The count in the error is the world's; a row needs every agent's statistics too, and the world
     # may finish an episode whose statistics the cut agent never sent
     played = int(re.search(r"after (\d+)/1020 episodes", last)[1])
-    rows = list(csv.DictReader(io.StringIO((out / "episodes.csv").read_text())))
+    with open(out / "episodes.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
     assert 6 <= len(rows) <= played
     assert [int(r["episode"]) for r in rows] == list(range(1, len(rows) + 1))
     assert not (out / "manifest.json").exists()
