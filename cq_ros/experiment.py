@@ -78,8 +78,10 @@ def prepare_output(out: Path, force: bool) -> Path:
 
 
 def episode_row(map_name: str, algo: str, run: int, episode: int, values) -> tuple:
-    """One row of episodes.csv: `episode` from 1, `values` a row of RunResult.episodes."""
-    steps, coll, plays, states, ret, trunc = values
+    """One row of episodes.csv: `episode` from 1, `values` a row of RunResult.episodes.
+    Every writer's values go through float64 as RunResult's do, so a JS state space past 2**53 (cells**N) is
+    written alike offline and by a launch, which hears it exactly."""
+    steps, coll, plays, states, ret, trunc = map(float, values)
     return (map_name, algo, run, episode, int(steps), int(coll), int(plays), int(states), f"{ret:g}", int(trunc))
 
 

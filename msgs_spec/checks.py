@@ -14,9 +14,10 @@ __all__ = ["as_int", "as_float", "as_flag", "CONVERT", "check_nonneg", "check_ag
 
 
 
-def as_int(name: str, v: Any) -> int:
-    """An exact integer from an int-like or an integral finite float; else WireError."""
-    if type(v) is int and -INT32_MAX - 1 <= v <= INT32_MAX:  # the common case, first
+def as_int(name: str, v: Any, *, wide: bool = False) -> int:
+    """An exact integer from an int-like or an integral finite float; else WireError. It must fit int32
+    unless `wide` (a count carried as text, as a statistic's state count is)."""
+    if type(v) is int and (wide or -INT32_MAX - 1 <= v <= INT32_MAX):  # the common case, first
         return v
     if isinstance(v, bool):
         return int(v)
@@ -31,7 +32,7 @@ def as_int(name: str, v: Any) -> int:
             v = operator.index(v)
         except TypeError:
             raise WireError("not_integer", f"{name} = {v!r} ({type(v).__name__})") from None
-    if not -INT32_MAX - 1 <= v <= INT32_MAX:
+    if not wide and not -INT32_MAX - 1 <= v <= INT32_MAX:
         raise WireError("out_of_range", f"{name} = {v} does not fit int32")
     return v
 

@@ -41,8 +41,8 @@ AGENT_STATS_KEYS: Mapping[str, tuple[str, str]] = {
     "episode": ("int", "episode that just ended for this agent"),
     "algorithm": ("str", "learner name, e.g. cq, indep, js, loc"),
     "joint_plays": ("int", "times this episode the agent used global information / chose COORDINATE"),
-    "local_states": ("int", "local states in use"),
-    "joint_states": ("int", "joint states in use"),
+    "local_states": ("int", "local states in use (any size, as are joint_states)"),
+    "joint_states": ("int", "joint states in use; JS's joint state space, cells**N, can pass int64"),
     "subscriptions_created": ("int", "peer position subscriptions created since start"),
     "subscriptions_active": ("int", "peer position subscriptions alive now"),
     "peer_messages": ("int", "peer position messages received since start"),
@@ -64,7 +64,9 @@ def _fmt_float(v: float) -> str:
     return repr(float(v))  # shortest string that reads back to the same double
 
 
-def _parse_int(key: str, s: str) -> int:
+def _parse_int(key: str, s: str, wide: bool = False) -> int:
+    if wide and len(s) > WIDE_DIGITS:
+        raise WireError("out_of_range", f"{key} has {len(s)} digits, more than {WIDE_DIGITS}")
     if not _INT_RE.fullmatch(s):
         try:  # tell a fraction or NaN apart from garbage
             f = float(s)
@@ -73,7 +75,7 @@ def _parse_int(key: str, s: str) -> int:
         if not math.isfinite(f):
             raise WireError("not_finite", f"{key} = {s!r}")
         raise WireError("not_integer", f"{key} = {s!r}")
-    return as_int(key, int(s))
+    return as_int(key, int(s), wide=wide)
 
 
 def _parse_float(key: str, s: str) -> float:
@@ -220,6 +222,11 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
 
 _AGENT_INT_KEYS = ("agent", "episode", "joint_plays", "local_states", "joint_states",
                    "subscriptions_created", "subscriptions_active", "peer_messages")
+# State counts of any size: a JS agent conditions on cells**N states (about 4.7e36 on warehouse_16), which
+# the text of a diagnostic value carries exactly where an int32 could not. Bounded, so a forged value of a
+# million digits is dropped before Python parses it.
+_WIDE_KEYS = frozenset({"local_states", "joint_states"})
+WIDE_DIGITS = 200
 
 
 def _check_marked(m: MarkedJointState, agent: int, bounds: Bounds | None, where: str) -> MarkedJointState:
@@ -239,7 +246,9 @@ def _check_marked(m: MarkedJointState, agent: int, bounds: Bounds | None, where:
 def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None) -> DiagnosticArray:
     if type(s) is not AgentStats:
         raise WireError("wrong_type", f"expected AgentStats, got {type(s).__name__}")
-    ints = {k: as_int(k, getattr(s, k)) for k in _AGENT_INT_KEYS}
+    ints = {k: as_int(k, getattr(s, k), wide=k in _WIDE_KEYS) for k in _AGENT_INT_KEYS}
+    if any(ints[k] >= 10 ** WIDE_DIGITS for k in _WIDE_KEYS):
+        raise WireError("out_of_range", f"a state count of more than {WIDE_DIGITS} digits")
     check_agent(ints["agent"], None, None)
     for k in _AGENT_INT_KEYS[1:]:
         check_nonneg(k, ints[k])
@@ -265,7 +274,7 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
                                         "expected 'agv<k>/stats' 'agv<k>'")
     ints = {}
     for k in _AGENT_INT_KEYS:
-        ints[k] = _parse_int(k, _take(values, k))
+        ints[k] = _parse_int(k, _take(values, k), k in _WIDE_KEYS)
     check_agent(ints["agent"], bounds, agent)
     if int(m.group(1)) != ints["agent"]:
         raise WireError("wrong_agent", f"status {name!r} carries agent {ints['agent']}")

@@ -266,6 +266,14 @@ def test_round_trip_keeps_the_exact_float_and_reads_like_echo():
     assert "label: agent,episode,step,row,col" in text and text.rstrip().endswith("- 5")
 
 
+def test_state_counts_of_any_size_cross_the_wire_exactly():
+    # A JS agent on warehouse_16 conditions on 98**16 (about 4.7e36) joint states: its statistics carry the
+    # count as the text it is, as the offline engine counts it, where an int32 field would end the agent.
+    s = ms.AgentStats(agent=2, episode=0, algorithm="js", local_states=0, joint_states=98**16)
+    back = das(_wire(ms.encode(s)), bounds=B, agent=2)
+    assert back.joint_states == 98**16 and type(back.joint_states) is int and back == s
+
+
 def test_stats_stamp_and_summary():
     from builtin_interfaces.msg import Time
     msg = ms.encode_world_stats(doc.EXAMPLES["world_stats"], stamp=Time(sec=12, nanosec=5))
@@ -400,6 +408,14 @@ REJECTIONS = [
     ("ws-negative-count", lambda: dws(_stats(_ws_values(**{"count.x": "-1"}))), "out_of_range"),
     ("ws-negative-duration", lambda: dws(_stats(_ws_values(duration_s="-1.0"))), "out_of_range"),
     ("encode-huge-episode", lambda: ms.encode(ms.Position(1, 2**31, 0, 0, 0)), "out_of_range"),
+    ("as-huge-joint-plays", lambda: das(_stats(_as_values(joint_plays=str(2**31)), "agv1/stats", "agv1")),
+     "out_of_range"),  # only the state counts are wide
+    ("as-too-many-digits", lambda: das(_stats(_as_values(joint_states="9" * 201), "agv1/stats", "agv1")),
+     "out_of_range"),
+    ("as-negative-states", lambda: das(_stats(_as_values(local_states=str(-2**40)), "agv1/stats", "agv1")),
+     "out_of_range"),
+    ("encode-too-many-digits", lambda: ms.encode(ms.AgentStats(agent=1, episode=0, algorithm="js",
+                                                               joint_states=10**200)), "out_of_range"),
     ("fb-flag-half", lambda: dfb(_fb(done=0.5), **FBX), "malformed"),
     ("fb-flag-two", lambda: dfb(_fb(truncated=2.0), **FBX), "malformed"),
     ("fb-done-and-truncated", lambda: dfb(_fb(done=1.0, truncated=1.0), **FBX), "malformed"),
