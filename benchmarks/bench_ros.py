@@ -15,7 +15,9 @@ modes, markers on with nobody subscribed against off, CQ from scratch and with l
 
 Steps per second are the world's: steps over the summed wall-clock length of its episodes (WorldStats
 duration_s), so process start-up and discovery are left out; the wall time of each launch is shown beside.
-The episodes are capped at --step-cap (every early warehouse episode would run to the 5000-step cap).
+The episodes are capped at --step-cap (every early warehouse episode would run to the 5000-step cap). The
+world waits --step-timeout for an action (the launch's 2 s would end a loaded 17-process JS run); a launch
+that fails anyway is a row saying why, and the rows after it still run.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
 from cq_ros.world import GridWorld
-from ros_tools.launch import agent_nodes, launch
+from ros_tools.launch import LaunchError, agent_nodes, launch
 
 
 ROUND_TRIP_REPEATS = 3
@@ -42,11 +44,11 @@ ROUND_TRIP_REPEATS = 3
 
 def lockstep(map_name: str, algo: str, episodes: int, settings: Settings, linger: int | None = None,
              seed: int = 0, compose: bool = False, executor: str = "events", markers: bool = True,
-             start_from: Path | None = None) -> dict:
+             start_from: Path | None = None, step_timeout: float = 2.0) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_ros_") as tmp:
         result = launch(map_name, algo, episodes, seed, Path(tmp) / "out", settings, peer_linger_steps=linger,
                         compose=compose, executor=executor, markers=markers, figures=False, progress=False,
-                        start_from=start_from)
+                        start_from=start_from, step_timeout=step_timeout)
     m = result.manifest
     steps = int(result.episodes[:, 0].sum())
     comm = m["communication"].values()
@@ -81,6 +83,7 @@ def main() -> None:
     parser.add_argument("--train-episodes", type=int, default=300, help="offline CQ episodes before the learnt runs")
     parser.add_argument("--ceiling-steps", type=int, default=2000)
     parser.add_argument("--pings", type=int, default=2000, help="round trips to time (default 2000)")
+    parser.add_argument("--step-timeout", type=float, default=10.0, help="the world's wait for an action, s")
     parser.add_argument("--extras", action="store_true", help="also the executors, markers and linger rows")
     args = parser.parse_args()
     maps = args.maps.split(",")
@@ -104,8 +107,15 @@ def main() -> None:
     # The maps' own settings; learning episodes only (the greedy evaluation would add episodes of another kind).
     settings = {m: run_settings(load_map(m), {"eval_episodes": 0, "step_cap": args.step_cap}) for m in maps}
 
-    def row(map_name, n_episodes, algo, linger=None, **how) -> dict:
-        r = lockstep(map_name, algo, n_episodes, settings[map_name], linger, **how)
+    def row(map_name, n_episodes, algo, linger=None, **how) -> dict | None:
+        try:
+            r = lockstep(map_name, algo, n_episodes, settings[map_name], linger, step_timeout=args.step_timeout,
+                         **how)
+        except LaunchError as e:
+            mode = "composed" if how.get("compose") else "processes"
+            print(f"{map_name:<15} {'':>6} {algo + (' learnt' if how.get('start_from') else ''):<10} {mode:<9} "
+                  f"failed: {e}", flush=True)
+            return None
         rows[map_name, r["algo"], linger, r["mode"], r["executor"], r["markers"]] = r
         print(f"{r['map']:<15} {r['agents']:>6} {r['algo']:<10} {r['mode']:<9} {r['executor']:<8} "
               f"{'on' if r['markers'] else 'off':<7} {n_episodes:>8} {r['steps']:>6} {r['steps_per_s']:>8,.0f} "
@@ -138,6 +148,8 @@ def main() -> None:
 
     print(f"\nagainst the messaging-only ceiling of the same topology, measured in this run ({load()}):")
     for apart, composed, top, peers in summary:
+        if apart is None or composed is None:
+            continue
         print(f"  {apart['map']:<15} {apart['agents']:>2} agents {apart['algo']:<10} ceiling (peers {peers}) "
               f"{top:>6,.0f} steps/s; composed {composed['steps_per_s']:>6,.0f} ({composed['steps_per_s'] / top:.0%} "
               f"of it); processes {apart['steps_per_s']:>5,.0f} ({apart['steps_per_s'] / top:.0%} of it, "
@@ -147,13 +159,17 @@ def main() -> None:
     if args.extras:
         for name in maps:
             for mode in ("processes", "composed"):
-                events = rows[name, "indep", None, mode, "events", True]
-                single = rows[name, "indep", None, mode, "single", True]
+                events = rows.get((name, "indep", None, mode, "events", True))
+                single = rows.get((name, "indep", None, mode, "single", True))
+                if events is None or single is None:
+                    continue
                 print(f"  executors, {name} indep, {mode}: EventsExecutor {events['steps_per_s']:,.0f} steps/s, "
                       f"SingleThreadedExecutor {single['steps_per_s']:,.0f} "
                       f"({events['steps_per_s'] / single['steps_per_s']:.1f}x)")
-            on = rows[name, "indep", None, "composed", "events", True]
-            off = rows[name, "indep", None, "composed", "events", False]
+            on = rows.get((name, "indep", None, "composed", "events", True))
+            off = rows.get((name, "indep", None, "composed", "events", False))
+            if on is None or off is None:
+                continue
             print(f"  markers with nobody subscribed, {name} indep composed: on {on['steps_per_s']:,.0f} steps/s, "
                   f"off {off['steps_per_s']:,.0f} ({on['steps_per_s'] / off['steps_per_s'] - 1:+.1%})")
 
