@@ -78,7 +78,7 @@ def prepare_output(out: Path, force: bool) -> Path:
 
 
 def episode_row(map_name: str, algo: str, run: int, episode: int, values) -> tuple:
-    """One row of episodes.csv: `episode` from 1, `values` a row of RunResult.episodes.
+    """One row of episodes.csv: `episode` from 0 as on the wire and in bags, `values` a row of RunResult.episodes.
     Every writer's values go through float64 as RunResult's do, so a JS state space past 2**53 (cells**N) is
     written alike offline and by a launch, which hears it exactly."""
     steps, coll, plays, states, ret, trunc = map(float, values)
@@ -96,7 +96,7 @@ def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifes
             w.writerow(EPISODE_COLUMNS)
             for r in ordered:
                 w.writerows(episode_row(gridmap.name, r.algo, r.run, e, values)
-                            for e, values in enumerate(r.episodes, start=1))
+                            for e, values in enumerate(r.episodes))
     with open(out / "observe.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(OBSERVE_COLUMNS)

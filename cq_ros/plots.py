@@ -141,7 +141,7 @@ def _mean_band(ax: Axes, values: np.ndarray, window: int, label: str, colour: st
     observed, so counts never get a band below zero."""
     smoothed = moving_average(values, window)
     mean, spread = smoothed.mean(axis=0), smoothed.std(axis=0)
-    episodes = np.arange(1, mean.size + 1)
+    episodes = np.arange(mean.size)
     ax.fill_between(episodes, np.maximum(mean - spread, values.min()), mean + spread, color=colour, alpha=0.2, lw=0)
     ax.plot(episodes, mean, color=colour, label=label, lw=1.3)
 

@@ -126,11 +126,11 @@ def _numeric_columns(path: str | os.PathLike) -> np.ndarray:
 
 def _rectangle(rows: np.ndarray, key: tuple[str, str], path: str | os.PathLike) -> Runs:
     runs, run_index = np.unique(rows["run"], return_inverse=True)
-    episodes = int(rows["episode"].max())
-    cell = run_index * episodes + (rows["episode"].astype(np.int64) - 1)
-    if rows["episode"].min() < 1 or rows.size != runs.size * episodes or np.bincount(cell).max() > 1:
+    episodes = int(rows["episode"].max()) + 1
+    cell = run_index * episodes + rows["episode"].astype(np.int64)
+    if rows["episode"].min() < 0 or rows.size != runs.size * episodes or np.bincount(cell).max() > 1:
         raise ValueError(
-            f"{path}: {key[0]}/{key[1]} must have episodes 1..{episodes} once for each of its {runs.size} runs "
+            f"{path}: {key[0]}/{key[1]} must have episodes 0..{episodes - 1} once for each of its {runs.size} runs "
             f"({runs.size * episodes} rows), found {rows.size} rows"
         )
     columns = {}
@@ -211,7 +211,7 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
 
 
 def settled_episode(collisions: np.ndarray, window: int = 100, threshold: float = 0.05) -> int | None:
-    """The first episode (1-based) from which the moving average of the run-mean collisions stays below
+    """The first episode (from 0, so also the number of episodes before it) from which the moving average of the run-mean collisions stays below
     ``threshold`` to the end; None if it is not below at the last episode.
 
     Because the average trails, this is when the smoothed curve settles, up to ``window`` episodes after
@@ -220,10 +220,10 @@ def settled_episode(collisions: np.ndarray, window: int = 100, threshold: float 
     smoothed = moving_average(np.asarray(collisions).mean(axis=0), window)
     above = np.flatnonzero(smoothed >= threshold)
     if above.size == 0:
-        return 1
+        return 0
     if above[-1] == smoothed.size - 1:
         return None
-    return int(above[-1]) + 2
+    return int(above[-1]) + 1
 
 
 @dataclass(frozen=True)

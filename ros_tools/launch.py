@@ -320,7 +320,7 @@ class Progress:
                                  refresh=False)
             self.bar.update(done - self.shown)
         elif self.enabled and (done // self.every > self.shown // self.every or done == self.episodes):
-            print(f"{label}: episode {done}/{self.episodes}, {collisions} collisions, {joint_states} joint "
+            print(f"{label}: episodes {done}/{self.episodes}, {collisions} collisions, {joint_states} joint "
                   f"states, {peer_messages} peer messages", file=sys.stderr, flush=True)
         self.shown = done
 

@@ -151,7 +151,7 @@ class EpisodeRows:
             if values is None:
                 return
             try:
-                self._write(episode_row(self.map_name, self.algo, 0, self.written + 1, values))
+                self._write(episode_row(self.map_name, self.algo, 0, self.written, values))
             except OSError as e:
                 self.failure = f"cannot write {self.path}: {os_reason(e)}"
                 self.close()

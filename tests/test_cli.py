@@ -114,6 +114,9 @@ def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_t
     rows = list(csv.DictReader(open(first / "episodes.csv")))
     assert len(rows) == 3 * 2 * 60
     assert {r["algo"] for r in rows} == {"cq", "indep", "loc"}
+    # Episodes from 0, as on the wire, in bags and in render --episode; runs from 0 too.
+    assert [(r["run"], int(r["episode"])) for r in rows if r["algo"] == "cq"] == \
+        [(run, e) for run in ("0", "1") for e in range(60)]
     manifest = json.loads((first / "manifest.json").read_text())
     assert manifest["settings"]["window"] == 10 and manifest["seed"] == 5
     assert manifest["settings"]["reward_collision"] == -10.0

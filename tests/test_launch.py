@@ -93,6 +93,8 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
     assert ros.shape == offline.episodes.shape
     for i, column in enumerate(COLUMNS):  # steps and collisions first: the transport adds and loses nothing
         np.testing.assert_array_equal(ros[:, i], offline.episodes[:, i], err_msg=column)
+    with open(out / "episodes.csv", newline="") as f:  # numbered from 0, as the world's stats on the wire
+        assert [int(r["episode"]) for r in csv.DictReader(f)] == list(range(episodes))
 
     with open(out / "observe.csv", newline="") as f:
         marked = [(int(r["agent"]) - 1, gridmap.index(int(r["row"]), int(r["col"])), int(r["peer"]) - 1,
@@ -172,7 +174,7 @@ def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(caps
     bar.close()
     lines = capsys.readouterr().err.splitlines()
     assert [line.split(":")[0] for line in lines] == ["tunnel_to_goal cq"] * 4 + ["tunnel_to_goal cq greedy"] * 2
-    assert lines[-1] == "tunnel_to_goal cq greedy: episode 6/6, 6 collisions, 1 joint states, 12 peer messages"
+    assert lines[-1] == "tunnel_to_goal cq greedy: episodes 6/6, 6 collisions, 1 joint states, 12 peer messages"
 
 
 def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_cost(launched):

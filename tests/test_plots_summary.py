@@ -71,7 +71,7 @@ def column(value: float) -> np.ndarray:
 
 
 def hand_made(algo: str) -> dict[str, np.ndarray]:
-    """Collisions 1 per episode up to episode 50, none after; each algorithm a little different."""
+    """Collisions 1 per episode in episodes 0-49, none after; each algorithm a little different."""
     collisions = column(0)
     collisions[:, :50] = 1
     steps = column(20)
@@ -91,7 +91,7 @@ def write_episodes(path: Path, tables: dict[tuple[str, str], dict[str, np.ndarra
         for run in range(RUNS):
             for episode in range(EPISODES):
                 values = [columns[name][run, episode] for name in EPISODES_HEADER.split(",")[4:]]
-                rows.append([map_name, algo, run, episode + 1, *(f"{v:g}" for v in values)])
+                rows.append([map_name, algo, run, episode, *(f"{v:g}" for v in values)])
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(EPISODES_HEADER.split(","))
@@ -135,7 +135,7 @@ def test_load_episodes_gives_runs_by_episodes_whatever_the_row_order(tmp_path):
 
 def test_load_episodes_reads_counts_written_as_floats(tmp_path):
     path = tmp_path / "episodes.csv"
-    rows = ["m,cq,0.0,1.0,12.0,1.0,0.0,9.0,-3.5,0.0", "m,cq,0.0,2.0,8.0,0.0,1.0,10.0,2.0,0.0"]
+    rows = ["m,cq,0.0,0.0,12.0,1.0,0.0,9.0,-3.5,0.0", "m,cq,0.0,1.0,8.0,0.0,1.0,10.0,2.0,0.0"]
     path.write_text("\n".join([EPISODES_HEADER, *rows]) + "\n")
     data = load_episodes(path)
     np.testing.assert_array_equal(data[("m", "cq")]["steps"], [[12, 8]])
@@ -145,9 +145,10 @@ def test_load_episodes_reads_counts_written_as_floats(tmp_path):
 @pytest.mark.parametrize(
     "body, message",
     [
-        ("m,cq,0,1,5,0,0,9,1,0\nm,cq,0,3,5,0,0,9,1,0\n", "episodes 1..3"),  # episode 2 missing
-        ("m,cq,0,1,5,0,0,9,1,0\nm,cq,0,1,5,0,0,9,1,0\n", "episodes 1..1"),  # a row twice
-        ("m,cq,0,1,5,0,0,9,1,0\nm,cq,1,1,5,0,0,9,1,0\nm,cq,1,2,5,0,0,9,1,0\n", "2 runs"),  # a short run
+        ("m,cq,0,0,5,0,0,9,1,0\nm,cq,0,2,5,0,0,9,1,0\n", "episodes 0..2"),  # episode 1 missing
+        ("m,cq,0,0,5,0,0,9,1,0\nm,cq,0,0,5,0,0,9,1,0\n", "episodes 0..0"),  # a row twice
+        ("m,cq,0,0,5,0,0,9,1,0\nm,cq,1,0,5,0,0,9,1,0\nm,cq,1,1,5,0,0,9,1,0\n", "2 runs"),  # a short run
+        ("m,cq,0,-1,5,0,0,9,1,0\nm,cq,0,0,5,0,0,9,1,0\n", "episodes"),  # before the first
     ],
 )
 def test_load_episodes_rejects_incomplete_groups(tmp_path, body, message):
@@ -159,7 +160,7 @@ def test_load_episodes_rejects_incomplete_groups(tmp_path, body, message):
 
 def test_load_episodes_rejects_another_header(tmp_path):
     path = tmp_path / "episodes.csv"
-    path.write_text("map,algo,run,episode,steps\nm,cq,0,1,5\n")
+    path.write_text("map,algo,run,episode,steps\nm,cq,0,0,5\n")
     with pytest.raises(ValueError, match="header"):
         load_episodes(path)
 
@@ -191,19 +192,19 @@ def test_moving_average_is_trailing_and_averages_what_there_is_at_the_start():
 
 def test_settled_episode_after_collisions_stop_at_episode_50():
     collisions = hand_made("cq")["collisions"]
-    # Window 100: from episode 100 the average is (150 - t) / 100, below 0.05 from t = 146 on.
-    assert settled_episode(collisions, window=100) == 146
-    # Window 10: (60 - t) / 10 for t in 51..60, zero from episode 60.
-    assert settled_episode(collisions, window=10) == 60
+    # Window 100: from episode 99 the average is (149 - t) / 100, below 0.05 from t = 145 on.
+    assert settled_episode(collisions, window=100) == 145
+    # Window 10: (59 - t) / 10 for t in 50..59, zero from episode 59.
+    assert settled_episode(collisions, window=10) == 59
 
 
 def test_settled_episode_waits_for_a_relapsing_run():
     collisions = hand_made("cq")["collisions"]
-    collisions[0, 119] = 3  # run 0 collides 3 times in episode 120: run mean 1, window mean 0.1 until 129
-    assert settled_episode(collisions, window=10) == 130
+    collisions[0, 119] = 3  # run 0 collides 3 times in episode 119: run mean 1, window mean 0.1 until 128
+    assert settled_episode(collisions, window=10) == 129
     collisions[2, -1] = 2  # 2 collisions of one run in the last episode: window mean 0.067, not settled
     assert settled_episode(collisions, window=10) is None
-    assert settled_episode(np.zeros((2, 5)), window=10) == 1
+    assert settled_episode(np.zeros((2, 5)), window=10) == 0
 
 
 def test_compute_metrics_on_hand_made_runs():
@@ -221,7 +222,7 @@ def test_compute_metrics_on_hand_made_runs():
     assert cq.steps_tail == pytest.approx(20.0)
     assert cq.truncated == 3
     indep = metrics[0]
-    assert (indep.collisions_tail, indep.collisions_tail_std, indep.settled_episode) == (0.0, 0.0, 60)
+    assert (indep.collisions_tail, indep.collisions_tail_std, indep.settled_episode) == (0.0, 0.0, 59)
     assert indep.joint_plays_all == 0.0
 
 
@@ -231,7 +232,7 @@ def test_tables_have_a_row_per_algorithm(tmp_path):
     rows = [line for line in markdown.splitlines() if line.startswith("| fake |")]
     assert [row.split(" | ")[1] for row in rows] == ["indep", "jsa", "loc", "cq"]
     assert markdown.splitlines()[1].startswith("| --- | --- | ---: |")
-    assert "| 60 |" in rows[0] and "| 26 |" in rows[-1]
+    assert "| 59 |" in rows[0] and "| 26 |" in rows[-1]
     console = format_console_table(data, window=10)
     console_rows = [line.split() for line in console.splitlines() if line.startswith("fake")]
     assert [row[1] for row in console_rows] == ["indep", "jsa", "loc", "cq"]

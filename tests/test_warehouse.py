@@ -184,7 +184,7 @@ def test_a_generated_warehouse_file_runs_in_cq_ros_experiment(tmp_path, capsys):
     # gamma is not the map's: --set gamma=0.9 went over it
     assert manifest["settings_from_map"] == {"reward_step": -1.0, "epsilon_decay_episodes": 1500}
     rows = (out / "episodes.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 * 15 and rows[1].startswith("small,indep,0,1,")
+    assert len(rows) == 1 + 2 * 15 and rows[1].startswith("small,indep,0,0,")
 
 
 def test_generate_writes_the_delays_as_map_defaults_with_their_reasons(tmp_path):
