@@ -98,8 +98,8 @@ class AgentNode(Node):
         # Feedback proves the world's action reader exists, not that our writer has matched it yet.
         self._actions = {k: _HeldPublisher(self, ACTION, action_topic(k), 1, latest_only=True, key=cfg.key)
                          for k in agents}
-        self._stats = {k: _HeldPublisher(self, AGENT_STATS, agent_stats_topic(k), cfg.min_stats_subscribers)
-                       for k in agents}
+        self._stats = {k: _HeldPublisher(self, AGENT_STATS, agent_stats_topic(k), cfg.min_stats_subscribers,
+                                         key=cfg.key) for k in agents}
         # Raw: the driver decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
                                                    partial(self._on_feedback, k), FEEDBACK.reader_qos, raw=True)

@@ -43,15 +43,15 @@ _STATS_ENCODERS: dict[type, Callable[..., Any]] = {WorldStats: encode_world_stat
 
 
 def encode(payload: Any, *, key: bytes | None = None, stamp: Time | None = None) -> Any:
-    """The ROS message for any payload: `key` keys an array payload (msgs_spec.auth; statistics carry no MAC),
-    `stamp` is the header time of statistics."""
+    """The ROS message for any payload: `key` keys it (msgs_spec.auth), `stamp` is the header time of
+    statistics."""
     if type(payload) in LAYOUT_BY_PAYLOAD:
         return encode_array(LAYOUT_BY_PAYLOAD[type(payload)], payload, key)
     try:
         enc = _STATS_ENCODERS[type(payload)]
     except KeyError:
         raise WireError("wrong_type", f"no wire encoding for {type(payload).__name__}") from None
-    return enc(payload, stamp=stamp)
+    return enc(payload, stamp=stamp, key=key)
 
 
 def serialize(payload: Any, *, key: bytes | None = None) -> Any:
@@ -68,7 +68,7 @@ def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
            episode: int | None = None, step: int | None = None, key: bytes | None = None) -> Any:
     """Decode any project message, recognising the payload from the ROS type and the layout label or status
     name (messages are self-describing). Expectations that do not apply to the payload are ignored
-    (`step` for statistics, `agent` for world statistics; `key` for statistics, which carry no MAC)."""
+    (`step` for statistics, `agent` for world statistics)."""
     t = type(msg)
     if t is DiagnosticArray:
         try:
@@ -76,8 +76,8 @@ def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
         except (AttributeError, TypeError, IndexError):
             name = ""
         if name == WORLD_STATS_NAME:
-            return decode_world_stats(msg, bounds=bounds, episode=episode)
-        return decode_agent_stats(msg, bounds=bounds, agent=agent, episode=episode)
+            return decode_world_stats(msg, bounds=bounds, episode=episode, key=key)
+        return decode_agent_stats(msg, bounds=bounds, agent=agent, episode=episode, key=key)
     if t in (Float64MultiArray, Int32MultiArray):
         try:
             label = msg.layout.dim[0].label if len(msg.layout.dim) == 1 else None

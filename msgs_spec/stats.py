@@ -1,16 +1,24 @@
 """The statistics' codec: WorldStats and AgentStats as a diagnostic_msgs/DiagnosticArray holding one
 DiagnosticStatus whose `values` are KeyValue pairs (the keys and what they hold: WORLD_STATS_KEYS,
-AGENT_STATS_KEYS); decoders check every key and value and raise only `WireError`."""
+AGENT_STATS_KEYS); decoders check every key and value and raise only `WireError`.
+
+With the run's key the pairs end with `mac`: the run's HMAC (msgs_spec.auth) over the status name, the
+hardware id and every other pair, in order, as hex. A receiver holding the key drops statistics without a
+matching one (`unauthenticated`), so a launcher never counts a second system's episodes as its own; one
+without the key (`cq-ros collect`, `ros2 topic echo`) reads both forms, as it does the arrays."""
 
 from __future__ import annotations
 
+import hmac
 import math
 import re
+import struct
 from typing import Any, Mapping
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from .auth import mac_words
 from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_nonneg, check_sequence
 from .errors import WireError
 from .payloads import AgentStats, Bounds, MarkedJointState, WorldStats
@@ -107,8 +115,20 @@ def _counter_pairs(counters: Mapping[str, int]) -> list[tuple[str, str]]:
     return out
 
 
+_MAC_KEY = "mac"
+
+
+def _mac_hex(key: bytes, name: str, hardware_id: str, pairs: list[tuple[str, str]]) -> str:
+    """The run's MAC of a status: every string length-prefixed, so no two statuses pack alike."""
+    fields = [name, hardware_id, *(text for pair in pairs for text in pair)]
+    packed = b"".join(struct.pack(">I", len(b)) + b for b in (f.encode() for f in fields))
+    return "".join(f"{w:08x}" for w in mac_words(key, "stats", packed))
+
+
 def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str, str]],
-               stamp: Time | None) -> DiagnosticArray:
+               stamp: Time | None, key: bytes | None) -> DiagnosticArray:
+    if key is not None:
+        pairs = [*pairs, (_MAC_KEY, _mac_hex(key, name, hardware_id, pairs))]
     status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=summary, hardware_id=hardware_id,
                               values=[KeyValue(key=k, value=v) for k, v in pairs])
     arr = DiagnosticArray(status=[status])
@@ -117,8 +137,9 @@ def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str,
     return arr
 
 
-def _stats_values(msg: Any) -> tuple[str, str, dict[str, str]]:
-    """(status name, hardware_id, key -> value) of a one-status DiagnosticArray; rejects repeated keys."""
+def _stats_values(msg: Any, key: bytes | None) -> tuple[str, str, dict[str, str]]:
+    """(status name, hardware_id, key -> value but the MAC) of a one-status DiagnosticArray; rejects repeated
+    keys, and with `key` a status whose MAC is missing or does not match."""
     if type(msg) is not DiagnosticArray:
         raise WireError("wrong_type", f"expected DiagnosticArray, got {type(msg).__name__}")
     try:
@@ -131,6 +152,13 @@ def _stats_values(msg: Any) -> tuple[str, str, dict[str, str]]:
             if kv.key in values:
                 raise WireError("malformed", f"key {kv.key!r} repeated")
             values[kv.key] = kv.value
+        mac = values.pop(_MAC_KEY, None)
+        if key is not None:
+            if mac is None:
+                raise WireError("unauthenticated", "statistics without a MAC, and this receiver holds the run's key")
+            pairs = [(kv.key, kv.value) for kv in st.values if kv.key != _MAC_KEY]
+            if not hmac.compare_digest(mac, _mac_hex(key, st.name, st.hardware_id, pairs)):
+                raise WireError("unauthenticated", "the statistics' MAC does not match the run's key")
         return st.name, st.hardware_id, values
     except (AttributeError, TypeError) as e:
         raise WireError("malformed", f"unreadable message: {e}") from None
@@ -160,8 +188,8 @@ def _no_leftovers(values: dict[str, str]) -> None:
         raise WireError("malformed", f"unknown keys {sorted(values)}")
 
 
-def encode_world_stats(s: WorldStats, *, stamp: Time | None = None) -> DiagnosticArray:
-    """`stamp`: header time (wall clock, e.g. node.get_clock().now().to_msg()); zero if None."""
+def encode_world_stats(s: WorldStats, *, stamp: Time | None = None, key: bytes | None = None) -> DiagnosticArray:
+    """`stamp`: header time (wall clock, e.g. node.get_clock().now().to_msg()); zero if None. `key`: the run's."""
     if type(s) is not WorldStats:
         raise WireError("wrong_type", f"expected WorldStats, got {type(s).__name__}")
     ints = {k: as_int(k, getattr(s, k)) for k in ("episode", "steps", "collisions", "missed_actions")}
@@ -182,12 +210,12 @@ def encode_world_stats(s: WorldStats, *, stamp: Time | None = None) -> Diagnosti
     end = "truncated at the step cap" if truncated else "all agents at their goals"
     summary = (f"episode {ints['episode']}: {ints['steps']} steps, {ints['collisions']} collisions, "
                f"{ints['missed_actions']} missed actions, {end}")
-    return _stats_msg(WORLD_STATS_NAME, "world", summary, pairs, stamp)
+    return _stats_msg(WORLD_STATS_NAME, "world", summary, pairs, stamp, key)
 
 
 def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
-                       episode: int | None = None) -> WorldStats:
-    name, hw, values = _stats_values(msg)
+                       episode: int | None = None, key: bytes | None = None) -> WorldStats:
+    name, hw, values = _stats_values(msg, key)
     if name != WORLD_STATS_NAME or hw != "world":
         raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "
                                         f"expected {WORLD_STATS_NAME!r} 'world'")
@@ -243,7 +271,7 @@ def _check_marked(m: MarkedJointState, agent: int, bounds: Bounds | None, where:
     return MarkedJointState(row, col, peer, prow, pcol, conf)
 
 
-def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None) -> DiagnosticArray:
+def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None, key: bytes | None = None) -> DiagnosticArray:
     if type(s) is not AgentStats:
         raise WireError("wrong_type", f"expected AgentStats, got {type(s).__name__}")
     ints = {k: as_int(k, getattr(s, k), wide=k in _WIDE_KEYS) for k in _AGENT_INT_KEYS}
@@ -262,12 +290,12 @@ def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None) -> Diagnosti
     pairs += _counter_pairs(s.counters)
     summary = (f"agv{ints['agent']} ({s.algorithm}) episode {ints['episode']}: {ints['joint_plays']} joint "
                f"plays, {len(marked)} marked joint states, {ints['subscriptions_active']} live subscriptions")
-    return _stats_msg(agent_stats_name(ints["agent"]), f"agv{ints['agent']}", summary, pairs, stamp)
+    return _stats_msg(agent_stats_name(ints["agent"]), f"agv{ints['agent']}", summary, pairs, stamp, key)
 
 
 def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, agent: int | None = None,
-                       episode: int | None = None) -> AgentStats:
-    name, hw, values = _stats_values(msg)
+                       episode: int | None = None, key: bytes | None = None) -> AgentStats:
+    name, hw, values = _stats_values(msg, key)
     m = re.fullmatch(r"agv([0-9]+)/stats", name)
     if not m or hw != f"agv{m.group(1)}":
         raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "

@@ -166,7 +166,19 @@ class Child:
     def describe_exit(self) -> str:
         code = self.exit_code
         how = f" (killed by {signal.Signals(-code).name})" if code is not None and code < 0 else ""
-        return f"{self.name} (pid {self.process.pid}) exited with code {code}{how}"
+        said = self.last_error()
+        return f"{self.name} (pid {self.process.pid}) exited with code {code}{how}" + (f" ({said})" if said else "")
+
+    def last_error(self) -> str | None:
+        """The node's last ERROR line, without rclpy's prefix (a refusal says why there), if its log has one."""
+        try:
+            with open(self.log, "rb") as f:
+                f.seek(max(0, f.seek(0, os.SEEK_END) - 8192))
+                lines = f.read().decode(errors="replace").splitlines()
+        except OSError:
+            return None
+        errors = [line for line in lines if line.startswith("[ERROR]")]
+        return errors[-1].split("]: ", 1)[-1] if errors else None
 
 
 def split_sets(pairs: list[str], gridmap: GridMap) -> tuple[Settings, dict[str, Any]]:
@@ -396,6 +408,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         (out / sub).mkdir(exist_ok=True)
     kept_key = key_file is not None  # the system's own key (cq-ros key), named in params.yaml and kept
     key_file = Path(key_file).resolve() if kept_key else new_key_file()
+    run_key = read_key_parameter(os.fspath(key_file))
     nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
                        node_parameters, key_file)
     launch_only = LAUNCH_ONLY if kept_key else LAUNCH_ONLY | {"key_file"}
@@ -441,7 +454,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     with StopSignals() as stop, environment(**listener_env), ros_session(
             "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
             hidden=False) as (node, executor):
-        listener = StatsListener(node, gridmap, episodes + settings.eval_episodes)
+        listener = StatsListener(node, gridmap, episodes + settings.eval_episodes, key=run_key)
         server = None
         if view_port is not None:  # a live view in Foxglove (ros_tools.view), relayed by the listener's node
             from .view import serve

@@ -63,8 +63,8 @@ class StatsListener:
     and greedy episodes alike), decoded through the contract (a bad message is logged, counted and dropped,
     never raised)."""
 
-    def __init__(self, node: Any, gridmap: GridMap, episodes: int):
-        self.node = node
+    def __init__(self, node: Any, gridmap: GridMap, episodes: int, key: bytes | None = None):
+        self.node, self.key = node, key  # with the run's key, only this system's statistics count
         self.episodes = episodes
         self.bounds = Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
         self.drops = DropCounter(node.get_logger().warning)
@@ -79,13 +79,13 @@ class StatsListener:
                                                    WORLD_STATS.qos)
 
     def _on_world(self, msg: Any) -> None:
-        stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, source=WORLD_STATS_TOPIC)
+        stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, key=self.key, source=WORLD_STATS_TOPIC)
         if stats is not None and stats.episode not in self.world:
             self.world[stats.episode] = stats
             self.collisions += stats.collisions
 
     def _on_agent(self, agent: int, msg: Any) -> None:
-        stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent,
+        stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent, key=self.key,
                                  source=agent_stats_topic(agent))
         if stats is not None:
             self.agents[agent][stats.episode] = stats

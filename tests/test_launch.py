@@ -201,11 +201,11 @@ def test_cq_agents_receive_fewer_peer_messages_than_js_agents(launched, map_name
     assert 0 < js and cq < js
 
 
-def _start_long_launch(tmp_path: Path) -> tuple[subprocess.Popen, Path, str, Path]:
+def _start_long_launch(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, Path, str, Path]:
     """A launch that would run for minutes, once its world is stepping: (process, out, namespace, stderr)."""
     out, namespace, err = tmp_path / "result", unique("stopme"), tmp_path / "launch.stderr"
     with open(err, "wb") as f:
-        launcher = subprocess.Popen(launch_command(out, namespace, "tunnel_to_goal", "cq", 100_000, ()),
+        launcher = subprocess.Popen([*launch_command(out, namespace, "tunnel_to_goal", "cq", 100_000, ()), *extra],
                                     stdout=subprocess.DEVNULL, stderr=f)
     deadline = time.monotonic() + 60
     world_log = out / "logs" / "world.log"
@@ -259,6 +259,43 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
                      err.read_text())
     for log in (out / "logs").iterdir():  # each node ended through its own Ctrl-C path, not a crash
         assert "Traceback" not in log.read_text(), log.name
+
+
+def test_a_second_launch_in_a_running_systems_namespace_refuses_and_counts_none_of_its_episodes(tmp_path,
+                                                                                                  ros_domain_id):
+    """Issue 20: the second launch's world refuses (exit 2) and the launch says why in one line. Its listener
+    holds its own run's key and drops the first system's statistics, so the episodes it reports are its own
+    (none, or the few its world stepped before it saw the first one), where it used to report the first
+    system's count as its own; the first system's run is the engine's. The second runs another seed, so its
+    rows cannot pass for the first's."""
+    domain = ("--domain-id", str(ros_domain_id))  # one domain for both: a launch draws its own otherwise
+    first, out, namespace, err = _start_long_launch(tmp_path, *domain)
+    try:
+        deadline = time.monotonic() + LAUNCH_TIMEOUT_S  # until the first system has episodes to be mistaken for
+        while len((out / "episodes.csv").read_text().splitlines()) < 4:
+            assert time.monotonic() < deadline and first.poll() is None, err.read_text()
+            time.sleep(0.1)
+        other = tmp_path / "second"
+        second = subprocess.run([*launch_command(other, namespace, "tunnel_to_goal", "cq", 100_000, ()), *domain,
+                                 "--seed", str(SEED + 1)], capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+        assert first.poll() is None, err.read_text()
+        assert second.returncode == 1, second.stderr
+        last = second.stderr.strip().splitlines()[-1]
+        said = re.fullmatch(r"cq-ros launch: error: world \(pid \d+\) exited with code 2 \(another (world publishes|"
+                            r"node named) /\w+/world.* refusing to start.*\) after (\d+)/100020 episodes .*", last)
+        assert said, last
+        own = read_episodes(other) if len((other / "episodes.csv").read_text().splitlines()) > 1 else np.zeros((0, 6))
+        assert len(own) == int(said[2])
+        if len(own):
+            np.testing.assert_array_equal(own, run("cq", load_map("tunnel_to_goal"), Settings(), SEED + 1, 0,
+                                                   len(own)).episodes)
+        first.send_signal(signal.SIGINT)
+    finally:
+        code = _wait(first, namespace)
+    assert code == 130
+    heard = read_episodes(out)
+    offline = run("cq", load_map("tunnel_to_goal"), Settings(), SEED, 0, len(heard)).episodes
+    np.testing.assert_array_equal(heard, offline)
 
 
 def test_nodes_are_given_the_settings_that_differ_from_the_maps_own(tmp_path):

@@ -274,6 +274,24 @@ def test_state_counts_of_any_size_cross_the_wire_exactly():
     assert back.joint_states == 98**16 and type(back.joint_states) is int and back == s
 
 
+@pytest.mark.parametrize("example", ["world_stats", "agent_stats"])
+def test_keyed_statistics_are_checked_by_a_receiver_with_the_key_and_read_by_one_without(example):
+    key, other = bytes(range(32)), bytes(range(1, 33))
+    s = doc.EXAMPLES[example]
+    keyed = _wire(ms.encode(s, key=key))
+    assert keyed.status[0].values[-1].key == "mac"
+    assert ms.decode(keyed, key=key) == s == ms.decode(keyed)  # the tools, holding no key, read both forms
+    for bad in (ms.encode(s), ms.encode(s, key=other)):  # a second system's statistics, or a writer with no key
+        with pytest.raises(ms.WireError) as e:
+            ms.decode(_wire(bad), key=key)
+        assert e.value.kind == "unauthenticated"
+    forged = _wire(ms.encode(s, key=key))
+    forged.status[0].values[1].value = "7"  # a value changed after the MAC was made
+    with pytest.raises(ms.WireError) as e:
+        ms.decode(forged, key=key)
+    assert e.value.kind == "unauthenticated"
+
+
 def test_stats_stamp_and_summary():
     from builtin_interfaces.msg import Time
     msg = ms.encode_world_stats(doc.EXAMPLES["world_stats"], stamp=Time(sec=12, nanosec=5))
