@@ -409,8 +409,10 @@ def read_rows(path) -> list[tuple[int, int, bool]]:
     # the world, stopped for less than its step_timeout with the agents' actions waiting in its queue (stopped
     # past it, 3 s against 4 s, one answer came really late now and then on a busy machine)
     ("world", ("step_timeout=6.0",), 3, 4.0),
-    # an agent, stopped past its own feedback_timeout with the world's heartbeats waiting in its queue
-    ("agv1", ("step_timeout=10.0", "feedback_timeout=2.0", "heartbeat_period=0.2"), 2, 4.0),
+    # an agent, stopped past its own feedback_timeout with the world's heartbeats waiting in its queue (a
+    # timeout of 2 s once ended the other agent, which heard no heartbeat for 2.2 s on a machine kept busy
+    # beside the suite)
+    ("agv1", ("step_timeout=12.0", "feedback_timeout=3.0", "heartbeat_period=0.2"), 2, 5.0),
 ], ids=["world", "agent"])
 def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, stopped, sets, stalls, stall_s):
     """Issue 20: kill -STOP, then -CONT, of one node process of a real `cq-ros launch`, several times. A stalled
