@@ -28,6 +28,7 @@ from msgs_spec import (
     agent_stats_topic, feedback_topic, position_topic, serialize,
 )
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
+from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.patience import Patience
 from node_runtime.run import when, when_acked
@@ -101,12 +102,14 @@ class AgentNode(Node):
         self._stats = {k: _HeldPublisher(self, AGENT_STATS, agent_stats_topic(k), cfg.min_stats_subscribers,
                                          key=cfg.key) for k in agents}
         # Raw: the driver decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
+        lost = count_lost(self.driver.link.extra_counters)
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
-                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos, raw=True)
+                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos, raw=True,
+                                                   event_callbacks=lost)
                           for k in agents]
         self._heartbeat = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
-                                                   HEARTBEAT.reader_qos, raw=True)
+                                                   HEARTBEAT.reader_qos, raw=True, event_callbacks=lost)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)

@@ -24,6 +24,7 @@ from msgs_spec import (
     Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic, serialize,
 )
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
+from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.run import when_acked
 
@@ -58,8 +59,10 @@ class WorldNode(Node):
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
         self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
         # Raw: the core decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
+        lost = count_lost(self.core.extra_counters)
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
-                                                     ACTION.reader_qos, raw=True) for k in agents}
+                                                     ACTION.reader_qos, raw=True, event_callbacks=lost)
+                         for k in agents}
         self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
         self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
