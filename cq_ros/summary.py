@@ -211,8 +211,8 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
 
 
 def settled_episode(collisions: np.ndarray, window: int = 100, threshold: float = 0.05) -> int | None:
-    """The first episode (from 0, so also the number of episodes before it) from which the moving average of the run-mean collisions stays below
-    ``threshold`` to the end; None if it is not below at the last episode.
+    """The first episode (from 0, so also the number of episodes before it) from which the moving average of
+    the run-mean collisions stays below ``threshold`` to the end; None if it is not below at the last episode.
 
     Because the average trails, this is when the smoothed curve settles, up to ``window`` episodes after
     the last collision that mattered.

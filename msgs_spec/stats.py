@@ -255,6 +255,7 @@ _AGENT_INT_KEYS = ("agent", "episode", "joint_plays", "local_states", "joint_sta
 # million digits is dropped before Python parses it.
 _WIDE_KEYS = frozenset({"local_states", "joint_states"})
 WIDE_DIGITS = 200
+_WIDE_LIMIT = 10 ** WIDE_DIGITS  # the least count of more than WIDE_DIGITS digits
 
 
 def _check_marked(m: MarkedJointState, agent: int, bounds: Bounds | None, where: str) -> MarkedJointState:
@@ -275,7 +276,7 @@ def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None, key: bytes |
     if type(s) is not AgentStats:
         raise WireError("wrong_type", f"expected AgentStats, got {type(s).__name__}")
     ints = {k: as_int(k, getattr(s, k), wide=k in _WIDE_KEYS) for k in _AGENT_INT_KEYS}
-    if any(ints[k] >= 10 ** WIDE_DIGITS for k in _WIDE_KEYS):
+    if any(ints[k] >= _WIDE_LIMIT for k in _WIDE_KEYS):
         raise WireError("out_of_range", f"a state count of more than {WIDE_DIGITS} digits")
     check_agent(ints["agent"], None, None)
     for k in _AGENT_INT_KEYS[1:]:
