@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """ROS mode speed: lockstep steps per second of `cq-ros launch` composed (every node in one process) and with a
 process per node, each against the messaging-only ceiling of the same topology measured in the same run
-(benchmarks/ceiling.py: the same nodes, topics, QoS and message sizes with no decoding, checking or learning),
+(benchmarks/ceiling.py: the same nodes, topics, QoS and message sizes with no decoding, checking or learning;
+and beside it the same with the wire contract put back, every message encoded and decoded as the nodes do),
 with the ratios to it and to each other, for independent learners, for a CQ that has learnt (its agents start
 from checkpoints of an offline run of the same map, so joint states are marked and peers subscribed: peer
 messages a step printed beside) and for JS (every peer all the time, against the ceiling with every peer
@@ -127,18 +128,22 @@ def main() -> None:
         for map_name, n_episodes in zip(maps, episodes):
             agents = load_map(map_name).n_agents
             for peers in ("none", "all"):
-                c = ceiling(agents, args.ceiling_steps if peers == "none" else max(args.ceiling_steps // 4, 100), peers)
-                ceilings[map_name, peers] = c["steps_per_s"]
-                print(f"{map_name:<15} {agents:>6} messaging-only ceiling, peers {peers}: {c['steps_per_s']:,.0f} "
-                      f"steps/s ({c['deliveries_per_step']} deliveries a step, {c['cpu_ms_per_step']:.3f} ms of "
-                      f"CPU a step; {load()})", flush=True)
+                for contract in (False, True):
+                    c = ceiling(agents, args.ceiling_steps if peers == "none" else max(args.ceiling_steps // 4, 100),
+                                peers, contract=contract)
+                    ceilings[map_name, peers, contract] = c["steps_per_s"]
+                    what = "the messages and the contract" if contract else "messaging-only ceiling"
+                    print(f"{map_name:<15} {agents:>6} {what}, peers {peers}: {c['steps_per_s']:,.0f} steps/s "
+                          f"({c['deliveries_per_step']} deliveries a step, {c['cpu_ms_per_step']:.3f} ms of CPU a "
+                          f"step; {load()})", flush=True)
             folder = Path(ck) / map_name
             folder.mkdir()
             trained(map_name, settings[map_name], args.train_episodes, 0, folder)
             for algo, start_from, peers in (("indep", None, "none"), ("cq", folder, "none"), ("js", None, "all")):
                 apart = row(map_name, n_episodes, algo, start_from=start_from)
                 composed = row(map_name, n_episodes, algo, compose=True, start_from=start_from)
-                summary.append((apart, composed, ceilings[map_name, peers], peers))
+                summary.append((apart, composed, ceilings[map_name, peers, False], ceilings[map_name, peers, True],
+                                peers))
             if args.extras:
                 row(map_name, n_episodes, "cq")  # from scratch
                 row(map_name, n_episodes, "cq", 3)  # subscriptions kept 3 steps longer
@@ -147,11 +152,11 @@ def main() -> None:
                 row(map_name, n_episodes, "indep", compose=True, markers=False)
 
     print(f"\nagainst the messaging-only ceiling of the same topology, measured in this run ({load()}):")
-    for apart, composed, top, peers in summary:
+    for apart, composed, top, contract, peers in summary:
         if apart is None or composed is None:
             continue
         print(f"  {apart['map']:<15} {apart['agents']:>2} agents {apart['algo']:<10} ceiling (peers {peers}) "
-              f"{top:>6,.0f} steps/s; composed {composed['steps_per_s']:>6,.0f} ({composed['steps_per_s'] / top:.0%} "
+              f"{top:>6,.0f} steps/s; with the contract {contract:>6,.0f} ({contract / top:.0%}); composed {composed['steps_per_s']:>6,.0f} ({composed['steps_per_s'] / top:.0%} "
               f"of it); processes {apart['steps_per_s']:>5,.0f} ({apart['steps_per_s'] / top:.0%} of it, "
               f"{apart['steps_per_s'] / allowed:.0%} of the round-trip rate); composed / processes "
               f"{composed['steps_per_s'] / apart['steps_per_s']:.1f}x; peer messages a step "

@@ -10,7 +10,12 @@ holds its peers' positions of the step (`peers`: none, as independent learners, 
 JS); the world steps again when every action is in. Nothing is decoded, checked, learnt or counted but the
 arrivals: the gap between this rate and a composed run's is our Python around each message.
 
-    python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all]
+`--contract` puts back the wire contract alone: every message is built as its payload for the step and
+serialized with the run's key (msgs_spec.serialize), and every arrival decoded with every check, the MAC
+included (bounds, agent, episode and step), as the nodes do; still no driver, learner or world. The gap
+between the two rates is what the contract costs, the rest of a composed run's gap is the nodes' own Python.
+
+    python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all] [--contract]
 
 Isolation: a random ROS_DOMAIN_ID in 40..99, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, its own rclpy Context;
 every wait is bounded (discovery, and each step).
@@ -24,18 +29,20 @@ import random
 import secrets
 import sys
 import time
+from functools import partial
 
 PEERS = ("none", "all")
 
 
 def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, step_timeout_s: float = 5.0,
-            discovery_timeout_s: float = 30.0) -> dict:
-    """Steps per second of the emulated lockstep (`steps` timed after `warmup`), and the deliveries a step."""
+            discovery_timeout_s: float = 30.0, contract: bool = False) -> dict:
+    """Steps per second of the emulated lockstep (`steps` timed after `warmup`), and the deliveries a step;
+    with `contract`, every message encoded and decoded as the nodes do (the module's docstring)."""
     import rclpy
 
     from msgs_spec import (
-        ACTION, FEEDBACK, POSITION, Action, Feedback, Position, action_topic, feedback_topic, position_topic,
-        serialize,
+        ACTION, FEEDBACK, POSITION, Action, Bounds, Feedback, Position, action_topic, decode_action,
+        decode_feedback, decode_position, feedback_topic, position_topic, serialize,
     )
     from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV, make_executor
     from ros_tools.commands import environment
@@ -47,6 +54,14 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     position = {k: serialize(Position(k, 0, 1, 0, 0), key=key) for k in ids}
     feedback = {k: serialize(Feedback(k, 0, 1, 0, 0, -1.0), key=key) for k in ids}
     action = {k: serialize(Action(k, 0, 1, 0), key=key) for k in ids}
+    bounds = Bounds(agents, 1, 1)
+    clock = [0]  # the step, as the contract's payloads carry it
+    if contract:
+        def decoded(decode, raw, k):  # what a node does with each arrival: decode with every check
+            decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=key)
+
+        def sent(payload):  # what a node does with each message it sends: the payload, serialized keyed
+            return serialize(payload, key=key)
     watched = {k: [j for j in ids if j != k] if peers == "all" else [] for k in ids}
     domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
     namespace = f"/ceiling_{secrets.token_hex(4)}"
@@ -69,26 +84,32 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         actions_in = [0]
         subs = []
         for k in ids:
-            subs.append(world.create_subscription(ACTION.msg_type, action_topic(k),
-                                                  lambda _raw: actions_in.__setitem__(0, actions_in[0] + 1),
-                                                  ACTION.reader_qos, raw=True))
+            def action_in(raw, k=k):
+                if contract:
+                    decoded(decode_action, raw, k)
+                actions_in[0] += 1
+
+            subs.append(world.create_subscription(ACTION.msg_type, action_topic(k), action_in, ACTION.reader_qos,
+                                                  raw=True))
         need = {k: 1 + len(watched[k]) for k in ids}  # arrivals before agent k acts: its feedback and peers'
         got = dict.fromkeys(ids, 0)
         for k in ids:
             agent = node(f"agv{k}")
             pub = agent.create_publisher(ACTION.msg_type, action_topic(k), ACTION.qos)
 
-            def arrive(_raw, k=k, pub=pub):
+            def arrive(raw, k=k, pub=pub, sender=k):
+                if contract:
+                    decoded(decode_feedback if sender == k else decode_position, raw, sender)
                 got[k] += 1
                 if got[k] == need[k]:
                     got[k] = 0
-                    pub.publish(action[k])
+                    pub.publish(sent(Action(k, 0, clock[0], 0)) if contract else action[k])
 
             subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
                                                   FEEDBACK.reader_qos, raw=True))
             for j in watched[k]:
-                subs.append(agent.create_subscription(POSITION.msg_type, position_topic(j), arrive,
-                                                      POSITION.reader_qos, raw=True))
+                subs.append(agent.create_subscription(POSITION.msg_type, position_topic(j),
+                                                      partial(arrive, sender=j), POSITION.reader_qos, raw=True))
         executor = make_executor("events", ctx)
         for made in nodes:
             executor.add_node(made)
@@ -102,10 +123,11 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
 
         def step() -> None:
             actions_in[0] = 0
+            clock[0] += 1
             for k in ids:
-                pub_position[k].publish(position[k])
+                pub_position[k].publish(sent(Position(k, 0, clock[0], 0, 0)) if contract else position[k])
             for k in ids:
-                pub_feedback[k].publish(feedback[k])
+                pub_feedback[k].publish(sent(Feedback(k, 0, clock[0], 0, 0, -1.0)) if contract else feedback[k])
             stop_at = time.monotonic() + step_timeout_s
             while actions_in[0] < agents:
                 if time.monotonic() > stop_at:
@@ -124,7 +146,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         for made in nodes:
             made.destroy_node()
         rclpy.try_shutdown(context=ctx)
-    return {"agents": agents, "peers": peers, "steps": steps, "seconds": seconds, "steps_per_s": steps / seconds,
+    return {"agents": agents, "peers": peers, "contract": contract, "steps": steps, "seconds": seconds,
+            "steps_per_s": steps / seconds,
             "cpu_ms_per_step": cpu / steps * 1e3,
             "messages_per_step": 3 * agents, "deliveries_per_step": 3 * agents + sum(map(len, watched.values()))}
 
@@ -134,12 +157,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--agents", type=int, default=16)
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--peers", choices=PEERS, default="none")
+    ap.add_argument("--contract", action="store_true", help="encode and decode every message as the nodes do")
     args = ap.parse_args(argv)
     if args.agents < 1 or args.steps < 1:
         print("ceiling.py: --agents and --steps must be at least 1", file=sys.stderr)
         return 2
-    r = ceiling(args.agents, args.steps, args.peers)
-    print(f"messaging-only ceiling, {r['agents']} agents, peers {r['peers']}: {r['steps_per_s']:,.0f} steps/s "
+    r = ceiling(args.agents, args.steps, args.peers, contract=args.contract)
+    what = "the messages and the contract" if r["contract"] else "messaging-only ceiling"
+    print(f"{what}, {r['agents']} agents, peers {r['peers']}: {r['steps_per_s']:,.0f} steps/s "
           f"({r['steps']} steps in {r['seconds']:.2f} s, {r['cpu_ms_per_step']:.3f} ms of CPU a step; "
           f"{r['deliveries_per_step']} deliveries a step); "
           f"load average {os.getloadavg()[0]:.2f}")
