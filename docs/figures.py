@@ -6,8 +6,9 @@ tests/test_docs.py fails when a block and its data disagree, so a figure cannot 
     python docs/figures.py            list every block, and whether it matches its data (exit 1 if not)
     python docs/figures.py --write    rewrite the blocks that do not
 
-Data: docs/reproduce/REPORT.md (what `cq-ros reproduce` wrote) and docs/data/<figure>/<row>/, the files the
-commands of benchmarks/docs_data.py wrote (`python benchmarks/docs_data.py FIGURE` measures them again).
+Data: docs/reproduce/REPORT.md (what `cq-ros reproduce` wrote), docs/data/<figure>/<row>/, the files the
+commands of benchmarks/docs_data.py wrote (`python benchmarks/docs_data.py FIGURE` measures them again), and
+the benchmarks' output under docs/data/delays/ and docs/data/speed/.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import re
 import sys
 import tempfile
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parent
@@ -143,8 +145,16 @@ def delays() -> str:
     return "\n".join(out)
 
 
+def printed(name: str) -> str:
+    """What one benchmark run printed, as it printed it: docs/data/speed/NAME.txt, its command on the first line
+    (the benchmarks print the machine and its load, and the file ends with when the run finished)."""
+    command, *lines = (DATA / "speed" / f"{name}.txt").read_text(encoding="utf-8").rstrip("\n").splitlines()
+    return "\n".join([f"`{command}`", "", "```", *lines, "```"]) + "\n"
+
+
 FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens,
-                                         "warehouses": warehouses, "delays": delays}
+                                         "warehouses": warehouses, "delays": delays,
+                                         **{name: partial(printed, name) for name in ("engine", "ros", "codec")}}
 
 
 def blocks(page: str) -> list[tuple[str, str, str]]:

@@ -1,7 +1,8 @@
 """The pages' figures are their data's: every block that docs/figures.py generates holds exactly what its data
 give (the reproduction's findings and table in docs/choices.md, from docs/reproduce/REPORT.md, which
 `cq-ros reproduce` computes from the results; who listens to whom in docs/ros.md, the warehouse results and
-the learners under delays in docs/warehouses.md, from launches, experiments and benchmarks under docs/data/).
+the learners under delays in docs/warehouses.md, the benchmarks' output in docs/speed.md, from launches,
+experiments and benchmarks under docs/data/), and what docs/speed.md says of them holds.
 A figure written by hand would age as the code changes; `python docs/figures.py --write` rewrites the blocks
 after new data.
 
@@ -37,7 +38,7 @@ def test_every_generated_block_holds_what_its_data_give(page):
 def test_the_figures_stand_where_the_pages_say():
     found = {name: page.name for page in figures.pages() for name, _, _ in figures.blocks(page.read_text())}
     assert found == {"reproduce": "choices.md", "who-listens": "ros.md", "warehouses": "warehouses.md",
-                     "delays": "warehouses.md"}
+                     "delays": "warehouses.md", "engine": "speed.md", "ros": "speed.md", "codec": "speed.md"}
 
 
 def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():
@@ -50,6 +51,19 @@ def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():
     [(_, held, expected)] = figures.blocks(figures.regenerate(page))
     assert held == expected
     assert figures.regenerate(page).endswith("<!-- end -->\n\nmore\n")
+
+
+def test_the_speed_pages_limit_is_what_its_data_say():
+    # docs/speed.md: with every check kept, the messages and the contract alone run below 60% of the ceiling
+    # and below 10x a process per node, and every composed run below them.
+    lines = [line for line in (ROOT / "docs" / "data" / "speed" / "ros.txt").read_text().splitlines()
+             if "with the contract" in line]
+    assert len(lines) == 3  # indep, CQ learnt, JS
+    for line in lines:
+        contract = int(re.search(r"with the contract +[\d,]+ \((\d+)%\)", line)[1])
+        composed = int(re.search(r"composed +[\d,]+ \((\d+)% of it\)", line)[1])
+        apart = int(re.search(r"processes +[\d,]+ \((\d+)% of it", line)[1])
+        assert composed < contract < min(60, 10 * apart), line
 
 
 def test_the_reproduction_figure_is_the_reports_findings_and_whole_table():
