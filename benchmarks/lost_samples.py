@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import platform
 import random
 import subprocess
 import sys
@@ -107,6 +108,7 @@ def main() -> int:
         return 0
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     domain = random.SystemRandom().randint(40, 99)
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}")
     print(f"flood of {args.n} messages, KEEP_LAST {args.depth}, reader busy {args.work * 1e3:g} ms a message")
     print("reliability   delivered  not delivered  message-lost event total")
     for reliability in ("reliable", "best_effort"):

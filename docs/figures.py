@@ -8,7 +8,7 @@ tests/test_docs.py fails when a block and its data disagree, so a figure cannot 
 
 Data: docs/reproduce/REPORT.md (what `cq-ros reproduce` wrote), docs/data/<figure>/<row>/, the files the
 commands of benchmarks/docs_data.py wrote (`python benchmarks/docs_data.py FIGURE` measures them again), and
-the benchmarks' output under docs/data/delays/ and docs/data/speed/.
+the benchmarks' output under docs/data/delays/, docs/data/speed/ and docs/data/faults/.
 """
 
 from __future__ import annotations
@@ -145,16 +145,17 @@ def delays() -> str:
     return "\n".join(out)
 
 
-def printed(name: str) -> str:
-    """What one benchmark run printed, as it printed it: docs/data/speed/NAME.txt, its command on the first line
+def printed(folder: str, name: str) -> str:
+    """What one benchmark run printed, as it printed it: docs/data/FOLDER/NAME.txt, its command on the first line
     (the benchmarks print the machine and its load, and the file ends with when the run finished)."""
-    command, *lines = (DATA / "speed" / f"{name}.txt").read_text(encoding="utf-8").rstrip("\n").splitlines()
+    command, *lines = (DATA / folder / f"{name}.txt").read_text(encoding="utf-8").rstrip("\n").splitlines()
     return "\n".join([f"`{command}`", "", "```", *lines, "```"]) + "\n"
 
 
 FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens,
                                          "warehouses": warehouses, "delays": delays,
-                                         **{name: partial(printed, name) for name in ("engine", "ros", "codec")}}
+                                         **{name: partial(printed, "speed", name) for name in ("engine", "ros", "codec")},
+                                         "lost-samples": partial(printed, "faults", "lost_samples")}
 
 
 def blocks(page: str) -> list[tuple[str, str, str]]:

@@ -38,7 +38,8 @@ def test_every_generated_block_holds_what_its_data_give(page):
 def test_the_figures_stand_where_the_pages_say():
     found = {name: page.name for page in figures.pages() for name, _, _ in figures.blocks(page.read_text())}
     assert found == {"reproduce": "choices.md", "who-listens": "ros.md", "warehouses": "warehouses.md",
-                     "delays": "warehouses.md", "engine": "speed.md", "ros": "speed.md", "codec": "speed.md"}
+                     "delays": "warehouses.md", "engine": "speed.md", "ros": "speed.md", "codec": "speed.md",
+                     "lost-samples": "faults.md"}
 
 
 def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():
@@ -64,6 +65,15 @@ def test_the_speed_pages_limit_is_what_its_data_say():
         composed = int(re.search(r"composed +[\d,]+ \((\d+)% of it\)", line)[1])
         apart = int(re.search(r"processes +[\d,]+ \((\d+)% of it", line)[1])
         assert composed < contract < min(60, 10 * apart), line
+
+
+def test_the_faults_pages_lost_samples_are_what_its_data_say():
+    # docs/faults.md: in the flood, the middleware's message-lost event reported none of the messages lost.
+    rows = [line.split() for line in (ROOT / "docs" / "data" / "faults" / "lost_samples.txt").read_text().splitlines()
+            if line.startswith(("reliable ", "best_effort "))]
+    assert [row[0] for row in rows] == ["reliable", "best_effort"]
+    for _, delivered, lost, reported in rows:
+        assert int(lost) > int(delivered) and int(reported) == 0
 
 
 def test_the_reproduction_figure_is_the_reports_findings_and_whole_table():
