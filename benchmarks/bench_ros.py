@@ -30,7 +30,7 @@ import tempfile
 from pathlib import Path
 
 from bench_roundtrip import measure_roundtrip
-from ceiling import ceiling
+from ceiling import ceiling, kind
 
 from agent_node.checkpoint import save_checkpoints
 from cq_ros.engine import Team, make_learners, world_seed
@@ -132,10 +132,9 @@ def main() -> None:
                     c = ceiling(agents, args.ceiling_steps if peers == "none" else max(args.ceiling_steps // 4, 100),
                                 peers, contract=contract)
                     ceilings[map_name, peers, contract] = c["steps_per_s"]
-                    what = "the messages and the contract" if contract else "messaging-only ceiling"
-                    print(f"{map_name:<15} {agents:>6} {what}, peers {peers}: {c['steps_per_s']:,.0f} steps/s "
-                          f"({c['deliveries_per_step']} deliveries a step, {c['cpu_ms_per_step']:.3f} ms of CPU a "
-                          f"step; {load()})", flush=True)
+                    print(f"{map_name:<15} {agents:>6} {kind(contract)}, peers {peers}: {c['steps_per_s']:,.0f} "
+                          f"steps/s ({c['deliveries_per_step']} deliveries a step, {c['cpu_ms_per_step']:.3f} ms of "
+                          f"CPU a step; {load()})", flush=True)
             folder = Path(ck) / map_name
             folder.mkdir()
             trained(map_name, settings[map_name], args.train_episodes, 0, folder)
@@ -156,8 +155,9 @@ def main() -> None:
         if apart is None or composed is None:
             continue
         print(f"  {apart['map']:<15} {apart['agents']:>2} agents {apart['algo']:<10} ceiling (peers {peers}) "
-              f"{top:>6,.0f} steps/s; with the contract {contract:>6,.0f} ({contract / top:.0%}); composed {composed['steps_per_s']:>6,.0f} ({composed['steps_per_s'] / top:.0%} "
-              f"of it); processes {apart['steps_per_s']:>5,.0f} ({apart['steps_per_s'] / top:.0%} of it, "
+              f"{top:>6,.0f} steps/s; with the contract {contract:>6,.0f} ({contract / top:.0%}); "
+              f"composed {composed['steps_per_s']:>6,.0f} ({composed['steps_per_s'] / top:.0%} of it); "
+              f"processes {apart['steps_per_s']:>5,.0f} ({apart['steps_per_s'] / top:.0%} of it, "
               f"{apart['steps_per_s'] / allowed:.0%} of the round-trip rate); composed / processes "
               f"{composed['steps_per_s'] / apart['steps_per_s']:.1f}x; peer messages a step "
               f"{composed['peer_messages'] / composed['steps']:.2f}", flush=True)

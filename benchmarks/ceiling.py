@@ -34,6 +34,11 @@ from functools import partial
 PEERS = ("none", "all")
 
 
+def kind(contract: bool) -> str:
+    """What a ceiling measures, as the benchmarks print it."""
+    return "the messages and the contract" if contract else "messaging-only ceiling"
+
+
 def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, step_timeout_s: float = 5.0,
             discovery_timeout_s: float = 30.0, contract: bool = False) -> dict:
     """Steps per second of the emulated lockstep (`steps` timed after `warmup`), and the deliveries a step;
@@ -163,8 +168,7 @@ def main(argv: list[str] | None = None) -> int:
         print("ceiling.py: --agents and --steps must be at least 1", file=sys.stderr)
         return 2
     r = ceiling(args.agents, args.steps, args.peers, contract=args.contract)
-    what = "the messages and the contract" if r["contract"] else "messaging-only ceiling"
-    print(f"{what}, {r['agents']} agents, peers {r['peers']}: {r['steps_per_s']:,.0f} steps/s "
+    print(f"{kind(r['contract'])}, {r['agents']} agents, peers {r['peers']}: {r['steps_per_s']:,.0f} steps/s "
           f"({r['steps']} steps in {r['seconds']:.2f} s, {r['cpu_ms_per_step']:.3f} ms of CPU a step; "
           f"{r['deliveries_per_step']} deliveries a step); "
           f"load average {os.getloadavg()[0]:.2f}")

@@ -154,7 +154,8 @@ def printed(folder: str, name: str) -> str:
 
 FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens,
                                          "warehouses": warehouses, "delays": delays,
-                                         **{name: partial(printed, "speed", name) for name in ("engine", "ros", "codec")},
+                                         **{name: partial(printed, "speed", name)
+                                            for name in ("engine", "ros", "codec")},
                                          "lost-samples": partial(printed, "faults", "lost_samples")}
 
 

@@ -3,7 +3,7 @@
 
 The nodes' lockstep subscriptions (feedback, heartbeat, actions) listen to it. The pip Fast DDS of Jazzy reports
 nothing for samples that a KEEP_LAST queue replaced, which is all a flood loses on one host
-(benchmarks/lost_samples.py: 0 reported of 4,780 not delivered), so on this middleware the count stays 0 and
+(benchmarks/lost_samples.py; its output in docs/data/faults/), so on this middleware the count stays 0 and
 the nodes' sequence checks count what was really lost (docs/faults.md); a middleware that reports losses has
 them counted here. Peer position subscriptions, made and dropped as CQ looks, do not listen: an event handler
 more for each would be made and destroyed with them.
