@@ -4,8 +4,8 @@ TCP on 127.0.0.1: what `--cluster` reaches on other machines), with the result f
 
     python benchmarks/bench_cluster.py [--runs 5] [--episodes 1000] [--sweep]
 
-Prints the machine, its load average before and after each way, and a table; the cluster's start is timed on
-its own, not in the grid's wall time.
+Prints the machine, the cluster's start (timed on its own, not in the grid's wall time), then a table with the
+load average before and after each way; reproduce's progress on stderr.
 """
 
 from __future__ import annotations
@@ -54,7 +54,8 @@ def main() -> None:
             if where is None:
                 with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
                     up = time.perf_counter() - started
-                    print(f"cluster up in {up:.1f} s at {c.scheduler_address}", file=sys.stderr)
+                    print(f"cluster (a scheduler, 2 worker processes of one thread) up in {up:.1f} s, not counted "
+                          "in its wall time", flush=True)
                     started = time.perf_counter()
                     reproduce(Path(scratch) / "cluster", cluster=c.scheduler_address, **grid)
                     wall = time.perf_counter() - started

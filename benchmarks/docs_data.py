@@ -4,11 +4,14 @@ that makes it, its files kept under docs/data/<figure>/<row>/, then the pages' b
 
     python benchmarks/docs_data.py who-listens [--only ROW ...] [--data DIR]
     python benchmarks/docs_data.py warehouses [--only ROW ...] [--data DIR]
+    python benchmarks/docs_data.py cq-choices [--only ROW ...] [--data DIR]
 
 who-listens: one `cq-ros launch` per row (CQ at three lingers, JS, LoC at two), about a minute each on a quiet
 2-core machine, with the 1-minute load average before and after it (load.json). warehouses: one `cq-ros
 experiment` per row (10 runs x 2,000 episodes of CQ and independent learners), a few minutes each, and what
-`cq-ros plan` prints for its map. Each command shows its own progress on stderr.
+`cq-ros plan` prints for its map. cq-choices: one `cq-ros experiment` of CQ alone per row (10 runs x 10,000
+episodes, the paper's maps at the paper's settings), a choice of docs/choices.md set each way, 10-30 s each
+(about 6 minutes in all). Each command shows its own progress on stderr.
 """
 
 from __future__ import annotations
@@ -38,6 +41,11 @@ def _experiment(map_name: str, seed: int) -> list[str]:
             "--seed", str(seed), "--jobs", "2", "--no-figures"]
 
 
+def _cq(map_name: str, seed: int, *sets: str) -> list[str]:
+    return ["experiment", "--map", map_name, "--algo", "cq", "--runs", "10", "--episodes", "10000",
+            "--seed", str(seed), "--jobs", "1", "--no-figures", *[a for s in sets for a in ("--set", s)]]
+
+
 # figure -> row folder -> the cq-ros command that measures it (its --out added here)
 ROWS = {
     "who-listens": {
@@ -53,6 +61,16 @@ ROWS = {
         "2-warehouse_16": _experiment("warehouse_16", 0),
         "3-warehouse_16-seed1": _experiment("warehouse_16", 1),
         "4-warehouse_16-seed2": _experiment("warehouse_16", 2),
+    },
+    # docs/choices.md: CQ's bootstrap both ways on the paper's maps (tunnel_to_goal's seed 0 with ours is also
+    # the defaults that the other rows are set against), confidence that fades fast, the greedy copy frozen
+    "cq-choices": {
+        **{f"bootstrap-{m}-seed{seed}-{who}": _cq(m, seed, f"cq_bootstrap_acted={b}")
+           for m, seeds in (("tunnel_to_goal", (0, 1, 2)), ("grid_game_2", (0, 1, 2)), ("tunnel_to_goal_3", (0,)))
+           for seed in seeds for who, b in (("ours", 1), ("papers", 0))},
+        "confidence-tunnel_to_goal-seed0-fast": _cq("tunnel_to_goal", 0, "conf_down=0.1", "conf_max=2"),
+        "frozen-tunnel_to_goal-seed0": _cq("tunnel_to_goal", 0, "eval_learning=0"),
+        "frozen-tunnel_to_goal_3-seed0": _cq("tunnel_to_goal_3", 0, "eval_learning=0"),
     },
 }
 KEPT = ("manifest.json", "greedy.csv")
@@ -70,11 +88,16 @@ def measure(figure: str, row: str, data: Path) -> None:
         target.mkdir(parents=True, exist_ok=True)
         for kept in KEPT:
             shutil.copyfile(out / kept, target / kept)
+        if figure != "warehouses":
+            (target / "load.json").write_text(json.dumps({"before": before, "after": after}) + "\n")
         if figure == "who-listens":
             shutil.copyfile(out / "episodes.csv", target / "episodes.csv")
-            (target / "load.json").write_text(json.dumps({"before": before, "after": after}) + "\n")
-        else:  # 40,000 rows: kept compressed
-            (target / "episodes.csv.gz").write_bytes(gzip.compress((out / "episodes.csv").read_bytes(), mtime=0))
+            return
+        # 40,000 rows or more: kept compressed
+        (target / "episodes.csv.gz").write_bytes(gzip.compress((out / "episodes.csv").read_bytes(), mtime=0))
+        if figure == "cq-choices":  # the joint states each run ends with
+            shutil.copyfile(out / "observe.csv", target / "observe.csv")
+        else:
             plan = subprocess.run([CQ_ROS, "plan", "--map", command[command.index("--map") + 1]], check=True,
                                   cwd=ROOT, capture_output=True, text=True)
             (target / "plan.txt").write_text(plan.stdout)

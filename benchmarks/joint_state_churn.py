@@ -6,13 +6,15 @@ visited in the last block (a joint state loses confidence only when its cell is 
         --block 1000] [--set conf_down=0.1 ...]
 
 Prints one line per block (joint states marked / dropped, exploring collisions per episode) and the kept
-joint states by how often their cell was visited; progress on stderr. A run of 10,000 episodes takes about
-half a minute on a quiet core.
+joint states by how often their cell was visited, after the machine and its load average (and the load again at
+the end); progress on stderr. A run of 10,000 episodes takes about half a minute on a quiet core.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import platform
 import sys
 from collections import Counter
 from pathlib import Path
@@ -57,6 +59,8 @@ def main(argv: list[str] | None = None) -> int:
             return observe(cell)
         return observe_and_count
 
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+          f"load average {os.getloadavg()[0]:.2f}")
     print(f"{args.algo} on {gridmap.name}, seed {args.seed} run {args.run}: conf_init {settings.conf_init}, "
           f"conf_up {settings.conf_up}, conf_down {settings.conf_down}, conf_max {settings.conf_max}, "
           f"conf_drop {settings.conf_drop}, epsilon {settings.epsilon}")
@@ -83,6 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         sel = [c for (agent, js), c in conf.items() if visits[(agent, js[0])] >= lo and (hi is None or visits[(agent, js[0])] < hi)]
         span = f"{lo}+" if hi is None else f"{lo}-{hi - 1}"
         print(f"  visited {span:>8}: {len(sel):>3} joint states" + (f", confidence {min(sel):.2f}-{max(sel):.2f}" if sel else ""))
+    print(f"load average {os.getloadavg()[0]:.2f}")
     return 0
 
 

@@ -159,6 +159,104 @@ FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": 
                                          "lost-samples": partial(printed, "faults", "lost_samples")}
 
 
+# docs/choices.md: CQ's choices measured each way, the rows of `python benchmarks/docs_data.py cq-choices`.
+
+def _cq_run(folder: Path, threshold: float) -> dict:
+    """One cq-choices row: its manifest, CQ's metrics (settling at `threshold`), greedy rows, joint states per run
+    at the end (observe.csv) and the load average before and after it."""
+    from cq_ros.summary import compute_metrics, load_episodes
+
+    with tempfile.TemporaryDirectory() as scratch:
+        episodes = Path(scratch) / "episodes.csv"
+        episodes.write_bytes(gzip.decompress((folder / "episodes.csv.gz").read_bytes()))
+        [metrics] = compute_metrics(load_episodes(episodes), threshold=threshold)
+    manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
+    joint = [sum(r["run"] == str(run) for r in _rows(folder / "observe.csv")) for run in range(manifest["runs"])]
+    return {"manifest": manifest, "metrics": metrics, "greedy": _rows(folder / "greedy.csv"), "joint": joint,
+            "load": json.loads((folder / "load.json").read_text(encoding="utf-8"))}
+
+
+def cq_choice_runs(prefix: str, threshold: float = 0.05) -> dict[str, dict]:
+    """The cq-choices rows whose folder name starts with `prefix`, by folder name."""
+    return {p.name: _cq_run(p, threshold) for p in sorted((DATA / "cq_choices").glob(f"{prefix}*")) if p.is_dir()}
+
+
+def _greedy(run: dict) -> tuple[int, int, list[float]]:
+    """Greedy runs stuck at the step cap, runs with a collision, steps per episode of each run not stuck."""
+    rows = run["greedy"]
+    return (sum(float(r["truncated"]) > 0 for r in rows), sum(float(r["collisions"]) > 0 for r in rows),
+            [float(r["steps"]) for r in rows if float(r["truncated"]) == 0])
+
+
+def _measured(runs: list[dict]) -> str:
+    loads = [x for r in runs for x in r["load"].values()]
+    v = runs[0]["manifest"]["versions"]
+    return (f"Measured {', '.join(sorted({r['manifest']['finished_at'][:10] for r in runs}))} on this "
+            f"{v['cores']}-core {v['machine']} machine, load average {min(loads):.1f}-{max(loads):.1f} (the 1-minute "
+            f"average before and after each experiment)")
+
+
+def cq_bootstrap() -> str:
+    """CQ's bootstrap, ours (cq_bootstrap_acted=1) against the paper's (=0), a row per map over its seeds."""
+    runs = cq_choice_runs("bootstrap-", threshold=0.1)
+    lines = ["| map | seeds | collisions/ep while exploring, per seed, ours | the paper's | settles below 0.1, ours "
+             "| the paper's | greedy runs stuck at the step cap, ours | the paper's | greedy runs with a collision, "
+             "ours / the paper's | greedy steps/ep of the runs not stuck, ours / the paper's |",
+             "| --- | --- | --- | --- | --- | --- | ---: | ---: | ---: | --- |"]
+    for map_name in dict.fromkeys(r["manifest"]["map"] for r in runs.values()):
+        by = {who: [r for name, r in runs.items() if r["manifest"]["map"] == map_name and name.endswith(who)]
+              for who in ("ours", "papers")}
+        seeds = ", ".join(str(r["manifest"]["seed"]) for r in by["ours"])
+        cells = {who: ("; ".join(f"{_short(r['metrics'].collisions_tail)} ± {_short(r['metrics'].collisions_tail_std)}"
+                                 for r in rs),
+                       ", ".join("never" if r["metrics"].settled_episode is None else str(r["metrics"].settled_episode)
+                                 for r in rs),
+                       [_greedy(r) for r in rs]) for who, rs in by.items()}
+        n = sum(len(r["greedy"]) for r in by["ours"])
+        stuck = {who: f"{sum(g[0] for g in c[2])} of {n}" for who, c in cells.items()}
+        hit = " / ".join(str(sum(g[1] for g in cells[who][2])) for who in by)
+        steps = " / ".join(_span([s for g in cells[who][2] for s in g[2]]) for who in by)
+        lines.append(f"| {map_name} | {seeds} | {cells['ours'][0]} | {cells['papers'][0]} | {cells['ours'][1]} "
+                     f"| {cells['papers'][1]} | {stuck['ours']} | {stuck['papers']} | {hit} | {steps} |")
+    lines += ["", _measured(list(runs.values())) + "; each row's command is in its folder's manifest.json."]
+    return "\n".join(lines) + "\n"
+
+
+def _cq_rows_table(rows: list[tuple[str, dict]]) -> str:
+    lines = ["| run | collisions/ep while exploring (last 10%) | joint states at the end, both agents | greedy runs "
+             "stuck at the step cap | greedy runs with a collision | greedy steps/ep, per run | command |",
+             "| --- | ---: | ---: | ---: | ---: | --- | --- |"]
+    for label, r in rows:
+        stuck, hit, steps = _greedy(r)
+        m, command = r["metrics"], " ".join(r["manifest"]["command"][1:]).split(" --out ")[0]
+        lines.append(f"| {label} | {_short(m.collisions_tail)} ± {_short(m.collisions_tail_std)} "
+                     f"| {sum(r['joint']) / len(r['joint']):.1f} | {stuck} of {len(r['greedy'])} | {hit} "
+                     f"| {_span(steps)} | `cq-ros {command}` |")
+    return "\n".join(lines + ["", _measured([r for _, r in rows]) + "."]) + "\n"
+
+
+def cq_confidence() -> str:
+    """Confidence that fades in 20 misses against the defaults, CQ on tunnel_to_goal, seed 0."""
+    ours = cq_choice_runs("bootstrap-tunnel_to_goal-seed0-ours")["bootstrap-tunnel_to_goal-seed0-ours"]
+    fast = cq_choice_runs("confidence-")["confidence-tunnel_to_goal-seed0-fast"]
+    return _cq_rows_table([("defaults (+0.5, cap 10, -0.02)", ours), ("conf_down=0.1 conf_max=2", fast)])
+
+
+def cq_frozen() -> str:
+    """The greedy copy learning (the default) against frozen, CQ at seed 0."""
+    rows = []
+    for map_name in ("tunnel_to_goal", "tunnel_to_goal_3"):
+        rows.append((f"{map_name}, learning", cq_choice_runs(f"bootstrap-{map_name}-seed0-ours")[
+            f"bootstrap-{map_name}-seed0-ours"]))
+        rows.append((f"{map_name}, frozen", cq_choice_runs(f"frozen-{map_name}-seed0")[f"frozen-{map_name}-seed0"]))
+    return _cq_rows_table(rows)
+
+
+FIGURES.update({"cq-bootstrap": cq_bootstrap, "cq-confidence": cq_confidence, "cq-frozen": cq_frozen,
+                **{f"churn-{name}": partial(printed, "churn", name) for name in ("defaults", "fast_fading")},
+                "bench-cluster": partial(printed, "cluster", "bench_cluster")})
+
+
 def blocks(page: str) -> list[tuple[str, str, str]]:
     """(name, what the page holds, what its data give) for every generated block of a page."""
     out = []
