@@ -157,6 +157,8 @@ FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": 
                                          **{name: partial(printed, "speed", name)
                                             for name in ("engine", "ros", "codec")},
                                          "lost-samples": partial(printed, "faults", "lost_samples")}
+# docs/warehouses.md, "Scaling": what benchmarks/bench_warehouse.py printed, kept under docs/data/scaling/
+FIGURES.update({"scaling-three-runs": partial(printed, "scaling", "2-three-runs")})
 
 
 def blocks(page: str) -> list[tuple[str, str, str]]:
