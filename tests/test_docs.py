@@ -39,7 +39,8 @@ def test_the_figures_stand_where_the_pages_say():
     found = {name: page.name for page in figures.pages() for name, _, _ in figures.blocks(page.read_text())}
     assert found == {"reproduce": "choices.md", "who-listens": "ros.md", "warehouses": "warehouses.md",
                      "delays": "warehouses.md", "engine": "speed.md", "ros": "speed.md", "codec": "speed.md",
-                     "lost-samples": "faults.md", "scaling-three-runs": "warehouses.md"}
+                     "lost-samples": "faults.md", "scaling-three-runs": "warehouses.md",
+                     "yardstick": "warehouses.md"}
 
 
 def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():
