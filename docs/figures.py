@@ -157,8 +157,12 @@ FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": 
                                          **{name: partial(printed, "speed", name)
                                             for name in ("engine", "ros", "codec")},
                                          "lost-samples": partial(printed, "faults", "lost_samples")}
+
+
 # docs/warehouses.md: the yardstick under delays, from docs/data/yardstick/, and the Scaling tables that
 # benchmarks/bench_warehouse.py printed, kept under docs/data/scaling/
+
+
 def _executions(path: Path) -> dict[str, list[float]]:
     """What `cq-ros plan --executions N` printed, kept in PATH: each row of its table as [mean, min, max], and
     "home" as [AGVs home in, executions] (its first line the command)."""

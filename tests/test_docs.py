@@ -122,3 +122,17 @@ def test_every_relative_link_of_the_readme_and_the_pages_leads_to_a_file_and_hea
             if not linked.exists() or (anchor and linked.suffix == ".md" and anchor not in _anchors(linked)):
                 broken.append(f"{page.relative_to(ROOT)}: {target}")
     assert not broken
+
+
+def test_the_yardsticks_prose_is_what_its_data_say():
+    # docs/warehouses.md: every execution brings every AGV home with no collision; keeping the order costs 1.14x,
+    # 1.31x and 1.43x the plan's sum of costs at slip 1e-9, and 1.12x, 1.19x and 1.23x stopping anywhere.
+    folder = ROOT / "docs" / "data" / "yardstick"
+    runs = [figures._executions(path) for path in sorted(folder.glob("*.txt"))]
+    assert len(runs) == 27 and all(r["home"] == [100, 100] and r["collisions"][2] == 0 for r in runs)
+    for map_name, kept, anywhere in (("warehouse_8", "1.14", "1.12"), ("warehouse_16", "1.31", "1.19"),
+                                     ("warehouse_32", "1.43", "1.23")):
+        r = figures._executions(folder / f"{map_name}-slip1e-9.txt")
+        a = figures._executions(folder / f"{map_name}-slip1e-9-stop-anywhere.txt")
+        assert (f"{r['sum of costs'][0] / r['plan'][1]:.2f}", f"{a['sum of costs'][0] / a['plan'][1]:.2f}") \
+            == (kept, anywhere)
