@@ -257,6 +257,51 @@ FIGURES.update({"cq-bootstrap": cq_bootstrap, "cq-confidence": cq_confidence, "c
                 "bench-cluster": partial(printed, "cluster", "bench_cluster")})
 
 
+# docs/warehouses.md: the yardstick under delays, from docs/data/yardstick/, and the Scaling tables that
+# benchmarks/bench_warehouse.py printed, kept under docs/data/scaling/
+
+
+def _executions(path: Path) -> dict[str, list[float]]:
+    """What `cq-ros plan --executions N` printed, kept in PATH: each row of its table as [mean, min, max], and
+    "home" as [AGVs home in, executions] (its first line the command)."""
+    text = path.read_text(encoding="utf-8")
+    rows = {m[1]: [float(m[2]), float(m[3]), float(m[4])]
+            for m in re.finditer(r"^(\w[\w ]*?) +(-?[\d.]+) +(-?[\d.]+) +(-?[\d.]+)", text, flags=re.M)}
+    rows["home"] = [float(x) for x in re.search(r"every AGV home in (\d+) of (\d+)", text).groups()]
+    rows["plan"] = [float(x) for x in re.search(r"^makespan (\d+), sum of costs (\d+)", text, flags=re.M).groups()]
+    return rows
+
+
+def _mean_range(row: list[float]) -> str:
+    mean, low, high = row
+    return f"{mean:.0f}" if low == high else f"{mean:.1f} ({low:.0f}-{high:.0f})"
+
+
+def yardstick() -> str:
+    """The planner's executions under delays: a row per map and slip, from docs/data/yardstick/M-slipP.txt and
+    M-slipP-stop-anywhere.txt, what `cq-ros plan --map M --slip P --executions 100 --seed 0 [--stop-anywhere]`
+    printed."""
+    lines = ["| map (plan: makespan, sum of costs) | slip | every AGV home | collisions | makespan | sum of costs | waits "
+             "| held | stalls | messages | sum of costs, stopping anywhere (held) |",
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for map_name in ("warehouse_8", "warehouse_16", "warehouse_32"):
+        for slip in ("0", "1e-9", "0.05", "0.1", "0.2"):
+            r = _executions(DATA / "yardstick" / f"{map_name}-slip{slip}.txt")
+            anywhere = DATA / "yardstick" / f"{map_name}-slip{slip}-stop-anywhere.txt"
+            stop = "-"
+            if anywhere.exists():
+                a = _executions(anywhere)
+                stop = f"{_mean_range(a['sum of costs'])} ({a['held'][0]:.1f})"
+            lines.append(f"| {map_name} ({r['plan'][0]:.0f}, {r['plan'][1]:.0f}) | {slip} | {r['home'][0]:.0f} of "
+                         f"{r['home'][1]:.0f} | {r['collisions'][0]:.0f} | {_mean_range(r['makespan'])} "
+                         f"| {_mean_range(r['sum of costs'])} | {r['waits'][0]:.1f} | {r['held'][0]:.1f} "
+                         f"| {r['stalls'][0]:.1f} | {r['messages'][0]:.0f} | {stop} |")
+    return "\n".join(lines) + "\n"
+
+
+FIGURES.update({"yardstick": yardstick, "scaling-three-runs": partial(printed, "scaling", "2-three-runs")})
+
+
 def blocks(page: str) -> list[tuple[str, str, str]]:
     """(name, what the page holds, what its data give) for every generated block of a page."""
     out = []

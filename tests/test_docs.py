@@ -41,7 +41,8 @@ def test_the_figures_stand_where_the_pages_say():
                      "delays": "warehouses.md", "engine": "speed.md", "ros": "speed.md", "codec": "speed.md",
                      "lost-samples": "faults.md", "cq-bootstrap": "choices.md", "cq-frozen": "choices.md",
                      "cq-confidence": "choices.md", "churn-defaults": "choices.md",
-                     "churn-fast_fading": "choices.md", "bench-cluster": "cluster.md"}
+                     "churn-fast_fading": "choices.md", "bench-cluster": "cluster.md",
+                     "scaling-three-runs": "warehouses.md", "yardstick": "warehouses.md"}
 
 
 def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():
@@ -185,3 +186,17 @@ def test_the_choices_pages_fig_5a_sentences_are_what_its_data_say():
 def test_the_cluster_pages_three_ways_gave_the_same_results():
     printed = (ROOT / "docs" / "data" / "cluster" / "bench_cluster.txt").read_text()
     assert "result files identical in all three: yes" in printed
+
+
+def test_the_yardsticks_prose_is_what_its_data_say():
+    # docs/warehouses.md: every execution brings every AGV home with no collision; keeping the order costs 1.14x,
+    # 1.31x and 1.43x the plan's sum of costs at slip 1e-9, and 1.12x, 1.19x and 1.23x stopping anywhere.
+    folder = ROOT / "docs" / "data" / "yardstick"
+    runs = [figures._executions(path) for path in sorted(folder.glob("*.txt"))]
+    assert len(runs) == 27 and all(r["home"] == [100, 100] and r["collisions"][2] == 0 for r in runs)
+    for map_name, kept, anywhere in (("warehouse_8", "1.14", "1.12"), ("warehouse_16", "1.31", "1.19"),
+                                     ("warehouse_32", "1.43", "1.23")):
+        r = figures._executions(folder / f"{map_name}-slip1e-9.txt")
+        a = figures._executions(folder / f"{map_name}-slip1e-9-stop-anywhere.txt")
+        assert (f"{r['sum of costs'][0] / r['plan'][1]:.2f}", f"{a['sum of costs'][0] / a['plan'][1]:.2f}") \
+            == (kept, anywhere)
