@@ -200,3 +200,23 @@ def test_the_yardsticks_prose_is_what_its_data_say():
         a = figures._executions(folder / f"{map_name}-slip1e-9-stop-anywhere.txt")
         assert (f"{r['sum of costs'][0] / r['plan'][1]:.2f}", f"{a['sum of costs'][0] / a['plan'][1]:.2f}") \
             == (kept, anywhere)
+
+
+def test_the_scaling_sentences_are_what_its_data_say():
+    # docs/warehouses.md, Scaling: every greedy policy home within 1.3x of the planner in every run; CQ's states
+    # under twice an independent learner's, LoC's over five times; CQ under one peer a step, LoC about one to three.
+    printed = (ROOT / "docs" / "data" / "scaling" / "2-three-runs.txt").read_text()
+    rows = {}
+    for line in printed.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if line.startswith("| warehouse_"):
+            rows[cells[0], cells[1]] = cells
+    assert {algo for _, algo in rows} == {"indep", "loc", "cq"} and len(rows) == 6
+    for (map_name, algo), cells in rows.items():
+        runs = cells[3].split("/")
+        assert runs[0] == runs[1] and float(cells[4]) <= 1.3, cells
+    for map_name in ("warehouse_8", "warehouse_16"):
+        states = {algo: int(rows[map_name, algo][5].replace(",", "")) for algo in ("indep", "loc", "cq")}
+        peers = {algo: float(rows[map_name, algo][6]) for algo in ("loc", "cq")}
+        assert states["cq"] < 2 * states["indep"] < states["loc"] / 2.5, states
+        assert peers["cq"] < 1 and 0.8 <= peers["loc"] <= 3, peers
