@@ -299,7 +299,72 @@ def yardstick() -> str:
     return "\n".join(lines) + "\n"
 
 
-FIGURES.update({"yardstick": yardstick, "scaling-three-runs": partial(printed, "scaling", "2-three-runs")})
+def _delay_rows(name: str) -> dict[tuple[str, str], dict[str, str]]:
+    """The table bench_delays.py printed into docs/data/delays/NAME.txt, keyed by (slip, algo)."""
+    lines = [line for line in (DATA / "delays" / f"{name}.txt").read_text(encoding="utf-8").splitlines()
+             if line.startswith("|")]
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    rows = [dict(zip(header, (c.strip() for c in line.strip("|").split("|")))) for line in lines[2:]]
+    return {(r["slip"], r["algo"]): r for r in rows}
+
+
+def delays_say() -> str:
+    """What the delays tables say, each figure read from them (and the yardstick's messages from
+    docs/data/yardstick/), so the sentences change with the data."""
+    def coll(row):
+        return float(row["greedy collisions (worst run)"].split()[0])
+
+    def cost(row):
+        return float(row["greedy cost / planner"])
+
+    ten, fast, loc = _delay_rows("1-warehouse_8_delayed-10runs"), _delay_rows("2-warehouse_8_delayed-conf_down"), \
+        _delay_rows("3-warehouse_8_delayed-loc")
+    slips, adg = _delay_rows("4-warehouse_8_delayed-slips"), _delay_rows("5-warehouse_8_delayed-adg")
+    cq, indep, near = ten["0.1", "cq"], ten["0.1", "indep"], ten["0.1", "near"]
+    heard = {k: float(r[f"heard/step {k}"]) for k, r in (("learning", cq), ("greedy", cq))}
+    near_heard = {k: float(near[f"heard/step {k}"]) for k in ("learning", "greedy")}
+    home = {r["greedy home"] for r in ten.values()}
+    yard = _executions(DATA / "yardstick" / "warehouse_8-slip0.1.txt")
+    quick = fast["0.1", "cq"]
+    s5, s2 = {a: slips["0.05", a] for a in ("cq", "indep")}, {a: slips["0.2", a] for a in ("cq", "indep")}
+    runs = int(cq["greedy home"].split("/")[1])
+    return "\n".join([
+        f"What the tables say, at slip 0.1 on warehouse_8_delayed ({runs} runs, the first table; the third adds "
+        f"LoC over {loc['0.1', 'cq']['greedy home'].split('/')[1]}):",
+        f"- Looking pays: CQ's greedy policy collides {coll(cq):.3f} times an episode, "
+        f"{coll(indep) / coll(cq):.1f}x fewer than the independent learners' ({coll(indep):.3f}; with LoC, LoC "
+        f"{coll(loc['0.1', 'loc']):.3f}, indep {coll(loc['0.1', 'indep']):.3f}, CQ {coll(loc['0.1', 'cq']):.3f}); "
+        f"`near`, which watches every peer within 2 cells at every step, {coll(near):.3f}.",
+        f"- {'Every learner' if home == {f'{runs}/{runs}'} else 'Not every learner'}'s greedy policy brings every "
+        f"AGV home in all {runs} runs; CQ's sum of costs is {cost(cq):.2f}x the planner's without delays, "
+        f"{cost(cq) / cost(adg['0.1', 'adg']):.2f}x the yardstick's under the same delays "
+        f"({cost(adg['0.1', 'adg']):.2f}x, the fifth table), where it sends {yard['messages'][0]:.0f} dependency "
+        f"messages an execution and collides {coll(adg['0.1', 'adg']):.0f} times.",
+        f"- CQ hears {heard['learning']:.3f} peer positions a step while learning, "
+        f"{100 * heard['learning'] / near_heard['learning']:.0f}% of near's {near_heard['learning']:.3f}; in the "
+        f"greedy episodes {heard['greedy']:.3f}, {100 * heard['greedy'] / near_heard['greedy']:.0f}% of near's "
+        f"{near_heard['greedy']:.3f}: there it hears the peers its marked cells watch, and unused joint states "
+        f"barely go at `conf_down` 0.02 ([choices](choices.md#fig-5a-why-cqs-state-count-climbs)).",
+        f"- Letting them go faster trades collisions for messages (the second table): at `conf_down=0.1` CQ hears "
+        f"{float(quick['heard/step greedy']):.3f} a greedy step, "
+        f"{100 * float(quick['heard/step greedy']) / near_heard['greedy']:.0f}% of near's, and collides "
+        f"{coll(quick):.3f} times an episode against {coll(cq):.3f}.",
+        f"- Across slips (the fourth table): without delays CQ collides {coll(slips['0', 'cq']):.3f} times a "
+        f"greedy episode and indep {coll(slips['0', 'indep']):.3f}; at slip 0.05 CQ {coll(s5['cq']):.3f} against "
+        f"indep's {coll(s5['indep']):.3f} ({coll(s5['indep']) / coll(s5['cq']):.1f}x), at 0.2 "
+        f"{coll(s2['cq']):.3f} against {coll(s2['indep']):.3f} ({coll(s2['indep']) / coll(s2['cq']):.1f}x), at a "
+        f"sum of costs of {cost(s2['cq']):.2f}x the planner's against {cost(s2['indep']):.2f}x.",
+        "",
+        "Issue 18's targets on warehouse_8 against these figures: greedy collisions at most 0.1 an episode "
+        f"({'met' if coll(cq) <= 0.1 else 'not met'}: {coll(cq):.3f}), 5x below the independent learners' "
+        f"({'met' if coll(indep) >= 5 * coll(cq) else 'not met'}: {coll(indep) / coll(cq):.1f}x), at most a "
+        f"quarter of near's peer messages in the greedy episodes "
+        f"({'met' if heard['greedy'] <= near_heard['greedy'] / 4 else 'not met'}: "
+        f"{100 * heard['greedy'] / near_heard['greedy']:.0f}%).",
+    ]) + "\n"
+
+
+FIGURES.update({"yardstick": yardstick, "delays-say": delays_say, "scaling-three-runs": partial(printed, "scaling", "2-three-runs")})
 
 
 def blocks(page: str) -> list[tuple[str, str, str]]:
