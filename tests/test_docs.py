@@ -221,3 +221,31 @@ def test_the_scaling_sentences_are_what_its_data_say():
         peers = {algo: float(rows[map_name, algo][6]) for algo in ("loc", "cq")}
         assert states["cq"] < 2 * states["indep"] < states["loc"] / 2.5, states
         assert peers["cq"] < 1 and 0.8 <= peers["loc"] <= 3, peers
+
+
+def test_the_stuck_agents_paragraph_is_what_its_data_say():
+    # docs/warehouses.md, Delays: on warehouse_16_delayed the greedy policy leaves indep 3 and CQ 4 of 16 AGVs
+    # alone at Q_k about -50 (the waiting floor), indep's at -50.0 to -52.9; 1,830 of CQ's 2,000 learning
+    # episodes truncated; indep's truncations from 41 of 100 (episodes 100-199) to every one of its last 1,200.
+    import re
+    page = (ROOT / "docs" / "warehouses.md").read_text()
+    stuck = {}
+    for algo in ("indep", "cq"):
+        text = (ROOT / "docs" / "data" / "stuck" / f"{algo}.txt").read_text()
+        assert "waiting floor reward_wall / (1 - gamma) = -50.0" in text
+        first = text.split("greedy episode 1:")[0]
+        home = re.search(r"greedy episode 0: \d+ steps, (\d+)/16 home", first)
+        q = [float(x) for x in re.findall(r"Q_k at [^:]+: \[([^\]]+)\]", first) for x in x.split(",")]
+        truncated = [int(n) for n in re.findall(r"last 100: (\d+) truncated", text)]
+        stuck[algo] = (16 - int(home[1]), min(q), max(q), truncated)
+    assert stuck["indep"][:3] == (3, -52.9, -50.0) and stuck["cq"][0] == 4
+    assert "(indep: 3 of 16 AGVs, Q_k at their cells -50.0 to -52.9; CQ: 4 of 16)" in page
+    assert sum(stuck["cq"][3]) == 1830 and len(stuck["cq"][3]) == 20
+    assert "1,830 of CQ's 2,000 learning episodes ran to the 5,000-step cap" in page
+    indep = stuck["indep"][3]
+    assert indep[1] == 41 and all(n == 100 for n in indep[-12:]) and indep[-13] < 100
+    assert "rose from 41 of 100 (episodes 100-199) to every one of its last 1,200" in page
+    rows = figures._delay_rows("6-warehouse_16_delayed-slip0.1")
+    collided = {a: float(rows["0.1", a]["greedy collisions (worst run)"].split()[0]) for a in ("cq", "indep")}
+    assert {r["greedy home"] for r in rows.values()} == {"0/1"}
+    assert f"CQ's collides {collided['cq']:.2f} times an episode, indep's {collided['indep']:.2f}" in page
