@@ -249,3 +249,11 @@ def test_the_stuck_agents_paragraph_is_what_its_data_say():
     collided = {a: float(rows["0.1", a]["greedy collisions (worst run)"].split()[0]) for a in ("cq", "indep")}
     assert {r["greedy home"] for r in rows.values()} == {"0/1"}
     assert f"CQ's collides {collided['cq']:.2f} times an episode, indep's {collided['indep']:.2f}" in page
+
+
+def test_the_choices_pages_state_count_is_the_reports():
+    # docs/choices.md, Fig. 5a: CQ's state count per agent on tunnel_to_goal_3 climbs from its 55 cells to 62.
+    report = (ROOT / "docs" / "reproduce" / "REPORT.md").read_text()
+    page = (ROOT / "docs" / "choices.md").read_text()
+    assert "each CQ agent ends with 62 states (55 local + 7 joint)" in report
+    assert "count per agent climbs from 55 to 62 over all 10,000 episodes" in page
