@@ -328,6 +328,13 @@ def delays_say() -> str:
     quick = fast["0.1", "cq"]
     s5, s2 = {a: slips["0.05", a] for a in ("cq", "indep")}, {a: slips["0.2", a] for a in ("cq", "indep")}
     runs = int(cq["greedy home"].split("/")[1])
+
+    def w16(name):  # CQ against indep on one warehouse_16_delayed table: runs home, greedy collisions
+        rows = _delay_rows(name)
+        c, i = rows["0.1", "cq"], rows["0.1", "indep"]
+        return (f"home in {c['greedy home']} runs colliding {coll(c):.2f} times a greedy episode, indep home in "
+                f"{i['greedy home']} colliding {coll(i):.2f}")
+
     return "\n".join([
         f"What the tables say, at slip 0.1 on warehouse_8_delayed ({runs} runs, the first table; the third adds "
         f"LoC over {loc['0.1', 'cq']['greedy home'].split('/')[1]}):",
@@ -354,6 +361,11 @@ def delays_say() -> str:
         f"indep's {coll(s5['indep']):.3f} ({coll(s5['indep']) / coll(s5['cq']):.1f}x), at 0.2 "
         f"{coll(s2['cq']):.3f} against {coll(s2['indep']):.3f} ({coll(s2['indep']) / coll(s2['cq']):.1f}x), at a "
         f"sum of costs of {cost(s2['cq']):.2f}x the planner's against {cost(s2['indep']):.2f}x.",
+        "- On warehouse_16_delayed the map's collision penalty decides (the sixth to ninth tables): at its own "
+        f"-30 no greedy policy brings every AGV home (seed 0: CQ {w16('6-warehouse_16_delayed-slip0.1')}); "
+        f"at -20, CQ {w16('8-warehouse_16_delayed-collision-20')}; at -10, CQ "
+        f"{w16('7-warehouse_16_delayed-collision-10')}; at -30 with gamma 0.99, CQ "
+        f"{w16('9-warehouse_16_delayed-gamma0.99')}.",
         "",
         "Issue 18's targets on warehouse_8 against these figures: greedy collisions at most 0.1 an episode "
         f"({'met' if coll(cq) <= 0.1 else 'not met'}: {coll(cq):.3f}), 5x below the independent learners' "

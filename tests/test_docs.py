@@ -249,6 +249,25 @@ def test_the_stuck_agents_paragraph_is_what_its_data_say():
     collided = {a: float(rows["0.1", a]["greedy collisions (worst run)"].split()[0]) for a in ("cq", "indep")}
     assert {r["greedy home"] for r in rows.values()} == {"0/1"}
     assert f"CQ's collides {collided['cq']:.2f} times an episode, indep's {collided['indep']:.2f}" in page
+    # the variants, same seed: learning episodes at the cap, greedy steps, every AGV home in both greedy episodes
+    for variant, (cq_cap, indep_cap) in (("reward_collision-10", (6, 10)), ("gamma0.99", (147, 138))):
+        caps, steps = {}, {}
+        for algo in ("cq", "indep"):
+            text = (ROOT / "docs" / "data" / "stuck" / f"{algo}-{variant}.txt").read_text()
+            caps[algo] = sum(int(n) for n in re.findall(r"last 100: (\d+) truncated", text))
+            greedy = re.findall(r"greedy episode \d: (\d+) steps, (\d+)/16 home", text)
+            assert len(greedy) == 2 and all(home == "16" for _, home in greedy), greedy
+            steps[algo] = int(greedy[0][0])
+        assert (caps["cq"], caps["indep"]) == (cq_cap, indep_cap)
+        if variant == "reward_collision-10":
+            assert f"{cq_cap} of CQ's and {indep_cap} of indep's learning episodes" in page
+            assert f"in {steps['cq']} and {steps['indep']} steps" in page
+        else:
+            assert f"{cq_cap} and {indep_cap} do, and both bring all 16 home too" in page
+    for name in ("7-warehouse_16_delayed-collision-10", "9-warehouse_16_delayed-gamma0.99"):
+        rows = figures._delay_rows(name)
+        c, i = (float(rows["0.1", a]["greedy collisions (worst run)"].split()[0]) for a in ("cq", "indep"))
+        assert rows["0.1", "cq"]["greedy home"] == "3/3" and c > 0.3 and 1 < i / c < 2  # "less than twice over"
 
 
 def test_the_choices_pages_state_count_is_the_reports():
