@@ -39,8 +39,14 @@ QOS_ACTION = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=Durab
 # transient-local subscriber to a volatile publisher gets nothing).
 QOS_POSITION = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                           history=HistoryPolicy.KEEP_LAST, depth=1)
-QOS_STATS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-                       history=HistoryPolicy.KEEP_LAST, depth=100)
+# Statistics must all arrive: a launch's rows and a collect's need every episode's. Transient local: a
+# volatile reader is owed only what is sent once both sides have matched, and with both cores busy a launcher
+# never got agv2's episodes 0-7, sent after agv2's writer had matched it (its reader matched later); a
+# transient-local reader is sent the writer's history on matching. Depth 1000: a reliable keep-last writer
+# drops its oldest sample, acknowledged or not, once it holds `depth`, and a reader keeps `depth` until its
+# executor takes them, so a listener may fall this many episodes behind a fast map on a busy machine.
+QOS_STATS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                       history=HistoryPolicy.KEEP_LAST, depth=1000)
 QOS_HEARTBEAT = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                            history=HistoryPolicy.KEEP_LAST, depth=1)
 # A reader's history is shared by every writer of its topic (DDS keeps it per instance; our topics have

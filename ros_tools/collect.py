@@ -4,9 +4,10 @@ ros_tools.compose), written as a launch writes them (episodes.csv, greedy.csv, o
 It finds the system on the domain (the namespace of its one `world` node, unless given), asks the world and an
 agent node for their parameters over ROS's parameter services (map, episodes, seed, the settings given, the
 algorithm), then listens to world/stats and every agv<k>/stats with the launcher's own StatsListener until
-every episode is in, and writes through the launcher's writer (ros_tools.launch.write_heard). Statistics are
-volatile: start collect before the run's first step, e.g. with -p min_stats_subscribers:=1 on the nodes, which
-then wait for it (the world before its first step, an agent before it sends its statistics).
+every episode is in, and writes through the launcher's writer (ros_tools.launch.write_heard). A statistics
+writer keeps its last 1000 for a reader that comes late; to be sure of every episode, start collect before
+the run's first step, e.g. with -p min_stats_subscribers:=1 on the nodes, which then wait for it (the world
+before its first step, an agent before it sends its statistics).
 """
 
 from __future__ import annotations

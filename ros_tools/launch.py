@@ -8,8 +8,8 @@ side by side never hear each other; `cq-ros echo /<namespace>/world/stats --doma
 
 Start-up. The launcher's own node (the listener, `/<namespace>/launch`) subscribes to every agv<k>/stats, then
 every child starts at once: the world, and one agent process per AGV (`agv<k>`) or the one central JSA node
-(`jsa`). Statistics are volatile, so a message sent before its publisher matched the listener would be lost:
-the world runs with min_stats_subscribers:=1 (its first step waits for the listener's world/stats
+(`jsa`). A statistics writer keeps its last 1000 (transient local), but a message sent before its publisher
+matched the listener would not be kept for it past those: the world runs with min_stats_subscribers:=1 (its first step waits for the listener's world/stats
 subscription) and so does every agent (it holds its statistics until its own publisher has matched the
 listener, and waits for that before it exits; only the publisher's side of a match says that a message will
 arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.

@@ -595,6 +595,7 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
             stop_launcher(launcher)
         lines = text_of(err).strip().splitlines()
         rows = read_rows(out / "episodes.csv")
+        assert (out / "manifest.json").exists(), text_of(err)
         manifest = json.loads((out / "manifest.json").read_text())
         leftover = (out / ".reserve").exists()
     assert code == 1 and "Traceback" not in text_of(err)

@@ -99,9 +99,11 @@ def test_qos_profiles_are_explicit_and_as_documented():
         assert q.depth >= 1
     pos = ms.POSITION.qos
     assert (pos.durability, pos.depth) == (DurabilityPolicy.TRANSIENT_LOCAL, 1)  # latched
-    for spec in (ms.FEEDBACK, ms.ACTION, ms.AGENT_STATS, ms.WORLD_STATS):
+    for spec in (ms.FEEDBACK, ms.ACTION):
         assert spec.qos.durability == DurabilityPolicy.VOLATILE
         assert spec.qos.depth >= 2  # an episode boundary sends two feedbacks back to back
+    for spec in (ms.AGENT_STATS, ms.WORLD_STATS):  # kept for a reader that matches late or falls behind
+        assert (spec.qos.durability, spec.qos.depth) == (DurabilityPolicy.TRANSIENT_LOCAL, 1000)
     assert ms.qos_summary(pos) == "reliable, transient local, keep last 1"
 
 

@@ -386,14 +386,17 @@ def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match
         world.destroy_node()
 
 
-def test_statistics_are_held_until_min_stats_subscribers_match_then_sent_in_order(ros_context, spin_until):
-    """With min_stats_subscribers=1 an agent that plays every episode before anyone listens keeps its
-    statistics, and a subscriber that comes afterwards gets all of them, episode 0 first."""
+@pytest.mark.parametrize("min_matched", [1, 0], ids=["held", "kept_by_the_writer"])
+def test_statistics_reach_a_subscriber_that_comes_after_the_run_episode_0_first(ros_context, spin_until,
+                                                                                   min_matched):
+    """A subscriber that comes after every episode was played gets every statistics message, in order: with
+    min_stats_subscribers=1 the agents held theirs until it matched; with 0 every writer sent them to no one,
+    and keeps them for a reader that comes late (transient local), the world's too."""
     episodes, greedy = 4, 1
     common = {"map": "grid_game_2", "episodes": episodes, "seed": 1, "eval_episodes": greedy}
     world = WorldNode(context=ros_context, parameter_overrides=parameters(**common, step_timeout=30.0))
     agents = [AgentNode(f"agv{k}", context=ros_context, parameter_overrides=parameters(
-        **common, algo="indep", agent_id=k, min_stats_subscribers=1)) for k in (1, 2)]
+        **common, algo="indep", agent_id=k, min_stats_subscribers=min_matched)) for k in (1, 2)]
     probe = rclpy.create_node("late_probe", context=ros_context)
     executor = SingleThreadedExecutor(context=ros_context)
     for node in (world, *agents, probe):
@@ -401,13 +404,15 @@ def test_statistics_are_held_until_min_stats_subscribers_match_then_sent_in_orde
     try:
         assert spin_until(executor, lambda: world.done.done() and all(a.done.done() for a in agents), RUN_TIMEOUT_S)
         assert world.done.result() == 0
-        heard: dict[int, list[int]] = {1: [], 2: []}
-        for k in heard:
+        heard: dict[int, list[int]] = {0: [], 1: [], 2: []}  # 0: the world's
+        for k in (1, 2):
             probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
                                       lambda m, k=k: heard[k].append(decode_agent_stats(m).episode), AGENT_STATS.qos)
+        probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
+                                  lambda m: heard[0].append(decode_world_stats(m).episode), WORLD_STATS.qos)
         total = episodes + greedy
         assert spin_until(executor, lambda: all(len(h) >= total for h in heard.values()), 10.0), heard
-        assert heard == {1: list(range(total)), 2: list(range(total))}
+        assert heard == {k: list(range(total)) for k in heard}
     finally:
         executor.shutdown()
         for node in (world, *agents, probe):
