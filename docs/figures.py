@@ -131,11 +131,32 @@ def warehouses() -> str:
     return "\n".join(lines) + "\n"
 
 
+# docs/data/delays/: a file that carries another's table on to more learners, shown right after it
+FOLLOWS = {"12-warehouse_8_delayed-slips-near-loc": "4-warehouse_8_delayed-slips"}
+NTH = ("first", "second", "third", "fourth", "fifth", "sixth", "seventh", "eighth", "ninth", "tenth", "eleventh",
+       "twelfth", "thirteenth", "fourteenth", "fifteenth", "sixteenth")
+
+
+def delay_files() -> list[Path]:
+    """docs/data/delays/*.txt in the order docs/warehouses.md shows them: by their number (10 after 9), a file
+    of FOLLOWS right after the one it follows."""
+    def key(path: Path) -> tuple[int, int, int]:
+        number = int(path.name.split("-", 1)[0])
+        after = FOLLOWS.get(path.stem)
+        return (int(after.split("-", 1)[0]), 1, number) if after else (number, 0, number)
+    return sorted((DATA / "delays").glob("*.txt"), key=key)
+
+
+def nth_table(name: str) -> str:
+    """Which table of the delays block docs/data/delays/NAME.txt is: "first", "second", ..."""
+    return NTH[[path.stem for path in delay_files()].index(name)]
+
+
 def delays() -> str:
     """What benchmarks/bench_delays.py printed, a table per file of docs/data/delays/ (its first line the
     machine and the run's settings, its next the planner's figures, then the run's time and the table)."""
     out = []
-    for path in sorted((DATA / "delays").glob("*.txt")):
+    for path in delay_files():
         lines = path.read_text(encoding="utf-8").splitlines()
         table = [line for line in lines if line.startswith("|")]
         notes = [line for line in lines if not line.startswith("|") and line.strip()]
@@ -320,6 +341,12 @@ def delays_say() -> str:
     ten, fast, loc = _delay_rows("1-warehouse_8_delayed-10runs"), _delay_rows("2-warehouse_8_delayed-conf_down"), \
         _delay_rows("3-warehouse_8_delayed-loc")
     slips, adg = _delay_rows("4-warehouse_8_delayed-slips"), _delay_rows("5-warehouse_8_delayed-adg")
+    more = _delay_rows("12-warehouse_8_delayed-slips-near-loc")  # near and LoC at the fourth table's slips
+    more_slips = sorted({slip for slip, _ in more}, key=float)
+
+    def across(algo, value):  # one learner's figures at each slip of the near/LoC slips table
+        return " / ".join(value(more[p, algo]) for p in more_slips)
+
     cq, indep, near = ten["0.1", "cq"], ten["0.1", "indep"], ten["0.1", "near"]
     heard = {k: float(r[f"heard/step {k}"]) for k, r in (("learning", cq), ("greedy", cq))}
     near_heard = {k: float(near[f"heard/step {k}"]) for k in ("learning", "greedy")}
@@ -336,7 +363,8 @@ def delays_say() -> str:
                 f"{i['greedy home']} colliding {coll(i):.2f}")
 
     return "\n".join([
-        f"What the tables say, at slip 0.1 on warehouse_8_delayed ({runs} runs, the first table; the third adds "
+        f"What the tables say, at slip 0.1 on warehouse_8_delayed ({runs} runs, the "
+        f"{nth_table('1-warehouse_8_delayed-10runs')} table; the {nth_table('3-warehouse_8_delayed-loc')} adds "
         f"LoC over {loc['0.1', 'cq']['greedy home'].split('/')[1]}):",
         f"- Looking pays: CQ's greedy policy collides {coll(cq):.3f} times an episode, "
         f"{coll(indep) / coll(cq):.1f}x fewer than the independent learners' ({coll(indep):.3f}; with LoC, LoC "
@@ -345,23 +373,30 @@ def delays_say() -> str:
         f"- {'Every learner' if home == {f'{runs}/{runs}'} else 'Not every learner'}'s greedy policy brings every "
         f"AGV home in all {runs} runs; CQ's sum of costs is {cost(cq):.2f}x the planner's without delays, "
         f"{cost(cq) / cost(adg['0.1', 'adg']):.2f}x the yardstick's under the same delays "
-        f"({cost(adg['0.1', 'adg']):.2f}x, the fifth table), where it sends {yard['messages'][0]:.0f} dependency "
-        f"messages an execution and collides {coll(adg['0.1', 'adg']):.0f} times.",
+        f"({cost(adg['0.1', 'adg']):.2f}x, the {nth_table('5-warehouse_8_delayed-adg')} table), where it sends "
+        f"{yard['messages'][0]:.0f} dependency messages an execution and collides {coll(adg['0.1', 'adg']):.0f} times.",
         f"- CQ hears {heard['learning']:.3f} peer positions a step while learning, "
         f"{100 * heard['learning'] / near_heard['learning']:.0f}% of near's {near_heard['learning']:.3f}; in the "
         f"greedy episodes {heard['greedy']:.3f}, {100 * heard['greedy'] / near_heard['greedy']:.0f}% of near's "
         f"{near_heard['greedy']:.3f}: there it hears the peers its marked cells watch, and unused joint states "
         f"barely go at `conf_down` 0.02 ([choices](choices.md#fig-5a-why-cqs-state-count-climbs)).",
-        f"- Letting them go faster trades collisions for messages (the second table): at `conf_down=0.1` CQ hears "
-        f"{float(quick['heard/step greedy']):.3f} a greedy step, "
+        f"- Letting them go faster trades collisions for messages (the {nth_table('2-warehouse_8_delayed-conf_down')} "
+        f"table): at `conf_down=0.1` CQ hears {float(quick['heard/step greedy']):.3f} a greedy step, "
         f"{100 * float(quick['heard/step greedy']) / near_heard['greedy']:.0f}% of near's, and collides "
         f"{coll(quick):.3f} times an episode against {coll(cq):.3f}.",
-        f"- Across slips (the fourth table): without delays CQ collides {coll(slips['0', 'cq']):.3f} times a "
-        f"greedy episode and indep {coll(slips['0', 'indep']):.3f}; at slip 0.05 CQ {coll(s5['cq']):.3f} against "
+        f"- Across slips (the {nth_table('4-warehouse_8_delayed-slips')} table): without delays CQ collides "
+        f"{coll(slips['0', 'cq']):.3f} times a greedy episode and indep {coll(slips['0', 'indep']):.3f}; at slip "
+        f"0.05 CQ {coll(s5['cq']):.3f} against "
         f"indep's {coll(s5['indep']):.3f} ({coll(s5['indep']) / coll(s5['cq']):.1f}x), at 0.2 "
         f"{coll(s2['cq']):.3f} against {coll(s2['indep']):.3f} ({coll(s2['indep']) / coll(s2['cq']):.1f}x), at a "
-        f"sum of costs of {cost(s2['cq']):.2f}x the planner's against {cost(s2['indep']):.2f}x.",
-        "- On warehouse_16_delayed the map's collision penalty decides (the sixth to ninth tables): at its own "
+        f"sum of costs of {cost(s2['cq']):.2f}x the planner's against {cost(s2['indep']):.2f}x. At slips "
+        f"{', '.join(more_slips)}, near and LoC (the {nth_table('12-warehouse_8_delayed-slips-near-loc')} "
+        f"table) collide {across('near', lambda r: f'{coll(r):.3f}')} and {across('loc', lambda r: f'{coll(r):.3f}')} "
+        f"times a greedy episode, hearing {across('near', lambda r: r['heard/step greedy'])} and "
+        f"{across('loc', lambda r: r['heard/step greedy'])} peer positions a greedy step.",
+        "- On warehouse_16_delayed the map's collision penalty decides (the "
+        f"{nth_table('6-warehouse_16_delayed-slip0.1')} to {nth_table('9-warehouse_16_delayed-gamma0.99')} tables): "
+        "at its own "
         f"-30 no greedy policy brings every AGV home (seed 0: CQ {w16('6-warehouse_16_delayed-slip0.1')}); "
         f"at -20, CQ {w16('8-warehouse_16_delayed-collision-20')}; at -10, CQ "
         f"{w16('7-warehouse_16_delayed-collision-10')}; at -30 with gamma 0.99, CQ "

@@ -223,6 +223,15 @@ def test_the_scaling_sentences_are_what_its_data_say():
         assert peers["cq"] < 1 and 0.8 <= peers["loc"] <= 3, peers
 
 
+def test_the_delays_tables_come_in_number_order_each_follower_after_its_table():
+    # docs/warehouses.md, Delays: 10 after 9 (not after 1), near and LoC across slips right after indep and CQ's
+    names = [path.stem for path in figures.delay_files()]
+    numbers = [int(name.split("-", 1)[0]) for name in names if name not in figures.FOLLOWS]
+    assert numbers == sorted(numbers)
+    for follower, leader in figures.FOLLOWS.items():
+        assert names.index(follower) == names.index(leader) + 1
+
+
 def test_the_stuck_agents_paragraph_is_what_its_data_say():
     # docs/warehouses.md, Delays: on warehouse_16_delayed the greedy policy leaves indep 3 and CQ 4 of 16 AGVs
     # alone at Q_k about -50 (the waiting floor), indep's at -50.0 to -52.9; 1,830 of CQ's 2,000 learning
@@ -246,6 +255,7 @@ def test_the_stuck_agents_paragraph_is_what_its_data_say():
     assert indep[1] == 41 and all(n == 100 for n in indep[-12:]) and indep[-13] < 100
     assert "rose from 41 of 100 (episodes 100-199) to every one of its last 1,200" in page
     rows = figures._delay_rows("6-warehouse_16_delayed-slip0.1")
+    assert f"(one run each, the {figures.nth_table('6-warehouse_16_delayed-slip0.1')} table)" in page
     collided = {a: float(rows["0.1", a]["greedy collisions (worst run)"].split()[0]) for a in ("cq", "indep")}
     assert {r["greedy home"] for r in rows.values()} == {"0/1"}
     assert f"CQ's collides {collided['cq']:.2f} times an episode, indep's {collided['indep']:.2f}" in page
