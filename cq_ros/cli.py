@@ -48,11 +48,13 @@ def _algos(text: str) -> list[str]:
 
 
 def _seeds(text: str) -> list[int]:
-    """Comma-separated whole numbers, each once."""
+    """Comma-separated whole numbers, none negative (as --seed), each once."""
     try:
         seeds = [int(part) for part in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas, got {text!r}") from None
+    if any(seed < 0 for seed in seeds):
+        raise argparse.ArgumentTypeError(f"every seed must be at least 0, got {text}")
     if len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(f"a seed is given twice in {text!r}")
     return seeds
