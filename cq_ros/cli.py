@@ -474,6 +474,12 @@ def _render(args) -> int:
         settings = run_settings(gridmap, args.overrides)
         occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
         title = f"{gridmap.name} {args.algo}"
+        if args.greedy and args.episode is not None:
+            raise ValueError("draw either a learning episode (--episode) or the greedy one after learning "
+                             "(--greedy), not both")
+        if args.episode is not None and args.episode >= args.episodes:
+            raise ValueError(f"episode {args.episode} is not one of the {args.episodes} episodes "
+                             f"(0..{args.episodes - 1})")
         _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
         if args.greedy:
             title += " greedy"
