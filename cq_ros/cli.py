@@ -130,7 +130,8 @@ def _add_ros_parsers(sub) -> None:
                    help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
                         "(default: a key of the launch's own, removed at its end)")
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
-                   help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`)")
+                   help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
+                        "0: any free port, printed at start)")
     p.add_argument("--episodes", type=_positive, default=None, help="episodes (default 500)")
     p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
