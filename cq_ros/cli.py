@@ -48,11 +48,13 @@ def _algos(text: str) -> list[str]:
 
 
 def _seeds(text: str) -> list[int]:
-    """Comma-separated whole numbers, each once."""
+    """Comma-separated whole numbers, none negative (as --seed), each once."""
     try:
         seeds = [int(part) for part in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected whole numbers separated by commas, got {text!r}") from None
+    if any(seed < 0 for seed in seeds):
+        raise argparse.ArgumentTypeError(f"every seed must be at least 0, got {text}")
     if len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(f"a seed is given twice in {text!r}")
     return seeds
@@ -128,7 +130,8 @@ def _add_ros_parsers(sub) -> None:
                    help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
                         "(default: a key of the launch's own, removed at its end)")
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
-                   help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`)")
+                   help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
+                        "0: any free port, printed at start)")
     p.add_argument("--episodes", type=_positive, default=None, help="episodes (default 500)")
     p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
@@ -472,6 +475,12 @@ def _render(args) -> int:
         settings = run_settings(gridmap, args.overrides)
         occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
         title = f"{gridmap.name} {args.algo}"
+        if args.greedy and args.episode is not None:
+            raise ValueError("draw either a learning episode (--episode) or the greedy one after learning "
+                             "(--greedy), not both")
+        if args.episode is not None and args.episode >= args.episodes:
+            raise ValueError(f"episode {args.episode} is not one of the {args.episodes} episodes "
+                             f"(0..{args.episodes - 1})")
         _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
         if args.greedy:
             title += " greedy"

@@ -28,7 +28,7 @@ from cq_ros.parameters import SETTING_NAMES
 from cq_ros.settings import run_settings
 
 from .commands import StopSignals, ros_session, spin_until
-from .launch import Interrupted, LaunchError, Progress, StatsListener, write_heard
+from .launch import Interrupted, LaunchError, Progress, StatsListener, agent_nodes, write_heard
 
 __all__ = ["CollectError", "collect", "find_system"]
 
@@ -116,6 +116,9 @@ def collect(out: str | Path, *, domain_id: int | None = None, namespace: str | N
         gridmap = load_map(world["map"])
         settings = run_settings(gridmap, {k: v for k, v in world.items() if k in SETTING_NAMES})
         algo, episodes = agent["algo"], world["episodes"]
+        # The system's agent nodes are the map's (agv1..agvN, or jsa), not those discovered so far: a process
+        # per node is often seen one at a time, and the manifest names each learner's statistics by its node.
+        agents = [name for name, _ in agent_nodes(gridmap, algo)]
         # The statistics topics are relative to the system's namespace: the listener's node lives there.
         here = rclpy.create_node(f"_collect_{os.getpid()}", namespace=ns, context=node.context, enable_rosout=False,
                                  start_parameter_services=False)

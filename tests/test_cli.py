@@ -59,6 +59,7 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         (["experiment", "--map", "grid_game_2", "--set", "gamma=1.5", "--out", "X"], "gamma must be in [0, 1)"),
         (["experiment", "--map", "grid_game_2", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
         (["reproduce", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
+        (["reproduce", "--seeds", "0,-1", "--out", "X"], "--seeds: every seed must be at least 0"),
         (["generate", "warehouse", "--agents", "8", "--seed", "-2", "--out", "X"], "--seed: must be at least 0"),
     ],
 )

@@ -76,7 +76,7 @@ def test_params_file_and_the_options_it_replaces_do_not_mix(tmp_path, capsys):
     assert "--map and --algo are required" in capsys.readouterr().err
 
 
-def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(tmp_path, capsys):
+def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(tmp_path, capsys, monkeypatch):
     key = tmp_path / "run.key"
     assert main(["key", "--out", str(key)]) == 0
     assert stat.S_IMODE(os.stat(key).st_mode) == 0o600
@@ -103,6 +103,15 @@ def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(t
                                 "-r", f"__ns:=/{namespace}", "--params-file", str(first / "params.yaml"),
                                 "-p", "min_stats_subscribers:=1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True)
+    import ros_tools.collect
+
+    found = ros_tools.collect.find_system
+
+    def agv2_seen_first(*args, **kwargs):  # as when a process per node is discovered one at a time
+        ns, _agents = found(*args, **kwargs)
+        return ns, ["agv2"]
+
+    monkeypatch.setattr(ros_tools.collect, "find_system", agv2_seen_first)
     try:
         collected = main(["collect", "--namespace", namespace, "--out", str(tmp_path / "third")])
         assert by_hand.wait(timeout=RUN_TIMEOUT_S) == 0, by_hand.stderr.read()
@@ -114,6 +123,10 @@ def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(t
         assert (first / table).read_text() == (tmp_path / "third" / table).read_text(), table
     manifest = json.loads((tmp_path / "third" / "manifest.json").read_text())
     assert manifest["namespace"] == f"/{namespace}" and manifest["collected"] and manifest["settings"]["window"] == 5
+    launched = json.loads((first / "manifest.json").read_text())
+    assert set(manifest["nodes"]) == {"world", "agv1", "agv2"}  # every node of the system, not those seen first
+    assert {name: c["peer_messages"] for name, c in manifest["communication"].items()} == \
+        {name: c["peer_messages"] for name, c in launched["communication"].items()}
     out = capsys.readouterr()
     assert "greedy policy, cq, 1 run x 1 episodes" in out.out and f"grid_game_2 cq in /{namespace}" in out.err
     assert not alive_with(namespace)

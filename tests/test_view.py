@@ -155,3 +155,31 @@ def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
         if launch.poll() is None:
             launch.kill()
         launch.communicate(timeout=30)
+
+
+def test_the_shipped_foxglove_layout_is_make_layouts_and_names_the_systems_topics():
+    """docs/foxglove/layout.json is what docs/foxglove/make_layout.py writes (2 agents), and every topic it shows
+    is one the system publishes: the viewers' topics under /demo and the world's stats key `collisions`."""
+    import importlib.util
+    from pathlib import Path
+
+    from msgs_spec.stats import WORLD_STATS_KEYS
+    from msgs_spec.topics import WORLD_STATS_TOPIC
+    from msgs_spec.viz import looks_topic
+
+    folder = Path(__file__).resolve().parent.parent / "docs" / "foxglove"
+    spec = importlib.util.spec_from_file_location("make_layout", folder / "make_layout.py")
+    make_layout = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make_layout)
+    shipped = (folder / "layout.json").read_text()
+    assert shipped == make_layout.layout(2) + "\n", "run .venv/bin/python docs/foxglove/make_layout.py"
+    panels = {item["content"]["panelType"]: item["content"]["config"]
+              for item in json.loads(shipped)["content"]["items"]}
+    scene = panels["ThreeDee"]
+    assert scene["fixedFrame"] == "map"
+    ns = make_layout.NAMESPACE
+    assert set(scene["topics"]) == {f"{ns}/{MAP_TOPIC}", f"{ns}/{SCENE_TOPIC}", f"{ns}/{looks_topic(1)}",
+                                    f"{ns}/{looks_topic(2)}"}
+    (series,) = panels["Plot"]["paths"]
+    assert series["value"].startswith(f"{ns}/{WORLD_STATS_TOPIC}.") and '{key=="collisions"}' in series["value"]
+    assert "collisions" in WORLD_STATS_KEYS

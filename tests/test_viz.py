@@ -166,6 +166,7 @@ def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--episode", "20", "--out",
                           str(tmp_path / "x.gif")], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "episode 20 is not one of the 20 episodes" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1, bad.stderr  # before any learning, not after it
     assert not (tmp_path / "x.gif").exists()
 
 
@@ -188,4 +189,5 @@ def test_render_draws_the_greedy_episode_after_learning_at_the_dpi_asked(tmp_pat
         done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *bad, "--out", str(tmp_path / "x.gif")],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and says in done.stderr, done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert not (tmp_path / "x.gif").exists()
