@@ -63,6 +63,11 @@ class Settings:
         0, "CQ's W1 (ours, 0 is the paper's): 0, the first N rewards of each (cell, action); 1, the rewards of "
            "acting alone there (the world's reward for the move with nobody else, a share slip of them delayed), "
            "so that a conflict present from the start, as under delays, shows as a drop")
+    cq_look_if_decisive: int = setting(
+        0, "CQ's looks when greedy (ours, 0 is the paper's): 0, at a cell with marked joint states the agent looks "
+           "at every peer they name, every step; 1, at epsilon 0 it does not look where Q_k and every Q^j of the "
+           "cell have the same unique best action (and no waiting update lands in them), since what it saw could "
+           "not change what it does: it acts on Q_k there, meeting no joint state")
     loc_range: int = setting(2, "LoC: active perception is TRUE when a peer is at most this many cells away "
                                 "(Manhattan), i.e. close enough to collide this step")
     loc_cost: float = setting(0.1, "LoC: what choosing COORDINATE costs of the learner's reward")
@@ -98,6 +103,7 @@ class Settings:
         _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
         _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
         _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
+        _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")

@@ -6,6 +6,7 @@ A step, as the engine drives it: `need = observe(cell)`, `act({j: cell_j for j i
 tests make the preferred action strictly best where they need to know it.
 """
 
+import dataclasses
 import math
 import pickle
 import random
@@ -284,6 +285,123 @@ def test_cq_all_met_chooses_on_the_rows_after_the_waiting_update():
     learner.observe(0)
     assert learner.act({1: 1, 2: 3}) == WEST  # not EAST, the best of the rows before the update
     assert learner.q_joint[(0, 1, 1)][EAST] == pytest.approx(4.0 + 0.1 * (-10.0 + 0.9 * 4.0 - 4.0))
+
+
+def cq_marked_at_0(**overrides):
+    """A greedy CQ learner with the joint states (0, 1, 1) and (0, 2, 3) marked from cell 1, now at cell 3."""
+    learner = cq_with_conflict(**overrides)
+    learner.observe(1)
+    learner.act({1: 1, 2: 3})
+    learner.learn(0.0, 2, False)
+    learner.observe(2)
+    learner.act({})
+    learner.learn(0.0, 3, False)
+    assert learner.watch == {0: (1, 2)}
+    return learner
+
+
+def test_cq_look_if_decisive_does_not_look_where_every_row_picks_the_same_action():
+    learner = cq_marked_at_0(cq_look_if_decisive=1)
+    learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]
+    learner.q_joint[(0, 1, 1)][:] = [0.0, 3.0, -1.0, 2.0]  # EAST is best in every row
+    learner.q_joint[(0, 2, 3)][:] = [-5.0, -4.0, -5.0, -9.0]
+    confidence, plays, heard = dict(learner.confidence), learner.joint_plays, learner.heard
+    assert learner.observe(0) == ()
+    assert learner.act({}) == EAST and learner.js is None
+    assert (learner.confidence, learner.joint_plays, learner.heard) == (confidence, plays, heard)  # no _meet
+    joint = {js: list(row) for js, row in learner.q_joint.items()}
+    learner.learn(-1.0, 1, False)  # the update goes to Q_k, as at an unmarked cell
+    assert learner.q_local[0][EAST] == pytest.approx(5.0 + 0.1 * (-1.0 + 0.9 * max(learner.q_local[1]) - 5.0))
+    assert learner.q_joint == joint
+    # one row that disagrees, or ties, and it looks (and meets) as today
+    for js, row in (((0, 2, 3), [-5.0, -4.0, -5.0, 0.0]), ((0, 1, 1), [0.0, 3.0, -1.0, 3.0])):
+        before = list(learner.q_joint[js])
+        learner.q_joint[js][:] = row
+        assert learner.observe(0) == (1, 2)
+        learner.act({1: 1, 2: 3})
+        assert learner.js is not None and learner.heard == heard + 2
+        learner.learn(0.0, 1, False)
+        learner.q_joint[js][:] = before
+        heard = learner.heard
+    learner.q_local[0] = [0.0, 5.0, 0.0, 5.0]  # Q_k ties
+    assert learner.observe(0) == (1, 2)
+    learner.act({1: 1, 2: 3})
+    learner.learn(0.0, 1, False)
+    learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]
+    assert learner.observe(0) == ()  # all agree again
+    learner.act({})
+    learner.learn(0.0, 1, False)
+    learner.epsilon = 0.1  # not greedy: it looks
+    assert learner.observe(0) == (1, 2)
+
+
+def test_cq_look_if_decisive_off_always_looks_at_a_marked_cell():
+    learner = cq_marked_at_0(cq_look_if_decisive=0)
+    learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]
+    for row in learner.q_joint.values():
+        row[:] = [0.0, 3.0, -1.0, 2.0]
+    for _ in range(3):
+        assert learner.observe(0) == (1, 2)
+        learner.act({1: 1, 2: 4})
+        learner.learn(0.0, 1, False)
+
+
+def test_cq_look_if_decisive_looks_when_a_waiting_update_lands_in_the_cell():
+    """cq_bootstrap_acted: an agent that stayed in the cell has its last update waiting to land in one of the
+    cell's rows, from the row it acts on now, which depends on looking: it looks."""
+    learner = cq_marked_at_0(cq_look_if_decisive=1, cq_bootstrap_acted=1, cq_all_met=1)
+    learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]
+    for row in learner.q_joint.values():
+        row[:] = [0.0, 3.0, -1.0, 2.0]
+    learner.pending = None
+    assert learner.observe(0) == ()
+    learner.act({})
+    learner.learn(-1.0, 0, False)  # a wall bump: it stays at cell 0, the update waits
+    assert learner.pending is not None
+    assert learner.observe(0) == (1, 2)
+    learner.act({1: 1, 2: 3})
+    learner.learn(0.0, 1, False)  # it moves on: the update waits for cell 1's row
+    learner.observe(1)
+    learner.act({})
+    learner.learn(0.0, 0, False)  # and back, from cell 1: nothing waits in cell 0's rows
+    assert learner.observe(0) == ()
+
+
+@pytest.mark.parametrize("map_name", ["tunnel_to_goal", "grid_game_2"])
+def test_cq_look_if_decisive_changes_no_greedy_action_of_a_frozen_copy(map_name):
+    """A frozen greedy copy of a trained team plays the same steps with the setting on as off, hearing less.
+    (On these two runs, skipping a look where Q_k alone is decisive, whatever the Q^j say, changes the steps.)"""
+    gm = load_map(map_name)
+    settings = Settings(slip=0.1, eval_learning=0, step_cap=400)
+    team = Team(GridWorld(gm, settings, seed=engine.world_seed(0, 0)), make_learners("cq", gm, settings, 0, 0))
+    for _ in range(500):
+        team.episode()
+    assert any(learner.q_joint for learner in team.learners)
+    played, heard = {}, {}
+    for look in (0, 1):
+        greedy = engine.greedy_team(team)
+        for learner in greedy.learners:
+            learner.settings = Settings(slip=0.1, eval_learning=0, step_cap=400, cq_look_if_decisive=look)
+        actions, inner = [], greedy.choose
+        greedy.choose = lambda: actions.append(tuple(inner())) or actions[-1]
+        episodes = [greedy.episode() for _ in range(5)]
+        played[look] = (actions, [(e.steps, e.collisions, e.ret, e.truncated) for e in episodes])
+        heard[look] = sum(learner.heard for learner in greedy.learners) - sum(learner.heard for learner in team.learners)
+    assert played[1] == played[0]
+    assert 0 <= heard[1] < heard[0]
+
+
+def test_cq_look_if_decisive_run_is_reproducible():
+    gm = load_map("tunnel_to_goal_3")
+    on = Settings(slip=0.1, epsilon_decay_episodes=100, step_cap=400, eval_episodes=3, cq_look_if_decisive=1)
+    first = engine.run("cq", gm, on, seed=2, run_index=1, episodes=200)
+    again = engine.run("cq", gm, on, seed=2, run_index=1, episodes=200)
+    off = engine.run("cq", gm, dataclasses.replace(on, cq_look_if_decisive=0), seed=2, run_index=1, episodes=200)
+    assert np.array_equal(first.episodes, again.episodes) and np.array_equal(first.greedy, again.greedy)
+    assert first.joint_states == again.joint_states
+    # the setting acts once epsilon is 0 (episode 100 on): fewer plays on joint states than the default's
+    assert np.array_equal(first.episodes[:100], off.episodes[:100])
+    assert first.episodes[100:, 2].sum() < off.episodes[100:, 2].sum()
 
 
 def test_cq_mark_range_marks_only_the_peers_near_the_conflict():

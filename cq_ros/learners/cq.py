@@ -25,10 +25,20 @@ the peers within `cq_mark_range` cells are marked; an update waits one step and 
 the agent then acts on (`cq_bootstrap_acted`), so waiting in a joint state is not valued by Q_k's free
 road; and where several joint states are met at once, the agent acts on the elementwise minimum of their
 rows and updates each (`cq_all_met`).
+
+Looking only where it can matter (`cq_look_if_decisive`, ours, off by default): a greedy agent skips looking at
+a marked cell whose Q_k and every Q^j agree on one strictly best action, since whatever it saw it would do
+the same; a look it cannot act on is a message paid for nothing (issue 18).
 """
 
 from ..stats import ConflictTest, RewardWindows
 from .base import Learner, N_MOVES, epsilon_greedy, q_update
+
+
+def unique_best(row):
+    """The action of a row's largest value if no other action ties with it, else None."""
+    best = max(row)
+    return row.index(best) if row.count(best) == 1 else None
 
 
 class CQLearner(Learner):
@@ -49,12 +59,28 @@ class CQLearner(Learner):
         self.conflict_at = None  # a cell whose conflict is marked as soon as the peers are seen
         self.rows: list[list[float]] = []  # the rows acted on: Q_k of the cell, or Q^j of the joint states met
         self.pending = None  # (rows, action, reward, next_cell): an update waiting for the row acted on next
+        self.looking = False  # whether observe asked for the peers of this step's cell
 
     def observe(self, cell):
         self.s = cell
         if self.conflict_at is not None:
+            self.looking = True
             return self.peers
-        return self.watch.get(cell, ())
+        self.looking = cell in self.watch and not (self.settings.cq_look_if_decisive and self._decisive(cell))
+        return self.watch[cell] if self.looking else ()
+
+    def _decisive(self, cell):
+        """Looking cannot change the greedy action at a marked cell (cq_look_if_decisive): epsilon is 0, Q_k and
+        every Q^j of the cell have one and the same unique best action (so has the elementwise minimum of any of
+        the Q^j, cq_all_met), and no waiting update is about to land in one of them (the agent stayed in the
+        cell), since that update's target depends on the row acted on, hence on looking."""
+        if self.epsilon != 0:
+            return False
+        rows = [self.q_local[cell], *(self.q_joint[js] for js in self.marked[cell])]
+        if self.pending is not None and any(w is row for w in self.pending[0] for row in rows):
+            return False
+        a = unique_best(rows[0])
+        return a is not None and all(unique_best(row) == a for row in rows[1:])
 
     def act(self, peer_cells):
         self.heard += len(peer_cells)
@@ -67,7 +93,7 @@ class CQLearner(Learner):
                 # already learnt it (without it the agent repeats the very move that collided).
                 rows, a, reward, next_cell = self.pending
                 self.pending = (rows + marked, a, reward, next_cell)
-        met = self._meet(self.s, peer_cells) if self.s in self.marked else []
+        met = self._meet(self.s, peer_cells) if self.looking and self.s in self.marked else []
         self.js = met[0] if met else None
         if not met:
             self.rows = [self.q_local[self.s]]
