@@ -22,7 +22,7 @@ from cq_ros.settings import SettingsError
 
 __all__ = ["save_checkpoint", "save_checkpoints", "load_checkpoint", "remove_stale_temporaries"]
 
-_CHECKPOINT_FORMAT = 1
+_CHECKPOINT_FORMAT = 2  # 2: CQ learners keep `looking` (cq_look_if_decisive); a learner pickled before lacks it
 
 
 def _temporary_prefix(path: str) -> tuple[str, str]:

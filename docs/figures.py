@@ -338,6 +338,9 @@ def delays_say() -> str:
     def cost(row):
         return float(row["greedy cost / planner"])
 
+    def worst(row):
+        return float(row["greedy collisions (worst run)"].split()[1].strip("()"))
+
     ten, fast, loc = _delay_rows("1-warehouse_8_delayed-10runs"), _delay_rows("2-warehouse_8_delayed-conf_down"), \
         _delay_rows("3-warehouse_8_delayed-loc")
     slips, adg = _delay_rows("4-warehouse_8_delayed-slips"), _delay_rows("5-warehouse_8_delayed-adg")
@@ -353,6 +356,9 @@ def delays_say() -> str:
     home = {r["greedy home"] for r in ten.values()}
     yard = _executions(DATA / "yardstick" / "warehouse_8-slip0.1.txt")
     quick = fast["0.1", "cq"]
+    decisive = _delay_rows("10-warehouse_8_delayed-look-if-decisive")["0.1", "cq"]
+    decisive16 = _delay_rows("11-warehouse_16_delayed-collision-20-look-if-decisive")["0.1", "cq"]
+    plain16 = _delay_rows("8-warehouse_16_delayed-collision-20")["0.1", "cq"]
     s5, s2 = {a: slips["0.05", a] for a in ("cq", "indep")}, {a: slips["0.2", a] for a in ("cq", "indep")}
     runs = int(cq["greedy home"].split("/")[1])
 
@@ -384,6 +390,15 @@ def delays_say() -> str:
         f"table): at `conf_down=0.1` CQ hears {float(quick['heard/step greedy']):.3f} a greedy step, "
         f"{100 * float(quick['heard/step greedy']) / near_heard['greedy']:.0f}% of near's, and collides "
         f"{coll(quick):.3f} times an episode against {coll(cq):.3f}.",
+        f"- Looking only where it could change the greedy action (`cq_look_if_decisive=1`, the "
+        f"{nth_table('10-warehouse_8_delayed-look-if-decisive')} table) cuts what CQ hears, not its collisions: "
+        f"{float(decisive['heard/step greedy']):.3f} peer positions a greedy step against {heard['greedy']:.3f}, "
+        f"{100 * float(decisive['heard/step greedy']) / near_heard['greedy']:.0f}% of near's, and collides "
+        f"{coll(decisive):.3f} times an episode (worst run {worst(decisive):.2f}) against {coll(cq):.3f} "
+        f"({worst(cq):.2f}); on warehouse_16_delayed at -20 (the "
+        f"{nth_table('11-warehouse_16_delayed-collision-20-look-if-decisive')} table) it hears "
+        f"{float(decisive16['heard/step greedy']):.3f} against {float(plain16['heard/step greedy']):.3f} and collides "
+        f"{coll(decisive16):.2f} against {coll(plain16):.2f}.",
         f"- Across slips (the {nth_table('4-warehouse_8_delayed-slips')} table): without delays CQ collides "
         f"{coll(slips['0', 'cq']):.3f} times a greedy episode and indep {coll(slips['0', 'indep']):.3f}; at slip "
         f"0.05 CQ {coll(s5['cq']):.3f} against "
