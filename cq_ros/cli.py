@@ -219,9 +219,10 @@ def _add_ros_parsers(sub) -> None:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--map", help="run the offline engine on this map (a shipped name or a path)")
     source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
-    p.add_argument("--algo", type=_algo, default="cq", help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
-    p.add_argument("--episodes", type=_positive, default=100, help="with --map: episodes to learn (default 100)")
-    p.add_argument("--seed", type=_seed, default=0, help="with --map: master seed (default 0)")
+    # None until given, so that a bag can refuse them: their defaults are the engine's (_render)
+    p.add_argument("--algo", type=_algo, default=None, help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
+    p.add_argument("--episodes", type=_positive, default=None, help="with --map: episodes to learn (default 100)")
+    p.add_argument("--seed", type=_seed, default=None, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
                    help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
     p.add_argument("--greedy", action="store_true",
@@ -470,7 +471,13 @@ def _render(args) -> int:
     check_output(args.out)
     check_parent(args.out, "--out")
     cut = None
+    engine_only = [flag for flag, given in (
+        ("--set", bool(args.overrides)), ("--greedy", args.greedy), ("--algo", args.algo is not None),
+        ("--episodes", args.episodes is not None), ("--seed", args.seed is not None)) if given]
     if args.map is not None:
+        args.algo = "cq" if args.algo is None else args.algo
+        args.episodes = 100 if args.episodes is None else args.episodes
+        args.seed = 0 if args.seed is None else args.seed
         gridmap = load_map(args.map)
         settings = run_settings(gridmap, args.overrides)
         occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
@@ -489,9 +496,8 @@ def _render(args) -> int:
     else:
         from ros_tools import commands as tools
 
-        if args.overrides or args.greedy:
-            raise ValueError(f"{'--set' if args.overrides else '--greedy'} applies to --map (the offline engine), "
-                             "not to a bag")
+        if engine_only:
+            raise ValueError(f"{engine_only[0]} applies to --map (the offline engine), not to a bag")
         try:
             occupancy, scenes, looks = tools.read_view_bag(args.bag)
         except tools.ToolError as e:

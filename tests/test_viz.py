@@ -185,7 +185,9 @@ def test_render_draws_the_greedy_episode_after_learning_at_the_dpi_asked(tmp_pat
         assert image.size == (round(max(3.0, gridmap.width * CELL_INCHES) * 40),
                               round(max(2.5, gridmap.height * CELL_INCHES + 0.5) * 40))
     for bad, says in (([*args, "--greedy", "--episode", "3"], "not both"), ([*args, "--dpi", "0"], "--dpi"),
-                      (["--bag", str(tmp_path), "--greedy"], "--greedy applies to --map")):
+                      (["--bag", str(tmp_path), "--greedy"], "--greedy applies to --map"),
+                      (["--bag", str(tmp_path), "--seed", "0"], "--seed applies to --map"),
+                      (["--bag", str(tmp_path), "--algo", "cq"], "--algo applies to --map")):
         done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *bad, "--out", str(tmp_path / "x.gif")],
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and says in done.stderr, done.stderr
