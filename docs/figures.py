@@ -363,6 +363,7 @@ def delays_say() -> str:
     decisive16 = _delay_rows("11-warehouse_16_delayed-collision-20-look-if-decisive")["0.1", "cq"]
     plain16 = _delay_rows("8-warehouse_16_delayed-collision-20")["0.1", "cq"]
     both = _delay_rows("13-warehouse_8_delayed-look-if-decisive-conf_down")["0.1", "cq"]
+    both16 = _delay_rows("14-warehouse_16_delayed-collision-20-look-if-decisive-conf_down")["0.1", "cq"]
     s5, s2 = {a: slips["0.05", a] for a in ("cq", "indep")}, {a: slips["0.2", a] for a in ("cq", "indep")}
     runs = int(cq["greedy home"].split("/")[1])
 
@@ -407,7 +408,10 @@ def delays_say() -> str:
         f"{float(both['heard/step greedy']):.3f} a greedy step, "
         f"{100 * float(both['heard/step greedy']) / near_heard['greedy']:.0f}% of near's, and collides "
         f"{coll(both):.3f} times an episode (worst run {worst(both):.2f}), every AGV home in {both['greedy home']} "
-        f"runs at {cost(both):.2f}x the planner's sum of costs.",
+        f"runs at {cost(both):.2f}x the planner's sum of costs; on warehouse_16_delayed at -20 (the "
+        f"{nth_table('14-warehouse_16_delayed-collision-20-look-if-decisive-conf_down')} table) the pair brings "
+        f"every AGV home in {both16['greedy home']} runs, colliding {coll(both16):.2f} times a greedy episode "
+        f"against {coll(plain16):.2f} with CQ's defaults, hearing {float(both16['heard/step greedy']):.3f} a step.",
         f"- Across slips (the {nth_table('4-warehouse_8_delayed-slips')} table): without delays CQ collides "
         f"{coll(slips['0', 'cq']):.3f} times a greedy episode and indep {coll(slips['0', 'indep']):.3f}; at slip "
         f"0.05 CQ {coll(s5['cq']):.3f} against "
