@@ -204,3 +204,26 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
         greedy = [(r["steps"], r["collisions"]) for r in csv.DictReader(f)]
     assert greedy == [(f"{offline.greedy[:, 0].mean():g}", f"{offline.greedy[:, 1].mean():g}")]
     assert json.loads((out / "manifest.json").read_text())["world"]["missed_actions"] == 0
+
+
+def test_a_launch_where_cq_looks_only_where_it_is_decisive_equals_the_offline_run(tmp_path):
+    """cq_look_if_decisive decides in observe() whether to look, so a CQ agent node subscribes to what its
+    learner asks for and a composed launch plays the offline run, episode by episode; exploration ends at
+    episode 20 of 60, so the setting acts (the offline run's joint plays differ from the default's)."""
+    path = tmp_path / "delayed.txt"
+    path.write_text(warehouse_text(3, aisles=2, aisle_length=3, seed=5, slip=0.2))
+    out = tmp_path / "result"
+    sets = ["eval_episodes=2", "step_cap=300", "epsilon_decay_episodes=20", "window=10", "conf_down=0.1",
+            "cq_look_if_decisive=1"]
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", "--compose", "--map", str(path), "--algo",
+                           "cq", "--episodes", "60", "--seed", str(SEED), "--out", str(out), "--namespace",
+                           f"decisive_{uuid.uuid4().hex[:8]}", "--no-figures", *[a for s in sets for a in ("--set", s)]],
+                          capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr
+    gridmap = load_map(path)
+    offline = run("cq", gridmap, run_settings(gridmap, sets), SEED, 0, 60)
+    looking_always = run("cq", gridmap, run_settings(gridmap, sets[:-1]), SEED, 0, 60)
+    assert offline.episodes[:, 2].sum() != looking_always.episodes[:, 2].sum()
+    with open(out / "episodes.csv", newline="") as f:
+        rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
+    assert rows == [(int(e[0]), int(e[1]), int(e[2])) for e in offline.episodes]
