@@ -223,15 +223,17 @@ def test_unicast_to_static_peers_alone_gives_the_offline_engines_episodes(hosts,
 
 def launch_until(hosts, out: Path, episodes: int, sets, after: int, step_timeout: float):
     """Start a launch across the hosts (tunnel_to_goal, indep) and return (process, stderr file) once its
-    progress lines say that at least `after` episodes were played."""
+    episodes.csv holds at least `after` rows. Rows, not the progress lines: those count the world's episodes,
+    and a row needs every agent's statistics too, which an agent holds until its writer has matched the
+    launcher's (on a loaded CI run, agv1's matched after the world had played 6 episodes)."""
     err = out.parent / "launch.stderr"
     with open(err, "w") as f:
         launcher = subprocess.Popen([*launch_on(hosts, out, "tunnel_to_goal", "indep", episodes, sets, "subnet"),
                                      "--step-timeout", str(step_timeout)], stdout=subprocess.DEVNULL, stderr=f)
     deadline = time.monotonic() + LAUNCH_TIMEOUT_S
+    rows = out / "episodes.csv"
     while True:
-        played = [int(n) for n in re.findall(r"episodes (\d+)/", err.read_text())]
-        if played and played[-1] >= after:
+        if rows.exists() and len(rows.read_text().splitlines()) > after:  # the header, then a row an episode
             return launcher, err
         if time.monotonic() > deadline or launcher.poll() is not None:
             launcher.kill()
