@@ -225,7 +225,7 @@ def launch_until(hosts, out: Path, episodes: int, sets, after: int, step_timeout
     """Start a launch across the hosts (tunnel_to_goal, indep) and return (process, stderr file) once its
     episodes.csv holds at least `after` rows. Rows, not the progress lines: those count the world's episodes,
     and a row needs every agent's statistics too, which an agent holds until its writer has matched the
-    launcher's (on a loaded CI run, agv1's matched after the world had played 6 episodes)."""
+    launcher's (a suite run once cut agv1 with no row written after 6 of the world's episodes)."""
     err = out.parent / "launch.stderr"
     with open(err, "w") as f:
         launcher = subprocess.Popen([*launch_on(hosts, out, "tunnel_to_goal", "indep", episodes, sets, "subnet"),
