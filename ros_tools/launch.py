@@ -12,7 +12,8 @@ every child starts at once: the world, and one agent process per AGV (`agv<k>`) 
 so none is sent before the match: the world runs with min_stats_subscribers:=1 (its first step waits for the
 listener's world/stats subscription) and so does every agent (it holds its statistics until its own
 publisher has matched the listener, and waits for that before it exits; only the publisher's side of a match
-says that a message will arrive). Starting everything at once (instead of the agents first) overlaps the interpreters' start-up.
+says that a message will arrive). Starting everything at once (instead of the agents first) overlaps the
+interpreters' start-up.
 With `--compose` the one child is a container (ros_tools.compose) holding every node, each reading its
 system's DIR/params.yaml (which every launch writes: ros_tools.system_file) and its own launch_params.yaml;
 the nodes and the protocol are the same.
