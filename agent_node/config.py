@@ -11,8 +11,8 @@ from typing import Any, Callable, Mapping
 from cq_ros.engine import make_learner
 from cq_ros.gridmap import GridMap
 from cq_ros.learners import LEARNERS
-from cq_ros.parameters import check_numbers, map_and_settings
-from cq_ros.output import OutputError, probe_folder
+from node_runtime.parameters import check_numbers, map_and_settings
+from cq_ros.lab.output import OutputError, probe_folder
 from cq_ros.settings import Settings, SettingsError
 from node_runtime.parameters import read_key_parameter
 

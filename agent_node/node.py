@@ -21,7 +21,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
 
-from cq_ros.output import os_reason
+from cq_ros.lab.output import os_reason
 from cq_ros.settings import SettingsError
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,

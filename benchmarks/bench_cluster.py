@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from cq_ros.reproduce import reproduce
+from cq_ros.lab.reproduce import reproduce
 
 
 def load() -> str:

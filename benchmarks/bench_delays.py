@@ -11,7 +11,7 @@ in the same delayed world):
   the greedy episodes: CQ's looks against `near`, which looks at every peer within 2 cells at every step;
 - exploring collisions: per episode over the last 10% of learning.
 The algorithm `adg` is the yardstick that is not learned: the planner's plan carried out by its action
-dependency graph under the same delays (cq_ros.execute; run r of a seed draws the delays a learner's run r
+dependency graph under the same delays (cq_ros.mapf.execute; run r of a seed draws the delays a learner's run r
 draws), one execution per run: its greedy columns are the execution's, and heard/step its dependency messages
 per step.
 
@@ -31,9 +31,9 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from tqdm import tqdm
 
 from cq_ros.engine import Team, greedy_team, make_learners, world_seed
-from cq_ros.execute import execute
+from cq_ros.mapf.execute import execute
 from cq_ros.gridmap import load_map
-from cq_ros.planner import plan
+from cq_ros.mapf.planner import plan
 from cq_ros.settings import SettingsError, run_settings
 from cq_ros.world import GridWorld
 

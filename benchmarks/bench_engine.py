@@ -73,7 +73,7 @@ def main() -> None:
     print(f"load average {os.getloadavg()[0]:.2f}")
 
     if args.grid:
-        from cq_ros.reproduce import reproduce
+        from cq_ros.lab.reproduce import reproduce
 
         with tempfile.TemporaryDirectory() as out:
             started = time.perf_counter()

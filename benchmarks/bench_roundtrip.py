@@ -175,7 +175,7 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
     # the echo lives at most as long as a slow run could take, even if we die without closing its stdin
     lifetime = discovery_timeout_s + len(pairs) * (n + warmup) * 0.05 + 30.0
 
-    from ros_tools.commands import environment
+    from ros_tools.session import environment
 
     with tempfile.TemporaryDirectory(prefix="bench_rt_") as tmp, environment(
             ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_LOG_DIR=tmp):

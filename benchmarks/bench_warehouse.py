@@ -29,13 +29,13 @@ import sys
 import time
 from dataclasses import dataclass
 
-from cq_ros.cluster import ClusterError, scheduler_address
+from cq_ros.lab.cluster import ClusterError, scheduler_address
 from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.learners import ALGORITHMS
 from cq_ros.learners.jsa import MAX_AGENTS
-from cq_ros.planner import plan
-from cq_ros.runner import RunFailed, run_all
+from cq_ros.mapf.planner import plan
+from cq_ros.lab.runner import RunFailed, run_all
 from cq_ros.settings import SettingsError, run_settings
 from cq_ros.world import GridWorld
 

@@ -50,7 +50,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         decode_feedback, decode_position, feedback_topic, position_topic, serialize,
     )
     from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV, make_executor
-    from ros_tools.commands import environment
+    from ros_tools.session import environment
 
     if peers not in PEERS:
         raise ValueError(f"peers {peers!r}: choose from {', '.join(PEERS)}")

@@ -1,4 +1,4 @@
-"""Gridworld maps: read and check the text format of ``cq_ros/maps`` (``cq_ros.warehouse`` generates maps in it).
+"""Gridworld maps: read and check the text format of ``cq_ros/maps`` (``cq_ros.mapgen.warehouse`` generates maps in it).
 
 A map becomes plain integer tables (cell index -> the cell each action leads to) so that the world, the
 learners and the ROS nodes all share one numbering of states and none of them re-derives the geometry.
@@ -450,3 +450,22 @@ def load_map(name_or_path: str | os.PathLike) -> GridMap:
 
 def _looks_like_path(name: str) -> bool:
     return name.endswith(".txt") or "/" in name or os.sep in name
+
+
+def lattice(gridmap: GridMap) -> tuple[tuple[bool, ...], ...]:
+    """The map's occupancy lattice, True = occupied: (2H+1) x (2W+1) elements, cell (row, col) at
+    (2 row + 1, 2 col + 1), the edge between two cells between them (free where an agent can cross it), and
+    a corner free only where the four edges around it are."""
+    rows, cols = 2 * gridmap.height + 1, 2 * gridmap.width + 1
+    occupied = [[True] * cols for _ in range(rows)]
+    for index, (row, col) in enumerate(gridmap.cells):
+        occupied[2 * row + 1][2 * col + 1] = False
+        moves = gridmap.neighbours[index]
+        if moves[1] != index:  # EAST leads on: the edge to the right is open
+            occupied[2 * row + 1][2 * col + 2] = False
+        if moves[2] != index:  # SOUTH
+            occupied[2 * row + 2][2 * col + 1] = False
+    for i in range(2, rows - 1, 2):
+        for j in range(2, cols - 1, 2):
+            occupied[i][j] = any(occupied[i + di][j + dj] for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)))
+    return tuple(map(tuple, occupied))

@@ -94,7 +94,7 @@ def warehouses() -> str:
     """CQ against independent learners on the shipped warehouses: a row per algorithm of each folder of
     docs/data/warehouses/, each what `cq-ros experiment` wrote there (manifest.json, greedy.csv and
     episodes.csv.gz, its episodes.csv compressed) and plan.txt, what `cq-ros plan` printed for its map."""
-    from cq_ros.summary import compute_metrics, load_episodes
+    from cq_ros.lab.summary import compute_metrics, load_episodes
 
     lines = ["| map | algo | runs x episodes | greedy: every AGV home, no collision, no truncation "
              "| greedy steps/episode, per run (planner's makespan) | collisions/ep in the last 10% "
@@ -185,7 +185,7 @@ FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": 
 def _cq_run(folder: Path, threshold: float) -> dict:
     """One cq-choices row: its manifest, CQ's metrics (settling at `threshold`), greedy rows, joint states per run
     at the end (observe.csv) and the load average before and after it."""
-    from cq_ros.summary import compute_metrics, load_episodes
+    from cq_ros.lab.summary import compute_metrics, load_episodes
 
     with tempfile.TemporaryDirectory() as scratch:
         episodes = Path(scratch) / "episodes.csv"

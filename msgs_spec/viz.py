@@ -48,7 +48,7 @@ __all__ = [
 FRAME_ID = "map"
 LATTICE_RESOLUTION = 0.5  # metres per lattice element: cells and walls alike
 OCCUPIED = 100
-# matplotlib's tab10, so that a rendered GIF (cq_ros.render) shows each AGV in the colour RViz shows it in
+# matplotlib's tab10, so that a rendered GIF (cq_ros.lab.render) shows each AGV in the colour RViz shows it in
 PALETTE = ((0.122, 0.467, 0.706), (1.0, 0.498, 0.055), (0.173, 0.627, 0.173), (0.839, 0.153, 0.157),
            (0.580, 0.404, 0.741), (0.549, 0.337, 0.294), (0.890, 0.467, 0.761), (0.498, 0.498, 0.498),
            (0.737, 0.741, 0.133), (0.090, 0.745, 0.812))

@@ -1,8 +1,9 @@
 """The parameters of the node kinds (`world`, `agent`) and how a node declares them: read-only, with their
-descriptions (`ros2 param describe`), strictly checked.
+descriptions (`ros2 param describe`), strictly checked: numbers in range, the map, the learning settings, each
+failure a `SettingsError` whose one line names the parameter.
 
 One table per kind: name -> (default, description); the default also fixes the ROS type. Every field of
-cq_ros.settings.Settings is a parameter of both, declared without a value (cq_ros.parameters.SETTING_NAMES): one
+cq_ros.settings.Settings is a parameter of both, declared without a value (SETTING_NAMES): one
 not given is the map's default (its `set` lines) or Settings'. Both tables live here, below both node packages,
 because each node accepts the names the other takes (one `--params-file` serves the whole system) and the
 launcher sends each node only its own.
@@ -10,17 +11,56 @@ launcher sends each node only its own.
 
 from __future__ import annotations
 
+import difflib
+import math
 import textwrap
 from dataclasses import fields
-from typing import Any
+from typing import Any, Iterable, Mapping
 
+from cq_ros.gridmap import GridMap, MapError, load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.parameters import SETTING_NAMES, check_names
-from cq_ros.settings import Settings, SettingsError
+from cq_ros.settings import Settings, SettingsError, run_settings
 from msgs_spec import KeyFileError, read_key
 
-__all__ = ["WORLD_PARAMETERS", "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters",
+__all__ = ["SETTING_NAMES", "check_names", "check_numbers", "map_and_settings", "WORLD_PARAMETERS", "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters",
            "undeclared_overrides", "read_key_parameter", "describe_parameters", "help_requested", "print_help"]
+
+
+SETTING_NAMES = frozenset(f.name for f in fields(Settings))
+
+
+def check_names(given: Iterable[str], known: Iterable[str], elsewhere: Iterable[str] = (),
+                what: str = "parameter") -> None:
+    """Every name in `given` must be `known` (or known `elsewhere`: a name another node of the system takes,
+    which one parameters file may give to every node); else one line naming the closest known name."""
+    known = set(known)
+    everything = known | set(elsewhere)
+    for name in sorted(set(given) - everything):
+        close = difflib.get_close_matches(name, sorted(known), n=1) or difflib.get_close_matches(
+            name, sorted(everything), n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else f"; known: {', '.join(sorted(known))}"
+        raise SettingsError(f"unknown {what} {name!r}{hint}")
+
+
+def check_numbers(values: Mapping[str, Any], rules: Iterable[tuple[str, float, bool]]) -> None:
+    """Every float in `values` must be finite; each (name, low, strict): values[name] must be >= low, or
+    > low when strict."""
+    for name, v in values.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            raise SettingsError(f"parameter {name} must be a finite number, got {v!r}")
+    for name, low, strict in rules:
+        v = values[name]
+        if v < low or (strict and v == low):
+            raise SettingsError(f"parameter {name} must be {'>' if strict else '>='} {low}, got {v!r}")
+
+
+def map_and_settings(values: Mapping[str, Any]) -> tuple[GridMap, Settings]:
+    """The map named by values['map'] and the run's settings: those among `values` over the map's defaults."""
+    try:
+        gridmap = load_map(values["map"])
+    except MapError as e:
+        raise SettingsError(f"parameter map: {e}") from None
+    return gridmap, run_settings(gridmap, {name: values[name] for name in SETTING_NAMES & values.keys()})
 
 
 def _with_settings(use: str, table: dict[str, tuple[Any, str]]) -> dict[str, tuple[Any, str]]:

@@ -13,7 +13,6 @@ before its first step, an agent before it sends its statistics).
 from __future__ import annotations
 
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -21,54 +20,23 @@ from typing import Any
 
 import rclpy
 
-from cq_ros.experiment import prepare_output
+from cq_ros.lab.experiment import prepare_output
 from cq_ros.gridmap import load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.parameters import SETTING_NAMES
+from node_runtime.parameters import SETTING_NAMES
 from cq_ros.settings import run_settings
 
-from .commands import StopSignals, ros_session, spin_until
+from .session import FIND_S, WORLD, StopSignals, ToolError, find_system, ros_session, spin_until
 from .launch import Interrupted, LaunchError, Progress, StatsListener, agent_nodes, write_heard
 
-__all__ = ["CollectError", "collect", "find_system"]
+__all__ = ["CollectError", "collect"]
 
-FIND_S = 60.0  # how long to look for the system's nodes by default: a node process takes seconds to start on 2 busy cores
 PARAMETERS_S = 10.0  # how long to wait for a node's parameter service
-WORLD = "world"
 GONE_S = 2.0  # how long the world node may be missing from the graph before its statistics are given up
-_AGENT_NODE = re.compile(r"agv[1-9][0-9]*|jsa")
 
 
 class CollectError(LaunchError):
     """The system was not found, or its statistics did not all come; one line."""
-
-
-def find_system(node: Any, executor: Any, namespace: str | None, stop: StopSignals,
-                wait_s: float = FIND_S) -> tuple[str, list[str]]:
-    """(namespace, agent node names) of the one system on the graph (its `world` node's namespace), or of the
-    one in `namespace`; CollectError when there is none or, without `namespace`, several."""
-    def systems() -> dict[str, list[str]]:
-        found: dict[str, list[str]] = {}
-        pairs = node.get_node_names_and_namespaces()
-        for name, ns in pairs:
-            if name == WORLD:
-                found.setdefault(ns, [])
-        for name, ns in pairs:
-            if ns in found and _AGENT_NODE.fullmatch(name):
-                found[ns].append(name)
-        return {ns: agents for ns, agents in found.items() if namespace is None or ns == namespace}
-
-    # Settle: a system's agent nodes may be discovered after its world.
-    spin_until(executor, lambda: any(systems().values()), wait_s, stop)
-    spin_until(executor, lambda: False, 0.5, stop)
-    found = systems()
-    if not found or not any(found.values()):
-        where = f"namespace {namespace}" if namespace else "this domain"
-        raise CollectError(f"no system (a `world` node and its agent nodes) on {where} after {wait_s:g} s")
-    if len(found) > 1:
-        raise CollectError(f"several systems on this domain ({', '.join(sorted(found))}): choose one with --namespace")
-    (ns, agents), = found.items()
-    return ns, sorted(agents, key=lambda a: (len(a), a))
 
 
 def node_parameters(node: Any, executor: Any, fqn: str, names: list[str], stop: StopSignals) -> dict[str, Any]:
@@ -109,7 +77,10 @@ def collect(out: str | Path, *, domain_id: int | None = None, namespace: str | N
         if progress:
             print(f"cq-ros collect: looking for a system on {f'namespace {namespace}' if namespace else 'the domain'}"
                   f" (at most {wait_s:g} s)", file=sys.stderr, flush=True)
-        ns, agents = find_system(node, executor, namespace, stop, wait_s)
+        try:
+            ns, agents = find_system(node, executor, namespace, stop, wait_s)
+        except ToolError as e:
+            raise CollectError(str(e)) from None
         world = node_parameters(node, executor, f"{ns.rstrip('/')}/{WORLD}",
                                 ["map", "episodes", "seed", *sorted(SETTING_NAMES)], stop)
         agent = node_parameters(node, executor, f"{ns.rstrip('/')}/{agents[0]}", ["algo"], stop)

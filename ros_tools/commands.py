@@ -1,41 +1,34 @@
 """Command-line tools that read the ROS graph through the wire contract: echo, topics, nodes, record.
 
 Thin equivalents of `ros2 topic echo`, `ros2 topic list -t`, `ros2 node list` and `ros2 bag record` (none of
-which is on pip), built on rclpy; `cq-ros echo|topics|nodes|record` calls them (cq_ros/cli.py). They work on
+which is on pip), built on rclpy; `cq-ros echo|topics|nodes|record` calls them (cq_ros/cli/main.py). They work on
 any topic of standard type; on a project topic (`parse_topic` knows it) echo also checks every message
 against the contract and says on stderr when one breaks it, and record picks the project topics by default.
 `read_view_bag` reads back what a viewer would have seen of a recorded run (`cq-ros render --bag`).
 
-Every wait is bounded or ends on Ctrl-C/SIGTERM (`StopSignals`); every tool runs in its own rclpy Context
-(`ros_session`), which the launcher (ros_tools/launch.py) uses too. Failures raise `ToolError`, one line
-for the user.
+Every wait is bounded or ends on Ctrl-C/SIGTERM, and every tool runs in its own rclpy Context
+(ros_tools/session.py). Failures raise `ToolError`, one line for the user.
 """
 
 from __future__ import annotations
 
 import importlib
 import os
-import signal
 import sys
-import threading
 import time
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator, TextIO
+from typing import Any, Callable, TextIO
 
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
 from msgs_spec import DropCounter, TopicSpec, WireError, parse_topic
 from msgs_spec.doc import to_yaml
 from msgs_spec.viz import LOOKS, MAP, SCENE, parse_view_topic
 
+from .session import StopSignals, ToolError, ros_session, spin_until
+
 __all__ = [
-    "DISCOVERY_S", "STORAGES", "ToolError", "StopSignals", "environment", "ros_session", "spin_until",
-    "compatible_qos", "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
+    "DISCOVERY_S", "STORAGES", "compatible_qos", "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
 ]
 
 # A new process shows up in the graph 0.05-2.8 s after it starts (DESIGN.md field notes): the default wait.
@@ -45,90 +38,6 @@ STORAGES = ("mcap", "sqlite3")
 # Deep enough that a burst (an episode boundary, every topic of a step at once) never overwrites a message
 # the recorder has not taken yet.
 RECORD_DEPTH = 1000
-
-
-class ToolError(RuntimeError):
-    """A tool could not do its job (topic not found, no message before the timeout, ...): one line."""
-
-
-class StopSignals:
-    """Within `with StopSignals() as stop:`, SIGINT and SIGTERM set `stop.received` (the signal's name)
-    instead of raising, so a loop that checks `stop` between short waits ends cleanly (closes its bag,
-    stops its children). Outside the main thread Python cannot install handlers: then it does nothing."""
-
-    def __init__(self) -> None:
-        self.received: str | None = None
-        self._saved: dict[int, Any] = {}
-
-    def __bool__(self) -> bool:
-        return self.received is not None
-
-    def __enter__(self) -> "StopSignals":
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._saved[sig] = signal.signal(sig, self._on_signal)
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        for sig, handler in self._saved.items():
-            signal.signal(sig, handler)
-
-    def _on_signal(self, signum: int, _frame: Any) -> None:
-        self.received = signal.Signals(signum).name
-
-
-@contextmanager
-def environment(**values: str) -> Iterator[None]:
-    """Set these environment variables (rcl reads some only at init) and restore them afterwards."""
-    saved = {k: os.environ.get(k) for k in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-@contextmanager
-def ros_session(name: str, *, domain_id: int | None = None, namespace: str | None = None,
-                localhost_only: bool = False, hidden: bool = True) -> Iterator[tuple[Any, SingleThreadedExecutor]]:
-    """(node, executor) on a fresh rclpy Context, torn down in the Jazzy order (executor, node, context).
-
-    `domain_id` None: ROS_DOMAIN_ID from the environment, as every ROS tool. `localhost_only` keeps discovery
-    on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, read by rcl at init only). A `hidden` node's name
-    starts with '_' (hidden from `nodes`, as ros2cli's own nodes are). rclpy installs no signal handlers:
-    use StopSignals."""
-    ctx = Context()
-    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"} if localhost_only else {}
-    with environment(**env):
-        rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-    node = executor = None
-    try:
-        node = rclpy.create_node(f"_{name}_{os.getpid()}" if hidden else name, context=ctx, namespace=namespace,
-                                 enable_rosout=False, start_parameter_services=False)
-        executor = SingleThreadedExecutor(context=ctx)
-        executor.add_node(node)
-        yield node, executor
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-
-
-def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float | None,
-               stop: StopSignals | None = None) -> bool:
-    """Spin until done() (True), the timeout passes or a stop signal comes (False). None: no timeout."""
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s
-    while not done():
-        if stop or (deadline is not None and time.monotonic() >= deadline):
-            return False
-        executor.spin_once(timeout_sec=0.05)
-    return True
 
 
 def compatible_qos(publishers: list[Any], fallback: QoSProfile, depth: int = 10) -> QoSProfile:

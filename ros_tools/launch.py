@@ -70,18 +70,18 @@ from tqdm import tqdm
 
 from agent_node.config import agent_config
 from cq_ros.engine import make_learner
-from cq_ros.experiment import prepare_output
+from cq_ros.lab.experiment import prepare_output
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.output import os_reason
-from cq_ros.parameters import check_names
+from cq_ros.lab.output import os_reason
+from node_runtime.parameters import check_names
 from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
 from msgs_spec import agent_namespace, new_key_file
 from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key_parameter
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import world_config
 
-from .commands import StopSignals, ToolError, environment, ros_session, spin_until
+from .session import StopSignals, ToolError, environment, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
     EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, write_ended_early, write_heard,
@@ -504,7 +504,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                              listener, learners, list(nodes)[1:], node_info(), run_info, episodes_written=True)
         rows.free()
         if figures:
-            from cq_ros.plots import write_figures  # matplotlib only where figures are wanted
+            from cq_ros.lab.plots import write_figures  # matplotlib only where figures are wanted
 
             write_figures(out, map_loader=lambda _name: gridmap)  # a map file is known by its name only here
     except OSError as e:

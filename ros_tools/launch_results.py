@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 
 from cq_ros.engine import RunResult
-from cq_ros.experiment import EPISODE_COLUMNS, episode_row, manifest_for, write_results
+from cq_ros.lab.experiment import EPISODE_COLUMNS, episode_row, manifest_for, write_results
 from cq_ros.gridmap import GridMap
-from cq_ros.output import OutputError, os_reason
+from cq_ros.lab.output import OutputError, os_reason
 from cq_ros.settings import Settings
 from msgs_spec import (
     AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_stats_topic,

@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 from cq_ros.learners import LEARNERS
-from cq_ros.parameters import SETTING_NAMES, check_names
+from node_runtime.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from msgs_spec import KeyFileError, write_key_file
 from node_runtime.parameters import PARAMETERS

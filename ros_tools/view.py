@@ -22,8 +22,8 @@ from typing import Any
 
 from rclpy.qos import DurabilityPolicy, QoSProfile
 
-from .commands import StopSignals, ToolError, compatible_qos, message_class, ros_session, spin_until
-from .collect import find_system
+from .commands import compatible_qos, message_class
+from .session import StopSignals, ToolError, find_system, ros_session, spin_until
 
 __all__ = ["RESCAN_S", "Relay", "serve", "view", "schema_text"]
 

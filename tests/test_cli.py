@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from cq_ros.cli import main
+from cq_ros.cli.main import main
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings
 
@@ -169,7 +169,7 @@ def test_every_command_taking_a_map_accepts_a_path_to_a_copied_map(tmp_path, cap
 def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
     """Not on a terminal: a plain line at the start, then at most every interval (here 0.02 s), and at the
     end, with runs and episodes done, the rate and the time left; the counts come from the workers."""
-    from cq_ros.experiment import Job, run_jobs
+    from cq_ros.lab.experiment import Job, run_jobs
     from cq_ros.settings import Settings
 
     # enough episodes (about half a second at ~8,000 a second) that the runs cannot end within one interval

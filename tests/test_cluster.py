@@ -21,10 +21,10 @@ from pathlib import Path
 
 import pytest
 
-from cq_ros.cli import main
-from cq_ros.experiment import CIRCUMSTANCES, Job, experiment, run_jobs
-from cq_ros.reproduce import reproduce
-from cq_ros.runner import RunFailed
+from cq_ros.cli.main import main
+from cq_ros.lab.experiment import CIRCUMSTANCES, Job, experiment, run_jobs
+from cq_ros.lab.reproduce import reproduce
+from cq_ros.lab.runner import RunFailed
 from cq_ros.settings import Settings
 from dask_cluster import DaskCluster
 from ros_tools.hosts import HostsError, check_can_make_hosts, hosts_down, hosts_up
@@ -122,15 +122,15 @@ def test_a_failing_run_is_named_with_the_workers_traceback(cluster):
 
 
 def test_the_command_prints_a_failing_runs_traceback_then_names_it_and_exits_1(monkeypatch, tmp_path, capsys):
-    import cq_ros.experiment
+    import cq_ros.lab.experiment
 
     def broken(algo, gridmap, settings, seed, run_index, episodes, on_episode):
         if run_index == 1:
             raise ArithmeticError("broken on purpose")
         return real(algo, gridmap, settings, seed, run_index, episodes, on_episode)
 
-    real = cq_ros.experiment.run
-    monkeypatch.setattr(cq_ros.experiment, "run", broken)
+    real = cq_ros.lab.experiment.run
+    monkeypatch.setattr(cq_ros.lab.experiment, "run", broken)
     with pytest.raises(SystemExit) as stopped:
         main(["experiment", "--map", "grid_game_2", "--algo", "cq", "--runs", "3", "--episodes", "5",
               "--jobs", "1", "--no-figures", "--out", str(tmp_path / "r")])

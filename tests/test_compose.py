@@ -23,7 +23,7 @@ from rclpy.context import Context
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
-from cq_ros.warehouse import warehouse_text
+from cq_ros.mapgen.warehouse import warehouse_text
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
     decode_world_stats
 from node_runtime.run import make_executor, spin_nodes

@@ -20,7 +20,7 @@ from agent_node.effects import Finish, SaveCheckpoint, Send, Subscribe, Unsubscr
 from cq_ros.engine import make_learner, run, world_seed
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner
-from cq_ros.parameters import SETTING_NAMES
+from node_runtime.parameters import SETTING_NAMES
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import EAST, NO_ACTION, Action, AgentStats, Feedback, Heartbeat, Position, WorldStats, decode, encode

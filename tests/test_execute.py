@@ -1,12 +1,12 @@
-"""Tests of cq_ros.execute: the planner's plan carried out under delays by its action dependency graph, on
+"""Tests of cq_ros.mapf.execute: the planner's plan carried out under delays by its action dependency graph, on
 hand-made maps (a corridor, an entrance, an open aisle), on warehouse_8, and through `cq-ros plan`."""
 
 import pytest
 
-from cq_ros.cli import main
-from cq_ros.execute import dependencies, execute, execute_many, spread, stall_risk
+from cq_ros.cli.main import main
+from cq_ros.mapf.execute import dependencies, execute, execute_many, spread, stall_risk
 from cq_ros.gridmap import load_map, parse_map
-from cq_ros.planner import Plan, plan, validate
+from cq_ros.mapf.planner import Plan, plan, validate
 from cq_ros.settings import Settings
 
 # AGV 2 follows AGV 1 east through a one-lane corridor (every cell walled north and south).

@@ -376,7 +376,7 @@ def test_a_parameter_of_the_other_node_is_no_typo(ros_context):
 
 
 def test_bad_node_parameters_through_launch_exit_2_before_anything_starts(tmp_path, capsys):
-    from cq_ros.cli import main
+    from cq_ros.cli.main import main
 
     for sets, phrase in ((["feedbak_timeout=3"], "did you mean 'feedback_timeout'?"),
                          (["step_timeout=nan"], "step_timeout must be a finite number"),
@@ -526,7 +526,7 @@ def tmpfs(where, size_kib: int, read_only: bool = False):
     ["render", "--map", "grid_game_2", "--episodes", "1", "--out", "{ro}/episode.gif"],
 ], ids=lambda c: c[0])
 def test_a_read_only_output_folder_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, command):
-    from cq_ros.cli import main
+    from cq_ros.cli.main import main
 
     with tmpfs(tmp_path / "ro", 256, read_only=True) as ro:
         with pytest.raises(SystemExit) as exit_:

@@ -76,7 +76,7 @@ def launch_on(hosts, out: Path, map_name: str, algo: str, episodes: int, sets, d
 
 
 def test_hosts_up_and_down_make_and_remove_namespaces_only(hosts, capsys):
-    from cq_ros.cli import main
+    from cq_ros.cli.main import main
 
     def cq_ros(*args: str):
         code = main(list(args))
@@ -142,7 +142,7 @@ def test_launch_refuses_hosts_it_cannot_use_with_exit_2(hosts, tmp_path, args, p
 
 
 def test_launch_on_hosts_that_are_not_there_is_exit_2(tmp_path, capsys):
-    from cq_ros.cli import main
+    from cq_ros.cli.main import main
 
     with pytest.raises(SystemExit) as exit_:
         main(["launch", "--map", "grid_game_2", "--algo", "cq", "--out", str(tmp_path / "X"), "--hosts", "cqrnone"])
@@ -155,7 +155,7 @@ def test_launch_on_hosts_that_are_not_there_is_exit_2(tmp_path, capsys):
     ("needs root", lambda m: m.setattr(os, "geteuid", lambda: 1000)),
 ])
 def test_hosts_refuse_with_exit_2_without_root_or_ip(monkeypatch, capsys, problem, patch):
-    from cq_ros.cli import main
+    from cq_ros.cli.main import main
 
     patch(monkeypatch)
     assert main(["hosts", "up", "--agents", "2"]) == 2

@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cq_ros.cli import main
+from cq_ros.cli.main import main
 from cq_ros.engine import run
-from cq_ros.experiment import write_results
+from cq_ros.lab.experiment import write_results
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
-from cq_ros.warehouse import warehouse_text
+from cq_ros.mapgen.warehouse import warehouse_text
 from processes import alive_with
 from agent_node.checkpoint import save_checkpoints
 from cq_ros.engine import Team, make_learners, world_seed

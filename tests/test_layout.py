@@ -1,11 +1,13 @@
 """The packages' layering, read from the source with `ast` (README, "Layout"), bottom-up:
 
-    cq_ros -> msgs_spec -> node_runtime -> world_node, agent_node -> ros_tools
+    cq_ros (the science) -> cq_ros.lab -> cq_ros.cli;  cq_ros -> msgs_spec -> node_runtime
+        -> world_node, agent_node -> ros_tools
 
-A module imports only packages below its own; world_node and agent_node never import each other; `cq_ros` (the
-science) imports no ROS at all, and only its CLI reaches `ros_tools`, inside the functions of the ROS commands;
-`msgs_spec`, the wire contract, imports no other package of ours and from rclpy only its QoS. Imports inside
-functions count as much as those at the top.
+A module imports only packages below its own; world_node and agent_node never import each other; the science
+(cq_ros outside lab/ and cli/) imports no lab, CLI, ROS, plotting, argument parsing or cluster code; the lab
+imports no CLI; only the CLI's ROS commands reach `ros_tools`, inside their functions; `msgs_spec`, the wire
+contract, imports no other package of ours and from rclpy only its QoS. Imports inside functions count as much as
+those at the top, and no module imports itself back through others (no import cycle, lazy imports included).
 """
 
 from __future__ import annotations
@@ -22,24 +24,46 @@ RANK = {"cq_ros": 0, "msgs_spec": 1, "node_runtime": 2, "world_node": 3, "agent_
 ROS = {"rclpy", "rcl_interfaces", "std_msgs", "diagnostic_msgs", "nav_msgs", "visualization_msgs",
        "geometry_msgs", "builtin_interfaces", "rosbags"}
 CONTRACT_RCLPY = {"rclpy.qos", "rclpy.serialization"}  # all msgs_spec may take from rclpy: QoS and the wire bytes
-CLI = "cq_ros/cli.py"
-CLI_MODULES = {CLI, "cq_ros/ros_commands.py"}  # the CLI, its ROS commands in a module of their own
+CLI_MODULES = {"cq_ros/cli/main.py", "cq_ros/cli/ros.py", "cq_ros/cli/offline.py"}  # the CLI modules that may
+# reach ros_tools, inside a ROS command: the dispatch, the ROS commands, and `render --bag`
+# What the science leaves to the lab and the CLI: plots, argument parsing, clusters, progress bars.
+NOT_SCIENCE = {"matplotlib", "argparse", "dask", "distributed", "tqdm", "foxglove"}
 
 
-def imports(source: str, package: str) -> list[tuple[str, bool]]:
-    """(absolute module name, imported at module level) of every import in `source`, a module of `package`;
-    relative imports resolve into `package`."""
+def layer(path: str) -> str | None:
+    """'science', 'lab' or 'cli' for a module of cq_ros, else None."""
+    parts = path.split("/")
+    if parts[0] != "cq_ros":
+        return None
+    return parts[1] if len(parts) > 2 and parts[1] in ("lab", "cli") else "science"
+
+
+def module_name(path: str) -> str:
+    """'cq_ros.lab.experiment' for 'cq_ros/lab/experiment.py', 'cq_ros.lab' for its __init__.py."""
+    name = path.removesuffix(".py").replace("/", ".")
+    return name.removesuffix(".__init__")
+
+
+def imports(source: str, path: str) -> list[tuple[str, bool]]:
+    """(absolute name, imported at module level) of every import in `source`, the module at `path`: a name as
+    imported (`from a.b import c` gives a.b.c, which may be a module or a name in a.b); relative imports
+    resolve against the module's own package. Imports under `if TYPE_CHECKING:` never run and do not count."""
     found: list[tuple[str, bool]] = []
+    package = module_name(path).split(".")
+    if not path.endswith("__init__.py"):
+        package = package[:-1]
 
     def visit(node: ast.AST, top: bool) -> None:
         for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and ast.unparse(child.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING"):
+                continue  # for annotations only: never imported at run time
             if isinstance(child, ast.Import):
                 found.extend((alias.name, top) for alias in child.names)
             elif isinstance(child, ast.ImportFrom):
+                base = child.module or ""
                 if child.level:
-                    found.append((package, top))
-                else:
-                    found.extend((f"{child.module}.{alias.name}", top) for alias in child.names)
+                    base = ".".join(package[:len(package) - child.level + 1] + ([base] if base else []))
+                found.extend((f"{base}.{alias.name}", top) for alias in child.names)
             visit(child, top and not isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
 
     visit(ast.parse(source), True)
@@ -51,9 +75,14 @@ def violations(path: str, source: str) -> list[str]:
     package = path.split("/")[0]
     rank = RANK.get(package)
     out = []
-    for name, top in imports(source, package):
+    for name, top in imports(source, path):
         root = name.split(".")[0]
         where = f"{path} imports {name}"
+        into = layer(name.replace(".", "/") + "/x.py") if root == "cq_ros" else None
+        if layer(path) == "science" and (into in ("lab", "cli") or root in NOT_SCIENCE):
+            out.append(f"{where}: the science imports no lab, CLI, plotting, parsing or cluster code")
+        elif layer(path) == "lab" and into == "cli":
+            out.append(f"{where}: the lab imports no CLI")
         if root in RANK and root != package:
             if root == "ros_tools" and rank is not None and path not in CLI_MODULES:
                 out.append(f"{where}: only {' and '.join(sorted(CLI_MODULES))}, the tests and the benchmarks import "
@@ -84,6 +113,66 @@ def test_every_module_keeps_to_the_layering():
     assert broken == []
 
 
+def import_graph(sources: dict[str, str]) -> dict[str, set[str]]:
+    """Module -> the project modules it imports (lazily or not), from {path: source}: an imported name resolves
+    to the longest of its prefixes that is one of the modules."""
+    names = {module_name(path) for path in sources}
+    graph: dict[str, set[str]] = {}
+    for path, source in sources.items():
+        edges = graph.setdefault(module_name(path), set())
+        for name, _top in imports(source, path):
+            parts = name.split(".")
+            found = next((".".join(parts[:k]) for k in range(len(parts), 0, -1) if ".".join(parts[:k]) in names), None)
+            if found is not None and found != module_name(path):
+                edges.add(found)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles of `graph`: each strongly connected component of more than one module, sorted (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_module_imports_itself_back():
+    sources = {p.relative_to(ROOT).as_posix(): p.read_text(encoding="utf-8") for p in modules()
+               if p.relative_to(ROOT).parts[0] in RANK}
+    assert cycles(import_graph(sources)) == []
+
+
+def test_the_cycle_check_sees_a_lazy_cycle():
+    sources = {"cq_ros/lab/runner.py": "def f():\n    from .cluster import dask_backend",
+               "cq_ros/lab/cluster.py": "from .runner import Backend",
+               "cq_ros/lab/summary.py": "from .runner import Backend"}
+    assert cycles(import_graph(sources)) == [["cq_ros.lab.cluster", "cq_ros.lab.runner"]]
+
+
 def test_every_package_of_the_layering_exists_and_is_installed():
     text = (ROOT / "pyproject.toml").read_text()
     for package in RANK:
@@ -100,9 +189,13 @@ def test_every_package_of_the_layering_exists_and_is_installed():
     ("node_runtime/run.py", "from world_node import WorldNode", "only packages below"),
     ("world_node/node.py", "from ros_tools.launch import launch", "import ros_tools"),
     ("cq_ros/engine.py", "def f():\n    from ros_tools import commands", "import ros_tools"),
-    ("cq_ros/cli.py", "from ros_tools.launch import launch", "at module level"),
+    ("cq_ros/cli/main.py", "from ros_tools.launch import launch", "at module level"),
     ("cq_ros/world.py", "def f():\n    import rclpy", "without ROS"),
     ("cq_ros/world.py", "from msgs_spec import Position", "only packages below"),
+    ("cq_ros/engine.py", "def f():\n    from .lab.plots import write_figures", "the science imports no lab"),
+    ("cq_ros/stats.py", "import matplotlib.pyplot as plt", "the science imports no lab"),
+    ("cq_ros/learners/cq.py", "from ..cli.main import main", "the science imports no lab"),
+    ("cq_ros/lab/summary.py", "from ..cli.offline import print_summary", "the lab imports no CLI"),
 ])
 def test_the_check_catches_each_kind_of_break(path, source, broken):
     lines = violations(path, source)
@@ -110,11 +203,13 @@ def test_the_check_catches_each_kind_of_break(path, source, broken):
 
 
 @pytest.mark.parametrize("path, source", [
-    ("cq_ros/cli.py", "def launch():\n    from ros_tools.launch import launch"),
+    ("cq_ros/cli/main.py", "def launch():\n    from ros_tools.launch import launch"),
     ("ros_tools/launch.py", "from world_node.lockstep import world_config\nfrom agent_node import AgentNode"),
     ("world_node/lockstep.py", "from .node import WorldNode\nfrom node_runtime.parameters import read_key_parameter"),
     ("msgs_spec/topics.py", "from rclpy.qos import QoSProfile\nfrom std_msgs.msg import Int32MultiArray"),
     ("tests/test_x.py", "from ros_tools.commands import echo"),
+    ("cq_ros/lab/plots.py", "import matplotlib\nfrom ..gridmap import load_map"),
+    ("cq_ros/cli/offline.py", "from ..lab.experiment import experiment\nfrom ..settings import Settings"),
     ("benchmarks/bench_x.py", "from ros_tools.launch import launch"),
 ])
 def test_what_the_layering_allows_passes(path, source):
@@ -122,8 +217,22 @@ def test_what_the_layering_allows_passes(path, source):
 
 
 def test_the_cli_and_the_science_load_without_rclpy():
-    probe = ("import sys, cq_ros.cli, cq_ros.engine, cq_ros.experiment, cq_ros.render; "
+    probe = ("import sys, cq_ros.cli.main, cq_ros.engine, cq_ros.lab.experiment, cq_ros.lab.render; "
              "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'ros_tools', 'msgs_spec')))")
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+HEAVY = ("scipy", "matplotlib", "dask", "distributed", "rclpy", "foxglove")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["maps"], ["settings"]])
+def test_a_quick_command_loads_no_heavy_library(argv):
+    """`cq-ros --help` and the listing commands start in a fraction of a second: nothing they do needs the t
+    quantiles, the plots, a cluster, ROS or a viewer."""
+    probe = (f"import sys\nfrom cq_ros.cli.main import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
+             f"print(sorted({{m.split('.')[0] for m in sys.modules}} & set({HEAVY!r})), file=sys.stderr)")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "[]"

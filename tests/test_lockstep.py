@@ -15,7 +15,7 @@ from cq_ros.learners.base import Learner
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import NO_ACTION, Action, Feedback, Heartbeat, Position, WorldStats, encode
-from cq_ros.parameters import SETTING_NAMES
+from node_runtime.parameters import SETTING_NAMES
 from node_runtime.parameters import WORLD_PARAMETERS as PARAMETERS
 from world_node.lockstep import Lockstep, world_config
 

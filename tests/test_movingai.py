@@ -3,10 +3,10 @@ with x the column and y the row; what we cannot represent is one line naming the
 
 import pytest
 
-from cq_ros.cli import main
+from cq_ros.cli.main import main
 from cq_ros.gridmap import load_map
-from cq_ros.movingai import MAX_CELLS
-from cq_ros.planner import distances_to
+from cq_ros.mapgen.movingai import MAX_CELLS
+from cq_ros.mapf.planner import distances_to
 
 # 5 wide, 4 high: a wall of trees (T) in column 2 with a gap in row 3; '@' out of bounds at the top right.
 GRID = ["..T.@",

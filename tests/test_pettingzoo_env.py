@@ -5,7 +5,7 @@ import pytest
 from pettingzoo.test import parallel_api_test
 
 from cq_ros.gridmap import load_map
-from cq_ros.pettingzoo_env import GridWorldEnv
+from cq_ros.envs.pettingzoo_env import GridWorldEnv
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 

@@ -1,4 +1,4 @@
-"""Tests of cq_ros.planner: instances solved by hand (inline maps), optimality against a brute-force search of
+"""Tests of cq_ros.mapf.planner: instances solved by hand (inline maps), optimality against a brute-force search of
 the world's joint states, the validator's verdicts, every shipped map, and `cq-ros plan`."""
 
 import heapq
@@ -7,10 +7,10 @@ import random
 
 import pytest
 
-from cq_ros.cli import main
-from cq_ros.plan_command import PlanProgress
+from cq_ros.cli.main import main
+from cq_ros.cli.plan import PlanProgress
 from cq_ros.gridmap import available_maps, load_map, parse_map
-from cq_ros.planner import NoPlan, Plan, PlanError, conflict_based_search, distances_to, plan, prioritized, validate
+from cq_ros.mapf.planner import NoPlan, Plan, PlanError, conflict_based_search, distances_to, plan, prioritized, validate
 from cq_ros.world import N_ACTIONS, GridWorld
 
 PRIORITIZED = {"cbs_nodes": 0}  # plan() options that skip conflict-based search

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from cq_ros import plots
-from cq_ros.summary import (
+from cq_ros.lab import plots
+from cq_ros.lab.summary import (
     EPISODES_HEADER,
     OBSERVE_HEADER,
     Observation,

@@ -6,9 +6,9 @@ import csv
 
 import numpy as np
 
-from cq_ros.experiment import OBSERVE_COLUMNS
+from cq_ros.lab.experiment import OBSERVE_COLUMNS
 from cq_ros.learners import ALGORITHMS
-from cq_ros.reproduce import (
+from cq_ros.lab.reproduce import (
     PAPER_MAPS,
     claim_collision_free,
     _claim_entrance,

@@ -15,7 +15,7 @@ import uuid
 import pytest
 import yaml
 
-from cq_ros.cli import main
+from cq_ros.cli.main import main
 from cq_ros.settings import run_settings
 from cq_ros.gridmap import load_map
 from processes import alive_with

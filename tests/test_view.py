@@ -27,7 +27,7 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from cq_ros.gridmap import load_map  # noqa: E402
-from cq_ros.render import lattice  # noqa: E402
+from cq_ros.gridmap import lattice  # noqa: E402
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene  # noqa: E402
 
 START_S = 90.0  # bound on the view process starting and finding the system on 2 busy cores

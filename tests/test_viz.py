@@ -16,7 +16,8 @@ from PIL import Image
 
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
-from cq_ros.render import CELL_INCHES, DPI, cut_by_bag, engine_frames, frames_from, lattice
+from cq_ros.gridmap import lattice
+from cq_ros.lab.render import CELL_INCHES, DPI, cut_by_bag, engine_frames, frames_from
 from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz

@@ -6,7 +6,7 @@ import pytest
 
 from cq_ros import engine
 from cq_ros.settings import run_settings
-from cq_ros.warehouse import warehouse_map
+from cq_ros.mapgen.warehouse import warehouse_map
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from cq_ros.gridmap import GridMap
-from cq_ros.parameters import check_numbers, map_and_settings
+from node_runtime.parameters import check_numbers, map_and_settings
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (

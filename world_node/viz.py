@@ -9,7 +9,7 @@ from typing import Any
 from rclpy.event_handler import PublisherEventCallbacks
 
 from cq_ros.gridmap import GridMap
-from cq_ros.render import lattice
+from cq_ros.gridmap import lattice
 from msgs_spec import Position
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene
 from node_runtime.graph import Matched

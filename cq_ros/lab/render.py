@@ -16,12 +16,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from .engine import Team, greedy_team, make_learners, world_seed
-from .gridmap import GridMap
-from .settings import Settings
-from .world import GridWorld
+from ..engine import Team, greedy_team, make_learners, world_seed
+from ..gridmap import GridMap
+from ..settings import Settings
+from ..world import GridWorld
 
-__all__ = ["Frame", "lattice", "engine_frames", "frames_from", "cut_by_bag", "check_output", "write_animation", "FORMATS"]
+__all__ = ["Frame", "engine_frames", "frames_from", "cut_by_bag", "check_output", "write_animation", "FORMATS"]
 
 FORMATS = {".gif": "pillow", ".mp4": "ffmpeg"}  # output suffix -> matplotlib animation writer
 CELL_INCHES = 0.6
@@ -37,25 +37,6 @@ class Frame:
     step: int
     cells: tuple[tuple[int, int], ...]
     looks: dict[int, tuple[tuple[int, int, int], ...]] = field(default_factory=dict)
-
-
-def lattice(gridmap: GridMap) -> tuple[tuple[bool, ...], ...]:
-    """The map's occupancy lattice, True = occupied: (2H+1) x (2W+1) elements, cell (row, col) at
-    (2 row + 1, 2 col + 1), the edge between two cells between them (free where an agent can cross it), and
-    a corner free only where the four edges around it are."""
-    rows, cols = 2 * gridmap.height + 1, 2 * gridmap.width + 1
-    occupied = [[True] * cols for _ in range(rows)]
-    for index, (row, col) in enumerate(gridmap.cells):
-        occupied[2 * row + 1][2 * col + 1] = False
-        moves = gridmap.neighbours[index]
-        if moves[1] != index:  # EAST leads on: the edge to the right is open
-            occupied[2 * row + 1][2 * col + 2] = False
-        if moves[2] != index:  # SOUTH
-            occupied[2 * row + 2][2 * col + 1] = False
-    for i in range(2, rows - 1, 2):
-        for j in range(2, cols - 1, 2):
-            occupied[i][j] = any(occupied[i + di][j + dj] for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)))
-    return tuple(map(tuple, occupied))
 
 
 class _FilmedWorld:

@@ -8,17 +8,14 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import textwrap
-import time
 from pathlib import Path
 
-from .cluster import ClusterError, scheduler_address
-from .gridmap import MapError, available_maps, load_map, parse_map
-from .learners import ALGORITHMS, LEARNERS
-from .output import check_parent
-from .runner import RunFailed
-from .settings import Settings, SettingsError, run_settings
-from .warehouse import DEFAULT_AISLE_LENGTH, warehouse_text
+from ..gridmap import MapError
+from ..lab.cluster import ClusterError, scheduler_address
+from ..lab.runner import RunFailed
+from ..learners import ALGORITHMS, LEARNERS
+from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
+from ..settings import SettingsError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -247,7 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("generate", help="generate a map (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
     what = ("a warehouse: two-lane cross-aisles (top and bottom), two-lane aisles behind one-lane entrances, "
-            "pick stations in bays beside the aisles (cq_ros.warehouse)")
+            "pick stations in bays beside the aisles (cq_ros.mapgen.warehouse)")
     p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
                          "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
                          "goal with the others parked at theirs. The map carries `set reward_step=-1`, `set gamma=0.98` "
@@ -270,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = kinds.add_parser("movingai", help="a MovingAI .map (and the first N tasks of a .scen) as a map of ours",
                          description="Convert a MovingAI grid (. G passable, @ O T blocked; S and W rejected) and, "
                          "with --scen, its first N tasks (x the column, y the row, 0-based from the top left) into "
-                         "our map format (cq_ros.movingai). A fault is one line naming the file and line.")
+                         "our map format (cq_ros.mapgen.movingai). A fault is one line naming the file and line.")
     p.add_argument("map", type=Path, metavar="MAP.map", help="a MovingAI map file")
     p.add_argument("--scen", type=Path, default=None, metavar="FILE.scen",
                    help="a MovingAI scenario: its first --agents tasks become the agents (default: none, the "
@@ -307,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="execute the plan where each AGV's first 0..H moves fail (default: the map's own)")
     p.add_argument("--executions", type=_number(0, kind=int), default=100, metavar="N",
                    help="seeded executions of the plan under those delays, kept in order by its action "
-                        "dependency graph (cq_ros.execute); execution r draws the delays of a learner's run r "
+                        "dependency graph (cq_ros.mapf.execute); execution r draws the delays of a learner's run r "
                         "(default 100; 0: none)")
     p.add_argument("--stop-anywhere", action="store_true",
                    help="let an executing AGV wait in a cell without a wall by sending no action (a stay the "
@@ -348,197 +345,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _dispatch(args) -> int:
-    from . import ros_commands  # imports no ROS until one of its commands runs
-    if args.command == "maps":
-        names = available_maps()
-        width = max(len(name) for name in names)
-        print(f"{'map':<{width}} {'cells':>5} {'agents':>6}")
-        for name in names:
-            m = load_map(name)
-            print(f"{name:<{width}} {m.n_cells:>5} {m.n_agents:>6}")
-        return 0
-    if args.command == "show":
-        m = load_map(args.map)
-        print(f"{m.name}: {m.n_cells} cells, {m.n_agents} agents (digits: starts, G: goals)")
-        print(m.draw())
-        if m.defaults:
-            print("map defaults: " + ", ".join(f"{k}={v:g}" for k, v in m.defaults.items()))
-        pairs = m.walled_in()
-        print("walled in by an early arrival (agent: by the agent parked at its goal): "
-              + ("; ".join(f"{i + 1}: by {k + 1} at {'%d,%d' % m.cells[m.goals[k]]}" for i, k in pairs) or "none"))
-        return 0
-    if args.command == "generate":
-        return _generate(args)
-    if args.command == "import":
-        return _import(args)
-    if args.command == "settings":
-        for key, value in Settings().as_dict().items():
-            print(f"{key} = {value}")
-            print(textwrap.fill(Settings.describe(key), width=100, initial_indent="    ", subsequent_indent="    "))
-        return 0
+    """Run the parsed command: the offline ones (offline.py), the planner (plan.py) and the ROS ones (ros.py),
+    each module imported only when one of its commands runs."""
+    from . import offline
+
+    if args.command in offline.COMMANDS:
+        return offline.COMMANDS[args.command](args)
     if args.command == "plan":
-        from .plan_command import run
+        from .plan import run
 
         return run(args)
+    from . import ros  # imports no ROS until one of its commands runs
+
     if args.command in ("echo", "topics", "nodes", "record"):
-        return ros_commands.ros_tool(args)
-    if args.command == "render":
-        return _render(args)
-    if args.command in ("launch", "hosts", "collect", "key", "view"):
-        return getattr(ros_commands, args.command)(args)
-    if args.command == "experiment":
-        from .experiment import experiment
-
-        # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
-        settings = run_settings(load_map(args.map), args.overrides)
-        out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
-        _print_summary(out)
-        print(f"results: {out}")
-        return 0
-    if args.command == "reproduce":
-        from .reproduce import reproduce
-
-        # The paper's maps carry no defaults of their own.
-        report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
-                           Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
-                           sweep=args.sweep, cluster=args.cluster)
-        print(f"report: {report}")
-        return 0
-    raise AssertionError(args.command)
-
-
-def _print_summary(out: Path) -> None:
-    """The table of a result directory's episodes and the greedy policy's line per algorithm (experiment and
-    launch alike)."""
-    from .summary import format_console_table, greedy_lines, load_episodes
-
-    print(format_console_table(load_episodes(out / "episodes.csv")))
-    for line in greedy_lines(out / "greedy.csv"):
-        print(line)
-
-
-def _generate(args) -> int:
-    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold),
-               args.out, args.force)
-    return 0
-
-
-def _import(args) -> int:
-    from .movingai import map_text, read_map, read_scenario
-
-    if (args.scen is None) != (args.agents is None):
-        raise ValueError("--scen and --agents go together: the scenario and how many of its tasks to take")
-    if args.out is not None:
-        _check_writable(args.out, args.force)  # before the work: a large map takes seconds to read
-    gridmap = read_map(args.map)
-    tasks = read_scenario(args.scen, gridmap, args.agents) if args.scen is not None else []
-    command = " ".join(["cq-ros", "import", "movingai", args.map.name]
-                       + ([f"--scen {args.scen.name} --agents {args.agents}"] if tasks else []))
-    text = map_text(gridmap, tasks, command, args.scen)
-    if not tasks:
-        print("cq-ros import: the map has no agents yet: add lines `agent K: start ROW,COL  goal ROW,COL`, or "
-              "give --scen FILE --agents N", file=sys.stderr)
-    else:
-        parse_map(text, source=str(args.out or "<import>"))  # our own loader accepts what we write
-    _write_map(text, args.out, args.force)
-    return 0
-
-
-def _check_writable(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_file():
-        raise FileExistsError(f"{out} is not a file")
-    if out.exists() and not force:
-        raise FileExistsError(f"{out} exists; pass --force to overwrite it")
-
-
-def _write_map(text: str, out: Path | None, force: bool) -> None:
-    """`text` on stdout (out None) or into file `out`, which must be new unless `force`."""
-    if out is None:
-        sys.stdout.write(text)
-        return
-    _check_writable(out, force)
-    try:
-        out.write_text(text, encoding="utf-8")
-    except OSError as e:
-        raise ValueError(f"cannot write {out}: {e.strerror or e}") from None
-    print(f"wrote {out}", file=sys.stderr)
-
-
-def _render(args) -> int:
-    from .render import DPI, check_output, cut_by_bag, engine_frames, frames_from, lattice, write_animation
-
-    check_output(args.out)
-    check_parent(args.out, "--out")
-    cut = None
-    engine_only = [flag for flag, given in (
-        ("--set", bool(args.overrides)), ("--greedy", args.greedy), ("--algo", args.algo is not None),
-        ("--episodes", args.episodes is not None), ("--seed", args.seed is not None)) if given]
-    if args.map is not None:
-        args.algo = "cq" if args.algo is None else args.algo
-        args.episodes = 100 if args.episodes is None else args.episodes
-        args.seed = 0 if args.seed is None else args.seed
-        gridmap = load_map(args.map)
-        settings = run_settings(gridmap, args.overrides)
-        occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
-        title = f"{gridmap.name} {args.algo}"
-        if args.greedy and args.episode is not None:
-            raise ValueError("draw either a learning episode (--episode) or the greedy one after learning "
-                             "(--greedy), not both")
-        if args.episode is not None and args.episode >= args.episodes:
-            raise ValueError(f"episode {args.episode} is not one of the {args.episodes} episodes "
-                             f"(0..{args.episodes - 1})")
-        _note(f"learning {args.episodes} episodes of {title} offline (seed {args.seed})")
-        if args.greedy:
-            title += " greedy"
-        frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode,
-                               _every_30_s("episode {} learnt"), greedy=args.greedy)
-    else:
-        from ros_tools import commands as tools
-
-        if engine_only:
-            raise ValueError(f"{engine_only[0]} applies to --map (the offline engine), not to a bag")
-        try:
-            occupancy, scenes, looks = tools.read_view_bag(args.bag)
-        except tools.ToolError as e:
-            print(f"cq-ros render: error: {e}", file=sys.stderr)
-            return 1
-        if occupancy is None or not scenes:
-            print(f"cq-ros render: error: {args.bag} holds no {'world/map' if occupancy is None else 'world/markers'}"
-                  " message (record while the run starts, with markers on)", file=sys.stderr)
-            return 1
-        episodes = sorted({s.episode for s in scenes})
-        episode = episodes[-1] if args.episode is None else args.episode
-        if episode not in episodes:
-            raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
-        frames = frames_from([s for s in scenes if s.episode == episode], looks)
-        occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
-        cut = cut_by_bag(scenes, episode)
-        if cut:
-            _note(f"episode {episode} is cut by the bag: {cut}")
-    _note(f"drawing {len(frames)} steps to {args.out}")
-    out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps, dpi=args.dpi or DPI,
-                          progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
-    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames" + (" (cut by the bag)" if args.bag and cut else ""))
-    return 0
-
-
-def _every_30_s(line: str):
-    """A progress callback for render's long loops: `line` (with the 1-based count) at most every 30 s."""
-    shown = time.monotonic()
-
-    def progress(i: int) -> None:
-        nonlocal shown
-        if time.monotonic() - shown >= 30:
-            shown = time.monotonic()
-            _note(line.format(i + 1))
-
-    return progress
-
-
-def _note(line: str) -> None:
-    print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        return ros.ros_tool(args)
+    return getattr(ros, args.command)(args)

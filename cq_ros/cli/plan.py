@@ -1,5 +1,5 @@
-"""`cq-ros plan`: plan every AGV's route centrally (cq_ros.planner), replay it through the world, and
-execute it under the world's delays over seeded executions (cq_ros.execute): the learners' yardstick."""
+"""`cq-ros plan`: plan every AGV's route centrally (cq_ros.mapf.planner), replay it through the world, and
+execute it under the world's delays over seeded executions (cq_ros.mapf.execute): the learners' yardstick."""
 
 from __future__ import annotations
 
@@ -8,14 +8,20 @@ import time
 
 from tqdm import tqdm
 
-from .execute import dependencies, execute_many, moves_can_fail, spread, stall_risk
-from .gridmap import ACTIONS, load_map
-from .planner import NoPlan, PlanError, distances_to, plan, validate
-from .settings import Settings, run_settings
+from ..gridmap import ACTIONS, load_map
+from ..mapf.execute import (
+    dependencies,
+    execute_many,
+    moves_can_fail,
+    spread,
+    stall_risk,
+)
+from ..mapf.planner import NoPlan, PlanError, distances_to, plan, validate
+from ..settings import Settings, run_settings
 
 
 def run(args) -> int:
-    """The command, from its parsed arguments (cq_ros.cli builds the parser): 0, or 1 without a plan."""
+    """The command, from its parsed arguments (cq_ros.cli.main builds the parser): 0, or 1 without a plan."""
     gridmap = load_map(args.map)
     delays = [f"{key}={value}" for key, value in (("slip", args.slip), ("start_hold", args.start_hold))
               if value is not None]

@@ -26,7 +26,7 @@ from matplotlib.patches import Patch, Rectangle
 from matplotlib.patheffects import withStroke
 from matplotlib.ticker import LogLocator, NullFormatter, StrMethodFormatter
 
-from .gridmap import GridMap, load_map
+from ..gridmap import GridMap, load_map
 from .summary import (
     Episodes,
     Observation,

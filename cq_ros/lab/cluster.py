@@ -1,5 +1,5 @@
 """The runner's Dask backend (`--cluster tcp://HOST:PORT`): the runs of a grid on a running Dask scheduler's
-workers, through `Client.get_executor()`, so cq_ros.runner's concurrent.futures loop serves it unchanged.
+workers, through `Client.get_executor()`, so cq_ros.lab.runner's concurrent.futures loop serves it unchanged.
 
 A worker whose Python, cq_ros, numpy, scipy, dask, distributed or cloudpickle differs from the client's is
 refused with one line, when the grid starts and again before each run (a worker may join mid-grid): Dask's
@@ -22,7 +22,7 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from .runner import Backend
+from .backend import Backend
 
 CONNECT_S = 30.0  # to reach the scheduler
 WORKERS_S = 120.0  # for a first worker to join it

@@ -16,7 +16,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from .gridmap import draw_cells
+from ..gridmap import draw_cells
 
 __all__ = ["MAX_CELLS", "MovingAIError", "MovingAIMap", "Task", "read_map", "read_scenario", "map_text"]
 

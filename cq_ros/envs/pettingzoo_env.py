@@ -15,9 +15,9 @@ import functools
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from .gridmap import GridMap, load_map
-from .settings import Settings, run_settings
-from .world import N_ACTIONS, GridWorld
+from ..gridmap import GridMap, load_map
+from ..settings import Settings, run_settings
+from ..world import N_ACTIONS, GridWorld
 
 
 class GridWorldEnv(ParallelEnv):

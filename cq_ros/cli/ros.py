@@ -10,9 +10,9 @@ import os
 import sys
 from typing import Any, Callable
 
-from .cli import _print_summary
-from .gridmap import load_map
-from .output import check_parent
+from ..gridmap import load_map
+from ..lab.output import check_parent
+from .offline import print_summary
 
 __all__ = ["hosts", "launch", "collect", "key", "view", "ros_tool"]
 
@@ -65,7 +65,7 @@ def launch(args) -> int:
         figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key, view_port=args.view))
     if result is None:
         return code
-    _print_summary(result.out)
+    print_summary(result.out)
     for node, cost in result.manifest["communication"].items():
         print(f"{node}: {cost['peer_messages']} peer position messages, "
               f"{cost['subscriptions_created']} subscriptions created")
@@ -94,7 +94,7 @@ def collect(args) -> int:
                                                   force=args.force, wait_s=args.wait))
     if out is None:
         return code
-    _print_summary(out)
+    print_summary(out)
     print(f"results: {out}")
     return 0
 
@@ -132,14 +132,13 @@ def key(args) -> int:
 
 
 def view(args) -> int:
-    from ros_tools.commands import ToolError
-    from ros_tools.collect import CollectError
+    from ros_tools.session import ToolError
     from ros_tools.view import view as serve
 
     try:
         relayed = serve(domain_id=args.domain_id, namespace=args.namespace, host=args.host, port=args.port,
                         wait_s=args.wait)
-    except (ToolError, CollectError) as e:
+    except ToolError as e:
         print(f"cq-ros view: error: {e}", file=sys.stderr)
         return 1
     print(f"cq-ros view: stopped after {relayed} messages", file=sys.stderr)

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .experiment import Job, manifest_for, prepare_output, run_jobs, versions, write_results
-from .gridmap import load_map
-from .learners import ALGORITHMS
-from .settings import Settings
+from ..gridmap import load_map
+from ..learners import ALGORITHMS
+from ..settings import Settings
 from .summary import Metrics, compute_metrics, load_episodes, load_observations, settled_episode, summary_table
 
 PAPER_MAPS = ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr")

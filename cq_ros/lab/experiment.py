@@ -22,13 +22,13 @@ from functools import partial
 from importlib import metadata
 from pathlib import Path
 
-from . import __version__
-from .engine import RunResult, run
-from .gridmap import GridMap, load_map
-from .learners import LEARNERS
+from .. import __version__
+from ..engine import RunResult, run
+from ..gridmap import GridMap, load_map
+from ..learners import LEARNERS
 from .output import check_folder
 from .runner import run_all
-from .settings import Settings, run_settings
+from ..settings import Settings, run_settings
 
 EPISODE_COLUMNS = ("map", "algo", "run", "episode", "steps", "collisions", "joint_plays", "states", "return", "truncated")
 GREEDY_COLUMNS = ("map", "algo", "run", "episodes", "collisions", "steps", "truncated")
@@ -58,7 +58,7 @@ def _play(maps: dict[str, GridMap], job: Job, on_episode: Callable[[], None]) ->
 
 def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs", progress_interval: float = 30.0,
              cluster: str | None = None) -> tuple[dict[Job, RunResult], dict]:
-    """Play every job (cq_ros.runner: in this process, on `workers` local processes, or on the Dask scheduler at
+    """Play every job (cq_ros.lab.runner: in this process, on `workers` local processes, or on the Dask scheduler at
     `cluster`), showing progress; each job's result, and where they ran (the manifest's `executed_on`).
     The maps travel with the jobs, read here once: a worker on another machine needs no map file."""
     maps = {job.map_name: load_map(job.map_name) for job in jobs}
@@ -68,7 +68,7 @@ def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs", p
 
 def prepare_output(out: Path, force: bool) -> Path:
     """An output directory that is ours to write: new, empty, or (with force) an old result; and one that takes
-    a file (cq_ros.output.check_folder: OutputError for a read-only or full one)."""
+    a file (cq_ros.lab.output.check_folder: OutputError for a read-only or full one)."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ResultExists(f"output {out} is a file, not a directory")
@@ -116,7 +116,7 @@ def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifes
 
 def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, settings: Settings,
                  wall_time: float, executed_on: dict | None = None, **extra) -> dict:
-    """The manifest of a result folder; `executed_on` says where the runs ran (cq_ros.runner), where they
+    """The manifest of a result folder; `executed_on` says where the runs ran (cq_ros.lab.runner), where they
     ran elsewhere than in this process's own engine (a launch's nodes say so in their own entries)."""
     return {
         "map": gridmap.name,

@@ -29,8 +29,8 @@ import math
 import random
 import textwrap
 
-from .gridmap import GridMap, _render, _STEPS, parse_map
-from .settings import Settings, SettingsError
+from ..gridmap import GridMap, _render, _STEPS, parse_map
+from ..settings import Settings, SettingsError
 
 __all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "DELAYED_COLLISION", "MAP_DEFAULTS", "default_aisles", "warehouse_command", "warehouse_map",
            "warehouse_text"]

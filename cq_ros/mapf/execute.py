@@ -21,7 +21,7 @@ reward_step), counted as `held`: at its start, when that has no wall and its fir
 released (it is not dispatched yet), and after a stall (below).
 
 When no move can fail (slip 0 and start_hold 0), the plan's own clock keeps every order (the world carries
-the plan out: `cq_ros.planner.validate`), so the AGVs follow the plan step by step and send nothing: with no
+the plan out: `cq_ros.mapf.planner.validate`), so the AGVs follow the plan step by step and send nothing: with no
 delays an execution is exactly the plan. As soon as a move can fail, following an AGV into the cell it
 leaves in the same step would collide whenever that move fails, so the ADG is used.
 
@@ -51,11 +51,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from statistics import fmean
 
-from .engine import world_seed
-from .gridmap import GridMap
+from ..engine import world_seed
+from ..gridmap import GridMap
 from .planner import Plan
-from .settings import Settings
-from .world import GridWorld
+from ..settings import Settings
+from ..world import GridWorld
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Running many independent seeded runs and gathering their results, for `cq-ros experiment`, `cq-ros reproduce`
 and benchmarks/bench_warehouse.py alike: in this process, on a local process pool (`--jobs N`), or on a Dask
-cluster (`--cluster ADDRESS`, cq_ros.cluster), through one concurrent.futures loop, one progress display and
+cluster (`--cluster ADDRESS`, cq_ros.lab.cluster), through one concurrent.futures loop, one progress display and
 one report of a failing run.
 
 A run is any object with `map_name`, `algo`, `run` and `episodes`, played by `play(run, on_episode)`, which
@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from tqdm import tqdm
+
+from .backend import Backend
 
 
 class Run(Protocol):
@@ -87,29 +89,13 @@ class Ran:
     executed_on: dict = field(default_factory=dict)
 
 
-@dataclass
-class Backend:
-    """Where the runs go: an executor, how many runs it takes at once, a reporter per run (a picklable
-    `on_episode` for the worker), the episodes each run has reported so far, and where it ran (the manifest's
-    `executed_on`; a run's result may name its worker)."""
-
-    executor: Executor
-    capacity: int
-    reporter: Callable[[int], Callable[[], None]]
-    reported: Callable[[], list[int]]
-    executed_on: Callable[[list[Any]], dict]
-    expected: dict | None = None  # the client's versions, checked by the worker before each run
-    # Called by an in-process reporter after each episode, so progress moves while this process plays.
-    heartbeat: list[Callable[[], None]] = field(default_factory=list)
-
-
 def run_all(runs: Iterable[Run], play: Callable[[Any, Callable[[], None]], Any], workers: int | None = None,
             cluster: str | None = None, label: str = "runs", progress_interval: float = 30.0,
             fresh_process: bool = False) -> Ran:
     """Play every run: on the Dask scheduler at `cluster`, else on `workers` local processes (default one per
     core; one: in this process), or each in a fresh process if `fresh_process`. Progress on stderr (Progress);
     the first run that fails stops the rest and raises RunFailed; a worker refused or a cluster out of reach
-    raises cq_ros.cluster.ClusterError."""
+    raises cq_ros.lab.cluster.ClusterError."""
     runs = list(runs)
     with _backend(runs, workers, cluster, label, fresh_process) as backend:
         progress = Progress(label, sum(r.episodes for r in runs), len(runs), progress_interval)

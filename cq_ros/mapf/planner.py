@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 from itertools import count
 from math import factorial
 
-from .gridmap import GridMap
-from .world import GridWorld
+from ..gridmap import GridMap
+from ..world import GridWorld
 
 _NEVER = float("inf")
 

@@ -1,0 +1,2 @@
+"""The `cq-ros` command: the parser and dispatch (main.py), the planner's command (plan.py) and the ROS
+commands (ros.py), which reach ros_tools, hence rclpy, only when one of them runs."""

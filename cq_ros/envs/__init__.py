@@ -1,0 +1,1 @@
+"""Our gridworlds behind the interfaces other RL tooling expects (PettingZoo's ParallelEnv)."""

@@ -1,0 +1,138 @@
+"""What every ROS tool of ours stands on: its own rclpy Context and node (`ros_session`), environment variables
+rcl reads at init (`environment`), Ctrl-C and SIGTERM as a flag a loop checks (`StopSignals`), bounded spinning
+(`spin_until`), and finding a running system on the graph (`find_system`). The user commands (commands.py,
+launch.py, collect.py, view.py) import it; it imports none of them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import threading
+import time
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+
+__all__ = ["ToolError", "StopSignals", "environment", "ros_session", "spin_until", "find_system", "WORLD", "FIND_S"]
+
+FIND_S = 60.0  # how long to look for the system's nodes by default: a node process takes seconds to start on 2 busy cores
+WORLD = "world"
+_AGENT_NODE = re.compile(r"agv[1-9][0-9]*|jsa")
+
+
+class ToolError(RuntimeError):
+    """A tool could not do its job (topic not found, no message before the timeout, ...): one line."""
+
+
+class StopSignals:
+    """Within `with StopSignals() as stop:`, SIGINT and SIGTERM set `stop.received` (the signal's name)
+    instead of raising, so a loop that checks `stop` between short waits ends cleanly (closes its bag,
+    stops its children). Outside the main thread Python cannot install handlers: then it does nothing."""
+
+    def __init__(self) -> None:
+        self.received: str | None = None
+        self._saved: dict[int, Any] = {}
+
+    def __bool__(self) -> bool:
+        return self.received is not None
+
+    def __enter__(self) -> "StopSignals":
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._saved[sig] = signal.signal(sig, self._on_signal)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for sig, handler in self._saved.items():
+            signal.signal(sig, handler)
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        self.received = signal.Signals(signum).name
+
+
+@contextmanager
+def environment(**values: str) -> Iterator[None]:
+    """Set these environment variables (rcl reads some only at init) and restore them afterwards."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@contextmanager
+def ros_session(name: str, *, domain_id: int | None = None, namespace: str | None = None,
+                localhost_only: bool = False, hidden: bool = True) -> Iterator[tuple[Any, SingleThreadedExecutor]]:
+    """(node, executor) on a fresh rclpy Context, torn down in the Jazzy order (executor, node, context).
+
+    `domain_id` None: ROS_DOMAIN_ID from the environment, as every ROS tool. `localhost_only` keeps discovery
+    on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, read by rcl at init only). A `hidden` node's name
+    starts with '_' (hidden from `nodes`, as ros2cli's own nodes are). rclpy installs no signal handlers:
+    use StopSignals."""
+    ctx = Context()
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"} if localhost_only else {}
+    with environment(**env):
+        rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    node = executor = None
+    try:
+        node = rclpy.create_node(f"_{name}_{os.getpid()}" if hidden else name, context=ctx, namespace=namespace,
+                                 enable_rosout=False, start_parameter_services=False)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        yield node, executor
+    finally:
+        if executor is not None:
+            executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float | None,
+               stop: StopSignals | None = None) -> bool:
+    """Spin until done() (True), the timeout passes or a stop signal comes (False). None: no timeout."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while not done():
+        if stop or (deadline is not None and time.monotonic() >= deadline):
+            return False
+        executor.spin_once(timeout_sec=0.05)
+    return True
+
+
+def find_system(node: Any, executor: Any, namespace: str | None, stop: StopSignals,
+                wait_s: float = FIND_S) -> tuple[str, list[str]]:
+    """(namespace, agent node names) of the one system on the graph (its `world` node's namespace), or of the
+    one in `namespace`; ToolError when there is none or, without `namespace`, several."""
+    def systems() -> dict[str, list[str]]:
+        found: dict[str, list[str]] = {}
+        pairs = node.get_node_names_and_namespaces()
+        for name, ns in pairs:
+            if name == WORLD:
+                found.setdefault(ns, [])
+        for name, ns in pairs:
+            if ns in found and _AGENT_NODE.fullmatch(name):
+                found[ns].append(name)
+        return {ns: agents for ns, agents in found.items() if namespace is None or ns == namespace}
+
+    # Settle: a system's agent nodes may be discovered after its world.
+    spin_until(executor, lambda: any(systems().values()), wait_s, stop)
+    spin_until(executor, lambda: False, 0.5, stop)
+    found = systems()
+    if not found or not any(found.values()):
+        where = f"namespace {namespace}" if namespace else "this domain"
+        raise ToolError(f"no system (a `world` node and its agent nodes) on {where} after {wait_s:g} s")
+    if len(found) > 1:
+        raise ToolError(f"several systems on this domain ({', '.join(sorted(found))}): choose one with --namespace")
+    (ns, agents), = found.items()
+    return ns, sorted(agents, key=lambda a: (len(a), a))
