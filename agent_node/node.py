@@ -3,7 +3,7 @@
 Thin on purpose, like the ros2/examples minimal nodes: it declares its parameters, creates the publishers
 and subscriptions msgs_spec names with msgs_spec's QoS, and hands every message to the driver of
 `agent_node.driver` (made by `agent_node.config`), carrying out the effects it returns: publish, subscribe
-to or drop a peer's position topic (always from inside an executor callback, as DESIGN.md's field notes
+to or drop a peer's position topic (always from inside an executor callback, as docs/design.md's field notes
 require), save a checkpoint, finish. While the driver waits for peer positions, it also takes one that its
 reader holds but the executor never announced (`_take_unannounced`: a middleware race, see there).
 Constructible in-process (`AgentNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding
@@ -44,7 +44,7 @@ __all__ = ["AgentNode"]
 # told of (see AgentNode._take_unannounced); a position waited for over one such period is taken there.
 UNANNOUNCED_CHECK_S = 0.05
 # At the end, how long statistics held for min_stats_subscribers may wait for the match (discovery takes
-# 0.05-2.8 s here, DESIGN.md field notes).
+# 0.05-2.8 s here, docs/design.md, field notes).
 STATS_MATCH_TIMEOUT_S = 10.0
 
 

@@ -62,7 +62,7 @@ def _msg_type(name: str):
 
 def _make(type_name: str, seq: int, raw: bool = False):
     """A ping carrying `seq`: our real position payload (`raw`: serialized, as the nodes publish it), or a
-    PointStamped as in DESIGN.md's field notes."""
+    PointStamped as in docs/design.md's field notes."""
     if type_name == "position":
         from msgs_spec import Position, encode_position, serialize
         position = Position(agent=1, episode=0, step=seq, row=2, col=3)

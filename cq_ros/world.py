@@ -2,7 +2,7 @@
 
 `GridWorld` has a PettingZoo-style parallel API (`reset()`, `step({agent: action})` returning per-agent
 observations, rewards, terminations, truncations and infos) and underneath it `step_joint(actions)`,
-the list-based step the offline engine and the world node call. Rules (DESIGN.md, "Worlds"):
+the list-based step the offline engine and the world node call. Rules:
 
 - A move through a wall, off the grid or into a '#' cell is a wall bump: the agent stays.
 - A collision: two agents would end in one cell that is not a goal of both, or two agents swap cells.

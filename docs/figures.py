@@ -430,7 +430,7 @@ def delays_say() -> str:
         f"{w16('7-warehouse_16_delayed-collision-10')}; at -30 with gamma 0.99, CQ "
         f"{w16('9-warehouse_16_delayed-gamma0.99')}.",
         "",
-        "Issue 18's targets on warehouse_8 against these figures, for CQ's defaults and with both settings: "
+        "The targets set for CQ on warehouse_8, against these figures, for CQ's defaults and with both settings: "
         "greedy collisions at most 0.1 an episode "
         f"({met(coll(cq) <= 0.1)}: {coll(cq):.3f}; {met(coll(both) <= 0.1)}: {coll(both):.3f}), 5x below the "
         f"independent learners' ({met(coll(indep) >= 5 * coll(cq))}: {coll(indep) / coll(cq):.1f}x; "

@@ -10,7 +10,7 @@ writers, and counted (`second_writers` in the node's statistics).
 A second system on the same ROS_DOMAIN_ID and namespace shows as a second world node in our namespace. A
 world that sees a twin within `REFUSE_WITHIN_S` of its start refuses to run (the node exits 2 with the
 line `check` returns); one that has run longer keeps running and logs it: the newcomer refuses. Discovery
-of a new process takes 0.05-2.8 s here (DESIGN.md field notes), hence the window. Agents only log a twin:
+of a new process takes 0.05-2.8 s here (docs/design.md, field notes), hence the window. Agents only log a twin:
 a killed process stays in the graph until its DDS lease runs out (about 20 s), so an agent restarted
 after a crash would see its own ghost.
 """

@@ -3,7 +3,7 @@
 A process that was stopped (SIGSTOP, a suspended VM, a machine starved for seconds) resumes with its timers
 overdue and the messages sent meanwhile waiting in its queues; its first timer callback may run before them.
 Judged on wall time, everyone it waits for looks late, and the answers already there are dropped as stale
-(issue 20: the world timed out both agents after a 5 s stop whose actions were waiting for it). So a
+(seen: the world timed out both agents after a 5 s stop whose actions were waiting for it). So a
 `Patience` counts the time between the calls of its node's periodic timer (`expired()`, every `period`),
 each gap at most `STALL_PERIODS` periods: a longer one is a stall, which does not count as waiting (one
 longer than the timeout itself, which on wall time would have run the wait out alone, is counted in

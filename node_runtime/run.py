@@ -2,7 +2,7 @@
 (`python -m ros_tools.compose`) all spin their nodes through `run_node`, on the executor `make_executor` picks.
 
 rclpy's EventsExecutor is the default, stepped with spin_once (its spin() in rclpy 7.1.6 busy-loops and ignores
-signals, DESIGN.md field notes); `$CQ_ROS_EXECUTOR=single` picks the SingleThreadedExecutor.
+signals, docs/design.md, field notes); `$CQ_ROS_EXECUTOR=single` picks the SingleThreadedExecutor.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def make_executor(kind: str | None = None, context: Context | None = None) -> An
     """A new executor of `executor_kind(kind)` on `context` (None: the default, initialised already).
 
     Spin it with spin_once in a loop (`spin_nodes`), never spin(): the EventsExecutor's spin() in rclpy 7.1.6
-    busy-loops and ignores signals (DESIGN.md field notes)."""
+    busy-loops and ignores signals (docs/design.md, field notes)."""
     if executor_kind(kind) == "single":
         return SingleThreadedExecutor(context=context)
     from rclpy.experimental import EventsExecutor
@@ -115,7 +115,7 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
         if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
             raise
     finally:
-        # Jazzy order (DESIGN.md field notes): executor, then nodes, then the context.
+        # Jazzy order (docs/design.md, field notes): executor, then nodes, then the context.
         executor.shutdown()
         for node in nodes:
             node.destroy_node()

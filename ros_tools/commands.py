@@ -31,7 +31,7 @@ __all__ = [
     "DISCOVERY_S", "STORAGES", "compatible_qos", "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
 ]
 
-# A new process shows up in the graph 0.05-2.8 s after it starts (DESIGN.md field notes): the default wait.
+# A new process shows up in the graph 0.05-2.8 s after it starts (docs/design.md, field notes): the default wait.
 DISCOVERY_S = 3.0
 GRAPH_POLL_S = 0.25  # how often record looks for new topics, and echo for its topic
 STORAGES = ("mcap", "sqlite3")

@@ -90,7 +90,7 @@ def talker(ros_context):
     try:
         yield talker
     finally:
-        # Jazzy order (DESIGN.md field notes): the spinning thread, the executor, the node; the fixture
+        # Jazzy order (docs/design.md, field notes): the spinning thread, the executor, the node; the fixture
         # ros_context shuts the context down after.
         stop.set()
         thread.join(timeout=5)

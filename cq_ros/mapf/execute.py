@@ -1,5 +1,5 @@
 """The planner's plan carried out in the delayed world by a fixed rule, not a learner: the yardstick under
-the learners' own delays (issue 18, part 3).
+the learners' own delays.
 
 The rule is the action dependency graph (ADG) of Hönig et al., "Persistent and robust execution of MAPF
 schedules in warehouses" (RA-L 2019): an AGV moves into its next planned cell only once every AGV that the

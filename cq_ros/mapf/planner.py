@@ -1,5 +1,5 @@
 """A centralised multi-agent path planner under the world's own rules: the yardstick the learners are
-measured against (issue 11), not a learner.
+measured against, not a learner.
 
 The rules are those of `cq_ros.world`: every agent that has not arrived moves every step; it stays put only
 by bumping into a wall, the edge or a '#' cell, so it can wait only in a cell with a blocked direction; two
