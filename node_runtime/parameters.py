@@ -22,8 +22,9 @@ from cq_ros.learners import LEARNERS
 from cq_ros.settings import Settings, SettingsError, run_settings
 from msgs_spec import KeyFileError, read_key
 
-__all__ = ["SETTING_NAMES", "check_names", "check_numbers", "map_and_settings", "WORLD_PARAMETERS", "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters",
-           "undeclared_overrides", "read_key_parameter", "describe_parameters", "help_requested", "print_help"]
+__all__ = ["SETTING_NAMES", "check_names", "check_numbers", "map_and_settings", "WORLD_PARAMETERS",
+           "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters", "undeclared_overrides",
+           "read_key_parameter", "ros_type", "describe_parameters", "help_requested", "print_help"]
 
 
 SETTING_NAMES = frozenset(f.name for f in fields(Settings))
@@ -172,12 +173,17 @@ def read_key_parameter(path: str) -> bytes | None:
 _ROS_TYPES = {bool: "bool", int: "integer", float: "double", str: "string"}
 
 
+def ros_type(default: Any) -> str:
+    """The ROS parameter type a parameter declared with `default` takes: 'double' for 3.0, 'integer' for 3."""
+    return _ROS_TYPES[type(default)]
+
+
 def describe_parameters(kind: str) -> str:
     """Every parameter of node kind `kind`, one entry each: name, ROS type, default, then its description
     indented (what `--help` on a node prints; the descriptors hold the same text)."""
     lines = []
     for name, (default, description) in PARAMETERS[kind].items():
-        lines.append(f"  {name} ({_ROS_TYPES[type(default)]}, default {default!r})")
+        lines.append(f"  {name} ({ros_type(default)}, default {default!r})")
         lines.extend(textwrap.wrap(description, width=100, initial_indent=" " * 6, subsequent_indent=" " * 6))
     return "\n".join(lines)
 

@@ -22,10 +22,9 @@ from typing import Any
 import yaml
 
 from cq_ros.learners import LEARNERS
-from node_runtime.parameters import SETTING_NAMES, check_names
 from cq_ros.settings import SettingsError
 from msgs_spec import KeyFileError, write_key_file
-from node_runtime.parameters import PARAMETERS
+from node_runtime.parameters import PARAMETERS, SETTING_NAMES, check_names, ros_type
 
 __all__ = ["ALL_NODES", "SYSTEM_FILE", "SystemFile", "SystemFileError", "system_params", "write_system",
            "read_system", "make_key"]
@@ -124,6 +123,14 @@ def read_system(path: str | os.PathLike) -> SystemFile:
         check_names({k for params in merged.values() for k in params}, {k for t in PARAMETERS.values() for k in t})
     except SettingsError as e:
         raise SystemFileError(f"{path}: {e}") from None
+    # ROS types parameters strictly (an integer is no double): a wrong type would start every node and stop
+    # them seconds later with the reason in one node's log, so it is refused here, before anything starts.
+    declared = {key: default for table in PARAMETERS.values() for key, (default, _) in table.items()}
+    for name, params in merged.items():
+        for key in sorted(declared.keys() & params.keys()):
+            if type(params[key]) is not type(declared[key]):
+                raise SystemFileError(f"{path}: {name}: parameter {key} has ROS type {ros_type(declared[key])} "
+                                      f"(like {declared[key]!r}): got {params[key]!r}")
     for name, params in sections.items():
         for key in sorted(SETTING_NAMES & params.keys()):
             raise SystemFileError(f"{path}: {name}: setting {key} applies to every node: give it under `{ALL_NODES}`")

@@ -51,6 +51,10 @@ def test_the_file_has_wildcard_keys_and_reads_back_as_the_launch(tmp_path):
     (lambda d: d["/**/agv2"]["ros__parameters"].update(alpha=0.3), "agv2: setting alpha applies to every node"),
     (lambda d: d["/**/agv2"]["ros__parameters"].update(algo="js"), "parameter algo must be given once"),
     (lambda d: d["/**"]["ros__parameters"].pop("map"), "parameter map must be given once"),
+    (lambda d: d["/**"]["ros__parameters"].update(step_timeout=3), "parameter step_timeout has ROS type double (like"),
+    (lambda d: d["/**"]["ros__parameters"].update(alpha=1), "parameter alpha has ROS type double (like"),
+    (lambda d: d["/**/agv1"]["ros__parameters"].update(peer_linger_steps=2.0),
+     "agv1: parameter peer_linger_steps has ROS type integer"),
 ])
 def test_a_file_that_describes_no_system_is_one_line(tmp_path, capsys, edit, phrase):
     nodes = node_specs("tunnel_to_goal", "cq", 5, 0, run_settings(load_map("tunnel_to_goal")), tmp_path, 2.0)
