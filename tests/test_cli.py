@@ -194,3 +194,29 @@ def test_settings_lists_every_setting_with_its_default_and_description(capsys):
         described = re.search(rf"^{name} = {re.escape(str(value))}\n((?:    .*\n)+)", out, re.M)
         assert described, name
         assert " ".join(described.group(1).split()) == Settings.describe(name)
+
+
+def test_ctrl_c_on_an_experiment_before_its_results_leaves_no_folder(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "made" / "result"
+    cmd = [sys.executable, "-m", "cq_ros.cli", "experiment", "--map", "tunnel_to_goal", "--algo", "cq", "--runs", "1",
+           "--episodes", "10000000", "--seed", "0", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not out.exists():  # the folder is made (and probed) before any run starts
+            assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.poll() else "late"
+            time.sleep(0.05)
+        time.sleep(1)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and not (tmp_path / "made").exists(), err
