@@ -61,6 +61,19 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         (["reproduce", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
         (["reproduce", "--seeds", "0,-1", "--out", "X"], "--seeds: every seed must be at least 0"),
         (["generate", "warehouse", "--agents", "8", "--seed", "-2", "--out", "X"], "--seed: must be at least 0"),
+        # absurd sizes: one line at once, not a run or a map that never finishes
+        (["experiment", "--map", "grid_game_2", "--episodes", "99999999999999999999", "--out", "X"],
+         "--episodes: must be at most 10,000,000, got 99999999999999999999"),
+        (["experiment", "--map", "grid_game_2", "--runs", "1000000", "--out", "X"], "--runs: must be at most 10,000"),
+        (["render", "--map", "grid_game_2", "--episodes", "99999999999999999999", "--out", "X"], "--episodes: must be"),
+        (["generate", "warehouse", "--agents", "100000", "--out", "X"], "--agents: must be at most 256"),
+        (["generate", "warehouse", "--agents", "8", "--aisle-length", "100000", "--out", "X"], "--aisle-length: must"),
+        (["generate", "warehouse", "--agents", "8", "--aisles", "100000", "--out", "X"], "--aisles: must be at most"),
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--episodes", "99999999999999999999", "--out", "X"],
+         "--episodes: must be at most"),
+        # an option that would do nothing here is refused, not ignored
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--discovery", "static", "--out", "X"],
+         "--discovery chooses how the nodes on --hosts find each other"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
