@@ -6,10 +6,16 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test bench clean
 
+# The version is checked before .venv is made (pip's own error names no fix); a .venv whose set-up failed
+# (no stamp) is made again, not reused.
 $(STAMP): pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null || { \
+	  echo "cq_ros needs Python 3.11 (pyproject's requires-python); $(PYTHON) is $$($(PYTHON) --version 2>/dev/null || echo not found): run make PYTHON=python3.11" >&2; exit 1; }
+	rm -rf $(VENV)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,cluster,view]'
+	@echo "installing cq-ros and its dependencies (ROS 2 included) into $(VENV): about a minute" >&2
+	$(BIN)/python -m pip install --progress-bar on -e '.[test,cluster,view]'
 	touch $(STAMP)
 
 demo: $(STAMP)

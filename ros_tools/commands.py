@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -269,6 +270,12 @@ def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_
                 node.destroy_subscription(sub)
             writer.close()
     missing = sorted(wanted - connections.keys() - skipped) if wanted is not None else []
+    if not written:  # an empty bag would only be blamed later (`render --bag` finds no map in it)
+        shutil.rmtree(bag, ignore_errors=True)
+        domain = domain_id if domain_id is not None else os.environ.get("ROS_DOMAIN_ID", "0")
+        on = f" on {', '.join(missing)}" if missing else ""
+        raise ToolError(f"heard no message{on} on ROS_DOMAIN_ID {domain}, so no bag was written: is a system "
+                        f"running there? (`cq-ros topics --domain-id {domain}` lists what is)")
     if missing:
         err.write(f"cq-ros record: never saw a publisher on {', '.join(missing)}\n")
     out.write(f"recorded {written} messages on {len(connections)} topics to {bag} ({storage})\n")

@@ -73,7 +73,7 @@ from cq_ros.engine import make_learner
 from cq_ros.lab.experiment import prepare_output
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
-from cq_ros.lab.output import os_reason
+from cq_ros.lab.output import made_by, os_reason, removed_if_failing
 from node_runtime.parameters import check_names
 from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
 from msgs_spec import agent_namespace, new_key_file
@@ -404,34 +404,36 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         read_key_parameter(os.fspath(key_file))  # a missing or readable-by-others key fails before any work
     if domain_id is None:
         domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
-    out = prepare_output(Path(out), force)
-    for sub in ("logs", "checkpoints"):
-        (out / sub).mkdir(exist_ok=True)
-    kept_key = key_file is not None  # the system's own key (cq-ros key), named in params.yaml and kept
-    key_file = Path(key_file).resolve() if kept_key else new_key_file()
-    run_key = read_key_parameter(os.fspath(key_file))
-    nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
-                       node_parameters, key_file)
-    launch_only = LAUNCH_ONLY if kept_key else LAUNCH_ONLY | {"key_file"}
-    if compose:
-        children = [compose_command(nodes, namespace, out, launch_only)]
-    else:
-        write_system(out / SYSTEM_FILE, nodes, launch_only)
-        children = node_commands(nodes, namespace, out)
-    for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
-        (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
-    for given in start_with:
-        shutil.copyfile(given, out / "checkpoints" / given.name)
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-           "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
-    listener_env: dict[str, str] = {}
-    if hosts is not None:
-        for child in children:
-            child.command = [*hosts.exec_on(child.name), *child.command]
-            child.env = hosts.discovery_env(child.name, discovery)
-        listener_env = hosts.discovery_env("world", discovery)
-    learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
-    rows = EpisodeRows(out, gridmap.name, algo, learners, episodes)  # OutputError if the disk is full already
+    made = made_by(out)  # what this launch makes, removed if it ends before a row of its own is written
+    with removed_if_failing(out):
+        out = prepare_output(Path(out), force)
+        for sub in ("logs", "checkpoints"):
+            (out / sub).mkdir(exist_ok=True)
+        kept_key = key_file is not None  # the system's own key (cq-ros key), named in params.yaml and kept
+        key_file = Path(key_file).resolve() if kept_key else new_key_file()
+        run_key = read_key_parameter(os.fspath(key_file))
+        nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
+                           node_parameters, key_file)
+        launch_only = LAUNCH_ONLY if kept_key else LAUNCH_ONLY | {"key_file"}
+        if compose:
+            children = [compose_command(nodes, namespace, out, launch_only)]
+        else:
+            write_system(out / SYSTEM_FILE, nodes, launch_only)
+            children = node_commands(nodes, namespace, out)
+        for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
+            (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
+        for given in start_with:
+            shutil.copyfile(given, out / "checkpoints" / given.name)
+        env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+               "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
+        listener_env: dict[str, str] = {}
+        if hosts is not None:
+            for child in children:
+                child.command = [*hosts.exec_on(child.name), *child.command]
+                child.env = hosts.discovery_env(child.name, discovery)
+            listener_env = hosts.discovery_env("world", discovery)
+        learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
+        rows = EpisodeRows(out, gridmap.name, algo, learners, episodes)  # OutputError if the disk is full already
     on_hosts = {} if hosts is None else {"hosts": {"prefix": hosts.prefix, "discovery": discovery,
                                                    "addresses": {h: hosts.address(h) for h in hosts.names}}}
     run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
@@ -463,6 +465,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             try:
                 server, _ = serve(node, f"/{namespace}", port=view_port, n_agents=gridmap.n_agents)
             except ToolError as e:
+                rows.close()
+                if not kept_key:
+                    key_file.unlink(missing_ok=True)
+                _remove(made)
                 raise LaunchError(str(e)) from None
             tqdm.write(f"cq-ros launch: Foxglove view on ws://127.0.0.1:{server.port}", file=sys.stderr)
         bar = Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
@@ -488,8 +494,16 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             if isinstance(e, EndedEarly):
                 raise ended_early(str(e)) from None
             rows.free()
-            raise type(e)(f"{e}{'; stopped ' + ', '.join(stopping) if stopping else ''} "
-                          f"(logs in {out / 'logs'})") from None
+            stopped = f"; stopped {', '.join(stopping)}" if stopping else ""
+            # A node that refused (exit 2: a second system here) before any row of this run leaves nothing worth
+            # keeping, and the line says why; a node that crashed or was stopped leaves its log to read.
+            refused = any(c.exit_code == 2 for c in children)
+            if rows.written == 0 and refused and made is not None:
+                _remove(made)
+                raise type(e)(f"{e}{stopped}; {made} removed") from None
+            if not refused:
+                listener.show_held()
+            raise type(e)(f"{e}{stopped} (logs in {out / 'logs'})") from None
         finally:
             _stop(children)
             if not kept_key:
@@ -514,6 +528,12 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             print(f"cq-ros launch: warning: {name}: checkpoint {nodes[name][1]['checkpoint']} not written: "
                   f"{failure}; learning went on", file=sys.stderr)
     return result
+
+
+def _remove(made: Path | None) -> None:
+    """Remove the folder a launch made (`made_by`), when it ended before anything worth keeping."""
+    if made is not None:
+        shutil.rmtree(made, ignore_errors=True)
 
 
 def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:

@@ -67,7 +67,11 @@ class StatsListener:
         self.node, self.key = node, key  # with the run's key, only this system's statistics count
         self.episodes = episodes
         self.bounds = Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
-        self.drops = DropCounter(node.get_logger().warning)
+        # Until this run's first episode is heard, a dropped message is more likely a second system in the
+        # namespace (its world then refuses, and the launch says so in one line) than a fault worth a line:
+        # those lines are held, and shown once the run is heard (`show_held`) or dropped with the launch.
+        self.held: list[str] | None = []
+        self.drops = DropCounter(self._drop_line)
         self.world: dict[int, WorldStats] = {}
         self.collisions = 0  # over the episodes heard so far, for the progress display
         self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
@@ -78,8 +82,22 @@ class StatsListener:
         self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
                                                    WORLD_STATS.qos)
 
+    def _drop_line(self, line: str) -> None:
+        if self.held is None:
+            self.node.get_logger().warning(line)
+        else:
+            self.held.append(line)
+
+    def show_held(self) -> None:
+        """Log the drop lines held so far, and every later one as it comes."""
+        held, self.held = self.held or [], None
+        for line in held:
+            self.node.get_logger().warning(line)
+
     def _on_world(self, msg: Any) -> None:
         stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, key=self.key, source=WORLD_STATS_TOPIC)
+        if stats is not None and self.held is not None:
+            self.show_held()
         if stats is not None and stats.episode not in self.world:
             self.world[stats.episode] = stats
             self.collisions += stats.collisions

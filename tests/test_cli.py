@@ -61,6 +61,19 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         (["reproduce", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
         (["reproduce", "--seeds", "0,-1", "--out", "X"], "--seeds: every seed must be at least 0"),
         (["generate", "warehouse", "--agents", "8", "--seed", "-2", "--out", "X"], "--seed: must be at least 0"),
+        # absurd sizes: one line at once, not a run or a map that never finishes
+        (["experiment", "--map", "grid_game_2", "--episodes", "99999999999999999999", "--out", "X"],
+         "--episodes: must be at most 10,000,000, got 99999999999999999999"),
+        (["experiment", "--map", "grid_game_2", "--runs", "1000000", "--out", "X"], "--runs: must be at most 10,000"),
+        (["render", "--map", "grid_game_2", "--episodes", "99999999999999999999", "--out", "X"], "--episodes: must be"),
+        (["generate", "warehouse", "--agents", "100000", "--out", "X"], "--agents: must be at most 256"),
+        (["generate", "warehouse", "--agents", "8", "--aisle-length", "100000", "--out", "X"], "--aisle-length: must"),
+        (["generate", "warehouse", "--agents", "8", "--aisles", "100000", "--out", "X"], "--aisles: must be at most"),
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--episodes", "99999999999999999999", "--out", "X"],
+         "--episodes: must be at most"),
+        # an option that would do nothing here is refused, not ignored
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--discovery", "static", "--out", "X"],
+         "--discovery chooses how the nodes on --hosts find each other"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
@@ -194,3 +207,29 @@ def test_settings_lists_every_setting_with_its_default_and_description(capsys):
         described = re.search(rf"^{name} = {re.escape(str(value))}\n((?:    .*\n)+)", out, re.M)
         assert described, name
         assert " ".join(described.group(1).split()) == Settings.describe(name)
+
+
+def test_ctrl_c_on_an_experiment_before_its_results_leaves_no_folder(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "made" / "result"
+    cmd = [sys.executable, "-m", "cq_ros.cli", "experiment", "--map", "tunnel_to_goal", "--algo", "cq", "--runs", "1",
+           "--episodes", "10000000", "--seed", "0", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not out.exists():  # the folder is made (and probed) before any run starts
+            assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.poll() else "late"
+            time.sleep(0.05)
+        time.sleep(1)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and not (tmp_path / "made").exists(), err

@@ -546,6 +546,24 @@ def fill(folder) -> None:
             assert e.errno == errno.ENOSPC, e
 
 
+@pytest.mark.parametrize("command", [
+    ["experiment", "--map", "grid_game_2", "--algo", "cq", "--runs", "1", "--episodes", "2"],
+    ["launch", "--map", "grid_game_2", "--algo", "cq", "--episodes", "2"],
+], ids=lambda c: c[0])
+def test_a_full_disk_at_start_is_one_line_and_leaves_no_folder(tmp_path, capsys, command):
+    from cq_ros.cli.main import main
+
+    with tmpfs(tmp_path / "full", 64) as full:
+        fill(full)
+        with pytest.raises(SystemExit) as exit_:
+            main([*command, "--out", str(full / "made" / "result")])
+        left = sorted(p.name for p in full.iterdir())
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "No space left on device" in err, err
+    assert left == ["filler"]  # neither result/ nor the made/ above it
+
+
 def test_a_checkpoint_folder_on_a_full_disk_is_refused_at_start(tmp_path):
     with tmpfs(tmp_path / "full", 64) as full:
         fill(full)

@@ -228,3 +228,12 @@ def test_record_refuses_an_existing_output(tmp_path):
     done = cq_ros("record", "--out", str(tmp_path), "--duration", "1")
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
     assert "exists" in done.stderr
+
+
+def test_record_that_heard_nothing_exits_1_with_one_line_and_leaves_no_bag(tmp_path):
+    bag, topic = tmp_path / "bag", f"/nobody_{uuid.uuid4().hex[:8]}/world/heartbeat"
+    done = cq_ros("record", "--out", str(bag), "--topics", topic, "--duration", "2")
+    assert done.returncode == 1, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"heard no message on {topic}" in lines[0], done.stderr
+    assert not bag.exists() and "recorded" not in done.stdout

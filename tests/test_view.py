@@ -157,6 +157,20 @@ def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
         launch.communicate(timeout=30)
 
 
+def test_a_launch_whose_view_port_is_busy_fails_in_one_line_and_leaves_no_folder(tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", "--map", "tunnel_to_goal", "--algo", "cq",
+                               "--episodes", "5", "--view", str(port), "--no-figures", "--out",
+                               str(tmp_path / "made" / "r")], capture_output=True, text=True, timeout=START_S)
+    assert done.returncode == 1, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(port) in lines[0], done.stderr
+    assert not (tmp_path / "made").exists()  # a rerun is not refused as "not empty"
+
+
 def test_the_shipped_foxglove_layout_is_make_layouts_and_names_the_systems_topics():
     """docs/foxglove/layout.json is what docs/foxglove/make_layout.py writes (2 agents), and every topic it shows
     is one the system publishes: the viewers' topics under /demo and the world's stats key `collisions`."""

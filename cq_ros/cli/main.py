@@ -35,6 +35,31 @@ def _positive(text: str) -> int:
     return value
 
 
+# Upper bounds on counts that set how long a command runs: past them it would not finish in a day (episodes, runs)
+# or would sit silent for minutes making the map (a warehouse of 1,000 AGVs takes 20 s, growing faster than
+# linearly), so a typo gets one line instead of a run that never ends.
+MAX_EPISODES = 10_000_000
+MAX_RUNS = 10_000
+MAX_AGENTS = 256
+MAX_WAREHOUSE_SIDE = 256  # aisles, and cells along an aisle
+
+
+def _at_most(high: int, why: str):
+    """An argparse type: a whole number from 1 to `high`; past it, one line saying `why`."""
+    def parse(text: str) -> int:
+        value = _positive(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f"must be at most {high:,}, got {text} ({why})")
+        return value
+    return parse
+
+
+_episodes = _at_most(MAX_EPISODES, "more would not finish in a day")
+_runs = _at_most(MAX_RUNS, "more would not finish in a day")
+_agents = _at_most(MAX_AGENTS, "a larger map takes minutes to make and far longer to learn")
+_side = _at_most(MAX_WAREHOUSE_SIDE, "a larger warehouse takes minutes to make")
+
+
 def _algos(text: str) -> list[str]:
     algos = [a.strip() for a in text.split(",") if a.strip()]
     unknown = [a for a in algos if a not in LEARNERS]
@@ -88,8 +113,8 @@ def _add_settings_options(p: argparse.ArgumentParser, nodes: bool = False) -> No
 
 
 def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> None:
-    p.add_argument("--runs", type=_positive, default=runs, help=f"independent runs (default {runs})")
-    p.add_argument("--episodes", type=_positive, default=episodes, help=f"episodes per run (default {episodes})")
+    p.add_argument("--runs", type=_runs, default=runs, help=f"independent runs (default {runs})")
+    p.add_argument("--episodes", type=_episodes, default=episodes, help=f"episodes per run (default {episodes})")
     p.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--jobs", type=_positive, default=None, help="worker processes (default: one per core)")
@@ -129,7 +154,7 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
                    help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
                         "0: any free port, printed at start)")
-    p.add_argument("--episodes", type=_positive, default=None, help="episodes (default 500)")
+    p.add_argument("--episodes", type=_episodes, default=None, help="episodes (default 500)")
     p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
@@ -147,8 +172,9 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--hosts", default=None, metavar="PREFIX",
                    help="run each node on its own host made by `cq-ros hosts up` (root; re-runs itself on the "
                         "world's host)")
-    p.add_argument("--discovery", choices=("subnet", "static"), default="subnet",
-                   help="with --hosts: multicast discovery on the subnet, or unicast to ROS_STATIC_PEERS only")
+    p.add_argument("--discovery", choices=("subnet", "static"), default=None,
+                   help="with --hosts: multicast discovery on the subnet (default), or unicast to ROS_STATIC_PEERS "
+                        "only")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_settings_options(p, nodes=True)
 
@@ -218,7 +244,7 @@ def _add_ros_parsers(sub) -> None:
     source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
     # None until given, so that a bag can refuse them: their defaults are the engine's (_render)
     p.add_argument("--algo", type=_algo, default=None, help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
-    p.add_argument("--episodes", type=_positive, default=None, help="with --map: episodes to learn (default 100)")
+    p.add_argument("--episodes", type=_episodes, default=None, help="with --map: episodes to learn (default 100)")
     p.add_argument("--seed", type=_seed, default=None, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
                    help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
@@ -249,10 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
                          "goal with the others parked at theirs. The map carries `set reward_step=-1`, `set gamma=0.98` "
                          "and `set epsilon_decay_episodes=1500`.")
-    p.add_argument("--agents", type=_positive, required=True, metavar="N", help="AGVs, each with its own goal")
-    p.add_argument("--aisles", type=_positive, default=None, metavar="A",
+    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
+    p.add_argument("--aisles", type=_side, default=None, metavar="A",
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
-    p.add_argument("--aisle-length", type=_positive, default=DEFAULT_AISLE_LENGTH, metavar="L",
+    p.add_argument("--aisle-length", type=_side, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
     p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
     p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
@@ -272,7 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scen", type=Path, default=None, metavar="FILE.scen",
                    help="a MovingAI scenario: its first --agents tasks become the agents (default: none, the "
                         "drawing only, to which agent lines must be added)")
-    p.add_argument("--agents", type=_positive, default=None, metavar="N", help="with --scen: the tasks to take")
+    p.add_argument("--agents", type=_agents, default=None, metavar="N", help="with --scen: the tasks to take")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
 

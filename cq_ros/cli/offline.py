@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from ..gridmap import available_maps, load_map, parse_map
-from ..lab.output import check_parent
+from ..lab.output import check_parent, removed_if_failing
 from ..mapgen.warehouse import warehouse_text
 from ..settings import Settings, run_settings
 
@@ -49,8 +49,9 @@ def experiment(args) -> int:
 
     # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
     settings = run_settings(load_map(args.map), args.overrides)
-    out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                     workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
+    with removed_if_failing(args.out):  # results are written at the end: a run cut short leaves no folder
+        out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
+                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
     print_summary(out)
     print(f"results: {out}")
     return 0

@@ -42,6 +42,9 @@ def launch(args) -> int:
     from ros_tools.launch import check_hosts, launch, split_sets
 
     _system_arguments(args)
+    if args.discovery is not None and args.hosts is None:  # one process on this host discovers nothing
+        raise ValueError("--discovery chooses how the nodes on --hosts find each other: give --hosts PREFIX too")
+    args.discovery = args.discovery or "subnet"
     if args.view is not None and importlib.util.find_spec("foxglove") is None:
         raise ValueError("--view needs foxglove-sdk: pip install '.[view]'")
     # Settings fields (over the map's defaults) and node parameters alike

@@ -4,16 +4,21 @@ only, full, not a folder, not ours) is one line at once instead of a traceback a
 `check_folder` makes the folder if needed and writes a small probe file there (a read-only or full file
 system refuses exactly that, whatever the permission bits say, and root passes every permission check);
 `check_parent` does the same for the folder a file (or a bag directory) goes in. Both raise `OutputError` (a ValueError: the
-CLI prints it as one line and exits 2) naming the folder and the operating system's reason.
+CLI prints it as one line and exits 2) naming the folder and the operating system's reason, and leave no folder
+they made. `made_by` says which folder making one would make, for a command that removes it when it fails
+before its results (`removed_if_failing`).
 """
 
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["OutputError", "PROBE_BYTES", "check_folder", "probe_folder", "check_parent", "os_reason"]
+__all__ = ["OutputError", "PROBE_BYTES", "check_folder", "probe_folder", "check_parent", "os_reason", "made_by",
+           "removed_if_failing"]
 
 PROBE_BYTES = 4096  # one page: a file system with less free than this cannot take a result anyway
 
@@ -32,23 +37,56 @@ def check_folder(folder: str | os.PathLike, what: str = "output folder") -> Path
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise OutputError(f"{what} {folder}: is a file, not a folder")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"cannot make {what} {folder}: {os_reason(e)}") from None
-    probe_folder(folder, what)
+    with removed_if_failing(folder):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OutputError(f"cannot make {what} {folder}: {os_reason(e)}") from None
+        probe_folder(folder, what)
     return folder
+
+
+def made_by(folder: str | os.PathLike) -> Path | None:
+    """The outermost of `folder` and its parents that does not exist yet (what making `folder` makes), or None."""
+    made = None
+    for path in (Path(folder), *Path(folder).parents):
+        if path.exists():
+            break
+        made = path
+    return made
+
+
+@contextmanager
+def removed_if_failing(folder: str | os.PathLike):
+    """Removes what making `folder` made (see `made_by`, taken on entry) if the body raises, Ctrl-C included: a
+    command that fails before its results leaves no empty or half-made folder for its rerun to refuse."""
+    made = made_by(folder)
+    try:
+        yield
+    except BaseException:
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
 
 
 def probe_folder(folder: str | os.PathLike, what: str = "output folder") -> None:
     """OutputError unless a file of PROBE_BYTES can be written (and synced) in the existing `folder`."""
+    # By hand rather than NamedTemporaryFile: a failed write there leaves its delete to the garbage collector,
+    # which then warns when the folder it made has been removed.
     try:
-        with tempfile.NamedTemporaryFile(dir=folder, prefix=".probe.") as probe:
-            probe.write(b"\0" * PROBE_BYTES)
-            probe.flush()
-            os.fsync(probe.fileno())
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".probe.")
     except OSError as e:
         raise OutputError(f"{what} {folder}: cannot write there: {os_reason(e)}") from None
+    try:
+        written = 0
+        while written < PROBE_BYTES:  # a nearly full disk takes part, then refuses the rest
+            written += os.write(fd, b"\0" * (PROBE_BYTES - written))
+        os.fsync(fd)
+    except OSError as e:
+        raise OutputError(f"{what} {folder}: cannot write there: {os_reason(e)}") from None
+    finally:
+        os.close(fd)
+        os.unlink(probe)
 
 
 def check_parent(path: str | os.PathLike, what: str = "output") -> Path:
