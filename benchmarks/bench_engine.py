@@ -29,7 +29,7 @@ def steps_per_second(algo: str, map_name: str, episodes: int, seed: int = 0) -> 
     started = time.perf_counter()
     table = run(algo, gridmap, Settings(eval_episodes=0), seed, 0, episodes).episodes
     seconds = time.perf_counter() - started
-    steps = int(table[:, 0].sum())
+    steps = int(table["steps"].sum())
     return steps / seconds, steps
 
 
@@ -40,7 +40,7 @@ def cpu_per_agent_step(algo: str, map_name: str, episodes: int, seed: int = 0) -
     started = time.process_time()
     table = run(algo, gridmap, run_settings(gridmap, {"eval_episodes": 0}), seed, 0, episodes).episodes
     seconds = time.process_time() - started
-    steps = int(table[:, 0].sum())
+    steps = int(table["steps"].sum())
     return seconds / (steps * gridmap.n_agents) * 1e6, steps
 
 

@@ -51,7 +51,7 @@ def lockstep(map_name: str, algo: str, episodes: int, settings: Settings, linger
                         compose=compose, executor=executor, markers=markers, figures=False, progress=False,
                         start_from=start_from, step_timeout=step_timeout)
     m = result.manifest
-    steps = int(result.episodes[:, 0].sum())
+    steps = int(result.episodes["steps"].sum())
     comm = m["communication"].values()
     return {"map": m["map"], "agents": m["n_agents"], "algo": algo + (" learnt" if start_from else ""),
             "linger": m["peer_linger_steps"], "mode": "composed" if compose else "processes",

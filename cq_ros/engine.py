@@ -2,8 +2,8 @@
 
 `Team` is the loop body shared by the engine and the ROS nodes' tests: it asks each learner what it
 needs to see, hands it exactly that, applies the joint action and feeds the outcome back. `run` plays
-one (algorithm, run) for a number of episodes and returns its per-episode records; `experiment.py`
-spreads runs over the cores and writes result files.
+one (algorithm, run) for a number of episodes and returns its per-episode records (cq_ros.episode: their
+columns); the lab (cq_ros.lab) spreads runs over the cores and writes result files.
 
 Seeds: the learner of agent i in run r draws from `learner_seed(seed, r, i)`, the world (only used
 with delays: slip, start_hold) from `world_seed(seed, r)`: the same seed gives the same run, offline or over ROS.
@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
+from . import episode as record
+from .episode import Episode
 from .gridmap import GridMap
-from .learners import LEARNERS, Learner, decode_joint_action
+from .learners import LEARNERS, Learner, algorithm, decode_joint_action
 from .settings import Settings
 from .world import GridWorld
 
@@ -35,25 +37,13 @@ def world_seed(seed: int, run: int) -> int:
 
 def make_learner(algo: str, gridmap: GridMap, settings: Settings, seed: int, run: int, agent: int) -> Learner:
     """The learner of agent `agent` (0-based) in run `run`; for JSA, agent 0 is the central learner."""
-    if algo not in LEARNERS:
-        raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
-    return LEARNERS[algo](agent, gridmap, settings, learner_seed(seed, run, agent))
+    return algorithm(algo).learner(agent, gridmap, settings, learner_seed(seed, run, agent))
 
 
 def make_learners(algo: str, gridmap: GridMap, settings: Settings, seed: int, run: int) -> list[Learner]:
     """The learners of one run: one per agent, or the single central learner for JSA."""
     agents = [0] if algo in LEARNERS and LEARNERS[algo].central else range(gridmap.n_agents)
     return [make_learner(algo, gridmap, settings, seed, run, i) for i in agents]
-
-
-@dataclass
-class Episode:
-    steps: int
-    collisions: int
-    joint_plays: int
-    states: int
-    ret: float
-    truncated: bool
 
 
 class Team:
@@ -124,18 +114,18 @@ def greedy_episodes(team: Team, episodes: int) -> np.ndarray:
     """What the learnt policy does without exploration: `episodes` episodes played by greedy_team(team)
     (none played, no copy made: a copy of a warehouse_32 team costs about a second)."""
     if episodes == 0:
-        return np.empty((0, 6))
+        return record.table(())
     greedy = greedy_team(team)
-    return np.array([astuple(greedy.episode()) for _ in range(episodes)], dtype=float).reshape(episodes, 6)
+    return record.table(greedy.episode() for _ in range(episodes))
 
 
 @dataclass
 class RunResult:
     algo: str
     run: int
-    episodes: np.ndarray  # (n_episodes, 6): steps, collisions, joint_plays, states, return, truncated
+    episodes: np.ndarray  # one element per episode, cq_ros.episode's named columns (episodes["collisions"])
     joint_states: list[tuple[int, int, int, int, float]]  # (agent, cell, peer, peer_cell, confidence)
-    greedy: np.ndarray  # (eval_episodes, 6): the same columns for the greedy policy at the end
+    greedy: np.ndarray  # the same for each greedy episode played at the end
 
 
 def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int,
@@ -146,9 +136,9 @@ def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: i
     team = Team(world, make_learners(algo, gridmap, settings, seed, run_index))
     rows = []
     for _ in range(episodes):
-        rows.append(astuple(team.episode()))
+        rows.append(team.episode())
         if on_episode is not None:
             on_episode()
-    table = np.array(rows, dtype=float)
+    table = record.table(rows)
     kept = [(learner.agent, *js) for learner in team.learners for js in learner.joint_states()]
     return RunResult(algo, run_index, table, kept, greedy_episodes(team, settings.eval_episodes))

@@ -56,12 +56,14 @@ def who_listens() -> str:
     """Peer messages and subscriptions per launch: a row per folder of docs/data/who_listens/, each what
     `cq-ros launch` wrote there (manifest.json, episodes.csv, greedy.csv) and load.json, the machine's
     1-minute load average before and after it."""
+    from cq_ros.lab.results import load_greedy
+
     runs, loads, dates, machine = [], [], set(), set()
     for folder in sorted(p for p in (DATA / "who_listens").iterdir() if p.is_dir()):
         manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
         load = json.loads((folder / "load.json").read_text(encoding="utf-8"))
         learning = sum(int(float(r["steps"])) for r in _rows(folder / "episodes.csv"))
-        greedy = sum(int(float(r["steps"])) for r in _rows(folder / "greedy.csv"))
+        greedy = round(sum(g.steps * g.episodes for g in load_greedy(folder / "greedy.csv")))
         agents = manifest["communication"].values()
         runs.append((manifest["map"], manifest["algos"][0], manifest["peer_linger_steps"], learning,
                      sum(a["peer_messages"] for a in agents), sum(a["subscriptions_created"] for a in agents),
@@ -94,7 +96,8 @@ def warehouses() -> str:
     """CQ against independent learners on the shipped warehouses: a row per algorithm of each folder of
     docs/data/warehouses/, each what `cq-ros experiment` wrote there (manifest.json, greedy.csv and
     episodes.csv.gz, its episodes.csv compressed) and plan.txt, what `cq-ros plan` printed for its map."""
-    from cq_ros.lab.summary import compute_metrics, load_episodes
+    from cq_ros.lab.results import load_episodes, load_greedy
+    from cq_ros.lab.summary import compute_metrics
 
     lines = ["| map | algo | runs x episodes | greedy: every AGV home, no collision, no truncation "
              "| greedy steps/episode, per run (planner's makespan) | collisions/ep in the last 10% "
@@ -108,11 +111,11 @@ def warehouses() -> str:
             episodes = Path(scratch) / "episodes.csv"
             episodes.write_bytes(gzip.decompress((folder / "episodes.csv.gz").read_bytes()))
             metrics = {m.algo: m for m in compute_metrics(load_episodes(episodes))}
-        greedy = _rows(folder / "greedy.csv")
+        greedy = load_greedy(folder / "greedy.csv")
         for algo in manifest["algos"]:
-            runs = [r for r in greedy if r["algo"] == algo]
-            home = [r for r in runs if float(r["truncated"]) == 0]
-            colliding = [float(r["collisions"]) for r in home if float(r["collisions"]) > 0]
+            runs = [g for g in greedy if g.algo == algo]
+            home = [g for g in runs if g.truncated == 0]
+            colliding = [g.collisions for g in home if g.collisions > 0]
             ok = f"{len(home) - len(colliding)} of {len(runs)} runs"
             if len(home) < len(runs) or colliding:
                 ok += f" (all home, no truncation in {len(home)}"
@@ -120,7 +123,7 @@ def warehouses() -> str:
             m = metrics[algo]
             settled = "never" if m.settled_episode is None else str(m.settled_episode)
             lines.append(f"| {label} | {algo} | {m.runs} x {m.episodes} | {ok} "
-                         f"| {_span([float(r['steps']) for r in runs])} ({makespan}) "
+                         f"| {_span([g.steps for g in runs])} ({makespan}) "
                          f"| {_short(m.collisions_tail)} ± {_short(m.collisions_tail_std)} | {settled} |")
         commands.append("cq-ros " + " ".join(manifest["command"][1:]).split(" --out ")[0])
     lines.append("")
@@ -185,7 +188,8 @@ FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": 
 def _cq_run(folder: Path, threshold: float) -> dict:
     """One cq-choices row: its manifest, CQ's metrics (settling at `threshold`), greedy rows, joint states per run
     at the end (observe.csv) and the load average before and after it."""
-    from cq_ros.lab.summary import compute_metrics, load_episodes
+    from cq_ros.lab.results import load_episodes, load_greedy
+    from cq_ros.lab.summary import compute_metrics
 
     with tempfile.TemporaryDirectory() as scratch:
         episodes = Path(scratch) / "episodes.csv"
@@ -193,7 +197,7 @@ def _cq_run(folder: Path, threshold: float) -> dict:
         [metrics] = compute_metrics(load_episodes(episodes), threshold=threshold)
     manifest = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
     joint = [sum(r["run"] == str(run) for r in _rows(folder / "observe.csv")) for run in range(manifest["runs"])]
-    return {"manifest": manifest, "metrics": metrics, "greedy": _rows(folder / "greedy.csv"), "joint": joint,
+    return {"manifest": manifest, "metrics": metrics, "greedy": load_greedy(folder / "greedy.csv"), "joint": joint,
             "load": json.loads((folder / "load.json").read_text(encoding="utf-8"))}
 
 
@@ -204,9 +208,9 @@ def cq_choice_runs(prefix: str, threshold: float = 0.05) -> dict[str, dict]:
 
 def _greedy(run: dict) -> tuple[int, int, list[float]]:
     """Greedy runs stuck at the step cap, runs with a collision, steps per episode of each run not stuck."""
-    rows = run["greedy"]
-    return (sum(float(r["truncated"]) > 0 for r in rows), sum(float(r["collisions"]) > 0 for r in rows),
-            [float(r["steps"]) for r in rows if float(r["truncated"]) == 0])
+    runs = run["greedy"]
+    return (sum(g.truncated > 0 for g in runs), sum(g.collisions > 0 for g in runs),
+            [g.steps for g in runs if g.truncated == 0])
 
 
 def _measured(runs: list[dict]) -> str:

@@ -20,7 +20,7 @@ from typing import Any
 
 import rclpy
 
-from cq_ros.lab.experiment import prepare_output
+from cq_ros.lab.results import prepare_output
 from cq_ros.gridmap import load_map
 from cq_ros.learners import LEARNERS
 from node_runtime.parameters import SETTING_NAMES

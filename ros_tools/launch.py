@@ -70,7 +70,7 @@ from tqdm import tqdm
 
 from agent_node.config import agent_config
 from cq_ros.engine import make_learner
-from cq_ros.lab.experiment import prepare_output
+from cq_ros.lab.results import prepare_output
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.learners import LEARNERS
 from cq_ros.lab.output import made_by, os_reason, removed_if_failing
@@ -381,9 +381,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     been stopped."""
     gridmap = load_map(map_name)
     settings = run_settings(gridmap) if settings is None else settings
-    if algo not in LEARNERS:
-        raise ValueError(f"unknown algorithm {algo!r}; algorithms are: {', '.join(LEARNERS)}")
-    make_learner(algo, gridmap, settings, seed, 0, 0)  # e.g. jsa on 8 agents fails here, not in a child
+    make_learner(algo, gridmap, settings, seed, 0, 0)  # an unknown algorithm, or jsa on 8 agents, fails here
     executor_name = executor_kind(executor)
     start_with = [] if start_from is None else _checkpoints(Path(start_from), gridmap, algo)
     node_parameters = {"step_timeout": float(step_timeout),

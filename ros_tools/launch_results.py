@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from cq_ros import episode as record
 from cq_ros.engine import RunResult
-from cq_ros.lab.experiment import EPISODE_COLUMNS, episode_row, manifest_for, write_results
+from cq_ros.episode import Episode
 from cq_ros.gridmap import GridMap
+from cq_ros.lab.results import EPISODE_COLUMNS, EPISODES, MANIFEST, episode_row, manifest_for, write_results
 from cq_ros.lab.output import OutputError, os_reason
 from cq_ros.settings import Settings
 from msgs_spec import (
@@ -42,8 +44,8 @@ RESERVE_BYTES = 64 * 1024  # room for the manifest (a few KiB) once the disk is 
 @dataclass
 class LaunchResult:
     out: Path
-    episodes: np.ndarray  # (episodes, 6), the columns of RunResult.episodes
-    greedy: np.ndarray  # (eval_episodes, 6), the same columns, as RunResult.greedy
+    episodes: np.ndarray  # a cq_ros.episode table, as RunResult.episodes
+    greedy: np.ndarray  # the same for the greedy episodes, as RunResult.greedy
     manifest: dict
 
 
@@ -110,16 +112,17 @@ class StatsListener:
             if agent not in self.newest or stats.episode > self.newest[agent].episode:
                 self.newest[agent] = stats
 
-    def row(self, episode: int, learners: list[int]) -> tuple | None:
-        """Episode `episode`'s values, in RunResult.episodes' columns, once the world's statistics and every
-        learner's of it are in (else None): steps, collisions and truncation and the return summed over the
-        agents from WorldStats; joint plays and states summed over the learners' AgentStats."""
+    def row(self, episode: int, learners: list[int]) -> Episode | None:
+        """Episode `episode`'s record, as the engine's, once the world's statistics and every learner's of it
+        are in (else None): steps, collisions and truncation and the return summed over the agents from
+        WorldStats; joint plays and states summed over the learners' AgentStats."""
         w = self.world.get(episode)
         a = [self.agents[k].get(episode) for k in learners]
         if w is None or None in a:
             return None
-        return (w.steps, w.collisions, sum(s.joint_plays for s in a), sum(s.local_states + s.joint_states for s in a),
-                sum(w.returns), w.truncated)
+        return Episode(steps=w.steps, collisions=w.collisions, joint_plays=sum(s.joint_plays for s in a),
+                       states=sum(s.local_states + s.joint_states for s in a), ret=sum(w.returns),
+                       truncated=w.truncated)
 
     @property
     def complete(self) -> bool:
@@ -145,7 +148,7 @@ class EpisodeRows:
     the reserve and the header."""
 
     def __init__(self, out: Path, map_name: str, algo: str, learners: list[int], episodes: int):
-        self.path, self.reserve = out / "episodes.csv", out / RESERVE_NAME
+        self.path, self.reserve = out / EPISODES, out / RESERVE_NAME
         self.map_name, self.algo, self.learners, self.episodes = map_name, algo, learners, episodes
         self.written = 0  # rows on disk
         self.failure: str | None = None
@@ -165,11 +168,11 @@ class EpisodeRows:
     def take(self, listener: StatsListener) -> None:
         """Write every row heard since the last call, in order (none after a failure)."""
         while self.failure is None and self.written < self.episodes:
-            values = listener.row(self.written, self.learners)
-            if values is None:
+            heard = listener.row(self.written, self.learners)
+            if heard is None:
                 return
             try:
-                self._write(episode_row(self.map_name, self.algo, 0, self.written, values))
+                self._write(episode_row(self.map_name, self.algo, 0, self.written, record.table([heard])[0]))
             except OSError as e:
                 self.failure = f"cannot write {self.path}: {os_reason(e)}"
                 self.close()
@@ -222,7 +225,7 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
     played = range(listener.episodes)
     world = [listener.world[e] for e in played]
     per_learner = [[listener.agents[k][e] for k in learners] for e in played]
-    rows = np.array([listener.row(e, learners) for e in played], dtype=float).reshape(len(played), 6)
+    rows = record.table(listener.row(e, learners) for e in played)
     table, greedy = rows[:episodes], rows[episodes:]
     kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
              m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
@@ -248,7 +251,7 @@ def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, see
                             ended_early={"reason": reason, "episodes_written": rows.written})
     rows.free()  # room for the manifest on a full disk
     try:
-        (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        (out / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
     except OSError as e:
-        return f"manifest.json not written either: {os_reason(e)}"
-    return f"{out / 'manifest.json'} says so"
+        return f"{MANIFEST} not written either: {os_reason(e)}"
+    return f"{out / MANIFEST} says so"

@@ -12,6 +12,7 @@ import pytest
 
 from cq_ros.cli.main import main
 from cq_ros.gridmap import load_map
+from cq_ros.lab.results import EPISODE_COLUMNS
 from cq_ros.settings import Settings
 
 
@@ -114,16 +115,20 @@ def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_t
     # It ends with the greedy policy's line per algorithm, as a launch does (summary.greedy_lines).
     stdout = capsys.readouterr().out
     for algo in ("indep", "loc", "cq"):
-        runs = [r for r in csv.DictReader(open(first / "greedy.csv")) if r["algo"] == algo]
-        collisions = sum(float(r["collisions"]) for r in runs) / 2
-        steps = sum(float(r["steps"]) for r in runs) / 2
+        rows = [r for r in csv.DictReader(open(first / "greedy.csv")) if r["algo"] == algo]
+        collisions = sum(float(r["collisions"]) for r in rows) / len(rows)
+        steps = sum(float(r["steps"]) for r in rows) / len(rows)
         assert (f"greedy policy, {algo}, 2 runs x 20 episodes: {collisions:.2f} collisions/ep, {steps:.1f} steps/ep, "
-                f"{sum(int(r['truncated']) for r in runs)} truncated") in stdout
+                f"{sum(int(r['truncated']) for r in rows)} truncated") in stdout
     assert main([*args, "--out", str(second), "--jobs", "1", "--no-figures"]) == 0
     assert (first / "episodes.csv").read_bytes() == (second / "episodes.csv").read_bytes()
     assert (first / "observe.csv").read_bytes() == (second / "observe.csv").read_bytes()
+    assert (first / "greedy.csv").read_bytes() == (second / "greedy.csv").read_bytes()
+    # greedy.csv: a row per greedy episode (eval_episodes 20 per run), in episodes.csv's columns
     greedy = list(csv.DictReader(open(first / "greedy.csv")))
-    assert len(greedy) == 3 * 2 and all(int(r["episodes"]) == 20 for r in greedy)
+    assert tuple(greedy[0]) == EPISODE_COLUMNS
+    assert [(r["algo"], r["run"], int(r["episode"])) for r in greedy] == \
+        [(a, run, e) for a in ("indep", "loc", "cq") for run in ("0", "1") for e in range(20)]
 
     rows = list(csv.DictReader(open(first / "episodes.csv")))
     assert len(rows) == 3 * 2 * 60

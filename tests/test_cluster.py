@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 
 from cq_ros.cli.main import main
-from cq_ros.lab.experiment import CIRCUMSTANCES, Job, experiment, run_jobs
+from cq_ros.lab.experiment import Job, experiment, run_jobs
+from cq_ros.lab.results import CIRCUMSTANCES
 from cq_ros.lab.reproduce import reproduce
 from cq_ros.lab.runner import RunFailed
 from cq_ros.settings import Settings

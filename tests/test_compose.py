@@ -84,15 +84,15 @@ def test_composed_nodes_give_exactly_the_offline_engines_episodes(map_name, algo
     episodes, overrides = CASES[map_name]
     world_stats, agent_stats = composed_run(map_name, algo, tmp_path, ros_domain_id)
     offline = run(algo, load_map(map_name), Settings().with_overrides(overrides), SEED, 0, episodes)
-    table = np.vstack([offline.episodes, offline.greedy])
+    table = np.concatenate([offline.episodes, offline.greedy])
     assert [(s.episode, s.steps, s.collisions, s.truncated) for s in world_stats] == \
-        [(e, int(r[0]), int(r[1]), bool(r[5])) for e, r in enumerate(table)]
+        [(e, int(r["steps"]), int(r["collisions"]), bool(r["truncated"])) for e, r in enumerate(table)]
     assert all(s.missed_actions == 0 and not s.counters for s in world_stats)
     reporters = [1] if algo == "jsa" else list(agent_stats)  # the central node reports alike on every agv<k>
     assert all(len(agent_stats[k]) == len(table) for k in agent_stats)
     assert [(sum(agent_stats[k][e].joint_plays for k in reporters),
              sum(agent_stats[k][e].local_states + agent_stats[k][e].joint_states for k in reporters))
-            for e in range(len(table))] == [(int(r[2]), int(r[3])) for r in table]
+            for e in range(len(table))] == [(int(r["joint_plays"]), int(r["states"])) for r in table]
     if (map_name, algo) == ("grid_game_2", "cq"):  # its peer subscriptions come and go under this executor
         assert all(agent_stats[k][-1].subscriptions_created > 0 for k in agent_stats)
 
@@ -113,7 +113,7 @@ def test_a_composed_launch_writes_the_offline_engines_episodes_from_one_process(
                   SEED, 0, 30)
     with open(out / "episodes.csv", newline="") as f:
         rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
-    assert rows == [(int(e[0]), int(e[1]), int(e[2])) for e in offline.episodes]
+    assert rows == [(int(e["steps"]), int(e["collisions"]), int(e["joint_plays"])) for e in offline.episodes]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["composed"] is True and manifest["executor"] == "events"
     assert set(manifest["nodes"]) == {"container"} and manifest["nodes"]["container"]["exit_code"] == 0
@@ -141,7 +141,7 @@ def test_nodes_done_in_a_composed_launch_never_stall_the_agents_still_playing(tm
     offline = run("loc", gridmap, run_settings(gridmap, ["eval_episodes=0"]), SEED, 0, 1)  # the map's `set` lines
     with open(out / "episodes.csv", newline="") as f:
         assert [(int(r["steps"]), int(r["collisions"])) for r in csv.DictReader(f)] == \
-            [(int(e[0]), int(e[1])) for e in offline.episodes]
+            [(int(e["steps"]), int(e["collisions"])) for e in offline.episodes]
 
 
 def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):
@@ -199,10 +199,10 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
     offline = run("cq", gridmap, settings, SEED, 0, 12)
     with open(out / "episodes.csv", newline="") as f:
         rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
-    assert rows == [(int(e[0]), int(e[1]), int(e[2])) for e in offline.episodes]
+    assert rows == [(int(e["steps"]), int(e["collisions"]), int(e["joint_plays"])) for e in offline.episodes]
     with open(out / "greedy.csv", newline="") as f:
-        greedy = [(r["steps"], r["collisions"]) for r in csv.DictReader(f)]
-    assert greedy == [(f"{offline.greedy[:, 0].mean():g}", f"{offline.greedy[:, 1].mean():g}")]
+        greedy = [(int(r["steps"]), int(r["collisions"])) for r in csv.DictReader(f)]
+    assert greedy == [(int(e["steps"]), int(e["collisions"])) for e in offline.greedy]
     assert json.loads((out / "manifest.json").read_text())["world"]["missed_actions"] == 0
 
 
@@ -223,7 +223,7 @@ def test_a_launch_where_cq_looks_only_where_it_is_decisive_equals_the_offline_ru
     gridmap = load_map(path)
     offline = run("cq", gridmap, run_settings(gridmap, sets), SEED, 0, 60)
     looking_always = run("cq", gridmap, run_settings(gridmap, sets[:-1]), SEED, 0, 60)
-    assert offline.episodes[:, 2].sum() != looking_always.episodes[:, 2].sum()
+    assert offline.episodes["joint_plays"].sum() != looking_always.episodes["joint_plays"].sum()
     with open(out / "episodes.csv", newline="") as f:
         rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
-    assert rows == [(int(e[0]), int(e[1]), int(e[2])) for e in offline.episodes]
+    assert rows == [(int(e["steps"]), int(e["collisions"]), int(e["joint_plays"])) for e in offline.episodes]

@@ -527,16 +527,16 @@ def test_a_whole_run_without_ros_equals_the_offline_engine(algo, map_name, seed,
     bus.run()
     assert core.finished and all(d.finished for d in drivers)
     result = run(algo, gridmap, settings, seed, 0, episodes)
-    offline = np.vstack([result.episodes, result.greedy])  # the greedy episodes follow the learning ones
+    offline = np.concatenate([result.episodes, result.greedy])  # the greedy episodes follow the learning ones
     assert len(result.greedy) == settings.eval_episodes > 0
     assert [(s.steps, s.collisions, s.truncated) for s in bus.world_stats] == \
-        [(int(e[0]), int(e[1]), bool(e[5])) for e in offline]
+        [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline]
     # the agents' statistics add up to the engine's per-episode joint plays and state counts
     per_agent = [bus.agent_stats[1]] if central else [bus.agent_stats[k] for k in range(1, gridmap.n_agents + 1)]
     plays = [sum(s[e].joint_plays for s in per_agent) for e in range(played)]
     states = [sum(s[e].local_states + s[e].joint_states for s in per_agent) for e in range(played)]
-    assert plays == [int(e[2]) for e in offline]
-    assert states == [int(e[3]) for e in offline]
+    assert plays == [int(e["joint_plays"]) for e in offline]
+    assert states == [int(e["states"]) for e in offline]
     if algo == "indep":
         assert all(s[-1].subscriptions_created == 0 for s in per_agent)
     if algo == "js":

@@ -45,7 +45,8 @@ def steps_and_collisions(system):
 
 
 def offline_steps_and_collisions(algo, case, episodes):
-    return [(int(e[0]), int(e[1]), bool(e[5])) for e in offline_rows(algo, case[0], case[1], episodes, case[2])]
+    return [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"]))
+            for e in offline_rows(algo, case[0], case[1], episodes, case[2])]
 
 
 def counters(system, agent):
@@ -488,7 +489,7 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
     # both ends (the world's miss, the agent's unapplied action), and from there the run leaves the offline one.
     assert missed <= 1, manifest["world"]
     rows = read_rows(out / "episodes.csv")
-    expected = [(int(e[0]), int(e[1]), bool(e[5])) for e in offline.episodes]
+    expected = [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
     if missed == 0:
         assert rows == expected
         assert not any(k.startswith("dropped.") for k in manifest["world"]["counters"]), manifest["world"]
@@ -622,6 +623,6 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
     assert f"ended early after {len(rows)}/{episodes} episodes" in last, last
     assert 5 <= len(rows) < episodes
     offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, len(rows))
-    assert rows == [(int(e[0]), int(e[1]), bool(e[5])) for e in offline.episodes]
+    assert rows == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
     assert manifest["ended_early"]["episodes_written"] == len(rows)
     assert "No space left on device" in manifest["ended_early"]["reason"] and not leftover

@@ -14,7 +14,6 @@ import subprocess
 import sys
 import time
 import uuid
-from dataclasses import astuple
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,8 @@ import pytest
 
 from cq_ros.cli.main import main
 from cq_ros.engine import run
-from cq_ros.lab.experiment import write_results
+from cq_ros.episode import COLUMNS, DTYPE, table
+from cq_ros.lab.results import write_results
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
 from cq_ros.mapgen.warehouse import warehouse_text
@@ -43,7 +43,6 @@ CASES = {
        for a in ("cq", "js", "loc")},
     **{("grid_game_2", a): (40, ("window=10", "eval_episodes=3")) for a in ("cq", "js", "loc", "jsa")},
 }
-COLUMNS = ("steps", "collisions", "joint_plays", "states", "return", "truncated")
 
 
 def unique(prefix: str) -> str:
@@ -78,8 +77,9 @@ def launched(tmp_path_factory):
 
 
 def read_episodes(out: Path) -> np.ndarray:
+    """episodes.csv's records as a cq_ros.episode table, as RunResult.episodes holds them."""
     with open(out / "episodes.csv", newline="") as f:
-        return np.array([[float(row[c]) for c in COLUMNS] for row in csv.DictReader(f)])
+        return np.array([tuple(float(row[c]) for c in COLUMNS) for row in csv.DictReader(f)], dtype=DTYPE)
 
 
 @pytest.mark.parametrize("map_name, algo", list(CASES))
@@ -91,8 +91,8 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
 
     ros = read_episodes(out)
     assert ros.shape == offline.episodes.shape
-    for i, column in enumerate(COLUMNS):  # steps and collisions first: the transport adds and loses nothing
-        np.testing.assert_array_equal(ros[:, i], offline.episodes[:, i], err_msg=column)
+    for column in COLUMNS:  # steps and collisions first: the transport adds and loses nothing
+        np.testing.assert_array_equal(ros[column], offline.episodes[column], err_msg=column)
     with open(out / "episodes.csv", newline="") as f:  # numbered from 0, as the world's stats on the wire
         assert [int(r["episode"]) for r in csv.DictReader(f)] == list(range(episodes))
 
@@ -138,7 +138,7 @@ def test_a_launch_started_from_an_offline_runs_checkpoints_goes_on_as_that_run(t
     result = launch("tunnel_to_goal", "cq", 15, SEED, tmp_path / "ros", settings, compose=True, figures=False,
                     progress=False, start_from=tmp_path)
     team.world = GridWorld(gridmap, settings, seed=world_seed(SEED, 0))  # a fresh world, as the launch's
-    offline = np.array([astuple(team.episode()) for _ in range(15)], dtype=float)
+    offline = table(team.episode() for _ in range(15))
     np.testing.assert_array_equal(result.episodes, offline)
     assert sum(c["peer_messages"] for c in result.manifest["communication"].values()) > 0
 
@@ -181,11 +181,12 @@ def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_
     out = launched("tunnel_to_goal", "cq")
     stdout = (out.parent / "stdout.txt").read_text()
     with open(out / "greedy.csv", newline="") as f:
-        greedy = next(csv.DictReader(f))
+        greedy = list(csv.DictReader(f))
     communication = json.loads((out / "manifest.json").read_text())["communication"]
     assert "collisions/ep (last 10%)" in stdout and f"results: {out}" in stdout
-    assert re.search(rf"greedy policy, cq, 1 run x {greedy['episodes']} episodes: {float(greedy['collisions']):.2f} "
-                     rf"collisions/ep, {float(greedy['steps']):.1f} steps/ep", stdout)
+    collisions, steps = (sum(float(r[c]) for r in greedy) / len(greedy) for c in ("collisions", "steps"))
+    assert re.search(rf"greedy policy, cq, 1 run x {len(greedy)} episodes: {collisions:.2f} "
+                     rf"collisions/ep, {steps:.1f} steps/ep", stdout)
     for node, cost in communication.items():
         assert (f"{node}: {cost['peer_messages']} peer position messages, "
                 f"{cost['subscriptions_created']} subscriptions created") in stdout
@@ -288,7 +289,7 @@ def test_a_second_launch_in_a_running_systems_namespace_refuses_and_counts_none_
         assert len(second.stderr.strip().splitlines()) == 2, second.stderr  # the start-up line, then why it ended
         if not other.exists():  # refused before a row of its own: nothing kept, and the line says so
             assert int(said[2]) == 0 and last.endswith(f"{other} removed"), last
-        own = read_episodes(other) if other.exists() else np.zeros((0, 6))
+        own = read_episodes(other) if other.exists() else np.zeros(0, DTYPE)
         assert len(own) == int(said[2])
         if len(own):
             np.testing.assert_array_equal(own, run("cq", load_map("tunnel_to_goal"), Settings(), SEED + 1, 0,
@@ -341,7 +342,7 @@ def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_inc
     sets, episodes = ("step_cap=100", "window=2", "eval_episodes=1"), 8
     settings = run_settings(load_map(path), list(sets))
     offline = run("cq", load_map(path), settings, SEED, 0, episodes)
-    assert offline.episodes[:, 2].sum() > 0  # the premise: some agent acted on a joint state
+    assert offline.episodes["joint_plays"].sum() > 0  # the premise: some agent acted on a joint state
     out, namespace = tmp_path / "result", unique("warehouse_cq")
     done = subprocess.run(launch_command(out, namespace, str(path), "cq", episodes, sets),
                           capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)

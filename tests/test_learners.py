@@ -17,6 +17,7 @@ import scipy.stats
 
 from cq_ros import engine
 from cq_ros.engine import Team, make_learner, make_learners
+from cq_ros.episode import COLUMNS
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners import ALGORITHMS, LEARNERS, decode_joint_action
 from cq_ros.learners.base import N_MOVES
@@ -401,7 +402,7 @@ def test_cq_look_if_decisive_run_is_reproducible():
     assert first.joint_states == again.joint_states
     # the setting acts once epsilon is 0 (episode 100 on): fewer plays on joint states than the default's
     assert np.array_equal(first.episodes[:100], off.episodes[:100])
-    assert first.episodes[100:, 2].sum() < off.episodes[100:, 2].sum()
+    assert first.episodes["joint_plays"][100:].sum() < off.episodes["joint_plays"][100:].sum()
 
 
 def test_cq_mark_range_marks_only_the_peers_near_the_conflict():
@@ -427,10 +428,10 @@ def test_cq_greedy_deadlock_on_the_tunnel_is_the_papers_bootstrap(bootstrap_acte
     gm = load_map("tunnel_to_goal")
     settings = Settings(eval_episodes=2, step_cap=300, cq_bootstrap_acted=bootstrap_acted)
     result = engine.run("cq", gm, settings, seed=0, run_index=6, episodes=10_000)
-    stuck = result.greedy[:, 5].any()
+    stuck = result.greedy["truncated"].any()
     assert stuck == (bootstrap_acted == 0)
     if not stuck:
-        assert not result.greedy[:, 1].any() and result.greedy[:, 0].max() <= 20
+        assert not result.greedy["collisions"].any() and result.greedy["steps"].max() <= 20
 
 
 def test_cq_local_update_is_equation_3():
@@ -617,7 +618,7 @@ def test_cq_learns_to_reach_both_goals_without_collision(seed):
     """End to end: after 1000 episodes on tunnel_to_goal, CQ's greedy policy brings both agents to their
     goal every time, with no collision and no episode running to the step cap."""
     result = engine.run("cq", load_map("tunnel_to_goal"), Settings(), seed, 0, 1000)
-    steps, collisions, truncated = result.greedy[:, 0], result.greedy[:, 1], result.greedy[:, 5]
+    steps, collisions, truncated = (result.greedy[c] for c in ("steps", "collisions", "truncated"))
     assert collisions.sum() == 0 and truncated.sum() == 0
     assert steps.max() <= 20  # the shortest is 12 steps for the second agent through the tunnel
 
@@ -931,7 +932,7 @@ def test_engine_run_is_reproducible(algo):
     first = engine.run(algo, gm, SMALL, seed=3, run_index=0, episodes=20)
     again = engine.run(algo, gm, SMALL, seed=3, run_index=0, episodes=20)
     other = engine.run(algo, gm, SMALL, seed=4, run_index=0, episodes=20)
-    assert first.episodes.shape == (20, 6)
+    assert first.episodes.shape == (20,) and first.episodes.dtype.names == COLUMNS
     assert np.array_equal(first.episodes, again.episodes)
     assert first.joint_states == again.joint_states
     assert not np.array_equal(first.episodes, other.episodes)
@@ -942,9 +943,9 @@ def test_engine_run_copies_the_team_only_to_play_greedy_episodes(monkeypatch):
     real = engine.greedy_team
     monkeypatch.setattr(engine, "greedy_team", lambda team: copies.append(team) or real(team))
     gm = load_map("grid_game_2")
-    assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 0}), 3, 0, 5).greedy.shape == (0, 6)
+    assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 0}), 3, 0, 5).greedy.shape == (0,)
     assert copies == []
-    assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 2}), 3, 0, 5).greedy.shape == (2, 6)
+    assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 2}), 3, 0, 5).greedy.shape == (2,)
     assert len(copies) == 1
 
 

@@ -123,7 +123,7 @@ def offline(algo, map_name, seed, episodes, settings=()):
 def offline_rows(algo, map_name, seed, episodes, settings=()):
     """The engine's rows of every episode a ROS run plays: the learning ones, then the greedy ones."""
     result = offline(algo, map_name, seed, episodes, settings)
-    return np.vstack([result.episodes, result.greedy])
+    return np.concatenate([result.episodes, result.greedy])
 
 
 # Small enough for a test, long enough for collisions, truncations and (cq, loc) peer subscriptions; a few
@@ -162,7 +162,7 @@ def test_a_ros_run_equals_the_offline_engine(case, ros_domain_id, spin_until):
     system = case_run(case, ros_domain_id, spin_until)
     table = offline_rows(algo, map_name, seed, episodes, settings)  # greedy episodes included
     assert [(s.steps, s.collisions, s.truncated) for s in system.world_stats] == \
-        [(int(e[0]), int(e[1]), bool(e[5])) for e in table]
+        [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in table]
     assert all(s.missed_actions == 0 and not s.counters for s in system.world_stats)
     # every agent reported every episode; together, the engine's joint plays and states
     stats = system.agent_stats
@@ -170,7 +170,7 @@ def test_a_ros_run_equals_the_offline_engine(case, ros_domain_id, spin_until):
     reporters = [1] if algo == "jsa" else list(stats)  # the central node reports the same on every agvK
     heard = [[stats[k][e] for k in reporters] for e in range(len(table))]
     assert [(sum(s.joint_plays for s in a), sum(s.local_states + s.joint_states for s in a)) for a in heard] == \
-        [(int(e[2]), int(e[3])) for e in table]
+        [(int(e["joint_plays"]), int(e["states"])) for e in table]
 
 
 def test_cq_listens_to_its_peer_far_less_than_js(ros_domain_id, spin_until):
@@ -252,7 +252,7 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
     injector.create_timer(0.005, inject)
     finish(system, spin_until)
     table = offline_rows(algo, map_name, seed, episodes, settings)
-    assert [(s.steps, s.collisions) for s in system.world_stats] == [(int(e[0]), int(e[1])) for e in table]
+    assert [(s.steps, s.collisions) for s in system.world_stats] == [(int(e["steps"]), int(e["collisions"])) for e in table]
     assert all(s.missed_actions == 0 for s in system.world_stats)
     world_counts = system.world_stats[-1].counters
     assert {f"dropped.{k}" for k in bad_actions} <= world_counts.keys(), world_counts
@@ -301,7 +301,7 @@ def test_a_peer_position_the_executor_never_announces_is_taken_from_its_reader(s
     finish(system, spin_until)
     table = offline_rows(algo, map_name, seed, episodes, settings)
     assert [(s.steps, s.collisions, s.truncated) for s in system.world_stats] == \
-        [(int(e[0]), int(e[1]), bool(e[5])) for e in table]
+        [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in table]
     assert all(s.missed_actions == 0 for s in system.world_stats)
     for k in (1, 2):  # every position it heard was taken unannounced, and counted
         last = system.agent_stats[k][-1]

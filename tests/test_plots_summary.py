@@ -16,14 +16,11 @@ import pytest
 from matplotlib.image import imread
 
 from cq_ros.lab import plots
+from cq_ros.episode import COLUMNS
+from cq_ros.lab.results import EPISODE_COLUMNS, OBSERVE_COLUMNS, Observation, load_episodes, load_observations
 from cq_ros.lab.summary import (
-    EPISODES_HEADER,
-    OBSERVE_HEADER,
-    Observation,
     compute_metrics,
     format_console_table,
-    load_episodes,
-    load_observations,
     moving_average,
     observation_strength,
     settled_episode,
@@ -90,11 +87,11 @@ def write_episodes(path: Path, tables: dict[tuple[str, str], dict[str, np.ndarra
     for (map_name, algo), columns in tables.items():
         for run in range(RUNS):
             for episode in range(EPISODES):
-                values = [columns[name][run, episode] for name in EPISODES_HEADER.split(",")[4:]]
+                values = [columns[name][run, episode] for name in COLUMNS]
                 rows.append([map_name, algo, run, episode, *(f"{v:g}" for v in values)])
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(EPISODES_HEADER.split(","))
+        writer.writerow(EPISODE_COLUMNS)
         writer.writerows(rows[::-1] if reverse else rows)
 
 
@@ -103,7 +100,7 @@ def write_result(directory: Path, maps: tuple[str, ...] = ("fake",), algos=("ind
     write_episodes(directory / "episodes.csv", {(m, a): hand_made(a) for m in maps for a in algos})
     with open(directory / "observe.csv", "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(OBSERVE_HEADER.split(","))
+        writer.writerow(OBSERVE_COLUMNS)
         for m in maps:
             writer.writerows([[m, "cq", 0, 1, 1, 1, 2, 1, 2, 2.5], [m, "cq", 1, 2, 1, 1, 1, 1, 0, 0.5],
                               [m, "cq", 1, 2, 2, 2, 1, 2, 1, 1.0]])
@@ -136,7 +133,7 @@ def test_load_episodes_gives_runs_by_episodes_whatever_the_row_order(tmp_path):
 def test_load_episodes_reads_counts_written_as_floats(tmp_path):
     path = tmp_path / "episodes.csv"
     rows = ["m,cq,0.0,0.0,12.0,1.0,0.0,9.0,-3.5,0.0", "m,cq,0.0,1.0,8.0,0.0,1.0,10.0,2.0,0.0"]
-    path.write_text("\n".join([EPISODES_HEADER, *rows]) + "\n")
+    path.write_text("\n".join([",".join(EPISODE_COLUMNS), *rows]) + "\n")
     data = load_episodes(path)
     np.testing.assert_array_equal(data[("m", "cq")]["steps"], [[12, 8]])
     np.testing.assert_array_equal(data[("m", "cq")]["return"], [[-3.5, 2.0]])
@@ -153,7 +150,7 @@ def test_load_episodes_reads_counts_written_as_floats(tmp_path):
 )
 def test_load_episodes_rejects_incomplete_groups(tmp_path, body, message):
     path = tmp_path / "episodes.csv"
-    path.write_text(EPISODES_HEADER + "\n" + body)
+    path.write_text(",".join(EPISODE_COLUMNS) + "\n" + body)
     with pytest.raises(ValueError, match=message):
         load_episodes(path)
 

@@ -6,7 +6,7 @@ import csv
 
 import numpy as np
 
-from cq_ros.lab.experiment import OBSERVE_COLUMNS
+from cq_ros.lab.results import OBSERVE_COLUMNS
 from cq_ros.learners import ALGORITHMS
 from cq_ros.lab.reproduce import (
     PAPER_MAPS,

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from cq_ros.lab.experiment import manifest_for
+from cq_ros.lab.results import manifest_for
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.settings import Settings, SettingsError, run_settings
 

@@ -161,7 +161,7 @@ def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
     done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--episode", "4", "--out", str(gif)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    steps = run("cq", load_map("tunnel_to_goal"), Settings().with_overrides({"step_cap": 60}), 3, 0, 20).episodes[4, 0]
+    steps = run("cq", load_map("tunnel_to_goal"), Settings().with_overrides({"step_cap": 60}), 3, 0, 20).episodes["steps"][4]
     with Image.open(gif) as image:
         assert image.n_frames == int(steps) + 1 and min(image.size) >= 150
     bad = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--episode", "20", "--out",
@@ -180,7 +180,7 @@ def test_render_draws_the_greedy_episode_after_learning_at_the_dpi_asked(tmp_pat
     assert done.returncode == 0, done.stderr
     assert "episode 20," in done.stdout  # numbered after the 20 learning episodes, as a ROS run numbers it
     settings = Settings().with_overrides({"step_cap": 60, "eval_episodes": 1})
-    steps = run("cq", gridmap, settings, 3, 0, 20).greedy[0, 0]  # the run's first greedy episode
+    steps = run("cq", gridmap, settings, 3, 0, 20).greedy["steps"][0]  # the run's first greedy episode
     with Image.open(gif) as image:
         assert image.n_frames == int(steps) + 1
         assert image.size == (round(max(3.0, gridmap.width * CELL_INCHES) * 40),

@@ -14,7 +14,7 @@ def test_cq_greedy_policy_brings_every_agv_of_a_small_warehouse_home(seed):
     gridmap = warehouse_map(4, aisle_length=4, seed=seed)
     settings = run_settings(gridmap, {"eval_episodes": 3, "step_cap": 1000})
     result = engine.run("cq", gridmap, settings, seed=seed, run_index=0, episodes=600)
-    steps, collisions, truncated = result.greedy[:, 0], result.greedy[:, 1], result.greedy[:, 5]
+    steps, collisions, truncated = (result.greedy[c] for c in ("steps", "collisions", "truncated"))
     assert not truncated.any(), f"greedy policy stuck at the step cap (seed {seed})"
     assert not collisions.any()
     # home by a route, not by a walk: within twice the longest shortest path of any AGV
@@ -32,5 +32,5 @@ def test_on_a_small_delayed_warehouse_cq_collides_less_than_independent_learners
         settings = run_settings(gridmap, {"eval_episodes": 20, "step_cap": 1000, "epsilon_decay_episodes": 750})
         for algo in collisions:
             result = engine.run(algo, gridmap, settings, seed=seed, run_index=0, episodes=1000)
-            collisions[algo] += result.greedy[:, 1].sum()
+            collisions[algo] += result.greedy["collisions"].sum()
     assert collisions["cq"] < collisions["indep"], collisions

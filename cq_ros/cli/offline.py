@@ -71,10 +71,11 @@ def reproduce(args) -> int:
 def print_summary(out: Path) -> None:
     """The table of a result directory's episodes and the greedy policy's line per algorithm (experiment and
     launch alike)."""
-    from ..lab.summary import format_console_table, greedy_lines, load_episodes
+    from ..lab.results import EPISODES, GREEDY, load_episodes
+    from ..lab.summary import format_console_table, greedy_lines
 
-    print(format_console_table(load_episodes(out / "episodes.csv")))
-    for line in greedy_lines(out / "greedy.csv"):
+    print(format_console_table(load_episodes(out / EPISODES)))
+    for line in greedy_lines(out / GREEDY):
         print(line)
 
 

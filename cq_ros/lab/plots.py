@@ -12,7 +12,6 @@ Agg whatever backend the caller has chosen, and leaves no global figure state be
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -27,24 +26,17 @@ from matplotlib.patheffects import withStroke
 from matplotlib.ticker import LogLocator, NullFormatter, StrMethodFormatter
 
 from ..gridmap import GridMap, load_map
-from .summary import (
-    Episodes,
-    Observation,
-    Runs,
-    by_map,
-    load_episodes,
-    load_observations,
-    moving_average,
-    observation_strength,
-)
+from ..learners import REGISTRY
+from .results import EPISODES, OBSERVE, Episodes, Observation, Runs, load_episodes, load_manifest, load_observations
+from .summary import by_map, moving_average, observation_strength
 
 DPI = 150
 JOINT_PLAY_ALGOS = ("loc", "cq", "fcq")  # the learners that decide where to use global information
 STATE_SPACE_ALGOS = ("cq", "fcq")  # the learners whose state space grows and shrinks
 
-_LABELS = {"indep": "Indep", "js": "JS", "jsa": "JSA", "loc": "LoC", "cq": "CQ", "fcq": "FCQ (experimental)"}
-_COLOURS = {"indep": "tab:gray", "js": "tab:orange", "jsa": "tab:purple", "loc": "tab:green", "cq": "tab:blue"}
-_SPARE_COLOURS = ("tab:red", "tab:brown", "tab:olive", "tab:pink", "tab:cyan")
+_LABELS = {a.name: a.label for a in REGISTRY}
+_COLOURS = {a.name: a.colour for a in REGISTRY}
+_SPARE_COLOURS = ("#bcbd22", "#e377c2", "#17becf")  # for an algorithm the registry does not know (an old result's)
 _WALL_COLOUR = "0.1"
 _OUTSIDE_COLOUR = "0.35"  # '#' cells, not part of the world
 _SIZE = (7.0, 4.2)  # inches; 1050 x 630 pixels at DPI
@@ -368,10 +360,9 @@ def write_figures(
     default the manifest's map is read from the file it was read from (``map_source``), any other by name.
     """
     result_dir = Path(result_dir)
-    data = load_episodes(result_dir / "episodes.csv")
-    manifest_path = result_dir / "manifest.json"
-    manifest = json.loads(manifest_path.read_text(encoding="utf-8")) if manifest_path.exists() else {}
-    observe_path = result_dir / "observe.csv"
+    data = load_episodes(result_dir / EPISODES)
+    manifest = load_manifest(result_dir)
+    observe_path = result_dir / OBSERVE
     observations = load_observations(observe_path) if observe_path.exists() else None
     map_loader = map_loader or _manifest_map_loader(manifest)
     maps = by_map(data)

@@ -12,17 +12,19 @@ seed by thousands of episodes, so the report quotes it only as a range over at l
 
 from __future__ import annotations
 
-import csv
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
-from .experiment import Job, manifest_for, prepare_output, run_jobs, versions, write_results
+from .experiment import Job, run_jobs
 from ..gridmap import load_map
 from ..learners import ALGORITHMS
 from ..settings import Settings
-from .summary import Metrics, compute_metrics, load_episodes, load_observations, settled_episode, summary_table
+from .results import (EPISODES, GREEDY, OBSERVE, GreedyRun, load_episodes, load_greedy, load_observations,
+                      manifest_for, prepare_output, versions, write_results)
+from .summary import Metrics, compute_metrics, settled_episode, summary_table
 
 PAPER_MAPS = ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr")
 SWEEP_MAP = "tunnel_to_goal_3"
@@ -132,7 +134,7 @@ def exploration(settings: Settings) -> str:
 def _grid_data(where: Path):
     data = {}
     for m in PAPER_MAPS:
-        data.update(load_episodes(where / m / "episodes.csv"))
+        data.update(load_episodes(where / m / EPISODES))
     return data
 
 
@@ -279,7 +281,7 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
                      + "; ".join(f"{m} {over_seeds([s[(m, 'cq')] for s in per_seed], seeds)}" for m in PAPER_MAPS) + "."))
     greedy = {m: _greedy(out / m) for m in PAPER_MAPS}
     if all("cq" in g for g in greedy.values()):
-        ok = all(g["cq"][0] == 0 and g["cq"][2] == 0 for g in greedy.values())
+        ok = all(g["cq"].collisions == 0 and g["cq"].stuck == 0 for g in greedy.values())
         lines.append(f"   - The policy CQ has learnt, played greedily (epsilon 0) at the end, collision-free and reaching "
                      f"the goals: {_verdict(ok)}. Collisions/episode (steps/episode, runs stuck until the step cap), "
                      "mean over runs: " + "; ".join(f"{m} {_g(g['cq'])}" for m, g in greedy.items())
@@ -352,11 +354,11 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
         lines.append(_regime_finding(name, per_seed, seeds))
     greedy = {m: _greedy_runs(out / m) for m in PAPER_MAPS}
     if all("cq" in g for g in greedy.values()):
-        stuck = {m: sum(r[2] for r in g["cq"]) for m, g in greedy.items()}
-        ending = {m: {a: [r[1] for r in runs if not r[2]] for a, runs in g.items()} for m, g in greedy.items()}
+        stuck = {m: sum(r.truncated > 0 for r in g["cq"]) for m, g in greedy.items()}
+        ending = {m: {a: [r.steps for r in runs if not r.truncated] for a, runs in g.items()} for m, g in greedy.items()}
         shortest = {m: min(((sum(v) / len(v), a) for a, v in e.items() if a != "cq" and v), default=None)
                     for m, e in ending.items()}
-        worst = {m: max(r[0] for r in g["cq"]) for m, g in greedy.items()}
+        worst = {m: max(r.collisions for r in g["cq"]) for m, g in greedy.items()}
         lines.append(
             "- **CQ's learnt policy, played greedily** (epsilon 0) at the end, "
             + ("never collides, in any run on any of the four maps" if not any(worst.values()) else
@@ -373,7 +375,7 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
     lines.append(f"- **On isr CQ plays joint** {isr.joint_plays_tail:.1f} times per episode in the last 10% "
                  f"(claim 7): in our reconstruction of the map, the agents swap places through a one-lane corridor.")
     if variants:
-        sweep = {v.name: compute_metrics(load_episodes(out / "sweep" / v.name / "episodes.csv"))[0] for v in variants}
+        sweep = {v.name: compute_metrics(load_episodes(out / "sweep" / v.name / EPISODES))[0] for v in variants}
         (lo, low), (hi, high) = (f(((m.collisions_tail, n) for n, m in sweep.items())) for f in (min, max))
         lines.append(f"- **The settings sweep** (CQ on {SWEEP_MAP}, fixed epsilon, each setting the paper leaves "
                      f"open moved on its own, {_seed_list(seeds[:1])}): CQ collides from {lo:.3f} ({low}) to {hi:.3f} "
@@ -418,32 +420,35 @@ def _same_when_scaled(out: Path, variants: list[Variant]) -> str:
     names = {v.name for v in variants}
     if not {"defaults", "rewards_x0.1"} <= names:
         return "rewards were not scaled"
-    a, b = (load_episodes(out / "sweep" / n / "episodes.csv") for n in ("defaults", "rewards_x0.1"))
+    a, b = (load_episodes(out / "sweep" / n / EPISODES) for n in ("defaults", "rewards_x0.1"))
     same = all((a[k][c] == b[k][c]).all() for k in a for c in ("steps", "collisions", "joint_plays", "states"))
     return ("scaling every reward by 0.1 gives " + ("the very same episodes" if same else "other episodes")
             + " (the t-tests and greedy choices are scale-invariant)" * same)
 
 
-def _greedy_runs(result_dir: Path) -> dict[str, list[tuple[float, float, bool]]]:
-    """{algo: per run (collisions and steps per episode, stuck: an episode ran to the step cap)} of the final
-    greedy policies, from greedy.csv."""
-    per_algo: dict[str, list[tuple[float, float, bool]]] = {}
-    with open(result_dir / "greedy.csv", newline="") as f:
-        for row in csv.DictReader(f):
-            if row["collisions"]:
-                per_algo.setdefault(row["algo"], []).append(
-                    (float(row["collisions"]), float(row["steps"]), int(row["truncated"]) > 0))
+def _greedy_runs(result_dir: Path) -> dict[str, list[GreedyRun]]:
+    """{algo: its runs' greedy policies at the end}, from greedy.csv."""
+    per_algo: dict[str, list[GreedyRun]] = {}
+    for g in load_greedy(result_dir / GREEDY):
+        per_algo.setdefault(g.algo, []).append(g)
     return per_algo
 
 
-def _greedy(result_dir: Path) -> dict[str, tuple[float, float, int]]:
-    """{algo: (collisions and steps per episode, mean over runs; runs stuck)} of the final greedy policies."""
-    return {a: (sum(v[0] for v in runs) / len(runs), sum(v[1] for v in runs) / len(runs), sum(v[2] for v in runs))
+class _GreedyMean(NamedTuple):
+    collisions: float  # per episode, mean over runs
+    steps: float  # per episode, mean over runs
+    stuck: int  # runs with an episode ended by the step cap
+
+
+def _greedy(result_dir: Path) -> dict[str, _GreedyMean]:
+    """{algo: its final greedy policies, over runs}."""
+    return {a: _GreedyMean(sum(g.collisions for g in runs) / len(runs), sum(g.steps for g in runs) / len(runs),
+                           sum(g.truncated > 0 for g in runs))
             for a, runs in _greedy_runs(result_dir).items()}
 
 
-def _g(v: tuple[float, float, int]) -> str:
-    return f"{v[0]:.3f} ({v[1]:.1f}{f', {v[2]} stuck' if v[2] else ''})"
+def _g(v: _GreedyMean) -> str:
+    return f"{v.collisions:.3f} ({v.steps:.1f}{f', {v.stuck} stuck' if v.stuck else ''})"
 
 
 def _at_2000(data) -> dict[str, tuple[float, float]] | None:
@@ -482,7 +487,7 @@ def entrance_share(out: Path) -> tuple[float, list[tuple[tuple[int, int], float]
     """The share of the confidence of CQ's joint states kept on TunnelToGoal_3 that lies within 2 cells of the
     tunnel entrance, and the five cells with most."""
     gridmap = load_map("tunnel_to_goal_3")
-    kept = [o for o in load_observations(out / "tunnel_to_goal_3" / "observe.csv") if o.algo == "cq"]
+    kept = [o for o in load_observations(out / "tunnel_to_goal_3" / OBSERVE) if o.algo == "cq"]
     weight: dict[tuple[int, int], float] = {}
     for o in kept:
         weight[(o.row, o.col)] = weight.get((o.row, o.col), 0.0) + o.confidence
@@ -509,7 +514,7 @@ def _sweep_section(out: Path, variants: list[Variant]) -> list[str]:
              "| variant | change | collisions/ep (last 10%) | final states | joint plays/ep (last 10%) |",
              "|---|---|---:|---:|---:|"]
     for v in variants:
-        (m,) = compute_metrics(load_episodes(out / "sweep" / v.name / "episodes.csv"))
+        (m,) = compute_metrics(load_episodes(out / "sweep" / v.name / EPISODES))
         lines.append(f"| {v.name} | {v.why} | {m.collisions_tail:.3f} ± {m.collisions_tail_std:.3f} | "
                      f"{m.final_states:.1f} | {m.joint_plays_tail:.2f} |")
     return lines

@@ -1,8 +1,7 @@
-"""Read an experiment's result files and boil them down to the numbers the paper argues with.
+"""Boil an experiment's results down to the numbers the paper argues with.
 
-The engine writes one row per (map, algorithm, run, episode) to ``episodes.csv`` and, at the end of each
-run, every joint state a CQ agent keeps to ``observe.csv``. This module turns those into arrays shaped
-(runs, episodes) per (map, algorithm), computes the headline metrics (collisions once learning has
+cq_ros.lab.results reads ``episodes.csv`` as arrays shaped (runs, episodes) per (map, algorithm) and
+``observe.csv`` as the joint states kept; this module computes the headline metrics (collisions once learning has
 settled, when collisions stop for good, the size of the state space, how often global information is
 used) and prints them as a Markdown or a terminal table. ``plots.py`` draws the paper's figures from the
 same arrays.
@@ -10,29 +9,15 @@ same arrays.
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
-EPISODES_HEADER = "map,algo,run,episode,steps,collisions,joint_plays,states,return,truncated"
-OBSERVE_HEADER = "map,algo,run,agent,row,col,peer,peer_row,peer_col,confidence"
-COLUMNS = ("steps", "collisions", "joint_plays", "states", "return", "truncated")
-
-# The paper's order (baselines first, CQ last); algorithms it does not know follow alphabetically.
-ALGO_ORDER = ("indep", "js", "jsa", "loc", "cq", "fcq")
-
-Runs = dict[str, np.ndarray]  # column name -> array shaped (runs, episodes)
-Episodes = dict[tuple[str, str], Runs]  # (map, algo) -> its columns
-
-_NUMERIC = ("run", "episode", *COLUMNS)
-# Counts parse three times faster as integers than as floats, which matters at 2M rows.
-_FAST_DTYPE = np.dtype([(name, "f8" if name == "return" else "i8") for name in _NUMERIC])
-_ANY_DTYPE = np.dtype([(name, "f8") for name in _NUMERIC])
+from ..learners import algo_sort_key
+from .results import Episodes, Observation, Runs, load_greedy
 
 
 def greedy_lines(path: str | os.PathLike) -> list[str]:
@@ -40,137 +25,24 @@ def greedy_lines(path: str | os.PathLike) -> list[str]:
     greedy policy's collisions and steps per episode over every run's greedy episodes, and how many were
     truncated. An algorithm without greedy episodes (eval_episodes 0) has no line."""
     totals: dict[str, list[float]] = {}  # algo -> [runs, episodes, collisions, steps, truncated]
-    with open(path, newline="") as f:
-        for row in csv.DictReader(f):
-            n = int(row["episodes"])
-            if n == 0:
-                continue
-            t = totals.setdefault(row["algo"], [0, 0, 0.0, 0.0, 0])
-            t[0] += 1
-            t[1] += n
-            t[2] += float(row["collisions"]) * n
-            t[3] += float(row["steps"]) * n
-            t[4] += int(row["truncated"])
+    for g in load_greedy(path):
+        t = totals.setdefault(g.algo, [0, 0, 0.0, 0.0, 0])
+        t[0] += 1
+        t[1] += g.episodes
+        t[2] += g.collisions * g.episodes
+        t[3] += g.steps * g.episodes
+        t[4] += g.truncated
     return [f"greedy policy, {algo}, {runs} run{'s' if runs > 1 else ''} x {episodes // runs} episodes: "
             f"{collisions / episodes:.2f} collisions/ep, {steps / episodes:.1f} steps/ep, {truncated} truncated"
-            for algo, (runs, episodes, collisions, steps, truncated) in sorted(totals.items(),
-                                                                               key=lambda kv: algo_sort_key(kv[0]))]
-
-
-def algo_sort_key(algo: str) -> tuple[int, str]:
-    return (ALGO_ORDER.index(algo) if algo in ALGO_ORDER else len(ALGO_ORDER), algo)
-
-
-# --- loading -------------------------------------------------------------------------------------------
-
-
-def load_episodes(path: str | os.PathLike) -> Episodes:
-    """``episodes.csv`` as {(map, algo): {column: float array shaped (runs, episodes)}}.
-
-    Row order in the file does not matter. Every (map, algo) must hold each of its runs for each episode
-    1..E exactly once; anything else is a ValueError naming the group, so a half-written file is noticed
-    rather than averaged.
-    """
-    _check_header(path, EPISODES_HEADER)
-    keys, codes = _group_codes(path)
-    if codes.size == 0:
-        return {}
-    values = _numeric_columns(path)
-    if values.size != codes.size:
-        raise ValueError(f"{path}: {codes.size} data lines but {values.size} parsed rows")
-    order = np.argsort(codes, kind="stable")
-    bounds = np.cumsum(np.bincount(codes, minlength=len(keys)))
-    groups = np.split(order, bounds[:-1])
-    return {key: _rectangle(values[rows], key, path) for key, rows in sorted(zip(keys, groups), key=lambda kv: kv[0])}
+            for algo, (runs, episodes, collisions, steps, truncated) in totals.items()]
 
 
 def by_map(data: Episodes) -> dict[str, dict[str, Runs]]:
-    """``data`` regrouped as {map: {algo: runs}}, algorithms in the paper's order."""
+    """``data`` regrouped as {map: {algo: runs}}, algorithms in the registry's order (cq_ros.learners)."""
     grouped: dict[str, dict[str, Runs]] = {}
     for (name, algo) in sorted(data, key=lambda key: (key[0], algo_sort_key(key[1]))):
         grouped.setdefault(name, {})[algo] = data[(name, algo)]
     return grouped
-
-
-def _check_header(path: str | os.PathLike, expected: str) -> None:
-    with open(path, encoding="utf-8") as f:
-        header = f.readline().strip()
-    if header != expected:
-        raise ValueError(f"{path}: header must be {expected!r}, got {header!r}")
-
-
-def _group_codes(path: str | os.PathLike) -> tuple[list[tuple[str, str]], np.ndarray]:
-    """The distinct (map, algo) pairs and, per data line, the index of its pair.
-
-    A dict lookup on the text before the eight numeric fields is the cheapest way to turn the two string
-    columns into integers (numpy's string parsing is about twice as slow).
-    """
-    codes_of: dict[str, int] = {}
-    with open(path, encoding="utf-8") as f:
-        next(f)
-        codes = np.fromiter(
-            (codes_of.setdefault(line.rsplit(",", 8)[0], len(codes_of)) for line in f if not line.isspace()),
-            dtype=np.int64,
-        )
-    keys = [tuple(prefix.split(",")) for prefix in codes_of]
-    return keys, codes
-
-
-def _numeric_columns(path: str | os.PathLike) -> np.ndarray:
-    try:
-        return np.loadtxt(path, delimiter=",", skiprows=1, usecols=range(2, 10), dtype=_FAST_DTYPE, ndmin=1)
-    except ValueError:
-        # A writer that formats counts as floats ("12.0") is still within the contract, only slower to read.
-        return np.loadtxt(path, delimiter=",", skiprows=1, usecols=range(2, 10), dtype=_ANY_DTYPE, ndmin=1)
-
-
-def _rectangle(rows: np.ndarray, key: tuple[str, str], path: str | os.PathLike) -> Runs:
-    runs, run_index = np.unique(rows["run"], return_inverse=True)
-    episodes = int(rows["episode"].max()) + 1
-    cell = run_index * episodes + rows["episode"].astype(np.int64)
-    if rows["episode"].min() < 0 or rows.size != runs.size * episodes or np.bincount(cell).max() > 1:
-        raise ValueError(
-            f"{path}: {key[0]}/{key[1]} must have episodes 0..{episodes - 1} once for each of its {runs.size} runs "
-            f"({runs.size * episodes} rows), found {rows.size} rows"
-        )
-    columns = {}
-    for name in COLUMNS:
-        table = np.empty(runs.size * episodes)
-        table[cell] = rows[name]
-        columns[name] = table.reshape(runs.size, episodes)
-    return columns
-
-
-class Observation(NamedTuple):
-    """One joint state an agent keeps at the end of a run: its own cell, a peer's cell, a confidence."""
-
-    map: str
-    algo: str
-    run: int
-    agent: int
-    row: int
-    col: int
-    peer: int
-    peer_row: int
-    peer_col: int
-    confidence: float
-
-
-def load_observations(path: str | os.PathLike) -> list[Observation]:
-    """``observe.csv`` as a list of Observation (a small file: only the joint states kept at the end)."""
-    _check_header(path, OBSERVE_HEADER)
-    with open(path, encoding="utf-8", newline="") as f:
-        reader = csv.reader(f)
-        next(reader)
-        return [_observation(fields, path, reader.line_num) for fields in reader if fields]
-
-
-def _observation(fields: list[str], path: str | os.PathLike, line: int) -> Observation:
-    try:
-        m, algo, *ints, confidence = fields
-        return Observation(m, algo, *(int(v) for v in ints), float(confidence))
-    except ValueError as exc:
-        raise ValueError(f"{path}:{line}: malformed row {fields!r} ({exc})") from None
 
 
 def observation_strength(observations: Iterable[Observation]) -> dict[int, dict[tuple[int, int], float]]:
