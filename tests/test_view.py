@@ -190,9 +190,9 @@ def test_a_client_offering_only_foxglove_websocket_v1_is_refused(ros_context):
     node = rclpy.create_node("viewer", context=ros_context)
     server, _relay = serve(node, f"/subproto_{uuid.uuid4().hex[:6]}", port=0)
     try:
-        with pytest.raises(InvalidStatus) as refused:
-            with connect(f"ws://127.0.0.1:{server.port}", subprotocols=list(REFUSED_OFFER), open_timeout=RECV_S):
-                pass
+        with pytest.raises(InvalidStatus) as refused, connect(f"ws://127.0.0.1:{server.port}",
+                                                              subprotocols=list(REFUSED_OFFER), open_timeout=RECV_S):
+            pass
         assert refused.value.response.status_code == 400
         for offer, picked in ACCEPTED_OFFERS.items():
             with connect(f"ws://127.0.0.1:{server.port}", subprotocols=list(offer), open_timeout=RECV_S) as ws:
