@@ -125,6 +125,8 @@ def serve(node: Any, ns: str, host: str = "127.0.0.1", port: int = 8765, n_agent
         def on_subscribe(self, client: Any, channel: Any) -> None:
             relay.on_subscribe(client, channel)
 
+    # The SDK's server negotiates only its own subprotocols (foxglove.sdk.v1, foxglove.sdk.v1.1) and has no option
+    # for the older foxglove.websocket.v1: a client offering only that gets HTTP 400 (docs/ros.md, which clients).
     try:
         server = foxglove.start_server(name=f"cq_ros {ns}", host=host, port=port, server_listener=Listener())
     except Exception as e:  # the SDK raises its own error for a port in use

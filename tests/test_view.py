@@ -1,7 +1,8 @@
 """`cq-ros view` (ros_tools.view): a Foxglove WebSocket server relaying a system's topics. A client of the test's
 own speaking the Foxglove WebSocket protocol (the `websockets` package) finds the map's OccupancyGrid and the
 MarkerArray advertised with their ros2msg schemas, and decodes what it receives back into ROS messages; the
-latched map, published once before the client came, is sent again when it subscribes."""
+latched map, published once before the client came, is sent again when it subscribes. Each subprotocol a
+current client offers is tried; the one older clients offer alone is refused (docs/ros.md says so)."""
 
 from __future__ import annotations
 
@@ -33,6 +34,18 @@ from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene  
 START_S = 90.0  # bound on the view process starting and finding the system on 2 busy cores
 RECV_S = 30.0
 
+# The Sec-WebSocket-Protocol offers of Foxglove clients and the subprotocol foxglove-sdk's server picks from each. The
+# server (0.30.3) knows only its own names, sdk.v1 and sdk.v1.1 (whose advertise sends each schema once, by id), picks
+# one of them whatever the client's order, and has no option to add another name.
+ACCEPTED_OFFERS = {
+    ("foxglove.websocket.v1", "foxglove.sdk.v1"): "foxglove.sdk.v1",  # Lichtblick 1.22 and later, in its order
+    ("foxglove.sdk.v1",): "foxglove.sdk.v1",
+    ("foxglove.sdk.v1.1",): "foxglove.sdk.v1.1",
+}
+# Foxglove Studio, older Foxglove app releases and Lichtblick before 1.22 offer only the ws-protocol's name: the server
+# answers HTTP 400. Pinned, so that a foxglove-sdk which accepts it shows up here and docs/ros.md can say so.
+REFUSED_OFFER = ("foxglove.websocket.v1",)
+
 
 def free_port() -> int:
     with socket.socket() as s:
@@ -56,19 +69,28 @@ def wait_for_line(process: subprocess.Popen, phrase: str, timeout_s: float) -> s
     raise AssertionError(f"no {phrase!r} from cq-ros view: {''.join(seen)}")
 
 
-def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S) -> dict[str, object]:
-    """Connect to the Foxglove server at `port` as a Foxglove client does, subscribe to the `wanted` topics (topic ->
-    ROS type) once advertised, each with its ros2msg schema and cdr encoding, and return the first message of
-    each, deserialized (each wait bounded by timeout_s)."""
-    with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
-                 open_timeout=timeout_s) as ws:
+def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S,
+            offer: tuple[str, ...] = ("foxglove.sdk.v1",)) -> dict[str, object]:
+    """Connect to the Foxglove server at `port` as a Foxglove client does, offering the subprotocols `offer`, and
+    check the server picks the one ACCEPTED_OFFERS says; subscribe to the `wanted` topics (topic -> ROS type) once
+    advertised, each with its ros2msg schema and cdr encoding, and return the first message of each, deserialized
+    (each wait bounded by timeout_s)."""
+    with connect(f"ws://127.0.0.1:{port}", subprotocols=list(offer), open_timeout=timeout_s) as ws:
+        assert ws.subprotocol == ACCEPTED_OFFERS[offer]
         channels: dict[int, dict] = {}
+        schemas: dict[int, dict] = {}  # sdk.v1.1 advertises each schema once, by id; sdk.v1 inlines it in the channel
         deadline = time.monotonic() + timeout_s
         while {c["topic"] for c in channels.values()} < set(wanted):
             assert time.monotonic() < deadline, f"advertised only {channels}"
             frame = ws.recv(timeout=timeout_s)
             if isinstance(frame, str) and json.loads(frame)["op"] == "advertise":
-                channels.update({c["id"]: c for c in json.loads(frame)["channels"]})
+                advertised = json.loads(frame)
+                schemas.update({sc["id"]: sc for sc in advertised.get("schemas", [])})
+                for c in advertised["channels"]:
+                    if "schemaId" in c:
+                        schema = schemas[c["schemaId"]]
+                        c |= {"schemaName": schema["name"], "schemaEncoding": schema["encoding"]}
+                    channels[c["id"]] = c
         ours = {cid: c for cid, c in channels.items() if c["topic"] in wanted}
         for c in ours.values():
             assert c["encoding"] == "cdr" and c["schemaEncoding"] == "ros2msg"
@@ -118,12 +140,13 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
                                "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert f"relaying /{ns} on ws://127.0.0.1:{port}" in wait_for_line(viewer, "relaying", START_S)
-        # The map was published once, long before the client: it comes only if the relay sends it again.
-        got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray})
-        grid = got[f"/{ns}/world/map"]
-        assert MAP.decode(grid).lattice == lattice(gridmap)
-        markers = got[f"/{ns}/world/markers"]
-        assert SCENE.decode(markers) == Scene(0, 0, starts, goals)
+        # The map was published once, long before the clients: each gets it only if the relay sends it again.
+        for offer in ACCEPTED_OFFERS:
+            got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray}, offer=offer)
+            grid = got[f"/{ns}/world/map"]
+            assert MAP.decode(grid).lattice == lattice(gridmap), offer
+            markers = got[f"/{ns}/world/markers"]
+            assert SCENE.decode(markers) == Scene(0, 0, starts, goals), offer
         viewer.send_signal(signal.SIGINT)
         assert viewer.wait(timeout=30) == 0
     finally:
@@ -155,6 +178,28 @@ def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
         if launch.poll() is None:
             launch.kill()
         launch.communicate(timeout=30)
+
+
+def test_a_client_offering_only_foxglove_websocket_v1_is_refused(ros_context):
+    """What foxglove-sdk's server does today with the offer of older clients (Foxglove Studio, Lichtblick before
+    1.22): HTTP 400, where the same server (our serve()) accepts each offer of a current client."""
+    from websockets.exceptions import InvalidStatus
+
+    from ros_tools.view import serve
+
+    node = rclpy.create_node("viewer", context=ros_context)
+    server, _relay = serve(node, f"/subproto_{uuid.uuid4().hex[:6]}", port=0)
+    try:
+        with pytest.raises(InvalidStatus) as refused, connect(f"ws://127.0.0.1:{server.port}",
+                                                              subprotocols=list(REFUSED_OFFER), open_timeout=RECV_S):
+            pass
+        assert refused.value.response.status_code == 400
+        for offer, picked in ACCEPTED_OFFERS.items():
+            with connect(f"ws://127.0.0.1:{server.port}", subprotocols=list(offer), open_timeout=RECV_S) as ws:
+                assert ws.subprotocol == picked
+    finally:
+        server.stop()
+        node.destroy_node()
 
 
 def test_a_launch_whose_view_port_is_busy_fails_in_one_line_and_leaves_no_folder(tmp_path):
