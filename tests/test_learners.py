@@ -721,7 +721,7 @@ def test_js_done_does_not_bootstrap_and_is_applied_at_once():
     assert learner.act({1: 0}) == EAST
     learner.learn(10.0, 5, True)
     assert learner.q_joint[(4, 0)][EAST] == pytest.approx(3.0 + 0.1 * (10.0 - 3.0))
-    assert learner.pending is None
+    assert learner.waiting is None
 
 
 def test_js_end_episode_drops_a_pending_update():
@@ -730,9 +730,9 @@ def test_js_end_episode_drops_a_pending_update():
     learner.observe(2)
     learner.act({1: 5})
     learner.learn(-10.0, 3, False)
-    assert learner.pending is not None
+    assert learner.waiting is not None
     learner.end_episode()
-    assert learner.pending is None
+    assert learner.waiting is None
     learner.observe(0)  # the next episode starts elsewhere
     learner.act({1: 5})
     assert learner.q_joint[(2, 5)] == [0.0, 1.0, 0.0, 0.0]
@@ -1066,7 +1066,7 @@ def test_cq_w1_alone_marks_a_conflict_that_was_there_from_the_start():
 
 # --- the greedy evaluation: learning or frozen (eval_learning) --------------------------------------------
 
-KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "pending", "waiting")
+KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "waiting")
 
 
 def kept(learner) -> bytes:
