@@ -129,19 +129,20 @@ class CQLearner(Learner):
         if not self.learning:
             return
         s, a = self.s, self.a
-        target = reward if done else reward + self.gamma * max(self.q_local[next_cell])
+        target = reward if done else reward + self.gamma * max(self.q_local[next_cell])  # what FCQ's windows keep
         sample = self.sample(reward, target)
         w = self.windows[s * N_MOVES + a]  # line 11: W1 fills first, then W2 slides; lines 12-13 once both are full
         conflict = w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample)
         step = Step(s, list(self.keys), a, reward, next_cell, done, conflict=conflict and not done)
-        if not done and (step.conflict or self.settings.cq_bootstrap_acted):  # see the module's docstring
-            self.waiting = step
+        if not done and (step.conflict or self.settings.cq_bootstrap_acted):
+            self.waiting = step  # the next act holds what it needs: the peers to mark, or the row acted on
         else:
             self._update(step)
 
     def _update(self, step, next_row=None):
         """Lines 17-21: Q(s, a) <- (1 - alpha) Q(s, a) + alpha [r + gamma max_a' Q(s', a')] in each row the step
-        names that is still kept. `next_row` is the row acted on at s' (None: the episode was cut)."""
+        names that is still kept. `next_row` is the row acted on at s', None where there is none yet: the update
+        is made at once, or the episode was cut."""
         if step.done:
             target = step.reward
         elif self.settings.cq_bootstrap_acted and next_row is not None:
