@@ -155,9 +155,9 @@ def test_cq_no_conflict_when_the_step_ends_the_episode():
 
 def test_cq_new_joint_state_starts_as_a_copy_of_q_local():
     learner = cq_with_conflict()
+    q0 = list(learner.q_local[0])
     learner.observe(0)
     learner.act({1: 1, 2: 3})  # cell 0 again: the joint states are met at once
-    q0 = list(learner.q_local[0])  # both have learnt the conflict step, which waited for the marking
     for js in ((0, 1, 1), (0, 2, 3)):
         assert learner.q_joint[js] == q0
         assert learner.q_joint[js] is not learner.q_local[0]

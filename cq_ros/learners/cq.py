@@ -22,10 +22,10 @@ reward only after acting):
                     lines 12-13 the two t-tests: a conflict?
                     lines 17-21 the update, at once unless it waits (`_update`, the one place Q changes)
 
-A step's update waits for the agent's next `act` when that act holds something the update needs: the
-peers' cells, to mark the joint states of a conflict found at this step (they learn the step too), or
-under `cq_bootstrap_acted` the row acted on next. An episode cut at the step cap ends the wait: the update
-bootstraps from Q_k of the next cell and nothing is marked. Rows are named by key, never held: None for
+A step waits for the agent's next `act` when that act holds something it needs: the peers' cells, to mark
+the joint states of a conflict found at the step, or under `cq_bootstrap_acted` the row acted on next, for
+its update (which then lands in the joint states just marked too). An episode cut at the step cap ends the
+wait: the update bootstraps from Q_k of the next cell and nothing is marked. Rows are named by key, never held: None for
 Q_k of the step's cell, the joint state (cell, peer, peer's cell) for Q^j. A joint state forgotten while
 its update waits has no row left, and its share of the update is dropped (counted in `dropped_updates`).
 
@@ -69,6 +69,7 @@ class Step:
     next_cell: int
     done: bool
     conflict: bool  # the t-tests found one; it is marked once the peers are seen
+    learnt: bool = False  # its update is made (the paper's bootstrap): it waits only to be marked
 
 
 class CQLearner(Learner):
@@ -107,10 +108,12 @@ class CQLearner(Learner):
     def act(self, peer_cells):
         self.heard += len(peer_cells)
         last, self.waiting = self.waiting, None
-        if last is not None and last.conflict:
-            # line 14, for the last step; its update, still waiting, lands in the new Q^j too, as in the paper,
-            # whose Q^j copies a Q_k that has learnt that step (else the agent repeats the move that collided)
-            last.keys += self._mark(last.cell, peer_cells)
+        if last is not None and last.conflict:  # line 14, for the last step
+            made = self._mark(last.cell, peer_cells)
+            if not last.learnt:
+                # its update, still waiting, lands in the new Q^j too, as in the paper, whose Q^j copies a Q_k
+                # that has learnt that step (else the agent repeats the move that collided)
+                last.keys += made
         # lines 4-10: the joint states met, whose confidence rises (the others' falls)
         met = self._meet(self.s, peer_cells) if self.looking and self.s in self.marked else []
         if not met:
@@ -119,7 +122,7 @@ class CQLearner(Learner):
             self.keys = met
         else:
             self.keys = met[:1]  # the most confident
-        if last is not None:  # lines 17-21, for the last step
+        if last is not None and not last.learnt:  # lines 17-21, for the last step
             self._update(last, self._acted_row())
         # lines 5 and 8, after the update, which may have changed the rows acted on now
         self.a = epsilon_greedy(self._acted_row(), self.epsilon, self.rng)
@@ -134,10 +137,11 @@ class CQLearner(Learner):
         w = self.windows[s * N_MOVES + a]  # line 11: W1 fills first, then W2 slides; lines 12-13 once both are full
         conflict = w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample)
         step = Step(s, list(self.keys), a, reward, next_cell, done, conflict=conflict and not done)
-        if not done and (step.conflict or self.settings.cq_bootstrap_acted):
+        if done or not self.settings.cq_bootstrap_acted:
+            self._update(step)  # the paper's bootstrap, Q_k of s', is known now
+            step.learnt = True
+        if step.conflict or not step.learnt:
             self.waiting = step  # the next act holds what it needs: the peers to mark, or the row acted on
-        else:
-            self._update(step)
 
     def _update(self, step, next_row=None):
         """Lines 17-21: Q(s, a) <- (1 - alpha) Q(s, a) + alpha [r + gamma max_a' Q(s', a')] in each row the step
@@ -170,7 +174,7 @@ class CQLearner(Learner):
     def end_episode(self):
         super().end_episode()
         last, self.waiting = self.waiting, None
-        if last is not None:
+        if last is not None and not last.learnt:
             self._update(last)  # no row is acted on next, and a conflict found now has no peers to mark
 
     def state_count(self):
@@ -188,7 +192,7 @@ class CQLearner(Learner):
         cell), since that update's target depends on the row acted on, hence on looking."""
         if self.epsilon != 0:
             return False
-        if self.waiting is not None and self.waiting.cell == cell:
+        if self.waiting is not None and not self.waiting.learnt and self.waiting.cell == cell:
             return False
         rows = [self.q_local[cell], *(self.q_joint[js] for js in self.marked[cell])]
         a = unique_best(rows[0])
