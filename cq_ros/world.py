@@ -50,6 +50,20 @@ class Rewards:
     def from_settings(cls, s: Settings) -> "Rewards":
         return cls(s.reward_step, s.reward_wall, s.reward_collision, s.reward_goal)
 
+    def of_move(self, cell: int, to: int, goal: int) -> float:
+        """What a move from `cell` to `to` earns when it collides with no one: a wall bump (it stays), the
+        agent's goal, or a step. A move that fails (a delay) or never came earns `step`."""
+        return self.wall if to == cell else self.goal if to == goal else self.step
+
+
+def rewards_alone(gridmap: GridMap, settings: Settings, agent: int, cell: int, action: int, n: int) -> list[float]:
+    """n rewards of `agent`'s move `action` from `cell` with nobody else on the map, as `GridWorld.step_joint`
+    pays them: a share `slip` of them delayed (the expected share, first, not drawn), the rest the move's own."""
+    r = Rewards.from_settings(settings)
+    alone = r.of_move(cell, gridmap.neighbours[cell][action], gridmap.goals[agent])
+    delayed = round(n * settings.slip)
+    return [r.step if k < delayed else alone for k in range(n)]
+
 
 def resolve_moves(cells: list[int], targets: list[int], goals: tuple[int, ...]) -> tuple[list[int], set]:
     """Where every agent ends, and the colliding pairs (i, j), i < j.
@@ -182,14 +196,11 @@ class GridWorld:
                 rewards[i] = r.collision
             elif targets[i] == cells[i] and not bumped[i]:  # delayed, or no action: stayed, a step lost
                 rewards[i] = r.step
-            elif bumped[i]:
-                rewards[i] = r.wall
-            elif final[i] == self.map.goals[i]:
-                rewards[i] = r.goal
-                done[i] = True
-                self.arrival[i] = self.t + 1
-            else:
-                rewards[i] = r.step
+            else:  # a move nobody was in the way of: it ends at `targets[i]`, its own cell after a bump
+                rewards[i] = r.of_move(cells[i], targets[i], self.map.goals[i])
+                if targets[i] == self.map.goals[i]:
+                    done[i] = True
+                    self.arrival[i] = self.t + 1
         self.cells = final
         self.t += 1
         self.last_collisions = len(pairs)

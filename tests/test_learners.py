@@ -21,7 +21,7 @@ from cq_ros.episode import COLUMNS
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners import ALGORITHMS, LEARNERS, decode_joint_action
 from cq_ros.learners.base import N_MOVES
-from cq_ros.learners.cq import CQLearner
+from cq_ros.learners.cq import CQLearner, Step
 from cq_ros.learners.indep import IndependentQ
 from cq_ros.learners.js import JointStateQ
 from cq_ros.learners.jsa import MAX_AGENTS, JointStateActionQ
@@ -81,13 +81,19 @@ def conflict_rewards(last_high=False):
     return rewards
 
 
+def conflict_at(learner):
+    """The cell of a conflict found at the last step and not marked yet (at the learner's next act), or None."""
+    waiting = learner.waiting
+    return waiting.cell if waiting is not None and waiting.conflict else None
+
+
 def cq_with_conflict(**overrides):
     """A CQ learner that has just detected a conflict at cell 0 (marked at its next act)."""
     learner = cq(**overrides)
     for r in conflict_rewards():
         need, action = step(learner, 0, ELSEWHERE, r, 0)
         assert need == () and action == EAST
-    assert learner.conflict_at == 0 and not learner.q_joint
+    assert conflict_at(learner) == 0 and not learner.q_joint
     return learner
 
 
@@ -112,7 +118,7 @@ def test_cq_drop_and_low_reward_marks_a_joint_state_per_peer_where_the_peers_are
     rewards = conflict_rewards()
     for k, r in enumerate(rewards, start=1):
         step(learner, 0, ELSEWHERE, r, 0)
-        assert (learner.conflict_at is not None) == (k == 10)  # tests run only once W2 is full
+        assert (conflict_at(learner) is not None) == (k == 10)  # tests run only once W2 is full
     assert learner.q_joint == {} and learner.watch == {}
     # Detected: at its next step the agent looks at every peer, and marks where they are now.
     now = {1: 1, 2: 3}
@@ -122,8 +128,8 @@ def test_cq_drop_and_low_reward_marks_a_joint_state_per_peer_where_the_peers_are
     assert learner.marked == {0: [(0, 1, 1), (0, 2, 3)]}
     assert learner.watch == {0: (1, 2)}
     assert learner.confidence == {(0, 1, 1): 1.0, (0, 2, 3): 1.0}
-    assert learner.conflict_at is None
-    assert learner.js is None  # cell 2 has no joint state: it acted on Q_k
+    assert conflict_at(learner) is None
+    assert learner.keys[0] is None  # cell 2 has no joint state: it acted on Q_k
     assert learner.state_count() == ROW3.n_cells + 2
     assert sorted(learner.joint_states()) == [(0, 1, 1, 1.0), (0, 2, 3, 1.0)]
 
@@ -132,7 +138,7 @@ def test_cq_drop_with_a_high_last_reward_marks_nothing():
     learner = cq()
     for r in conflict_rewards(last_high=True):
         step(learner, 0, ELSEWHERE, r, 0)
-    assert learner.conflict_at is None
+    assert conflict_at(learner) is None
     for cell in range(ROW3.n_cells):
         assert learner.observe(cell) == ()
         learner.act({})
@@ -145,7 +151,7 @@ def test_cq_no_conflict_when_the_step_ends_the_episode():
     for r in rewards[:-1]:
         step(learner, 0, ELSEWHERE, r, 0)
     step(learner, 0, ELSEWHERE, rewards[-1], 1, done=True)
-    assert learner.conflict_at is None
+    assert conflict_at(learner) is None
 
 
 def test_cq_new_joint_state_starts_as_a_copy_of_q_local():
@@ -159,7 +165,7 @@ def test_cq_new_joint_state_starts_as_a_copy_of_q_local():
     assert learner.q_joint[(0, 1, 1)] is not learner.q_joint[(0, 2, 3)]
     learner.learn(-1.0, 1, False)
     assert learner.q_local[0] == q0  # the update went to Q^j, not Q_k
-    assert learner.q_joint[learner.js] != q0
+    assert learner.q_joint[learner.keys[0]] != q0
 
 
 @pytest.mark.parametrize("bootstrap_acted", [0, 1])
@@ -169,7 +175,7 @@ def test_cq_new_joint_state_has_learnt_the_conflict_step_as_q_local_has(bootstra
     learner = cq_with_conflict(cq_bootstrap_acted=bootstrap_acted)
     learner.observe(2)
     learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3) from elsewhere; any pending update lands now
-    assert learner.pending is None
+    assert learner.waiting is None
     assert learner.q_local[0][EAST] < 5.0  # Q_k has learnt the conflict rewards
     for js in ((0, 1, 1), (0, 2, 3)):
         assert learner.q_joint[js] == learner.q_local[0]
@@ -178,9 +184,9 @@ def test_cq_new_joint_state_has_learnt_the_conflict_step_as_q_local_has(bootstra
 def test_cq_marking_an_existing_joint_state_keeps_its_table():
     learner = cq_with_conflict()
     step(learner, 0, {1: 1, 2: 3}, -1.0, 1)
-    js = learner.js
+    js = learner.keys[0]
     table = list(learner.q_joint[js])
-    learner.conflict_at = 0
+    learner.waiting = Step(0, [], EAST, 0.0, 0, done=False, conflict=True)  # a conflict found at cell 0 again
     learner.observe(3)
     learner.act({1: 1, 2: 3})
     assert learner.q_joint[js] == table
@@ -201,7 +207,7 @@ def test_cq_joint_update_bootstraps_from_q_local_of_the_next_cell():
     need = learner.observe(0)
     assert need == (1, 2)
     action = learner.act({1: 1, 2: 3})
-    js = learner.js
+    js = learner.keys[0]
     assert js is not None and js[0] == 0 and action == EAST
     old = learner.q_joint[js][EAST]
     q_local_0 = list(learner.q_local[0])
@@ -211,7 +217,7 @@ def test_cq_joint_update_bootstraps_from_q_local_of_the_next_cell():
     # and at the episode's end, no bootstrap at all
     learner.observe(0)
     learner.act({1: 1, 2: 3})
-    js, old = learner.js, learner.q_joint[learner.js][EAST]
+    js, old = learner.keys[0], learner.q_joint[learner.keys[0]][EAST]
     learner.learn(10.0, 1, True)
     assert learner.q_joint[js][EAST] == pytest.approx(old + s.alpha * (10.0 - old))
 
@@ -223,7 +229,7 @@ def test_cq_bootstrap_acted_waits_for_the_row_acted_on_next():
     learner = cq_with_conflict(cq_bootstrap_acted=1)  # its last update is pending
     learner.observe(0)
     learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3) and meets one of them
-    js = learner.js
+    js = learner.keys[0]
     for row in learner.q_joint.values():  # in these joint states the best row value is -6
         row[:] = [-8.0, -6.0, -9.0, -7.0]
     learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]  # alone, the road is free: best is 5
@@ -231,7 +237,7 @@ def test_cq_bootstrap_acted_waits_for_the_row_acted_on_next():
     assert learner.q_joint[js] == [-8.0, -6.0, -9.0, -7.0]  # nothing applied yet
     learner.observe(0)
     learner.act({1: 1, 2: 3})  # the same joint state met again: the pending update uses its row
-    assert learner.js == js
+    assert learner.keys[0] == js
     # the act chose EAST on [-8, -6, -9, -7] after the update of EAST: -6 + 0.1 * (-1 + 0.9 * -6 + 6)
     assert learner.q_joint[js][EAST] == pytest.approx(-6.0 + s.alpha * (-1.0 + s.gamma * -6.0 + 6.0))
     # the paper's rule would have bootstrapped from Q_k's 5 and made waiting look good
@@ -249,7 +255,7 @@ def test_cq_bootstrap_acted_applies_at_once_on_arrival_and_from_q_local_when_the
     assert learner.q_local[0][EAST] == before
     learner.end_episode()  # ... until the episode is cut: Q_k of the next cell, the only row known
     assert learner.q_local[0][EAST] == pytest.approx(before + s.alpha * (-1.0 + s.gamma * 3.0 - before))
-    assert learner.pending is None
+    assert learner.waiting is None
 
 
 def test_cq_all_met_acts_on_the_most_wary_of_the_joint_states_met_and_updates_each():
@@ -263,7 +269,7 @@ def test_cq_all_met_acts_on_the_most_wary_of_the_joint_states_met_and_updates_ea
     learner.confidence[(0, 1, 1)] = 9.0  # and peer 1's is the more confident
     learner.observe(0)
     assert learner.act({1: 1, 2: 3}) == WEST  # min of the rows: [-5, -9, -5, 0]
-    assert learner.js == (0, 1, 1)  # the most confident is still the one named
+    assert learner.keys[0] == (0, 1, 1)  # the most confident is still the one named
     learner.learn(-1.0, 1, True)
     assert learner.q_joint[(0, 1, 1)][WEST] == pytest.approx(1.0 + s.alpha * (-1.0 - 1.0))
     assert learner.q_joint[(0, 2, 3)][WEST] == pytest.approx(0.0 + s.alpha * (-1.0 - 0.0))
@@ -308,7 +314,7 @@ def test_cq_look_if_decisive_does_not_look_where_every_row_picks_the_same_action
     learner.q_joint[(0, 2, 3)][:] = [-5.0, -4.0, -5.0, -9.0]
     confidence, plays, heard = dict(learner.confidence), learner.joint_plays, learner.heard
     assert learner.observe(0) == ()
-    assert learner.act({}) == EAST and learner.js is None
+    assert learner.act({}) == EAST and learner.keys[0] is None
     assert (learner.confidence, learner.joint_plays, learner.heard) == (confidence, plays, heard)  # no _meet
     joint = {js: list(row) for js, row in learner.q_joint.items()}
     learner.learn(-1.0, 1, False)  # the update goes to Q_k, as at an unmarked cell
@@ -320,7 +326,7 @@ def test_cq_look_if_decisive_does_not_look_where_every_row_picks_the_same_action
         learner.q_joint[js][:] = row
         assert learner.observe(0) == (1, 2)
         learner.act({1: 1, 2: 3})
-        assert learner.js is not None and learner.heard == heard + 2
+        assert learner.keys[0] is not None and learner.heard == heard + 2
         learner.learn(0.0, 1, False)
         learner.q_joint[js][:] = before
         heard = learner.heard
@@ -354,11 +360,11 @@ def test_cq_look_if_decisive_looks_when_a_waiting_update_lands_in_the_cell():
     learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]
     for row in learner.q_joint.values():
         row[:] = [0.0, 3.0, -1.0, 2.0]
-    learner.pending = None
+    learner.waiting = None
     assert learner.observe(0) == ()
     learner.act({})
     learner.learn(-1.0, 0, False)  # a wall bump: it stays at cell 0, the update waits
-    assert learner.pending is not None
+    assert learner.waiting is not None
     assert learner.observe(0) == (1, 2)
     learner.act({1: 1, 2: 3})
     learner.learn(0.0, 1, False)  # it moves on: the update waits for cell 1's row
@@ -486,6 +492,25 @@ def test_cq_confidence_falls_and_the_joint_state_is_dropped():
     assert learner.state_count() == ROW3.n_cells
 
 
+def test_cq_update_of_a_joint_state_forgotten_while_it_waits_is_dropped():
+    """cq_bootstrap_acted: a step acted on Q^j waits for the next act, and that act forgets the joint state (its
+    peer is elsewhere, its confidence falls below conf_drop). The update has no row to land in: it is dropped
+    and counted, and neither Q_k nor the other Q^j learns it in its place."""
+    learner = cq_with_conflict(cq_bootstrap_acted=1, conf_down=2.0)
+    learner.observe(0)
+    learner.act({1: 1, 2: 3})  # marks and meets (0, 1, 1) and (0, 2, 3): confidence 1.5 each
+    assert learner.keys == [(0, 1, 1)]  # the first marked among equals (cq_all_met=0)
+    learner.learn(-10.0, 0, False)  # it stays at cell 0; the update of (0, 1, 1) waits
+    assert learner.waiting.keys == [(0, 1, 1)]
+    forgotten = learner.q_joint[(0, 1, 1)]
+    before = [list(forgotten), [list(row) for row in learner.q_local], list(learner.q_joint[(0, 2, 3)])]
+    assert learner.observe(0) == (1, 2)
+    learner.act({1: 2, 2: 3})  # peer 1 is elsewhere: 1.5 - 2.0 < 0, (0, 1, 1) is forgotten; (0, 2, 3) is met
+    assert (0, 1, 1) not in learner.q_joint and learner.keys == [(0, 2, 3)]
+    assert learner.waiting is None and learner.dropped_updates == 1
+    assert [list(forgotten), [list(row) for row in learner.q_local], list(learner.q_joint[(0, 2, 3)])] == before
+
+
 def test_cq_joint_plays_counts_acting_from_q_joint():
     learner = cq_with_conflict()
     learner.observe(1)
@@ -496,7 +521,7 @@ def test_cq_joint_plays_counts_acting_from_q_joint():
         before = learner.joint_plays
         step(learner, 0, peers, 0.0, 1)
         plays.append(learner.joint_plays - before)
-        assert plays[-1] == (learner.js is not None)
+        assert plays[-1] == (learner.keys[0] is not None)
     assert plays == [1, 0, 1, 1, 0]
     before = learner.joint_plays
     step(learner, 2, ELSEWHERE, 0.0, 3)  # a cell without joint states
@@ -506,7 +531,7 @@ def test_cq_joint_plays_counts_acting_from_q_joint():
 def test_cq_end_episode_clears_a_pending_conflict():
     learner = cq_with_conflict()
     learner.end_episode()
-    assert learner.conflict_at is None
+    assert conflict_at(learner) is None
     assert learner.observe(0) == ()
     learner.act({})
     assert learner.q_joint == {} and learner.marked == {}
@@ -517,7 +542,7 @@ def test_cq_constant_non_integer_reward_never_marks():
     learner = cq(window=60)
     for _ in range(1000):
         step(learner, 0, ELSEWHERE, -0.1, 1)
-        assert learner.conflict_at is None
+        assert conflict_at(learner) is None
     assert learner.q_joint == {}
 
 
@@ -534,7 +559,7 @@ def never_asks_before_its_first_conflict(seed: int) -> bool:
         inner = learner.observe
 
         def observe(cell):
-            informed = bool(learner.marked) or learner.conflict_at is not None
+            informed = bool(learner.marked) or conflict_at(learner) is not None
             need = inner(cell)
             calls.append((episode, informed, need))
             return need
@@ -575,7 +600,7 @@ def test_cq_acts_on_the_most_confident_of_several_joint_states_met_at_once_with_
         other = (0, 2, 3) if confident == (0, 1, 1) else (0, 1, 1)
         learner.confidence[confident], learner.confidence[other] = 6.0, 3.0
         assert step(learner, 0, {1: 1, 2: 3}, 0.0, 1) == ((1, 2), action)  # both met at once
-        assert learner.js == confident
+        assert learner.keys[0] == confident
 
 
 @pytest.mark.parametrize("algo", ALGORITHMS)
@@ -697,7 +722,7 @@ def test_js_done_does_not_bootstrap_and_is_applied_at_once():
     assert learner.act({1: 0}) == EAST
     learner.learn(10.0, 5, True)
     assert learner.q_joint[(4, 0)][EAST] == pytest.approx(3.0 + 0.1 * (10.0 - 3.0))
-    assert learner.pending is None
+    assert learner.waiting is None
 
 
 def test_js_end_episode_drops_a_pending_update():
@@ -706,9 +731,9 @@ def test_js_end_episode_drops_a_pending_update():
     learner.observe(2)
     learner.act({1: 5})
     learner.learn(-10.0, 3, False)
-    assert learner.pending is not None
+    assert learner.waiting is not None
     learner.end_episode()
-    assert learner.pending is None
+    assert learner.waiting is None
     learner.observe(0)  # the next episode starts elsewhere
     learner.act({1: 5})
     assert learner.q_joint[(2, 5)] == [0.0, 1.0, 0.0, 0.0]
@@ -911,7 +936,7 @@ def test_pickled_cq_keeps_its_joint_states():
     assert copy.marked == learner.marked and copy.watch == learner.watch
     assert copy.observe(0) == learner.observe(0) == (1, 2)
     assert copy.act({1: 1, 2: 3}) == learner.act({1: 1, 2: 3})
-    assert copy.js == learner.js
+    assert copy.keys == learner.keys
 
 
 def test_learners_draw_only_from_their_own_rng():
@@ -1042,7 +1067,7 @@ def test_cq_w1_alone_marks_a_conflict_that_was_there_from_the_start():
 
 # --- the greedy evaluation: learning or frozen (eval_learning) --------------------------------------------
 
-KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "pending", "conflict_at")
+KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "waiting")
 
 
 def kept(learner) -> bytes:

@@ -1,37 +1,54 @@
 """CQ-learning (De Hauwere, Vrancx & Nowé 2011, the paper's Algorithm 2).
 
-Each agent learns Q_k over its own cell. For every (cell, action) it keeps the reward windows W1 (the
-first N rewards) and W2 (the last N after those). When W2's mean falls significantly below W1's and
-the last reward is not significantly above W2's mean, the rewards of that cell have turned worse than
-when the agent was effectively alone: it marks the joint states (cell, peer, peer's cell) for every
-peer, seen at that moment, each with Q^j copied from Q_k and a confidence value.
+Each agent learns Q_k (`q_local`) over its own cell. For every (cell, action) it keeps the reward windows W1
+(the first N rewards) and W2 (the last N after those). When W2's mean falls significantly below W1's and the
+last reward is not significantly above W2's mean, the rewards of that cell have turned worse than when the
+agent was effectively alone: it marks the joint states (cell, peer, peer's cell), each with a Q^j
+(`q_joint`) copied from Q_k and a confidence value.
 
-In a cell with marked joint states the agent looks at the peers they name (and only those): if one is
-met, it acts on Q^j and that joint state gains confidence; those not met lose confidence and are
-dropped below a threshold. Everywhere else it acts on Q_k, seeing no one. Q^j bootstraps from Q_k of
-the next cell, since the agent cannot know it will need coordination at the next step.
+In a cell with marked joint states the agent looks at the peers they name (and only those): if one is met,
+it acts on Q^j and that joint state gains confidence; those not met lose confidence and are dropped below a
+threshold. Everywhere else it acts on Q_k, seeing no one.
 
-"At that moment" is when the conflict is detected, i.e. once the step's rewards are in: the agent sees
-its peers at the start of its next step, before acting. For a collision this is also the joint state
-the agent acted in, since colliding agents stay where they were.
+Algorithm 2, as the wire splits one step (the agent sees its peers only after asking for them, and its
+reward only after acting):
 
-Under delays (cq_w1_alone, ours, off by default): W1 can be filled with what acting alone earns instead of
-the first N rewards, since where AGVs are delayed a conflict is there from the first episode on and the
-first rewards are no measure of being alone (the earlier CQ-learning of De Hauwere et al. 2010 took W1 from
-a single-agent phase).
+    observe(s)      line 4      is s safe, or must the agent look at the peers its joint states name?
+    act(peers)      line 14     (the last step's marking, now that the peers are seen)
+                    lines 4-10  which table: the joint states met; their confidence rises, the others' falls
+                    lines 17-21 (the last step's update, if it waited for this row)
+                    lines 5, 8  choose a_k from Q_k or Q^j
+    learn(r, s')    line 11     add r to W1, or else to W2
+                    lines 12-13 the two t-tests: a conflict?
+                    lines 17-21 the update, at once unless it waits (`_update`, the one place Q changes)
 
-Three choices of ours, each a setting whose other value is the paper's reading (docs/choices.md): only
-the peers within `cq_mark_range` cells are marked; an update waits one step and bootstraps from the row
-the agent then acts on (`cq_bootstrap_acted`), so waiting in a joint state is not valued by Q_k's free
-road; and where several joint states are met at once, the agent acts on the elementwise minimum of their
-rows and updates each (`cq_all_met`).
+A step waits for the agent's next `act` when that act holds something it needs: the peers' cells, to mark
+the joint states of a conflict found at the step, or under `cq_bootstrap_acted` the row acted on next, for
+its update (which then lands in the joint states just marked too). An episode cut at the step cap ends the
+wait: the update bootstraps from Q_k of the next cell and nothing is marked. Rows are named by key, never held: None for
+Q_k of the step's cell, the joint state (cell, peer, peer's cell) for Q^j. A joint state forgotten while
+its update waits has no row left, and its share of the update is dropped (counted in `dropped_updates`).
 
-Looking only where it can matter (`cq_look_if_decisive`, ours, off by default): a greedy agent skips looking at
-a marked cell whose Q_k and every Q^j agree on one strictly best action, since whatever it saw it would do
-the same; a look it cannot act on is a message paid for nothing (issue 18).
+Our choices, each a setting whose other value is the paper's reading (docs/choices.md), each a named branch
+below:
+- `cq_mark_range`: only the peers within that many cells are marked (0: every peer, the paper's);
+- `cq_bootstrap_acted`: the update bootstraps from the row the agent then acts on, so that waiting in a
+  joint state is not valued by Q_k's free road (0: Q_k of the next cell, the paper's: the agent cannot know
+  at the update whether it will need coordination next);
+- `cq_all_met`: where several joint states are met at once, the agent acts on the elementwise minimum of
+  their rows and updates each (0: the most confident alone, our first reading);
+- `cq_w1_alone`: W1 starts full of what acting alone earns, since under delays a conflict is there from the
+  first episode on and the first rewards are no measure of being alone (the earlier CQ-learning of
+  De Hauwere et al. 2010 took W1 from a single-agent phase);
+- `cq_look_if_decisive`: a greedy agent skips looking at a marked cell whose Q_k and every Q^j agree on one
+  strictly best action, since whatever it saw it would do the same; a look it cannot act on is a message
+  paid for nothing.
 """
 
+from dataclasses import dataclass
+
 from ..stats import ConflictTest, RewardWindows
+from ..world import rewards_alone
 from .base import Learner, N_MOVES, epsilon_greedy, q_update
 
 
@@ -39,6 +56,20 @@ def unique_best(row):
     """The action of a row's largest value if no other action ties with it, else None."""
     best = max(row)
     return row.index(best) if row.count(best) == 1 else None
+
+
+@dataclass
+class Step:
+    """A step acted and rewarded whose update has not been made yet."""
+
+    cell: int
+    keys: list  # the rows it acted on, and the joint states marked for its conflict: None = Q_k, else Q^j's key
+    action: int
+    reward: float
+    next_cell: int
+    done: bool
+    conflict: bool  # the t-tests found one; it is marked once the peers are seen
+    learnt: bool = False  # its update is made (the paper's bootstrap): it waits only to be marked
 
 
 class CQLearner(Learner):
@@ -54,98 +85,86 @@ class CQLearner(Learner):
         self.watch: dict[int, tuple[int, ...]] = {}  # cell -> the peers its joint states name
         self.windows = [RewardWindows(st.window) for _ in range(self.n_cells * N_MOVES)]  # W1, W2 per (s, a)
         if st.cq_w1_alone:
-            self._fill_w1_alone()
+            for s in range(self.n_cells):
+                for a in range(N_MOVES):
+                    for r in rewards_alone(self.map, st, self.agent, s, a, st.window):
+                        self.windows[s * N_MOVES + a].add(r)
         self.test = ConflictTest(st.window, st.significance)
-        self.conflict_at = None  # a cell whose conflict is marked as soon as the peers are seen
-        self.rows: list[list[float]] = []  # the rows acted on: Q_k of the cell, or Q^j of the joint states met
-        self.pending = None  # (rows, action, reward, next_cell): an update waiting for the row acted on next
+        self.keys: list = [None]  # the rows acted on this step
+        self.waiting: Step | None = None  # the last step, until its update can be made
         self.looking = False  # whether observe asked for the peers of this step's cell
+        self.dropped_updates = 0  # rows an update found forgotten (their joint state dropped while it waited)
+
+    # -- Algorithm 2 -----------------------------------------------------------------------------------
 
     def observe(self, cell):
         self.s = cell
-        if self.conflict_at is not None:
-            self.looking = True
+        if self.waiting is not None and self.waiting.conflict:
+            self.looking = True  # marking names the peers where they are now
             return self.peers
         self.looking = cell in self.watch and not (self.settings.cq_look_if_decisive and self._decisive(cell))
         return self.watch[cell] if self.looking else ()
 
-    def _decisive(self, cell):
-        """Looking cannot change the greedy action at a marked cell (cq_look_if_decisive): epsilon is 0, Q_k and
-        every Q^j of the cell have one and the same unique best action (so has the elementwise minimum of any of
-        the Q^j, cq_all_met), and no waiting update is about to land in one of them (the agent stayed in the
-        cell), since that update's target depends on the row acted on, hence on looking."""
-        if self.epsilon != 0:
-            return False
-        rows = [self.q_local[cell], *(self.q_joint[js] for js in self.marked[cell])]
-        if self.pending is not None and any(w is row for w in self.pending[0] for row in rows):
-            return False
-        a = unique_best(rows[0])
-        return a is not None and all(unique_best(row) == a for row in rows[1:])
-
     def act(self, peer_cells):
         self.heard += len(peer_cells)
-        if self.conflict_at is not None:
-            marked = self._mark(self.conflict_at, peer_cells)
-            self.conflict_at = None
-            if self.pending is not None:
-                # The conflict step's own update is still waiting (cq_bootstrap_acted): it is the experience
-                # of the joint states just marked too, as in the paper, whose Q^j copies a Q_k that has
-                # already learnt it (without it the agent repeats the very move that collided).
-                rows, a, reward, next_cell = self.pending
-                self.pending = (rows + marked, a, reward, next_cell)
+        last, self.waiting = self.waiting, None
+        if last is not None and last.conflict:  # line 14, for the last step
+            made = self._mark(last.cell, peer_cells)
+            if not last.learnt:
+                # its update, still waiting, lands in the new Q^j too, as in the paper, whose Q^j copies a Q_k
+                # that has learnt that step (else the agent repeats the move that collided)
+                last.keys += made
+        # lines 4-10: the joint states met, whose confidence rises (the others' falls)
         met = self._meet(self.s, peer_cells) if self.looking and self.s in self.marked else []
-        self.js = met[0] if met else None
         if not met:
-            self.rows = [self.q_local[self.s]]
+            self.keys = [None]
+        elif self.settings.cq_all_met:
+            self.keys = met
         else:
-            self.rows = [self.q_joint[js] for js in (met if self.settings.cq_all_met else met[:1])]
-        if self.pending is not None:
-            self._bootstrap(self._acted_row())
-        # after the update, which may have changed the rows acted on now
+            self.keys = met[:1]  # the most confident
+        if last is not None and not last.learnt:  # lines 17-21, for the last step
+            self._update(last, self._acted_row())
+        # lines 5 and 8, after the update, which may have changed the rows acted on now
         self.a = epsilon_greedy(self._acted_row(), self.epsilon, self.rng)
         return self.a
-
-    def _acted_row(self):
-        """The row acted on: one table's, or where several joint states are met the elementwise minimum of
-        theirs (an action is worth what the most wary of them says)."""
-        return self.rows[0] if len(self.rows) == 1 else [min(q) for q in zip(*self.rows)]
 
     def learn(self, reward, next_cell, done):
         if not self.learning:
             return
         s, a = self.s, self.a
-        target = reward if done else reward + self.gamma * max(self.q_local[next_cell])
+        target = reward if done else reward + self.gamma * max(self.q_local[next_cell])  # what FCQ's windows keep
         sample = self.sample(reward, target)
-        w = self.windows[s * N_MOVES + a]
-        if w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample):
-            self.conflict_at = None if done else s
-        if self.settings.cq_bootstrap_acted and not done:
-            self.pending = (self.rows, a, reward, next_cell)
+        w = self.windows[s * N_MOVES + a]  # line 11: W1 fills first, then W2 slides; lines 12-13 once both are full
+        conflict = w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample)
+        step = Step(s, list(self.keys), a, reward, next_cell, done, conflict=conflict and not done)
+        if done or not self.settings.cq_bootstrap_acted:
+            self._update(step)  # the paper's bootstrap, Q_k of s', is known now
+            step.learnt = True
+        if step.conflict or not step.learnt:
+            self.waiting = step  # the next act holds what it needs: the peers to mark, or the row acted on
+
+    def _update(self, step, next_row=None):
+        """Lines 17-21: Q(s, a) <- (1 - alpha) Q(s, a) + alpha [r + gamma max_a' Q(s', a')] in each row the step
+        names that is still kept. `next_row` is the row acted on at s', None where there is none yet: the update
+        is made at once, or the episode was cut."""
+        if step.done:
+            target = step.reward
+        elif self.settings.cq_bootstrap_acted and next_row is not None:
+            target = step.reward + self.gamma * max(next_row)  # ours: the row acted on at s'
         else:
-            for row in self.rows:
-                q_update(row, a, target, self.alpha)
+            target = step.reward + self.gamma * max(self.q_local[step.next_cell])  # the paper's: Q_k of s'
+        for key in step.keys:
+            row = self.q_local[step.cell] if key is None else self.q_joint.get(key)
+            if row is None:  # forgotten while the update waited: there is no Q^j left to learn it
+                self.dropped_updates += 1
+                continue
+            q_update(row, step.action, target, self.alpha)
 
-    def _bootstrap(self, next_row=None):
-        """The waiting update, from the row acted on now (Q_k of the next cell if the episode was cut)."""
-        rows, a, reward, next_cell = self.pending
-        self.pending = None
-        best = max(self.q_local[next_cell] if next_row is None else next_row)
-        for row in rows:
-            q_update(row, a, reward + self.gamma * best, self.alpha)
-
-    def _fill_w1_alone(self):
-        """W1 of every (cell, action) holds what acting alone earns (cq_w1_alone): the world's reward for the
-        move with nobody else there, a share `slip` of them delayed (reward_step), so that a conflict present
-        from the first episodes on, as under delays, is a drop too, not the baseline it is measured from."""
-        st, nbr, goal = self.settings, self.map.neighbours, self.map.goals[self.agent]
-        delayed = round(st.window * st.slip)
-        for s in range(self.n_cells):
-            for a in range(N_MOVES):
-                to = nbr[s][a]
-                alone = st.reward_wall if to == s else st.reward_goal if to == goal else st.reward_step
-                w = self.windows[s * N_MOVES + a]
-                for k in range(st.window):
-                    w.add(st.reward_step if k < delayed else alone)
+    def _acted_row(self):
+        """The row acted on: one table's, or where several joint states are met the elementwise minimum of
+        theirs (an action is worth what the most wary of them says)."""
+        rows = [self.q_local[self.s] if key is None else self.q_joint[key] for key in self.keys]
+        return rows[0] if len(rows) == 1 else [min(q) for q in zip(*rows)]
 
     @staticmethod
     def sample(reward, target):
@@ -154,9 +173,9 @@ class CQLearner(Learner):
 
     def end_episode(self):
         super().end_episode()
-        self.conflict_at = None
-        if self.pending is not None:
-            self._bootstrap()
+        last, self.waiting = self.waiting, None
+        if last is not None and not last.learnt:
+            self._update(last)  # no row is acted on next, and a conflict found now has no peers to mark
 
     def state_count(self):
         return self.n_cells + len(self.q_joint)
@@ -166,8 +185,21 @@ class CQLearner(Learner):
 
     # -- the joint states of a cell --------------------------------------------------------------------
 
-    def _mark(self, s, peer_cells) -> list[list[float]]:
-        """Mark the joint states of cell s with the peers near it; returns the Q^j rows made new."""
+    def _decisive(self, cell):
+        """Looking cannot change the greedy action at a marked cell (cq_look_if_decisive): epsilon is 0, Q_k and
+        every Q^j of the cell have one and the same unique best action (so has the elementwise minimum of any of
+        the Q^j, cq_all_met), and no waiting update is about to land in one of them (the agent stayed in the
+        cell), since that update's target depends on the row acted on, hence on looking."""
+        if self.epsilon != 0:
+            return False
+        if self.waiting is not None and not self.waiting.learnt and self.waiting.cell == cell:
+            return False
+        rows = [self.q_local[cell], *(self.q_joint[js] for js in self.marked[cell])]
+        a = unique_best(rows[0])
+        return a is not None and all(unique_best(row) == a for row in rows[1:])
+
+    def _mark(self, s, peer_cells) -> list[tuple]:
+        """Mark the joint states of cell s with the peers near it; returns the joint states made new."""
         st = self.settings
         near = st.cq_mark_range
         made = []
@@ -179,15 +211,15 @@ class CQLearner(Learner):
                 self.confidence[js] = max(self.confidence[js], st.conf_init)
                 continue
             self.q_joint[js] = list(self.q_local[s])
-            made.append(self.q_joint[js])
+            made.append(js)
             self.confidence[js] = st.conf_init
             self.marked.setdefault(s, []).append(js)
         self._rewatch(s)
         return made
 
     def _meet(self, s, peer_cells):
-        """The joint states of cell s met now, the most confident first (the first marked among equals);
-        their confidence rises, the others' falls, unless the learner is frozen."""
+        """Lines 6 and 9: the joint states of cell s met now, the most confident first (the first marked among
+        equals); their confidence rises, the others' falls, unless the learner is frozen."""
         st = self.settings
         met = []
         for js in list(self.marked[s]):
