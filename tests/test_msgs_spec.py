@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 
 import msgs_spec as ms
 from msgs_spec import doc
+from msgs_spec.auth import WORLD, RunKey
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
@@ -506,11 +507,32 @@ REJECTIONS = [
      "unauthenticated"),
     ("pos-changed-after-mac", lambda: dpos(with_data(ms.encode(ms.Position(2, 2, 3, 4, 10), key=KEY), 3, 3),
                                            **POSX, key=KEY), "unauthenticated"),
+    ("fb-other-run", lambda: dfb(ms.serialize(ms.Feedback(1, 2, 3, 4, 5, -1.0), key=RunKey(KEY, run=7)), **FBX,
+                                 key=RunKey(KEY, run=8)), "other_run"),
+    ("act-other-run-message", lambda: dact(ms.encode(ms.Action(3, 2, 3, 1), key=RunKey(KEY, run=7)), **ACTX,
+                                           key=RunKey(KEY, run=8)), "other_run"),
+    ("hb-other-world", lambda: _bound_then(ms.Heartbeat(1, 0, 0), ms.Heartbeat(2, 0, 0), WORLD), "other_incarnation"),
+    ("act-retired-agent", lambda: _bound_then(ms.Action(3, 2, 3, 1), ms.Action(3, 2, 3, 1), 3, retire=True),
+     "other_incarnation"),
     ("hb-replayed", lambda: ms.decode_heartbeat(ms.encode(ms.Heartbeat(5, 0, 0)), after=5), "replayed"),
     ("hb-beat-zero", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [0, 0, 0])), "out_of_range"),
 ]
-# Judged by the receiver (agent_node.peer_view.PeerView, tests/test_driver.py), not by a decoder.
-RECEIVER_KINDS = {"conflicting"}
+# Judged by the receiver (agent_node.peer_view.PeerView, agent_node.world_link.WorldLink; tests/test_driver.py),
+# not by a decoder.
+RECEIVER_KINDS = {"conflicting", "far_ahead"}
+
+
+def _bound_then(first, second, sender, retire=False):
+    """A receiver of run 7 bound to `first`'s sender incarnation (1), then given `second` from incarnation 2;
+    with `retire`, incarnation 2 spoke before 1 (an agent restarted, its earlier life's message comes late)."""
+    receiver = RunKey(KEY, run=7)
+    decode = {ms.Heartbeat: ms.decode_heartbeat, ms.Action: lambda m, key: dact(m, key=key, **ACTX)}[type(first)]
+    lives = (2, 1) if retire else (1, 2)
+    decode(ms.serialize(first, key=RunKey(KEY, run=7, incarnation=lives[0])), key=receiver)
+    if retire:
+        decode(ms.serialize(first, key=RunKey(KEY, run=7, incarnation=lives[1])), key=receiver)
+        assert receiver.replaced == 1 and receiver.held[sender] == 1
+    return decode(ms.serialize(second, key=RunKey(KEY, run=7, incarnation=2)), key=receiver)
 
 
 @pytest.mark.parametrize("thunk, kind", [r[1:] for r in REJECTIONS], ids=[r[0] for r in REJECTIONS])
@@ -539,7 +561,7 @@ def test_every_kind_is_tested_and_the_good_messages_pass():
 def test_keyed_messages_round_trip_and_only_the_key_holder_checks_them(payload):
     keyed = _wire(ms.encode(payload, key=KEY))
     lay = next(lay for lay in ms.ARRAY_LAYOUTS if lay.payload is type(payload))
-    assert keyed.layout.dim[0].label == lay.keyed_label and len(keyed.data) == lay.size + 4
+    assert keyed.layout.dim[0].label == lay.keyed_label and len(keyed.data) == lay.size + 3 + 4
     assert ms.decode(keyed, key=KEY) == payload == ms.decode(keyed)  # a receiver without the key reads it too
     with pytest.raises(ms.WireError, match="unauthenticated"):
         ms.decode(_wire(ms.encode(payload)), key=KEY)
@@ -547,7 +569,7 @@ def test_keyed_messages_round_trip_and_only_the_key_holder_checks_them(payload):
     assert decode(ms.serialize(payload, key=KEY), key=KEY) == payload  # as a raw subscription gets it
     with pytest.raises(ms.WireError, match="unauthenticated"):
         decode(ms.serialize(payload), key=KEY)
-    for i in range(lay.size + 4):  # any value changed after the MAC: refused
+    for i in range(lay.size + 3 + 4):  # any value, seal word or MAC word changed: refused
         changed = _wire(ms.encode(payload, key=KEY))
         changed.data[i] = changed.data[i] + 1 if changed.data[i] < 2**31 - 1 else 0
         with pytest.raises(ms.WireError, match="unauthenticated"):
@@ -564,7 +586,7 @@ def test_the_mac_is_hmac_sha256_of_the_domain_label_and_values(key, label, packe
     import struct
 
     from msgs_spec.auth import mac_words
-    digest = hmac.new(key, b"cq_ros/mac/1\0" + label.encode() + b"\0" + packed, "sha256").digest()
+    digest = hmac.new(key, b"cq_ros/mac/2\0" + label.encode() + b"\0" + packed, "sha256").digest()
     assert mac_words(key, label, packed) == struct.unpack(">4I", digest[:16])
 
 
