@@ -30,7 +30,7 @@ from functools import lru_cache
 from pathlib import Path
 
 __all__ = ["KEY_BYTES", "MAC_WORDS", "SEAL_WORDS", "WORLD", "KeyFileError", "RunKey", "new_key_file", "write_key_file",
-           "read_key", "mac_words", "new_run", "parse_run", "secret_of"]
+           "read_key", "mac_words", "new_run", "secret_of"]
 
 KEY_BYTES = 32
 MAC_WORDS = 4  # 128 bits as four 32-bit words, appended to the array's data
@@ -109,21 +109,9 @@ def _keyed(key: bytes, label: str) -> tuple:
 
 
 def new_run() -> int:
-    """A fresh run nonce: 64 random bits, never 0 (0 seals the messages of a bare key, see RunKey)."""
-    return secrets.randbits(64) or 1
-
-
-def parse_run(text: str) -> int | None:
-    """The run nonce in parameter run_nonce (16 hex digits; None when empty); ValueError naming it otherwise."""
-    if not text:
-        return None
-    try:
-        run = int(text, 16)
-    except ValueError:
-        run = -1
-    if len(text) != 16 or not 0 < run < 1 << 64:
-        raise ValueError(f"parameter run_nonce: {text!r} must be 16 hex digits, not all 0 (cq-ros launch draws one)")
-    return run
+    """A fresh run nonce: 63 random bits (it travels as a ROS integer parameter, int64), never 0 (the run a bare
+    key seals with, and the parameter's "none given")."""
+    return secrets.randbits(63) or 1
 
 
 class RunKey:
