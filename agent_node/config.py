@@ -14,7 +14,8 @@ from cq_ros.learners import LEARNERS
 from node_runtime.parameters import check_numbers, map_and_settings
 from cq_ros.lab.output import OutputError, probe_folder
 from cq_ros.settings import Settings, SettingsError
-from node_runtime.parameters import read_key_parameter
+from msgs_spec.auth import RunKey
+from node_runtime.parameters import run_key_parameters
 
 from .checkpoint import load_checkpoint, remove_stale_temporaries
 from .driver import AgentDriver, CentralDriver
@@ -36,7 +37,8 @@ class AgentConfig:
     feedback_timeout: float
     peer_linger_steps: int
     min_stats_subscribers: int
-    key: bytes | None
+    key: RunKey | None  # the run's key; its run nonce given, or learnt from the world's first keyed message
+    max_catch_up: int
 
 
 def agent_config(values: Mapping[str, Any]) -> AgentConfig:
@@ -44,7 +46,7 @@ def agent_config(values: Mapping[str, Any]) -> AgentConfig:
     check_numbers(values, (("episodes", 1, False), ("seed", 0, False), ("run", 0, False),
                            ("checkpoint_every", 1, False), ("feedback_timeout", 0, True),
                            ("peer_linger_steps", 0, False), ("agent_id", 0, False),
-                           ("min_stats_subscribers", 0, False)))
+                           ("min_stats_subscribers", 0, False), ("max_catch_up", 1, False)))
     algo = values["algo"]
     if algo not in LEARNERS:
         raise SettingsError(f"parameter algo: unknown algorithm {algo!r}; algorithms are: "
@@ -62,7 +64,7 @@ def agent_config(values: Mapping[str, Any]) -> AgentConfig:
     return AgentConfig(gridmap, settings, algo, agent, values["episodes"], values["seed"], values["run"],
                        values["checkpoint"], values["checkpoint_every"], values["feedback_timeout"],
                        values["peer_linger_steps"], values["min_stats_subscribers"],
-                       read_key_parameter(values["key_file"]))
+                       run_key_parameters(values, world=False), values["max_catch_up"])
 
 
 def _check_checkpoint_folder(path: str) -> None:
@@ -104,6 +106,7 @@ def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None,
     greedy = cfg.settings.eval_episodes
     if learner.central:
         return CentralDriver(learner, cfg.episodes, eval_episodes=greedy, checkpoint_every=every, resync=resume,
-                             log=log, key=cfg.key, clock=clock)
+                             log=log, key=cfg.key, clock=clock, max_catch_up=cfg.max_catch_up)
     return AgentDriver(learner, cfg.agent, cfg.episodes, eval_episodes=greedy, linger=cfg.peer_linger_steps,
-                       checkpoint_every=every, resync=resume, log=log, key=cfg.key, clock=clock)
+                       checkpoint_every=every, resync=resume, log=log, key=cfg.key, clock=clock,
+                       max_catch_up=cfg.max_catch_up)

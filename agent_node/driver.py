@@ -54,7 +54,7 @@ class AgentDriver:
 
     def __init__(self, learner: Learner, agent: int, episodes: int, *, eval_episodes: int = 0, linger: int,
                  checkpoint_every: int = 0, resync: bool = False, log: Callable[[str], Any] | None = None,
-                 key: bytes | None = None, clock: Callable[[], float] = time.monotonic):
+                 key: Any = None, clock: Callable[[], float] = time.monotonic, max_catch_up: int = 100):
         self.learner = learner
         self.agent = agent
         self.agents = (agent,)  # whose feedback it hears and whose actions it sends
@@ -65,7 +65,8 @@ class AgentDriver:
         self.map = learner.map
         self.bounds = bounds_of(self.map)
         self.drops = DropCounter(log)
-        self.link = WorldLink(self.drops, key, clock)
+        self.link = WorldLink(self.drops, key, clock, last_episode=episodes + eval_episodes - 1,
+                              max_catch_up=max_catch_up)
         self.peers = PeerView(self.map, self.drops, linger, key)
         self._log = log or (lambda _msg: None)
         self.expect: tuple[int, int] | None = None if resync else (0, 0)  # next feedback; None: any
@@ -234,8 +235,8 @@ class CentralDriver:
     """
 
     def __init__(self, learner: Learner, episodes: int, *, eval_episodes: int = 0, checkpoint_every: int = 0,
-                 resync: bool = False, log: Callable[[str], Any] | None = None, key: bytes | None = None,
-                 clock: Callable[[], float] = time.monotonic):
+                 resync: bool = False, log: Callable[[str], Any] | None = None, key: Any = None,
+                 clock: Callable[[], float] = time.monotonic, max_catch_up: int = 100):
         self.learner = learner
         self.episodes = episodes  # learning episodes; then eval_episodes greedy ones
         self.eval_episodes = eval_episodes
@@ -245,7 +246,8 @@ class CentralDriver:
         self.n = self.map.n_agents
         self.bounds = bounds_of(self.map)
         self.drops = DropCounter(log)
-        self.link = WorldLink(self.drops, key, clock)
+        self.link = WorldLink(self.drops, key, clock, last_episode=episodes + eval_episodes - 1,
+                              max_catch_up=max_catch_up)
         self.peers = PeerView(self.map, self.drops, linger=0, key=key)
         self._log = log or (lambda _msg: None)
         self.finished = False
@@ -271,7 +273,8 @@ class CentralDriver:
         if cell is None:
             return []
         if self._resync is not None:  # the positions decide; a later feedback moves the step they must show
-            if (fb.episode, fb.step) > self._resync and self.link.vouches_for((fb.episode, fb.step)):
+            if ((fb.episode, fb.step) > self._resync and self.link.vouches_for((fb.episode, fb.step))
+                    and not self.link.far_ahead(agent, fb, self._resync)):
                 self.link.heard()
                 return self._start_resync(fb)
             return []

@@ -10,6 +10,12 @@ run's key every message is the world's; without one, the world's heartbeat must 
 dropped (`future_*`) if the expected one comes first. A node started without a checkpoint file starts a
 fresh learner wherever the world is.
 
+The catch-up is bounded: a feedback past the run's last episode, or more than `max_catch_up` episodes past the
+one expected, is refused and counted (`far_ahead`), whoever vouches for it. Adopting ends every episode left
+behind one by one (its statistics, maybe a checkpoint), so one forged or corrupt stamp far ahead (episode
+2**31-1, keyed by a key holder's bug, or vouched for by a forged heartbeat where there is no key) would
+otherwise loop for ever.
+
 Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
 and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not. The node
 judges the silence with a `node_runtime.patience.Patience` it hands the link (`patience`, restarted by every
@@ -21,7 +27,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from msgs_spec import HEARTBEAT_TOPIC, DropCounter, decode_heartbeat, feedback_topic
+from msgs_spec import HEARTBEAT_TOPIC, DropCounter, WireError, decode_heartbeat, feedback_topic
 from node_runtime.patience import Patience
 
 from .reading import record_sequence
@@ -33,8 +39,11 @@ class WorldLink:
     """What a driver knows of the world beyond its own feedback: whether it is alive (when it last sent a valid
     message), where it is (its last heartbeat), and so whether a later feedback stamp is the world's."""
 
-    def __init__(self, drops: DropCounter, key: bytes | None, clock: Callable[[], float]):
+    def __init__(self, drops: DropCounter, key: Any, clock: Callable[[], float], *, last_episode: int = 2**31 - 1,
+                 max_catch_up: int = 100):
         self.drops, self.key, self._clock = drops, key, clock
+        self.last_episode = last_episode  # the run's last episode: nothing later is the world's
+        self.max_catch_up = max_catch_up  # episodes a later feedback may be ahead of the expected one
         self.last_heard = clock()
         self.patience: Patience | None = None  # the node's judge of the silence: restarted by every sign of life
         self.beat = 0  # the last heartbeat's number
@@ -68,6 +77,8 @@ class WorldLink:
         none is expected: a node resuming from its checkpoint); '' for one dropped (counted) or held until the
         world vouches for it (`vouched`)."""
         stamp = (fb.episode, fb.step)
+        if self.far_ahead(agent, fb, expected):
+            return ""
         if expected is None:  # resuming (from a checkpoint): joining the world where it is, a catch-up too
             self._drop_held()
             return "adopt"
@@ -86,6 +97,19 @@ class WorldLink:
         else:
             record_sequence(self.drops, stamp, expected, feedback_topic(agent))
         return ""
+
+    def far_ahead(self, agent: int, fb: Any, expected: tuple[int, int] | None) -> bool:
+        """Is `fb` past the run's last episode, or more than max_catch_up episodes past `expected`? Then it is
+        counted (`far_ahead`) and never caught up to."""
+        if fb.episode > self.last_episode:
+            bound = "the run's last episode"
+        elif expected is not None and fb.episode > expected[0] + self.max_catch_up:
+            bound = f"max_catch_up={self.max_catch_up}"
+        else:
+            return False
+        self.drops.record(WireError("far_ahead", f"episode {fb.episode} step {fb.step}, expected "
+                                                 f"{expected or 'any'}: past {bound}"), feedback_topic(agent))
+        return True
 
     def vouches_for(self, stamp: tuple[int, int]) -> bool:
         """Is a feedback stamped `stamp` the world's? Any is, with the run's key; without it, one the world's

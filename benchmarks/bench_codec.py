@@ -1,41 +1,71 @@
 #!/usr/bin/env python3
-"""The wire contract's cost per message: CPU microseconds to serialize and to decode (with every check and the
-run's MAC) one keyed feedback, position and action as the nodes do, and one MAC alone; the best of five
-timeit repeats on process_time (CPU, so other sessions' load moves it less).
+"""The wire contract's cost per message, for the fast codec the nodes call (msgs_spec.fast) and the reference
+codec (msgs_spec.arrays) from one run: CPU microseconds to serialize and to decode (with every check and the
+run's sealed MAC) one keyed feedback, position, action and heartbeat as the nodes do, and one MAC alone. Each
+figure is the median of --repeat timeit repeats on process_time (CPU, so other sessions' load moves it less).
 
-    python benchmarks/bench_codec.py [--number 20000]
+    python benchmarks/bench_codec.py [--number 20000] [--repeat 5]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import platform
 import secrets
+import statistics
 import time
 import timeit
 
-from msgs_spec import Action, Bounds, Feedback, Position, decode_action, decode_feedback, decode_position, serialize
-from msgs_spec.auth import mac_words
+from msgs_spec import Action, Bounds, Feedback, Heartbeat, Position
+from msgs_spec import arrays as reference
+from msgs_spec import fast
+from msgs_spec.auth import WORLD, RunKey, mac_words
+
+
+def cases(codec) -> dict:
+    """name -> a call, for one codec module (both have serialize_array and the four decoders)."""
+    secret, bounds = secrets.token_bytes(32), Bounds(16, 20, 20)
+    world, agent = RunKey(secret, run=12345), RunKey(secret, run=12345)
+    fb, pos = Feedback(3, 5, 7, 2, 4, -1.0, False, False, 1), Position(3, 5, 7, 2, 4)
+    act, hb = Action(3, 5, 7, 2), Heartbeat(9, 5, 7)
+    lay = reference.LAYOUT_BY_PAYLOAD
+    raw = {type(p): reference.serialize_array(lay[type(p)], p, world) for p in (fb, pos, hb)}
+    raw[Action] = reference.serialize_array(lay[Action], act, agent)
+    agent.accept(12345, world.incarnation, WORLD)  # bound, as after the world's first message
+    world.accept(12345, agent.incarnation, 3)
+    expect = {"bounds": bounds, "agent": 3, "episode": 5, "step": 7}
+    return {
+        "serialize feedback": lambda: codec.serialize_array(lay[Feedback], fb, world),
+        "serialize position": lambda: codec.serialize_array(lay[Position], pos, world),
+        "serialize action": lambda: codec.serialize_array(lay[Action], act, agent),
+        "serialize heartbeat": lambda: codec.serialize_array(lay[Heartbeat], hb, world),
+        "decode feedback": lambda: codec.decode_feedback(raw[Feedback], **expect, key=agent),
+        "decode position": lambda: codec.decode_position(raw[Position], **expect, key=agent),
+        "decode action": lambda: codec.decode_action(raw[Action], **expect, key=world),
+        "decode heartbeat": lambda: codec.decode_heartbeat(raw[Heartbeat], after=8, key=agent),
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--number", type=int, default=20000, help="calls per repeat")
+    parser.add_argument("--repeat", type=int, default=5, help="repeats; the median is printed")
     args = parser.parse_args()
-    key, bounds = secrets.token_bytes(32), Bounds(16, 20, 20)
-    fb, pos, act = Feedback(3, 5, 7, 2, 4, -1.0, False, False), Position(3, 5, 7, 2, 4), Action(3, 5, 7, 2)
-    raw = {p: serialize(p, key=key) for p in (fb, pos, act)}
-    expect = {"bounds": bounds, "agent": 3, "episode": 5, "step": 7, "key": key}
-    cases = {"serialize feedback": lambda: serialize(fb, key=key), "serialize position": lambda: serialize(pos, key=key),
-             "serialize action": lambda: serialize(act, key=key),
-             "decode feedback": lambda: decode_feedback(raw[fb], **expect),
-             "decode position": lambda: decode_position(raw[pos], **expect),
-             "decode action": lambda: decode_action(raw[act], **expect),
-             "MAC alone": lambda: mac_words(key, "agent,episode,step,action", bytes(16))}
-    print(f"load average {os.getloadavg()[0]:.2f}")
-    for name, call in cases.items():
-        best = min(timeit.repeat(call, number=args.number, repeat=5, timer=time.process_time)) / args.number
-        print(f"{name:<20} {best * 1e6:6.2f} us CPU", flush=True)
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}")
+    print(f"median of {args.repeat} repeats of {args.number} calls, us CPU per call")
+    print(f"{'call':<22}{'fast':>8}{'reference':>11}{'ratio':>8}")
+    ours, theirs = cases(fast), cases(reference)
+
+    def median(call) -> float:
+        return statistics.median(timeit.repeat(call, number=args.number, repeat=args.repeat,
+                                               timer=time.process_time)) / args.number * 1e6
+
+    for name in ours:
+        f, r = median(ours[name]), median(theirs[name])
+        print(f"{name:<22}{f:8.2f}{r:11.2f}{r / f:7.1f}x", flush=True)
+    secret = secrets.token_bytes(32)
+    print(f"{'MAC alone':<22}{median(lambda: mac_words(secret, 'agent,episode,step,action', bytes(28))):8.2f}")
     print(f"load average {os.getloadavg()[0]:.2f}")
 
 

@@ -13,10 +13,17 @@ Array layouts (one dimension; its label lists the fields in order, so `ros2 topi
     Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
     Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step"
 
-Keyed (msgs_spec.auth): with the run's key the label ends in ",mac0,mac1,mac2,mac3" and the data holds the
-MAC's four 32-bit words after the fields (as int32 in an Int32 array, as whole numbers in a Float64 one). A
-decoder given the key refuses any other message as `unauthenticated`; one without the key accepts both forms
-and checks no MAC (the tools, nodes started by hand without a key).
+Keyed (msgs_spec.auth): with the run's key the label ends in ",run0,run1,inc,mac0,mac1,mac2,mac3" and the
+data holds, after the fields, the seal (the run nonce's high and low 32-bit words, the sender's incarnation)
+and the MAC's four 32-bit words over the fields and the seal (each word as int32 in an Int32 array, as a whole
+number in a Float64 one). A decoder given the key refuses any other message as `unauthenticated`, then a seal
+its RunKey does not hold as `other_run` / `other_incarnation`; one without the key accepts both forms and
+checks neither (the tools, nodes started by hand without a key). A bare key (bytes) seals with run and
+incarnation 0 and checks the MAC only.
+
+This module is the reference codec: straightforward, every check in the order above. msgs_spec.fast is the
+one nodes call; it agrees with this one on every input (tests/test_msgs_spec.py) and hands it whatever it is
+not sure of.
 
 Nodes publish `serialize(payload)`: for an array payload the bytes rclpy would make of `encode(payload)`,
 built without a message object; they read with raw subscriptions, and every array decoder takes a message or
@@ -34,7 +41,7 @@ from typing import Any, Callable
 
 from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
 
-from .auth import MAC_WORDS, mac_words
+from .auth import MAC_WORDS, SEAL_WORDS, WORLD, RunKey, mac_words
 from .checks import CONVERT, check_agent, check_cell, check_nonneg, check_sequence
 from .errors import WireError
 from .payloads import INT32_MAX, NO_ACTION, Action, Bounds, Feedback, Heartbeat, Position
@@ -69,13 +76,23 @@ class ArrayLayout:
 
     @cached_property
     def keyed_label(self) -> str:
-        """The label of the keyed form: the fields, then the MAC's words."""
-        return ",".join(self.fields + tuple(f"mac{i}" for i in range(MAC_WORDS)))
+        """The label of the keyed form: the fields, the seal's words, then the MAC's."""
+        return ",".join(self.fields + ("run0", "run1", "inc") + tuple(f"mac{i}" for i in range(MAC_WORDS)))
 
     def dimension(self, keyed: bool) -> tuple[str, int]:
-        """The label and size of the array's one dimension, in the keyed form (the MAC's words after the
-        fields) or the plain one."""
-        return (self.keyed_label, self.size + MAC_WORDS) if keyed else (self.label, self.size)
+        """The label and size of the array's one dimension, in the keyed form (the seal's and the MAC's words
+        after the fields) or the plain one."""
+        return (self.keyed_label, self.size + SEAL_WORDS + MAC_WORDS) if keyed else (self.label, self.size)
+
+    @cached_property
+    def from_agent(self) -> bool:
+        """An agent sends it (its sender in a RunKey is the topic's agent); else the world does."""
+        return self.payload is Action
+
+    @cached_property
+    def _seal_struct(self) -> struct.Struct:
+        """The seal's words as the data holds them (as _mac_struct)."""
+        return struct.Struct(f"<{SEAL_WORDS}{'I' if self._code == 'i' else 'd'}")
 
     @cached_property
     def _code(self) -> str:
@@ -286,18 +303,35 @@ def _mac_data(layout: ArrayLayout, words: tuple[int, ...]) -> list:
 
 
 def _mac(layout: ArrayLayout, key: bytes, packed: bytes) -> bytes:
-    """The MAC of the packed values, as the bytes that follow them on the wire."""
+    """The MAC of the packed values and seal, as the bytes that follow them on the wire."""
     return layout._mac_struct.pack(*mac_words(key, layout.label, packed))
 
 
-def _wire_values(layout: ArrayLayout, payload: Any, key: bytes | None) -> list:
-    """The array's data for `payload` (as a message object holds it): its checked field values, then the MAC's
-    words when keyed."""
+def _seal_words(key: bytes | RunKey) -> tuple[bytes, tuple[int, int, int]]:
+    """(the secret, the seal's words: run high, run low, incarnation) a sender seals with."""
+    if type(key) is not RunKey:
+        return key, (0, 0, 0)
+    if key.run is None:  # an agent acts only on a sealed feedback, which binds the run first
+        raise ValueError("no run nonce yet: a node seals only after it knows its run")
+    return key.secret, (key.run >> 32, key.run & 0xFFFFFFFF, key.incarnation)
+
+
+def _sealed(layout: ArrayLayout, key: bytes | RunKey, packed: bytes) -> bytes:
+    """The values' bytes, the seal and the MAC over both: what follows the frame on the wire."""
+    secret, words = _seal_words(key)
+    body = packed + layout._seal_struct.pack(*words)
+    return body + _mac(layout, secret, body)
+
+
+def _wire_values(layout: ArrayLayout, payload: Any, key: bytes | RunKey | None) -> list:
+    """The array's data for `payload` (as a message object holds it): its checked field values, then the
+    seal's and the MAC's words when keyed."""
     values, packed = layout.packed(payload)
     convert = float if layout.ros_type is Float64MultiArray else int
     data = [convert(v) for v in values]
     if key is not None:
-        data += _mac_data(layout, mac_words(key, layout.label, packed))
+        tail = _sealed(layout, key, packed)[len(packed):]
+        data += _mac_data(layout, struct.unpack(f"<{SEAL_WORDS + MAC_WORDS}{layout._seal_struct.format[-1]}", tail))
     return data
 
 
@@ -311,44 +345,75 @@ def encode_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) ->
     return msg
 
 
-def serialize_array(layout: ArrayLayout, payload: Any, key: bytes | None = None) -> bytes:
+def serialize_array(layout: ArrayLayout, payload: Any, key: bytes | RunKey | None = None) -> bytes:
     """The bytes rclpy would serialize `encode_array(layout, payload, key)` to (alignment bytes zero): the
-    layout's frame, the packed values and the MAC over those very bytes."""
+    layout's frame, the packed values, then keyed the seal and the MAC over those very bytes."""
     head, _, pad, _ = layout.frame(key is not None)
     _, packed = layout.packed(payload)
-    return head + bytes(pad) + packed + (_mac(layout, key, packed) if key is not None else b"")
+    return head + bytes(pad) + (_sealed(layout, key, packed) if key is not None else packed)
 
 
 def decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: int | None,
-                 episode: int | None, step: int | None, key: bytes | None = None) -> Any:
+                 episode: int | None, step: int | None, key: bytes | RunKey | None = None) -> Any:
     framed = _framed(layout, msg) if type(msg) is bytes else None
-    if framed is not None:  # the bytes as our nodes send them: values and MAC read and checked in place
+    seal = None
+    if framed is not None:  # the bytes as our nodes send them: values, seal and MAC read and checked in place
         keyed, start = framed
         end = start + layout._struct.size
         if key is not None:
             if not keyed:
                 raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
-            if _mac(layout, key, msg[start:end]) != msg[end:]:
+            sealed_end = end + layout._seal_struct.size
+            if _mac(layout, _secret(key), msg[start:sealed_end]) != msg[sealed_end:]:
                 raise WireError("unauthenticated", "the MAC does not match the run's key")
+            seal = _check_seal(layout, key, layout._seal_struct.unpack_from(msg, end), msg, agent, start)
         values = layout._struct.unpack_from(msg, start)
         # int32 values read from the wire are ints in range: only a float64 layout's need converting
         payload = layout.payload(*values) if layout._code == "i" else (layout.from_floats(values)
                                                                         or _typed(layout, values))
-        _validate(payload, bounds, agent, episode, step)
-        return payload
-    keyed, data = _message_data(layout, _deserialized(layout, msg) if type(msg) is bytes else msg)
-    if key is not None:
-        if not keyed:
-            raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
-        try:
-            expected = _mac_data(layout, mac_words(key, layout.label, layout.pack(data[:layout.size])))
-        except struct.error:  # a value the wire type cannot hold: no MAC was made over it
-            expected = None
-        if expected != data[layout.size:]:
-            raise WireError("unauthenticated", "the MAC does not match the run's key")
-    payload = _typed(layout, data[:layout.size])
+    else:
+        keyed, data = _message_data(layout, _deserialized(layout, msg) if type(msg) is bytes else msg)
+        if key is not None:
+            if not keyed:
+                raise WireError("unauthenticated", f"no MAC ({layout.label}), and this receiver holds the run's key")
+            sealed = data[:layout.size + SEAL_WORDS]
+            try:
+                body = layout.pack(data[:layout.size]) + layout._seal_struct.pack(
+                    *[w & 0xFFFFFFFF if layout._code == "i" else w for w in sealed[layout.size:]])
+                expected = _mac_data(layout, mac_words(_secret(key), layout.label, body))
+            except struct.error:  # a value the wire type cannot hold: no MAC was made over it
+                expected = None
+            if expected != data[layout.size + SEAL_WORDS:]:
+                raise WireError("unauthenticated", "the MAC does not match the run's key")
+            words = layout._seal_struct.unpack_from(body, layout._struct.size)
+            seal = _check_seal(layout, key, words, body, agent, 0)
+        payload = _typed(layout, data[:layout.size])
     _validate(payload, bounds, agent, episode, step)
+    if seal is not None:  # bound only by a message every check accepted
+        key.accept(*seal)
     return payload
+
+
+def _secret(key: bytes | RunKey) -> bytes:
+    return key.secret if type(key) is RunKey else key
+
+
+def _check_seal(layout: ArrayLayout, key: bytes | RunKey, words: tuple, values: bytes, agent: int | None,
+                start: int) -> tuple[int, int, int] | None:
+    """(run, incarnation, sender) of a sealed message whose MAC matched, for `key.accept` once every check
+    passed; WireError other_run / other_incarnation when `key` holds another. None for a bare key (it checks
+    the MAC only). `values`: bytes holding the packed values at `start` (an action's sender is the topic's
+    agent, else the agent it names)."""
+    if type(key) is not RunKey:
+        return None
+    run, incarnation = (int(words[0]) << 32) | int(words[1]), int(words[2])
+    sender = WORLD
+    if layout.from_agent:
+        sender = agent if agent is not None else layout._struct.unpack_from(values, start)[0]
+    refusal = key.refusal(run, incarnation, sender)
+    if refusal is not None:
+        raise WireError(*refusal)
+    return run, incarnation, sender
 
 
 def _framed(layout: ArrayLayout, raw: bytes) -> tuple[bool, int] | None:

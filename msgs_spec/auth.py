@@ -5,6 +5,17 @@ tell who wrote a message. With a per-run key, shared through a file only the use
 who could not have: the codec appends HMAC-SHA256 (truncated to 128 bits, as RFC 2104 allows) over the
 payload's layout label and values, and a receiver holding the key drops any message without a matching
 one (`WireError("unauthenticated")`). The key authenticates; it does not hide (docs/ros.md, "Limits").
+
+A key file outlives a run (a kept system file, `cq-ros launch --key FILE`), so a MAC alone would let a message
+recorded in one run steer a later one. A keyed message is therefore sealed: after its fields it carries the
+run nonce (64 bits, fresh at every start) and its sender's incarnation (32 bits, fresh at every start of that
+node), and the MAC covers both. A node holds the key as a `RunKey`: what it seals with (the run, its own
+incarnation) and what it expects of each sender. The run is given (`cq-ros launch` draws one per launch and
+passes it to every node as `run_nonce`) or, when none is given, drawn by the world and learnt by an agent from
+the first sealed message of the world it hears. A receiver refuses another run (`other_run`) and, after
+the MAC, an incarnation it does not hold for that sender (`other_incarnation`): the world has one life per
+run, the first heard; an agent may restart (from its checkpoint), so its newest incarnation replaces the
+one before, which is then refused.
 """
 
 from __future__ import annotations
@@ -18,11 +29,14 @@ import tempfile
 from functools import lru_cache
 from pathlib import Path
 
-__all__ = ["KEY_BYTES", "MAC_WORDS", "KeyFileError", "new_key_file", "write_key_file", "read_key", "mac_words"]
+__all__ = ["KEY_BYTES", "MAC_WORDS", "SEAL_WORDS", "WORLD", "KeyFileError", "RunKey", "new_key_file", "write_key_file",
+           "read_key", "mac_words", "new_run", "secret_of"]
 
 KEY_BYTES = 32
 MAC_WORDS = 4  # 128 bits as four 32-bit words, appended to the array's data
-_DOMAIN = b"cq_ros/mac/1\0"  # a MAC made for anything else never matches
+SEAL_WORDS = 3  # the run nonce's two 32-bit words (high, low), then the sender's incarnation, before the MAC
+WORLD = 0  # the sender id of the world's messages in a RunKey (agents are 1..N)
+_DOMAIN = b"cq_ros/mac/2\0"  # a MAC made for anything else (or by the unsealed form before) never matches
 _WORDS = struct.Struct(f">{MAC_WORDS}I")  # the digest's first MAC_WORDS big-endian 32-bit words
 
 
@@ -92,3 +106,80 @@ def _keyed(key: bytes, label: str) -> tuple:
     inner = hashlib.sha256(bytes(b ^ 0x36 for b in padded))
     inner.update(_DOMAIN + label.encode() + b"\0")
     return inner, hashlib.sha256(bytes(b ^ 0x5C for b in padded))
+
+
+def new_run() -> int:
+    """A fresh run nonce: 63 random bits (it travels as a ROS integer parameter, int64), never 0 (the run a bare
+    key seals with, and the parameter's "none given")."""
+    return secrets.randbits(63) or 1
+
+
+class RunKey:
+    """The run's key as one node holds it. Sealing: the `run` nonce (None: not learnt yet) and this node's own
+    `incarnation`. Receiving: the incarnation held for each sender (WORLD, or an agent id), bound by the first
+    valid message of each. The codec reads and binds it; one per node, from one executor thread."""
+
+    __slots__ = ("secret", "run", "incarnation", "held", "retired", "replaced", "_seals", "_hashes")
+
+    def __init__(self, secret: bytes, run: int | None = None, incarnation: int | None = None):
+        self.secret = secret
+        self.run = run
+        self.incarnation = secrets.randbits(32) if incarnation is None else incarnation
+        self.held: dict[int, int] = {}  # sender -> the incarnation it speaks with now
+        self.retired: dict[int, set[int]] = {}  # sender -> incarnations it spoke with before (an agent restarted)
+        self.replaced = 0  # agent incarnations replaced by a newer one (restarts, or a twin)
+        self._seals: dict[str, bytes] = {}  # struct code -> the seal words as the wire holds them
+        self._hashes: dict[str, tuple] = {}  # label -> (inner, outer) HMAC hashes, as _keyed
+
+    def __repr__(self) -> str:  # never the secret
+        run = "unbound" if self.run is None else f"{self.run:016x}"
+        return f"RunKey(run={run}, incarnation={self.incarnation:08x})"
+
+    def seal(self, code: str) -> bytes:
+        """The seal words (run high, run low, incarnation) packed as the array's values are ('i' or 'd')."""
+        seal = self._seals.get(code)
+        if seal is None:
+            if self.run is None:  # an agent acts only on a sealed feedback, which binds the run first
+                raise ValueError("no run nonce yet: a node seals only after it knows its run")
+            words = (self.run >> 32, self.run & 0xFFFFFFFF, self.incarnation)
+            seal = self._seals[code] = struct.pack(f"<3{'I' if code == 'i' else 'd'}", *words)
+        return seal
+
+    def hashes(self, label: str) -> tuple:
+        """(inner, outer) HMAC-SHA256 hashes primed for `label`, to be copied per message."""
+        h = self._hashes.get(label)
+        if h is None:
+            h = self._hashes[label] = _keyed(self.secret, label)
+        return h
+
+    def refusal(self, run: int, incarnation: int, sender: int) -> tuple[str, str] | None:
+        """(kind, detail) when a sealed message (its MAC checked) is not of this run, or not from the
+        incarnation of `sender` this receiver holds; None when it may be accepted."""
+        if self.run is not None and run != self.run:
+            return "other_run", f"run {run:016x}, this receiver's run is {self.run:016x}"
+        held = self.held.get(sender)
+        if held is None or held == incarnation:
+            return None
+        if sender == WORLD:
+            return "other_incarnation", (f"world incarnation {incarnation:08x}, this receiver is bound to "
+                                         f"{held:08x} (a world restarted, or a second one)")
+        if incarnation in self.retired.get(sender, ()):
+            return "other_incarnation", f"agent {sender} incarnation {incarnation:08x}, replaced by {held:08x}"
+        return None
+
+    def accept(self, run: int, incarnation: int, sender: int) -> None:
+        """Bind to what an accepted message carried (refusal() was None for it)."""
+        if self.run is None:
+            self.run = run
+            self._seals.clear()
+        held = self.held.get(sender)
+        if held != incarnation:
+            if held is not None:
+                self.retired.setdefault(sender, set()).add(held)
+                self.replaced += 1
+            self.held[sender] = incarnation
+
+
+def secret_of(key: "bytes | RunKey | None") -> bytes | None:
+    """The secret of a key given either way (statistics carry no seal, only the MAC)."""
+    return key.secret if type(key) is RunKey else key

@@ -1,7 +1,8 @@
 """encode(payload) -> standard ROS message; decode(message, what the receiver expects) -> payload.
 
-The entry points over every payload; the array payloads' codec is msgs_spec.arrays, the statistics'
-msgs_spec.stats, the value checks both share msgs_spec.checks.
+The entry points over every payload; the array payloads' codec is msgs_spec.arrays (the reference) and
+msgs_spec.fast (the same checks and bytes, cheaper per call: what serialize and decode_* here are), the
+statistics' msgs_spec.stats, the value checks both share msgs_spec.checks.
 
 Every decoder validates and raises only `WireError` for any input; the array layouts, the keyed form and the
 serialized bytes the nodes publish are described in msgs_spec.arrays.
@@ -19,9 +20,11 @@ from std_msgs.msg import Float64MultiArray, Int32MultiArray
 
 from .arrays import (
     ACTION_LAYOUT, ARRAY_LAYOUTS, FEEDBACK_LAYOUT, HEARTBEAT_LAYOUT, LAYOUT_BY_PAYLOAD, LAYOUT_BY_WIRE,
-    POSITION_LAYOUT, ArrayLayout, decode_action, decode_array, decode_feedback, decode_heartbeat, decode_position,
-    encode_action, encode_array, encode_feedback, encode_heartbeat, encode_position, serialize_array,
+    POSITION_LAYOUT, ArrayLayout, decode_array, encode_action, encode_array, encode_feedback, encode_heartbeat,
+    encode_position,
 )
+# What nodes call per message: the fast path, which agrees with the reference codec (msgs_spec.arrays)
+from .fast import decode_action, decode_feedback, decode_heartbeat, decode_position, serialize_array
 from .checks import check_sequence
 from .errors import WireError
 from .payloads import AgentStats, Bounds, WorldStats

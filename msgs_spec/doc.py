@@ -60,7 +60,8 @@ def render_spec() -> str:
         lines += ["", f"### `{lay.payload.__name__}` as `std_msgs/msg/{lay.ros_type.__name__}`", "",
                   f"`layout.dim = [{{label: \"{lay.label}\", size: {lay.size}, stride: {lay.size}}}]`, "
                   f"`layout.data_offset = 0`, `data` holds exactly {lay.size} values (keyed, msgs_spec.auth: label "
-                  f"`{lay.keyed_label}`, then the MAC's 4 words):", ""]
+                  f"`{lay.keyed_label}`: the fields, then the seal (the run nonce's high and low words, the "
+                  "sender's incarnation) and the MAC's 4 words):", ""]
         lines += _table(["index", "field", "on the wire", "meaning"],
                         [[str(i), f"`{f}`", f"{wire} ({k})", m] for i, (f, k, m) in
                          enumerate(zip(lay.fields, lay.field_kinds, lay.meanings))])

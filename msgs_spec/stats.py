@@ -18,7 +18,7 @@ from typing import Any, Mapping
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from .auth import mac_words
+from .auth import mac_words, secret_of
 from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_nonneg, check_sequence
 from .errors import WireError
 from .payloads import AgentStats, Bounds, MarkedJointState, WorldStats
@@ -126,7 +126,8 @@ def _mac_hex(key: bytes, name: str, hardware_id: str, pairs: list[tuple[str, str
 
 
 def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str, str]],
-               stamp: Time | None, key: bytes | None) -> DiagnosticArray:
+               stamp: Time | None, key: Any) -> DiagnosticArray:
+    key = secret_of(key)  # statistics carry the MAC only: the launcher, which checks them, holds no run
     if key is not None:
         pairs = [*pairs, (_MAC_KEY, _mac_hex(key, name, hardware_id, pairs))]
     status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=summary, hardware_id=hardware_id,
@@ -137,9 +138,10 @@ def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str,
     return arr
 
 
-def _stats_values(msg: Any, key: bytes | None) -> tuple[str, str, dict[str, str]]:
+def _stats_values(msg: Any, key: Any) -> tuple[str, str, dict[str, str]]:
     """(status name, hardware_id, key -> value but the MAC) of a one-status DiagnosticArray; rejects repeated
     keys, and with `key` a status whose MAC is missing or does not match."""
+    key = secret_of(key)
     if type(msg) is not DiagnosticArray:
         raise WireError("wrong_type", f"expected DiagnosticArray, got {type(msg).__name__}")
     try:

@@ -21,10 +21,12 @@ from cq_ros.gridmap import GridMap, MapError, load_map
 from cq_ros.learners import LEARNERS
 from cq_ros.settings import Settings, SettingsError, run_settings
 from msgs_spec import KeyFileError, read_key
+from msgs_spec.auth import RunKey, new_run
 
 __all__ = ["SETTING_NAMES", "check_names", "check_numbers", "map_and_settings", "WORLD_PARAMETERS",
            "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters", "undeclared_overrides",
-           "read_key_parameter", "ros_type", "describe_parameters", "help_requested", "print_help"]
+           "read_key_parameter", "run_key_parameters", "ros_type", "describe_parameters", "help_requested",
+           "print_help"]
 
 
 SETTING_NAMES = frozenset(f.name for f in fields(Settings))
@@ -90,6 +92,8 @@ WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("world dynamics us
     "key_file": ("", "file holding the run's key (hex, readable by its owner only; cq-ros launch writes one): "
                      "key every message that steers the run and drop actions without a matching MAC; empty: "
                      "no authentication"),
+    "run_nonce": (0, "with key_file: the run's nonce every keyed message is sealed with (cq-ros launch draws one "
+                     "per launch); 0: this node draws one at start and the agents learn it from its first message"),
     "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
                           "world/map (latched) and world/markers every step; false: not even the publishers"),
 })
@@ -119,6 +123,10 @@ AGENT_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("learning settings
                                  "episode); learning never waits for them, the exit at most 10 s"),
     "key_file": ("", "file holding the run's key (as the world's key_file): key every action, drop feedback, "
                      "positions and heartbeats without a matching MAC; empty: no authentication"),
+    "run_nonce": (0, "with key_file: the run's nonce (as the world's); 0: learnt from the world's first keyed "
+                     "message, and messages of any other run refused (other_run)"),
+    "max_catch_up": (100, "episodes a later feedback may be ahead of the one expected and still be caught up to "
+                          "(its episodes ended one by one); one further ahead is refused (far_ahead)"),
     "markers": (True, "publish for viewers (RViz2, Foxglove, bags; msgs_spec/viz.py) while someone subscribes: "
                           "agv<k>/looks at every decision; false: not even the publishers"),
 })
@@ -167,6 +175,18 @@ def read_key_parameter(path: str) -> bytes | None:
         return read_key(path) if path else None
     except KeyFileError as e:
         raise SettingsError(str(e)) from None
+
+
+def run_key_parameters(values: dict[str, Any], world: bool) -> RunKey | None:
+    """The node's RunKey from parameters key_file and run_nonce (None without a key): the world draws a run
+    when none is given, an agent learns it from the world."""
+    secret = read_key_parameter(values["key_file"])
+    run = values["run_nonce"]
+    if run < 0:
+        raise SettingsError(f"parameter run_nonce must be 1..2**63-1, or 0 for none, got {run}")
+    if secret is None:
+        return None
+    return RunKey(secret, run=run or (new_run() if world else None))
 
 
 # The ROS 2 type each parameter's default gives it, as `ros2 param describe` names it.

@@ -77,6 +77,7 @@ from cq_ros.lab.output import made_by, os_reason, removed_if_failing
 from node_runtime.parameters import check_names
 from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
 from msgs_spec import agent_namespace, new_key_file
+from msgs_spec.auth import new_run
 from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key_parameter
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import world_config
@@ -101,7 +102,7 @@ STOP_GRACE_S = ((signal.SIGINT, 3.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 5.
 NAMESPACE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 # Node parameters the launcher fixes itself (from its own options, or as its children need them).
 LAUNCHER_OWNS = {"map", "episodes", "seed", "run", "algo", "agent_id", "checkpoint", "min_stats_subscribers",
-                 "key_file"}
+                 "key_file", "run_nonce"}
 _SETTINGS = {f.name for f in fields(Settings)}
 # name -> default: the node parameters `--set` may change, beside the Settings fields.
 SETTABLE = {name: default for params in (WORLD_PARAMETERS, AGENT_PARAMETERS)
@@ -249,7 +250,7 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     map_ref = str(where.resolve()) if isinstance(map_name, os.PathLike) or where.suffix == ".txt" or \
         len(where.parts) > 1 else str(map_name)
     common = {"map": map_ref, "episodes": episodes, "seed": seed, "run": 0,
-              **({"key_file": str(key_file)} if key_file else {})}
+              **({"key_file": str(key_file), "run_nonce": new_run()} if key_file else {})}
     node_parameters = node_parameters or {}
     to_world = {k: v for k, v in node_parameters.items() if k in WORLD_PARAMETERS}
     to_agents = {k: v for k, v in node_parameters.items() if k in AGENT_PARAMETERS}

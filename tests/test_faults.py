@@ -626,3 +626,79 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
     assert rows == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
     assert manifest["ended_early"]["episodes_written"] == len(rows)
     assert "No space left on device" in manifest["ended_early"]["reason"] and not leftover
+
+
+# -- a run's messages bound to the run, a catch-up bounded ---------------------------------------------------
+
+
+def _inject_once_under_way(system, ros_context, spin_until, messages):
+    """Publish `messages` ((topic, spec, raw bytes) each) every 50 ms once the run is under way (a heartbeat
+    writer seen before the world's first step would be a second world)."""
+    assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
+    injector = system.add(rclpy.create_node("injector", context=ros_context))
+    pubs = {topic: injector.create_publisher(spec.msg_type, topic, spec.qos) for topic, spec, _ in messages}
+    sent = []
+
+    def publish():
+        if not system.world.core.finished:
+            for topic, _, raw in messages:
+                pubs[topic].publish(raw)
+            sent.append(1)
+    injector.create_timer(0.05, publish)
+    return sent
+
+
+def test_keyed_messages_of_an_earlier_run_with_the_same_key_file_are_refused(system_in, ros_context, spin_until,
+                                                                             key_file):
+    """What an earlier run's world sent under the same key file (sealed with its own run nonce: a feedback of a
+    later episode, a heartbeat with a high beat, a position), published into this run: each is refused as
+    `other_run` and counted, nothing is caught up to, no real heartbeat is taken for a replay, and the run is
+    the offline one."""
+    from msgs_spec import read_key, serialize
+    from msgs_spec.auth import RunKey, new_run
+
+    algo, episodes = "cq", 4
+    case = (*CASE[:2], (*CASE[2], ("eval_episodes", 0)))
+    system = system_in(algo, case[0], case[1], episodes, case[2], common_extra={"key_file": key_file})
+    earlier = RunKey(read_key(key_file), run=new_run())  # the earlier run's world, as it sealed
+    sent = _inject_once_under_way(system, ros_context, spin_until, [
+        (feedback_topic(1), FEEDBACK, serialize(Feedback(1, 2, 0, 0, 0, 0.0), key=earlier)),
+        (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(10**6, 2, 0), key=earlier)),
+        (position_topic(2), POSITION, serialize(Position(2, 0, 1, 0, 0), key=earlier))])
+    finish(system, spin_until)
+    assert len(sent) >= 3
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
+    assert all(s.missed_actions == 0 for s in system.world_stats)
+    agv1 = counters(system, 1)
+    assert agv1["dropped.other_run"] >= 2 * (len(sent) - 2)  # its feedback and the heartbeat, but the last ones
+    assert "caught_up" not in agv1 and "dropped.replayed" not in agv1
+
+
+@pytest.mark.parametrize("keyed", [False, True], ids=["no-key-forged-heartbeat", "keyed"])
+def test_a_feedback_from_far_ahead_is_refused_and_counted_without_a_loop(system_in, ros_context, spin_until,
+                                                                         key_file, keyed):
+    """A feedback stamped episode 2**31-1 for agv1, with a heartbeat vouching for it: forged (no key), or sealed
+    by a key holder of this run (a bug). agv1 refuses it as `far_ahead` and counts it (it never ends the 2**31
+    episodes in between); the run ends in its usual time and is the offline one."""
+    from msgs_spec import serialize
+    from msgs_spec.auth import RunKey
+
+    algo, episodes = "cq", 4
+    case = (*CASE[:2], (*CASE[2], ("eval_episodes", 0)))
+    system = system_in(algo, case[0], case[1], episodes, case[2],
+                       common_extra={"key_file": key_file} if keyed else {})
+    far = 2**31 - 1
+    key = None
+    if keyed:  # the world's own seal: as this run's world would send it
+        assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
+        world_key = system.world.config.key
+        key = RunKey(world_key.secret, run=world_key.run, incarnation=world_key.incarnation)
+    start = time.monotonic()
+    sent = _inject_once_under_way(system, ros_context, spin_until, [
+        (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(far, far, 0), key=key)),
+        (feedback_topic(1), FEEDBACK, serialize(Feedback(1, far, 0, 0, 0, 0.0), key=key))])
+    finish(system, spin_until)
+    assert time.monotonic() - start < RUN_TIMEOUT_S and len(sent) >= 2
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
+    agv1 = counters(system, 1)
+    assert agv1["dropped.far_ahead"] >= len(sent) - 2 and "caught_up" not in agv1

@@ -43,7 +43,8 @@ from msgs_spec import (
     NO_ACTION, Bounds, DropCounter, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace,
     decode_action,
 )
-from node_runtime.parameters import read_key_parameter
+from msgs_spec.auth import RunKey
+from node_runtime.parameters import run_key_parameters
 from node_runtime.patience import Patience
 
 __all__ = ["WorldConfig", "world_config", "Lockstep"]
@@ -60,7 +61,7 @@ class WorldConfig:
     startup_timeout: float
     min_stats_subscribers: int
     heartbeat_period: float
-    key: bytes | None
+    key: RunKey | None  # the run's key, sealing with the run's nonce and this world's incarnation
 
     @property
     def total_episodes(self) -> int:
@@ -76,7 +77,7 @@ def world_config(values: Mapping[str, Any]) -> WorldConfig:
     gridmap, settings = map_and_settings(values)
     return WorldConfig(gridmap, settings, values["episodes"], values["seed"], values["run"],
                        values["step_timeout"], values["startup_timeout"], values["min_stats_subscribers"],
-                       values["heartbeat_period"], read_key_parameter(values["key_file"]))
+                       values["heartbeat_period"], run_key_parameters(values, world=True))
 
 
 
@@ -94,7 +95,7 @@ class Lockstep:
 
     def __init__(self, world: GridWorld, episodes: int, step_timeout: float, *,
                  log: Callable[[str], Any] | None = None, clock: Callable[[], float] = time.monotonic,
-                 key: bytes | None = None):
+                 key: RunKey | bytes | None = None):
         self.world = world
         self.key = key  # the run's key: actions must carry its MAC (None: no authentication)
         self.beats = 0  # heartbeats sent
@@ -169,6 +170,9 @@ class Lockstep:
             out["ignored.unexpected_action"] = self.unexpected_actions
         if self._patience.stalls:
             out["stalls"] = self._patience.stalls
+        replaced = getattr(self.key, "replaced", 0)
+        if replaced:  # an agent's actions came from a new incarnation: it restarted (or has a twin)
+            out["replaced_incarnations"] = replaced
         out.update(self.extra_counters)
         return out
 
