@@ -18,7 +18,7 @@ import yaml
 from cq_ros.cli.main import main
 from cq_ros.settings import run_settings
 from cq_ros.gridmap import load_map
-from processes import alive_with
+from helpers import alive_with
 from ros_tools.launch import node_specs
 from ros_tools.system_file import SystemFileError, read_system, write_system
 
@@ -76,6 +76,8 @@ def test_params_file_and_the_options_it_replaces_do_not_mix(tmp_path, capsys):
     assert "--map and --algo are required" in capsys.readouterr().err
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(tmp_path, capsys, monkeypatch):
     key = tmp_path / "run.key"
     assert main(["key", "--out", str(key)]) == 0
@@ -132,6 +134,7 @@ def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(t
     assert not alive_with(namespace)
 
 
+@pytest.mark.ros
 def test_collect_without_a_system_is_one_line_and_writes_nothing(tmp_path, capsys):
     assert main(["collect", "--namespace", f"none_{uuid.uuid4().hex[:6]}", "--wait", "1", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err

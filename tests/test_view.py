@@ -6,14 +6,12 @@ latched map, published once before the client came, is sent again when it subscr
 from __future__ import annotations
 
 import json
-import selectors
 import signal
 import socket
 import struct
 import subprocess
 import sys
 import threading
-import time
 import uuid
 
 import pytest
@@ -29,6 +27,7 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 from cq_ros.gridmap import load_map  # noqa: E402
 from cq_ros.gridmap import lattice  # noqa: E402
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene  # noqa: E402
+from helpers import launch_command, unique, wait_for_line, wait_until  # noqa: E402
 
 START_S = 90.0  # bound on the view process starting and finding the system on 2 busy cores
 RECV_S = 30.0
@@ -40,22 +39,6 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def wait_for_line(process: subprocess.Popen, phrase: str, timeout_s: float) -> str:
-    """The first stderr line of `process` holding `phrase` (bounded by timeout_s)."""
-    selector = selectors.DefaultSelector()
-    selector.register(process.stderr, selectors.EVENT_READ)
-    deadline, seen = time.monotonic() + timeout_s, []
-    while time.monotonic() < deadline:
-        if selector.select(timeout=0.5):
-            line = process.stderr.readline()
-            seen.append(line)
-            if phrase in line:
-                return line
-            if not line and process.poll() is not None:
-                break
-    raise AssertionError(f"no {phrase!r} from cq-ros view: {''.join(seen)}")
-
-
 def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S) -> dict[str, object]:
     """Connect to the Foxglove server at `port` as a Foxglove client does, subscribe to the `wanted` topics (topic ->
     ROS type) once advertised, each with its ros2msg schema and cdr encoding, and return the first message of
@@ -63,12 +46,17 @@ def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S) -> di
     with connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
                  open_timeout=timeout_s) as ws:
         channels: dict[int, dict] = {}
-        deadline = time.monotonic() + timeout_s
-        while {c["topic"] for c in channels.values()} < set(wanted):
-            assert time.monotonic() < deadline, f"advertised only {channels}"
+
+        def advertised() -> bool:  # every wanted topic, or else the next frame read
+            if {c["topic"] for c in channels.values()} >= set(wanted):
+                return True
             frame = ws.recv(timeout=timeout_s)
             if isinstance(frame, str) and json.loads(frame)["op"] == "advertise":
                 channels.update({c["id"]: c for c in json.loads(frame)["channels"]})
+            return False
+
+        wait_until(advertised, timeout_s, "not every wanted topic advertised", poll_s=0,
+                   detail=lambda: f"advertised only {channels}")
         ours = {cid: c for cid, c in channels.items() if c["topic"] in wanted}
         for c in ours.values():
             assert c["encoding"] == "cdr" and c["schemaEncoding"] == "ros2msg"
@@ -78,17 +66,23 @@ def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S) -> di
                                                                 for i, cid in enumerate(ours)]}))
         topic_of = {i: ours[cid]["topic"] for i, cid in enumerate(ours)}
         got: dict[str, object] = {}
-        while set(got) < set(wanted):
-            assert time.monotonic() < deadline + timeout_s, f"received only {list(got)}"
+
+        def received() -> bool:  # a message of every wanted topic, or else the next frame read
+            if set(got) >= set(wanted):
+                return True
             frame = ws.recv(timeout=timeout_s)
             if isinstance(frame, bytes) and frame[0] == 0x01:  # message data: subscription id, log time, payload
                 subscription, _log_time = struct.unpack_from("<IQ", frame, 1)
                 topic = topic_of[subscription]
                 got[topic] = deserialize_message(frame[13:], wanted[topic])
+            return False
+
+        wait_until(received, timeout_s, "not a message of every wanted topic", poll_s=0,
+                   detail=lambda: f"received only {list(got)}")
     return got
 
 
-def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, ros_domain_id):
+def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, ros_domain_id, tmp_path):
     from rclpy.executors import SingleThreadedExecutor
 
     gridmap = load_map("grid_game_2")
@@ -114,10 +108,12 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
     spinner.start()
 
     port = free_port()
-    viewer = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "view", "--domain-id", str(ros_domain_id),
-                               "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    err = tmp_path / "view.stderr"
+    with open(err, "wb") as f:
+        viewer = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "view", "--domain-id", str(ros_domain_id),
+                                   "--port", str(port)], stdout=subprocess.DEVNULL, stderr=f)
     try:
-        assert f"relaying /{ns} on ws://127.0.0.1:{port}" in wait_for_line(viewer, "relaying", START_S)
+        assert f"relaying /{ns} on ws://127.0.0.1:{port}" in wait_for_line(err, "relaying", START_S, viewer)
         # The map was published once, long before the client: it comes only if the relay sends it again.
         got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray})
         grid = got[f"/{ns}/world/map"]
@@ -129,7 +125,7 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
     finally:
         if viewer.poll() is None:
             viewer.kill()
-        viewer.communicate(timeout=30)
+        viewer.wait(timeout=30)
         stopping.set()
         spinner.join(timeout=10)
         executor.shutdown()
@@ -137,14 +133,16 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
         agent.destroy_node()
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
-    ns, port = f"lview_{uuid.uuid4().hex[:6]}", free_port()
-    launch = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "launch", "--map", "tunnel_to_goal", "--algo", "cq",
-                               "--episodes", "100000", "--compose", "--namespace", ns, "--view", str(port),
-                               "--no-figures", "--out", str(tmp_path / "r")], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True)
+    ns, port, err = unique("lview"), free_port(), tmp_path / "launch.stderr"
+    with open(err, "wb") as f:
+        launch = subprocess.Popen(launch_command(tmp_path / "r", ns, "tunnel_to_goal", "cq", 100_000, (), "--compose",
+                                                 "--view", str(port), "--no-figures"),
+                                  stdout=subprocess.DEVNULL, stderr=f)
     try:
-        assert f"ws://127.0.0.1:{port}" in wait_for_line(launch, "Foxglove view on", START_S)
+        assert f"ws://127.0.0.1:{port}" in wait_for_line(err, "Foxglove view on", START_S, launch)
         # The client comes before the nodes have started (their processes take seconds on 2 busy cores).
         got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray}, START_S)
         assert MAP.decode(got[f"/{ns}/world/map"]).lattice == lattice(load_map("tunnel_to_goal"))
@@ -154,7 +152,7 @@ def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
     finally:
         if launch.poll() is None:
             launch.kill()
-        launch.communicate(timeout=30)
+        launch.wait(timeout=30)
 
 
 def test_the_shipped_foxglove_layout_is_make_layouts_and_names_the_systems_topics():
