@@ -26,7 +26,8 @@ def main() -> None:
     fb, pos, act = Feedback(3, 5, 7, 2, 4, -1.0, False, False), Position(3, 5, 7, 2, 4), Action(3, 5, 7, 2)
     raw = {p: serialize(p, key=key) for p in (fb, pos, act)}
     expect = {"bounds": bounds, "agent": 3, "episode": 5, "step": 7, "key": key}
-    cases = {"serialize feedback": lambda: serialize(fb, key=key), "serialize position": lambda: serialize(pos, key=key),
+    cases = {"serialize feedback": lambda: serialize(fb, key=key),
+             "serialize position": lambda: serialize(pos, key=key),
              "serialize action": lambda: serialize(act, key=key),
              "decode feedback": lambda: decode_feedback(raw[fb], **expect),
              "decode position": lambda: decode_position(raw[pos], **expect),

@@ -143,7 +143,8 @@ def test_reproduce_small_grid_writes_a_report_with_every_claim(tmp_path):
             assert (tmp_path / "r" / where / m / "episodes.csv").exists()
             assert (tmp_path / "r" / where / m / "collisions_log.png").exists()
             for other in (6, 7):  # the other seeds' grids: tables, no figures
-                assert json.loads((tmp_path / "r" / f"seed_{other}" / where / m / "manifest.json").read_text())["seed"] == other
+                manifest = tmp_path / "r" / f"seed_{other}" / where / m / "manifest.json"
+                assert json.loads(manifest.read_text())["seed"] == other
     assert json.loads((tmp_path / "r" / "isr" / "manifest.json").read_text())["seed"] == 5
     decay = json.loads((tmp_path / "r" / "decay" / "isr" / "manifest.json").read_text())["settings"]
     assert decay["epsilon_decay_episodes"] == 5 and decay["step_cap"] == 50  # at most 500

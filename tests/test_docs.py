@@ -133,7 +133,7 @@ def _cq(prefix, threshold=0.05):
 
 def test_the_choices_pages_bootstrap_sentences_are_what_its_data_say():
     # docs/choices.md, "What cq_bootstrap_acted costs"
-    tunnel = {who: _cq(f"bootstrap-tunnel_to_goal-seed", 0.1)[i::2] for i, who in enumerate(("ours", "papers"))}
+    tunnel = {who: _cq("bootstrap-tunnel_to_goal-seed", 0.1)[i::2] for i, who in enumerate(("ours", "papers"))}
     assert all(r["manifest"]["settings"]["cq_bootstrap_acted"] == 1 for r in tunnel["ours"])
     assert all(r["manifest"]["settings"]["cq_bootstrap_acted"] == 0 for r in tunnel["papers"])
     for ours, papers in zip(tunnel["ours"], tunnel["papers"]):  # more collisions while exploring at every seed

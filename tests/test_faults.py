@@ -21,7 +21,6 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 
 import pytest
 import rclpy
@@ -470,7 +469,8 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
                 pass
         stop_launcher(launcher)
     manifest = json.loads((out / "manifest.json").read_text())
-    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, STALL_EPISODES)
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0,
+                  STALL_EPISODES)
     counted = manifest["world"]["counters"] if stopped == "world" else manifest["communication"][stopped]["counters"]
     if stopped != "world":  # a stall is counted when it outlasts the node's timeout (the agent's here)
         assert counted.get("stalls", 0) >= 1, counted  # the stalls fell inside the run, and were seen

@@ -386,7 +386,8 @@ def test_cq_look_if_decisive_changes_no_greedy_action_of_a_frozen_copy(map_name)
         greedy.choose = lambda: actions.append(tuple(inner())) or actions[-1]
         episodes = [greedy.episode() for _ in range(5)]
         played[look] = (actions, [(e.steps, e.collisions, e.ret, e.truncated) for e in episodes])
-        heard[look] = sum(learner.heard for learner in greedy.learners) - sum(learner.heard for learner in team.learners)
+        heard[look] = (sum(learner.heard for learner in greedy.learners)
+                       - sum(learner.heard for learner in team.learners))
     assert played[1] == played[0]
     assert 0 <= heard[1] < heard[0]
 
@@ -893,7 +894,7 @@ def test_pickle_round_trip_preserves_behaviour(algo):
     learners = make_learners(algo, gm, SMALL, seed=4, run=0)
     play(learners, gm, SMALL, 10)
     copies = pickle.loads(pickle.dumps(learners))
-    assert [type(c) for c in copies] == [type(l) for l in learners]
+    assert [type(c) for c in copies] == [type(learner) for learner in learners]
     a, ra = play(learners, gm, SMALL, 10)
     b, rb = play(copies, gm, SMALL, 10)
     assert a == b and ra == rb
@@ -964,8 +965,8 @@ def test_make_learners_one_per_agent_or_one_central():
     assert set(ALGORITHMS) == {"indep", "js", "jsa", "loc", "cq"}
     for algo in ALGORITHMS:
         learners = make_learners(algo, gm, Settings(), seed=0, run=0)
-        assert all(isinstance(l, LEARNERS[algo]) for l in learners)
-        assert [l.agent for l in learners] == ([0] if algo == "jsa" else [0, 1])
+        assert all(isinstance(learner, LEARNERS[algo]) for learner in learners)
+        assert [learner.agent for learner in learners] == ([0] if algo == "jsa" else [0, 1])
 
 
 def test_fcq_windows_keep_sampled_q_values_where_cq_keeps_rewards():
