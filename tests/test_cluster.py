@@ -96,6 +96,7 @@ def test_progress_on_the_cluster_counts_the_episodes_the_workers_play(cluster, c
     assert any(0 < e < 6000 and e % 3000 for e in episodes), lines
 
 
+@pytest.mark.slow
 def test_reproduce_and_bench_warehouse_run_on_the_cluster_too(cluster, tmp_path):
     small = {"runs": 1, "episodes": 10, "sweep": False, "figures": False, "settings": Settings(step_cap=100)}
     reproduce(tmp_path / "local", workers=1, **small)

@@ -392,6 +392,7 @@ def test_cq_look_if_decisive_changes_no_greedy_action_of_a_frozen_copy(map_name)
     assert 0 <= heard[1] < heard[0]
 
 
+@pytest.mark.slow
 def test_cq_look_if_decisive_run_is_reproducible():
     gm = load_map("tunnel_to_goal_3")
     on = Settings(slip=0.1, epsilon_decay_episodes=100, step_cap=400, eval_episodes=3, cq_look_if_decisive=1)
@@ -421,6 +422,7 @@ def test_cq_mark_range_0_marks_every_peer_as_the_paper():
 
 
 @pytest.mark.parametrize("bootstrap_acted", [0, 1])
+@pytest.mark.slow
 def test_cq_greedy_deadlock_on_the_tunnel_is_the_papers_bootstrap(bootstrap_acted):
     """A regression test on the one run in ten (seed 0, run 6, 10,000 episodes) whose greedy policy the
     paper's bootstrap leaves stuck at the step cap on tunnel_to_goal; with ours the same run gets both

@@ -269,6 +269,7 @@ def test_write_figures_for_several_maps_prefixes_each_set(tmp_path):
     assert all(path.read_bytes()[:8] == PNG_MAGIC for path in paths)
 
 
+@pytest.mark.slow
 def test_state_space_of_a_map_the_manifest_does_not_describe_comes_from_the_map(tmp_path):
     directory = write_result(tmp_path / "grid", maps=("alpha", "beta"), algos=("cq",))
     loaded = []

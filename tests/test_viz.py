@@ -164,6 +164,7 @@ def test_render_says_when_the_bag_cut_the_episode_it_draws():
     assert cut_by_bag(later, 3) is None  # ended short of the goals, but the next episode began: the step cap
 
 
+@pytest.mark.slow
 def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
     gif = tmp_path / "tunnel.gif"
     args = ["--map", "tunnel_to_goal", "--algo", "cq", "--episodes", "20", "--seed", "3", "--set", "step_cap=60"]
@@ -180,6 +181,7 @@ def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
     assert not (tmp_path / "x.gif").exists()
 
 
+@pytest.mark.slow
 def test_render_draws_the_greedy_episode_after_learning_at_the_dpi_asked(tmp_path):
     gif = tmp_path / "greedy.gif"
     gridmap = load_map("tunnel_to_goal")
