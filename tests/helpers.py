@@ -46,6 +46,8 @@ def wait_until(predicate: Callable[[], T], timeout_s: float, what: str, *, betwe
         if value:
             return value
         stopped = ended is not None and ended()
+        if stopped and (value := predicate()):  # it came just before the end
+            return value
         if stopped or time.monotonic() > deadline:
             if not fail:
                 return False
