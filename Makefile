@@ -1,10 +1,14 @@
-# Two entry points, both from nothing: `make demo` and `make test`.
+# Two entry points, both from nothing: `make demo` and `make test` (the whole suite); `make check` is the fast
+# tier a developer runs often: ruff, then every test that starts no ROS and needs no root (minutes, not tens).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+# what ruff checks: the whole repository (narrow it for a moment with `make check RUFF_PATHS=tests`)
+RUFF_PATHS ?= .
+
+.PHONY: demo lint check test bench clean
 
 # The version is checked before .venv is made (pip's own error names no fix); a .venv whose set-up failed
 # (no stamp) is made again, not reused.
@@ -21,7 +25,13 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/cq-ros launch --map tunnel_to_goal --algo cq --episodes 300 --seed 1 --out results/demo --force
 
-test: $(STAMP)
+lint: $(STAMP)
+	$(BIN)/ruff check $(RUFF_PATHS)
+
+check: lint
+	$(BIN)/python -m pytest -m "not ros and not root"
+
+test: lint
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)

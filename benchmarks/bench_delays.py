@@ -112,7 +112,8 @@ def main() -> None:
 
     print("python benchmarks/bench_delays.py " + " ".join(sys.argv[1:]))
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; seeds {args.seeds} x "
-          f"{args.runs} runs x {args.episodes} episodes" + (f"; settings: {' '.join(args.overrides)}" if args.overrides else ""))
+          f"{args.runs} runs x {args.episodes} episodes"
+          + (f"; settings: {' '.join(args.overrides)}" if args.overrides else ""))
     planned = {}
     for name in maps:
         the_plan = plan(load_map(name))

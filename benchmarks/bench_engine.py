@@ -59,7 +59,8 @@ def main() -> None:
         rates = {}
         for algo in ALGORITHMS:
             rates[algo], steps = steps_per_second(algo, map_name, args.episodes)
-            print(f"{map_name:<17} {algo:<6} {rates[algo]:>10,.0f} joint steps/s  ({steps:,} steps, {args.episodes} episodes)")
+            print(f"{map_name:<17} {algo:<6} {rates[algo]:>10,.0f} joint steps/s  "
+                  f"({steps:,} steps, {args.episodes} episodes)")
         print(f"{map_name:<17} cq/indep speed ratio: {rates['cq'] / rates['indep']:.2f}")
 
     for algo in ("indep", "cq"):

@@ -145,7 +145,8 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--episodes", type=int, default=2000)
     parser.add_argument("--check-every", type=int, default=100)
-    parser.add_argument("--budget", type=float, default=600.0, help="CPU seconds of learning and greedy checks per run at most")
+    parser.add_argument("--budget", type=float, default=600.0,
+                        help="CPU seconds of learning and greedy checks per run at most")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--jobs", type=int, default=os.cpu_count())
     where.add_argument("--cluster", type=scheduler_address, metavar="ADDRESS",

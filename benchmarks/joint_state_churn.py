@@ -65,14 +65,14 @@ def main(argv: list[str] | None = None) -> int:
           f"conf_up {settings.conf_up}, conf_down {settings.conf_down}, conf_max {settings.conf_max}, "
           f"conf_drop {settings.conf_drop}, epsilon {settings.epsilon}")
     print("episodes       marked  dropped  kept  collisions/ep")
-    kept = {(l.agent, js) for l in team.learners for js in l.confidence}
+    kept = {(learner.agent, js) for learner in team.learners for js in learner.confidence}
     marked = dropped = collisions = 0
     for e in range(args.episodes):
         if e // args.block == last_block and e % args.block == 0:
             for learner in team.learners:
                 learner.observe = counting(learner)
         collisions += team.episode().collisions
-        now = {(l.agent, js) for l in team.learners for js in l.confidence}
+        now = {(learner.agent, js) for learner in team.learners for js in learner.confidence}
         marked, dropped, kept = marked + len(now - kept), dropped + len(kept - now), now
         if (e + 1) % args.block == 0 or e + 1 == args.episodes:
             done = e + 1 - e // args.block * args.block
@@ -80,13 +80,15 @@ def main(argv: list[str] | None = None) -> int:
                   f"{collisions / done:.3f}", flush=True)
             print(f"joint_state_churn: {e + 1}/{args.episodes} episodes", file=sys.stderr, flush=True)
             marked = dropped = collisions = 0
-    conf = {(l.agent, js): c for l in team.learners for js, c in l.confidence.items()}
+    conf = {(learner.agent, js): c for learner in team.learners for js, c in learner.confidence.items()}
     print(f"kept at the end: {len(conf)} joint states, {sum(c >= settings.conf_max for c in conf.values())} at "
           f"conf_max; by visits of their cell in the last {args.block} episodes:")
     for lo, hi in VISITS:
-        sel = [c for (agent, js), c in conf.items() if visits[(agent, js[0])] >= lo and (hi is None or visits[(agent, js[0])] < hi)]
+        sel = [c for (agent, js), c in conf.items()
+               if visits[(agent, js[0])] >= lo and (hi is None or visits[(agent, js[0])] < hi)]
         span = f"{lo}+" if hi is None else f"{lo}-{hi - 1}"
-        print(f"  visited {span:>8}: {len(sel):>3} joint states" + (f", confidence {min(sel):.2f}-{max(sel):.2f}" if sel else ""))
+        print(f"  visited {span:>8}: {len(sel):>3} joint states"
+              + (f", confidence {min(sel):.2f}-{max(sel):.2f}" if sel else ""))
     print(f"load average {os.getloadavg()[0]:.2f}")
     return 0
 

@@ -1,9 +1,15 @@
-"""Shared fixtures: every test session talks on its own ROS 2 graph, on this host only.
+"""Shared fixtures, and the markers that sort the suite into tiers.
 
 Before any test runs (so before any rclpy.init, in this process or in a node process a test starts, which
 inherits the environment): a random ROS_DOMAIN_ID in 100..200 for the session (the next ones for the other
 pytest-xdist workers), discovery kept to this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), and ROS logs in
 a temporary directory instead of ~/.ros.
+
+Markers (registered in pyproject.toml): `ros` for a test that starts ROS nodes or contexts, `root` for one that
+needs root (network namespaces), `slow` for one that takes more than about 10 s on 2 busy cores. A test that
+asks for a ROS fixture below is marked `ros` here; a module marks the tests that start node processes
+(`cq-ros launch`, `python -m world_node`, ...) itself. A test not marked `ros` that calls rclpy.init or starts
+a node process fails saying so: `make check` (-m "not ros and not root") must start no ROS.
 """
 
 from __future__ import annotations
@@ -11,14 +17,18 @@ from __future__ import annotations
 import os
 import random
 import shutil
+import subprocess
 import tempfile
-import time
 from typing import Callable
 
 import pytest
 
+import helpers
+
 _LOG_DIR: str | None = None
 _DOMAIN_BASE = "CQ_ROS_TEST_DOMAIN_BASE"
+ROS_FIXTURES = {"ros_context", "ros_domain_id", "spin_until", "system_in"}
+NODE_MODULES = {"world_node", "agent_node", "ros_tools.compose"}  # python -m <one of these> starts a node
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -42,6 +52,38 @@ def _domain_id() -> int:
 def pytest_unconfigure(config: pytest.Config) -> None:
     if _LOG_DIR:
         shutil.rmtree(_LOG_DIR, ignore_errors=True)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark `ros` every test that asks (directly or through another fixture) for a ROS fixture."""
+    for item in items:
+        if ROS_FIXTURES & set(getattr(item, "fixturenames", ())) and not item.get_closest_marker("ros"):
+            item.add_marker(pytest.mark.ros)
+
+
+@pytest.fixture(autouse=True)
+def _no_ros_unless_marked(request, monkeypatch):
+    """In a test not marked `ros`, rclpy.init and starting a node process fail, naming the marker."""
+    if request.node.get_closest_marker("ros"):
+        yield
+        return
+    import rclpy
+
+    def refuse(*args, **kwargs):
+        raise AssertionError(f"{request.node.nodeid} starts ROS: mark it @pytest.mark.ros")
+
+    popen = subprocess.Popen
+
+    class Popen(popen):
+        def __init__(self, args, *rest, **kwargs):
+            words = [args] if isinstance(args, (str, bytes)) else list(args)
+            if any(str(a) in NODE_MODULES for a in words) and not {"-h", "--help"} & set(map(str, words)):
+                refuse()
+            super().__init__(args, *rest, **kwargs)
+
+    monkeypatch.setattr(rclpy, "init", refuse)
+    monkeypatch.setattr(subprocess, "Popen", Popen)
+    yield
 
 
 @pytest.fixture(scope="session")
@@ -68,13 +110,19 @@ def ros_context(ros_domain_id: int):
 @pytest.fixture
 def spin_until() -> Callable:
     """spin_until(executor, predicate, timeout_s): spin until predicate() holds; False at the timeout."""
+    return helpers.spin_until
 
-    def spin(executor, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            if time.monotonic() > deadline:
-                return False
-            executor.spin_once(timeout_sec=0.05)
-        return True
 
-    return spin
+@pytest.fixture
+def system_in(ros_context):
+    """system_in(algo, map, seed, episodes, settings, ...): helpers.start_system in the test's own context;
+    closed after the test."""
+    systems = []
+
+    def start(*args, **kwargs) -> helpers.System:
+        systems.append(helpers.start_system(ros_context, *args, **kwargs))
+        return systems[-1]
+
+    yield start
+    for s in systems:
+        s.close()

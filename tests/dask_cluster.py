@@ -12,8 +12,9 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
+
+from helpers import wait_for_line, wait_until
 
 DASK = str(Path(sys.executable).with_name("dask"))
 START_S = 120.0  # for a process to be up: 3-8 s each on 2 cores shared with other sessions
@@ -52,16 +53,15 @@ class DaskCluster:
         process = self._spawn("scheduler", [*self.on, DASK, "scheduler", "--host", self.host, "--port", "0",
                                             "--no-dashboard", "--scheduler-file", str(file), "--idle-timeout", "600"])
         self.scheduler = process
-        deadline = time.monotonic() + START_S
-        while True:  # the file appears once the scheduler listens; it may be read while still being written
+
+        def address() -> str | None:  # the file appears once the scheduler listens; it may be read while written
             try:
-                self.address = json.loads(file.read_text())["address"]
-                return
+                return json.loads(file.read_text())["address"]
             except (FileNotFoundError, ValueError, KeyError):
-                pass
-            if process.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"no Dask scheduler: {self.log('scheduler')[-2000:]}")
-            time.sleep(0.05)
+                return None
+
+        self.address = wait_until(address, START_S, "no Dask scheduler", ended=lambda: process.poll() is not None,
+                                  detail=lambda: self.log("scheduler")[-2000:])
 
     def add_worker(self, *options: str, on: list[str] | None = None, wait: bool = True) -> subprocess.Popen:
         """A worker of one thread (as docs/cluster.md says to start them), with no nanny, so that killing it is
@@ -71,7 +71,7 @@ class DaskCluster:
                                      "--nthreads", "1", "--no-nanny", "--no-dashboard", "--death-timeout", "60",
                                      "--local-directory", str(self.folder / name), *options])
         if wait:
-            self.wait_for_line(process, REGISTERED)
+            wait_for_line(self.folder / f"{name}.log", REGISTERED, START_S, process)
         return process
 
     def worker_address(self, worker: subprocess.Popen) -> str:
@@ -83,19 +83,11 @@ class DaskCluster:
         except FileNotFoundError:
             return ""
 
-    def wait_for_line(self, process: subprocess.Popen, text: str) -> None:
-        name = process.log_name
-        deadline = time.monotonic() + START_S
-        while text not in self.log(name):
-            if process.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"{name} never logged {text!r}: {self.log(name)[-2000:]}")
-            time.sleep(0.05)
-
     def remove(self, worker: subprocess.Popen) -> None:
         """Kill a worker and return once the scheduler has let it go."""
         address = self.worker_address(worker)
         self.kill(worker)
-        self.wait_for_line(self.scheduler, f"Remove worker addr: {address}")
+        wait_for_line(self.folder / "scheduler.log", f"Remove worker addr: {address}", START_S, self.scheduler)
 
     def kill(self, process: subprocess.Popen) -> None:
         try:

@@ -87,6 +87,7 @@ def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
     assert not (tmp_path / "X").exists()
 
 
+@pytest.mark.slow
 def test_output_that_is_a_file_or_a_result_is_never_overwritten(tmp_path):
     a_file = tmp_path / "file"
     a_file.write_text("mine")
@@ -107,6 +108,7 @@ def test_output_that_is_a_file_or_a_result_is_never_overwritten(tmp_path):
     assert (out / "episodes.csv").read_text() == before
 
 
+@pytest.mark.slow
 def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_the_same_file(tmp_path, capsys):
     args = ["experiment", "--map", "tunnel_to_goal", "--algo", "cq,indep,loc", "--runs", "2", "--episodes", "60",
             "--seed", "5", "--set", "window=10"]
@@ -144,6 +146,7 @@ def test_experiment_writes_tables_manifest_and_figures_and_the_same_seed_gives_t
         assert (first / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_reproduce_small_grid_writes_a_report_with_every_claim(tmp_path):
     assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "10", "--no-sweep",
                  "--set", "step_cap=50", "--seeds", "5,6,7"]) == 0
@@ -161,12 +164,14 @@ def test_reproduce_small_grid_writes_a_report_with_every_claim(tmp_path):
             assert (tmp_path / "r" / where / m / "episodes.csv").exists()
             assert (tmp_path / "r" / where / m / "collisions_log.png").exists()
             for other in (6, 7):  # the other seeds' grids: tables, no figures
-                assert json.loads((tmp_path / "r" / f"seed_{other}" / where / m / "manifest.json").read_text())["seed"] == other
+                manifest = tmp_path / "r" / f"seed_{other}" / where / m / "manifest.json"
+                assert json.loads(manifest.read_text())["seed"] == other
     assert json.loads((tmp_path / "r" / "isr" / "manifest.json").read_text())["seed"] == 5
     decay = json.loads((tmp_path / "r" / "decay" / "isr" / "manifest.json").read_text())["settings"]
     assert decay["epsilon_decay_episodes"] == 5 and decay["step_cap"] == 50  # at most 500
 
 
+@pytest.mark.slow
 def test_every_command_taking_a_map_accepts_a_path_to_a_copied_map(tmp_path, capsys):
     """The map given is the map used, to the last figure: a copy named unlike any shipped map."""
     copied = tmp_path / "my" / "mymap.txt"

@@ -16,7 +16,6 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -27,7 +26,8 @@ from cq_ros.lab.results import CIRCUMSTANCES
 from cq_ros.lab.reproduce import reproduce
 from cq_ros.lab.runner import RunFailed
 from cq_ros.settings import Settings
-from dask_cluster import DaskCluster
+from dask_cluster import START_S, DaskCluster
+from helpers import wait_for_line, wait_until
 from ros_tools.hosts import HostsError, check_can_make_hosts, hosts_down, hosts_up
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -44,7 +44,7 @@ def cluster(tmp_path_factory):
     with DaskCluster(tmp_path_factory.mktemp("dask")) as made:
         first = made.add_worker(wait=False)  # both start at once
         made.add_worker()
-        made.wait_for_line(first, "Registered to:")
+        wait_for_line(made.folder / f"{first.log_name}.log", "Registered to:", START_S, first)
         yield made
 
 
@@ -73,7 +73,8 @@ def test_a_grid_on_the_cluster_writes_the_files_of_a_run_in_one_process_and_on_a
     assert main(["experiment", *GRID, "--cluster", cluster.address, "--out", str(on_cluster)]) == 0
     assert_same_results(in_process, on_pool)
     assert_same_results(in_process, on_cluster)
-    assert f"on the Dask cluster at {cluster.address}: 2 workers, 2 threads, versions checked" in capsys.readouterr().err
+    said = capsys.readouterr().err
+    assert f"on the Dask cluster at {cluster.address}: 2 workers, 2 threads, versions checked" in said
 
     where = json.loads((on_cluster / "manifest.json").read_text())["executed_on"]
     assert where["where"] == "dask" and where["scheduler"] == cluster.address
@@ -96,6 +97,7 @@ def test_progress_on_the_cluster_counts_the_episodes_the_workers_play(cluster, c
     assert any(0 < e < 6000 and e % 3000 for e in episodes), lines
 
 
+@pytest.mark.slow
 def test_reproduce_and_bench_warehouse_run_on_the_cluster_too(cluster, tmp_path):
     small = {"runs": 1, "episodes": 10, "sweep": False, "figures": False, "settings": Settings(step_cap=100)}
     reproduce(tmp_path / "local", workers=1, **small)
@@ -173,12 +175,8 @@ def test_a_worker_killed_mid_grid_has_its_runs_played_elsewhere_and_the_files_ar
 
 def wait_until_processing(client, worker: str) -> bool:
     """True once `worker` is given a run (the scheduler's view), False after GRID_S."""
-    deadline = time.monotonic() + GRID_S
-    while not client.processing(workers=[worker]).get(worker):
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
+    return bool(wait_until(lambda: client.processing(workers=[worker]).get(worker), GRID_S, "processing",
+                           fail=False))
 
 
 def test_a_worker_with_another_cq_ros_is_refused_in_one_line(cluster, tmp_path, capsys):
@@ -216,6 +214,8 @@ def _no_hosts() -> str | None:
 
 
 @pytest.mark.skipif(_no_hosts() is not None, reason=f"no network namespaces here: {_no_hosts()}")
+@pytest.mark.root
+@pytest.mark.slow
 def test_workers_on_hosts_of_their_own_play_the_same_grid(in_process, tmp_path):
     """The scheduler and the client on the `world` host, a worker on each of two others (198.18.0.0/15)."""
     hosts = hosts_up(2)

@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,7 @@ from cq_ros.mapgen.warehouse import warehouse_text
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
     decode_world_stats
 from node_runtime.run import make_executor, spin_nodes
-from processes import alive_with
+from helpers import SEED, alive_with, launch_command, spin_until, unique, wait_for_line
 from ros_tools.compose import make_nodes
 from ros_tools.launch import compose_command, node_specs
 
@@ -37,7 +36,6 @@ RUN_TIMEOUT_S = 60.0  # a bound for one composed run; each below takes a second 
 CASES = {"grid_game_2": (30, {"window": 5, "eval_episodes": 2}),
          "tunnel_to_goal": (6, {"step_cap": 100, "eval_episodes": 1})}
 ALGOS = ("cq", "js", "loc", "jsa", "indep")
-SEED = 1
 
 
 def composed_run(map_name: str, algo: str, tmp_path: Path, domain_id: int) -> tuple[list, dict]:
@@ -67,9 +65,7 @@ def composed_run(map_name: str, algo: str, tmp_path: Path, domain_id: int) -> tu
         deadline = time.monotonic() + RUN_TIMEOUT_S
         assert spin_nodes(executor, composed, lambda: time.monotonic() > deadline) == 0
         total = episodes + overrides["eval_episodes"]
-        end = time.monotonic() + 5.0
-        while min(len(world_stats), *map(len, agent_stats.values())) < total and time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.05)
+        spin_until(executor, lambda: min(len(world_stats), *map(len, agent_stats.values())) >= total, 30.0)
     finally:
         executor.shutdown()
         for node in (*composed, probe):
@@ -80,6 +76,7 @@ def composed_run(map_name: str, algo: str, tmp_path: Path, domain_id: int) -> tu
 
 @pytest.mark.parametrize("map_name", list(CASES))
 @pytest.mark.parametrize("algo", ALGOS)
+@pytest.mark.slow
 def test_composed_nodes_give_exactly_the_offline_engines_episodes(map_name, algo, tmp_path, ros_domain_id):
     episodes, overrides = CASES[map_name]
     world_stats, agent_stats = composed_run(map_name, algo, tmp_path, ros_domain_id)
@@ -97,15 +94,15 @@ def test_composed_nodes_give_exactly_the_offline_engines_episodes(map_name, algo
         assert all(agent_stats[k][-1].subscriptions_created > 0 for k in agent_stats)
 
 
-def launch_command(out: Path, namespace: str, episodes: int, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "cq_ros.cli", "launch", "--compose", "--map", "grid_game_2", "--algo", "cq",
-            "--episodes", str(episodes), "--seed", str(SEED), "--out", str(out), "--namespace", namespace,
-            "--set", "window=5", *extra]
+def composed_launch(out: Path, namespace: str, episodes: int, *extra: str) -> list[str]:
+    return launch_command(out, namespace, "grid_game_2", "cq", episodes, ("window=5",), "--compose", *extra)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_composed_launch_writes_the_offline_engines_episodes_from_one_process(tmp_path):
-    out, namespace = tmp_path / "result", f"composed_{uuid.uuid4().hex[:8]}"
-    done = subprocess.run(launch_command(out, namespace, 30, "--set", "eval_episodes=2", "--no-figures"),
+    out, namespace = tmp_path / "result", unique("composed")
+    done = subprocess.run(composed_launch(out, namespace, 30, "--set", "eval_episodes=2", "--no-figures"),
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert not alive_with(namespace)
@@ -123,17 +120,18 @@ def test_a_composed_launch_writes_the_offline_engines_episodes_from_one_process(
     assert all(f"[{namespace}.{node}]" in log for node in ("world", "agv1", "agv2"))
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_nodes_done_in_a_composed_launch_never_stall_the_agents_still_playing(tmp_path):
     """A node that has played its last episode gives its last messages up to 2 s to be acknowledged, on a
     timer: waiting inside its callback stalled the whole container, and the world timed out the agents
     still playing (warehouse_8's last greedy episode, issue 10). The AGVs here reach their goals at
     different steps of the last episode, the others subscribing to a peer whenever one is close (LoC), and
     the world gives an action 1 s."""
-    out, namespace = tmp_path / "result", f"ending_{uuid.uuid4().hex[:8]}"
-    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", "--compose", "--map", "warehouse_8",
-                           "--algo", "loc", "--episodes", "1", "--seed", str(SEED), "--out", str(out),
-                           "--namespace", namespace, "--set", "eval_episodes=0", "--set", "step_timeout=1.0",
-                           "--no-figures"], capture_output=True, text=True, timeout=120)
+    out, namespace = tmp_path / "result", unique("ending")
+    sets = ("eval_episodes=0", "step_timeout=1.0")
+    done = subprocess.run(launch_command(out, namespace, "warehouse_8", "loc", 1, sets, "--compose", "--no-figures"),
+                          capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["world"]["missed_actions"] == 0
@@ -144,16 +142,15 @@ def test_nodes_done_in_a_composed_launch_never_stall_the_agents_still_playing(tm
             [(int(e["steps"]), int(e["collisions"])) for e in offline.episodes]
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):
-    out, namespace, err = tmp_path / "result", f"stopme_{uuid.uuid4().hex[:8]}", tmp_path / "launch.stderr"
+    out, namespace, err = tmp_path / "result", unique("stopme"), tmp_path / "launch.stderr"
     with open(err, "wb") as f:
-        launcher = subprocess.Popen(launch_command(out, namespace, 100_000), stdout=subprocess.DEVNULL, stderr=f)
+        launcher = subprocess.Popen(composed_launch(out, namespace, 100_000), stdout=subprocess.DEVNULL, stderr=f)
     try:
         log = out / "logs" / "container.log"
-        deadline = time.monotonic() + 60
-        while not (log.exists() and "stepping" in log.read_text()):
-            assert time.monotonic() < deadline and launcher.poll() is None, err.read_text()
-            time.sleep(0.1)
+        wait_for_line(log, "stepping", 120.0, launcher, detail=err)
         launcher.send_signal(signal.SIGINT)
         assert launcher.wait(timeout=30) == 130
     finally:
@@ -171,6 +168,7 @@ def test_sigint_to_a_composed_launch_stops_the_container_cleanly(tmp_path):
     (["world", "agv-1"], "node name 'agv-1'"),
     ([], "no node names"),
 ])
+@pytest.mark.ros
 def test_the_container_exits_2_with_one_line_for_bad_input(args, message):
     done = subprocess.run([sys.executable, "-m", "ros_tools.compose", *args], capture_output=True, text=True,
                           timeout=60)
@@ -180,18 +178,18 @@ def test_the_container_exits_2_with_one_line_for_bad_input(args, message):
 
 
 @pytest.mark.parametrize("compose", [True, False], ids=["composed", "process_per_node"])
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
     """Delays come from the world's own seeded RNG (cq_ros.world, "Delays"), so a launch of a delayed warehouse
     file (its `set slip` and `set start_hold` lines) draws exactly the offline run's delays, greedy episodes
     included."""
     path = tmp_path / "delayed.txt"
     path.write_text(warehouse_text(3, aisles=2, aisle_length=3, seed=5, slip=0.2, start_hold=2))
-    out, namespace = tmp_path / "result", f"delayed_{uuid.uuid4().hex[:8]}"
+    out, namespace = tmp_path / "result", unique("delayed")
     sets = ["eval_episodes=2", "step_cap=300", "epsilon_decay_episodes=0"]
-    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", *(["--compose"] * compose), "--map", str(path),
-                           "--algo", "cq", "--episodes", "12", "--seed", str(SEED), "--out", str(out),
-                           "--namespace", namespace, "--no-figures", *[a for s in sets for a in ("--set", s)]],
-                          capture_output=True, text=True, timeout=180)
+    done = subprocess.run(launch_command(out, namespace, str(path), "cq", 12, sets, *(["--compose"] * compose),
+                                         "--no-figures"), capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr
     gridmap = load_map(path)
     settings = run_settings(gridmap, sets)
@@ -206,6 +204,8 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
     assert json.loads((out / "manifest.json").read_text())["world"]["missed_actions"] == 0
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_where_cq_looks_only_where_it_is_decisive_equals_the_offline_run(tmp_path):
     """cq_look_if_decisive decides in observe() whether to look, so a CQ agent node subscribes to what its
     learner asks for and a composed launch plays the offline run, episode by episode; exploration ends at
@@ -215,10 +215,8 @@ def test_a_launch_where_cq_looks_only_where_it_is_decisive_equals_the_offline_ru
     out = tmp_path / "result"
     sets = ["eval_episodes=2", "step_cap=300", "epsilon_decay_episodes=20", "window=10", "conf_down=0.1",
             "cq_look_if_decisive=1"]
-    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "launch", "--compose", "--map", str(path), "--algo",
-                           "cq", "--episodes", "60", "--seed", str(SEED), "--out", str(out), "--namespace",
-                           f"decisive_{uuid.uuid4().hex[:8]}", "--no-figures", *[a for s in sets for a in ("--set", s)]],
-                          capture_output=True, text=True, timeout=180)
+    command = launch_command(out, unique("decisive"), str(path), "cq", 60, sets, "--compose", "--no-figures")
+    done = subprocess.run(command, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr
     gridmap = load_map(path)
     offline = run("cq", gridmap, run_settings(gridmap, sets), SEED, 0, 60)

@@ -35,6 +35,7 @@ def test_every_generated_block_holds_what_its_data_give(page):
         assert held == made, f"{page.name}: figure {name} is stale: run `python docs/figures.py --write`"
 
 
+@pytest.mark.slow
 def test_the_figures_stand_where_the_pages_say():
     found = {name: page.name for page in figures.pages() for name, _, _ in figures.blocks(page.read_text())}
     assert found == {"reproduce": "choices.md", "who-listens": "ros.md", "warehouses": "warehouses.md",
@@ -131,9 +132,10 @@ def _cq(prefix, threshold=0.05):
     return list(figures.cq_choice_runs(prefix, threshold).values())
 
 
+@pytest.mark.slow
 def test_the_choices_pages_bootstrap_sentences_are_what_its_data_say():
     # docs/choices.md, "What cq_bootstrap_acted costs"
-    tunnel = {who: _cq(f"bootstrap-tunnel_to_goal-seed", 0.1)[i::2] for i, who in enumerate(("ours", "papers"))}
+    tunnel = {who: _cq("bootstrap-tunnel_to_goal-seed", 0.1)[i::2] for i, who in enumerate(("ours", "papers"))}
     assert all(r["manifest"]["settings"]["cq_bootstrap_acted"] == 1 for r in tunnel["ours"])
     assert all(r["manifest"]["settings"]["cq_bootstrap_acted"] == 0 for r in tunnel["papers"])
     for ours, papers in zip(tunnel["ours"], tunnel["papers"]):  # more collisions while exploring at every seed

@@ -513,6 +513,7 @@ CASES += [("cq", "tunnel_to_goal", 4, 40, {"window": 10, "step_cap": 500, "eval_
 
 
 @pytest.mark.parametrize("algo,map_name,seed,episodes,overrides", CASES)
+@pytest.mark.slow
 def test_a_whole_run_without_ros_equals_the_offline_engine(algo, map_name, seed, episodes, overrides):
     gridmap = load_map(map_name)
     settings = Settings().with_overrides(overrides)

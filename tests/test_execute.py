@@ -128,7 +128,8 @@ def test_stopping_anywhere_sets_out_on_the_next_cell_alone_and_holds_where_no_wa
     # on the open aisle it waits less than the rule that stops only at walls, at the same delays
     m = parse_map(OPEN_AISLE)
     the_plan = plan(m)
-    walls, anywhere = (execute_many(the_plan, m, Settings(slip=0.2), 4, 20, stop_anywhere=flag) for flag in (False, True))
+    walls, anywhere = (execute_many(the_plan, m, Settings(slip=0.2), 4, 20, stop_anywhere=flag)
+                       for flag in (False, True))
     assert sum(e.sum_of_costs for e in anywhere) < sum(e.sum_of_costs for e in walls)
     assert all(e.collisions == 0 and e.home for e in walls + anywhere)
 

@@ -21,7 +21,6 @@ import signal
 import subprocess
 import sys
 import time
-import uuid
 
 import pytest
 import rclpy
@@ -32,7 +31,9 @@ from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, Feedback, Heartbeat, Position, action_topic,
     encode, feedback_topic, new_key_file, position_topic,
 )
-from test_nodes_inprocess import GRID, RUN_TIMEOUT_S, finish, offline_rows, parameters, system_in  # noqa: F401 (a fixture)
+from helpers import GRID, RUN_TIMEOUT_S, finish, launch_command, offline_rows, parameters, unique, wait_for_line, \
+    wait_until
+from node_runtime.graph import REFUSE_WITHIN_S
 from world_node import WorldNode
 
 
@@ -105,7 +106,7 @@ def test_one_dropped_feedback_costs_one_step_timeout_and_is_counted(system_in, s
     episodes = 30
     system = system_in("cq", CASE[0], CASE[1], episodes, CASE[2], world_extra={"step_timeout": 0.3},
                        common_extra={"heartbeat_period": 0.2}, agent_class={1: Deaf})
-    finish(system, spin_until)
+    finish(system)
     assert sum(s.missed_actions for s in system.world_stats) == 1
     assert counters(system, 1)["caught_up"] == 1 and counters(system, 1)["missed_feedback"] == 1
     lost_in = next(s.episode for s in system.world_stats if s.missed_actions)
@@ -156,7 +157,7 @@ def test_junk_bursts_of_100_messages_per_step_on_every_topic_change_nothing(syst
                 pub.publish(junk(kind, k, msg_type, *stamp, i))
             beat.publish(encode(Heartbeat(10**6 + i, *stamp)))
     injector.create_timer(0.002, burst)
-    finish(system, spin_until)
+    finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     assert all(s.missed_actions == 0 for s in system.world_stats)
     world_counts = system.world_stats[-1].counters
@@ -187,7 +188,7 @@ def test_a_second_writer_of_positions_and_actions_without_the_key_is_dropped(sys
             actions.publish(encode(Action(2, world.core.episode, world.core.step, 0)))
             positions.publish(encode(Position(1, world.core.episode, world.core.step, 1, 0)))
     intruder.create_timer(0.025, intrude)
-    finish(system, spin_until)
+    finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
     assert system.world_stats[-1].counters["dropped.unauthenticated"] > 0
     assert system.world_stats[-1].counters["second_writers"] >= 1
@@ -209,7 +210,7 @@ def test_stale_positions_are_dropped_and_counted(system_in, ros_context, spin_un
             for k, pub in pubs.items():
                 pub.publish(encode(Position(k, e, s - 1, 0, 0)))
     intruder.create_timer(0.025, stale)
-    finish(system, spin_until)
+    finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
     assert sum(counters(system, k).get("dropped.stale_step", 0) for k in (1, 2)) > 0
 
@@ -227,7 +228,7 @@ def test_an_agent_waiting_at_its_goal_longer_than_its_timeout_stays(system_in, s
     system.executor.remove_node(agent2)
     assert not spin_until(system.executor, lambda: system.agents[0].done.done(), 3.0)
     system.executor.add_node(agent2)
-    finish(system, spin_until)
+    finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
     assert all(s.missed_actions == 0 for s in system.world_stats)
 
@@ -244,20 +245,20 @@ def test_a_second_system_on_the_same_domain_and_namespace_is_refused(ros_domain_
             ctx = Context()
             rclpy.init(context=ctx, domain_id=ros_domain_id)
             contexts.append(ctx)
+        started = time.monotonic()
         first = WorldNode(context=contexts[0], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
         nodes.append(first)
         executor = SingleThreadedExecutor(context=contexts[0])
         executor.add_node(first)
-        spin_until(executor, lambda: False, 5.5)  # past its own start
+        # past its own start: a world that sees a twin within REFUSE_WITHIN_S of its start refuses itself
+        wait_until(lambda: time.monotonic() > started + REFUSE_WITHIN_S + 0.5, REFUSE_WITHIN_S + 10,
+                   "the first world's refusal window", between=lambda: executor.spin_once(timeout_sec=0.05))
         second = WorldNode(context=contexts[1], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
         nodes.append(second)
         other = SingleThreadedExecutor(context=contexts[1])
         other.add_node(second)
-        deadline = 10.0
-        while deadline > 0 and not second.done.done():
-            executor.spin_once(timeout_sec=0.02)
-            other.spin_once(timeout_sec=0.02)
-            deadline -= 0.04
+        wait_until(second.done.done, 10.0, "the second world's exit",
+                   between=lambda: (executor.spin_once(timeout_sec=0.02), other.spin_once(timeout_sec=0.02)))
         assert second.done.done() and second.done.result() == 2
         assert not first.done.done()
         other.shutdown()
@@ -289,10 +290,8 @@ def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything
                                                                        startup_timeout=RUN_TIMEOUT_S))
         other = SingleThreadedExecutor(context=ctx)
         other.add_node(second)
-        deadline = time.monotonic() + RUN_TIMEOUT_S
-        while not second.done.done() and time.monotonic() < deadline:
-            system.executor.spin_once(timeout_sec=0.01)
-            other.spin_once(timeout_sec=0.01)
+        wait_until(second.done.done, RUN_TIMEOUT_S, "the second world's exit",
+                   between=lambda: (system.executor.spin_once(timeout_sec=0.01), other.spin_once(timeout_sec=0.01)))
         assert second.done.done() and second.done.result() == 2
         assert second.core.episode == -1  # it never began: no message of it went out
     finally:
@@ -301,7 +300,7 @@ def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything
         if second is not None:
             second.destroy_node()
         rclpy.try_shutdown(context=ctx)
-    finish(system, spin_until)
+    finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
 
 
@@ -345,6 +344,7 @@ def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_
     ("agent_node", ["-p", "agent_id:=1", "-p", "checkpoint:=/no/such/dir/x.pkl"],
      "parameter checkpoint: '/no/such/dir/x.pkl': folder '/no/such/dir' does not exist"),
 ])
+@pytest.mark.ros
 def test_bad_parameters_on_the_command_line_are_one_line_and_exit_2(module, args, message):
     done = subprocess.run([sys.executable, "-m", module, "--ros-args", *args], capture_output=True, text=True,
                           timeout=180)
@@ -397,15 +397,6 @@ STALL_MAP, STALL_ALGO, STALL_EPISODES, STALL_SETTINGS = "grid_game_2", "cq", 40,
 LAUNCH_TIMEOUT_S = 180.0  # bound on one launch with its stalls; each takes about 20 s on 2 busy cores
 
 
-def wait_for(predicate, timeout_s: float, what: str) -> None:
-    """Until predicate() holds (looked at every 50 ms: a file's content, a process's state); fails after
-    timeout_s naming `what`."""
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, f"no {what} within {timeout_s} s"
-        time.sleep(0.05)
-
-
 def stop_launcher(launcher) -> None:
     """Ctrl-C to a launcher still running (it stops its children), then SIGKILL if it is not gone within 30 s
     (its children then get SIGTERM from the kernel: PR_SET_PDEATHSIG)."""
@@ -442,6 +433,8 @@ def read_rows(path) -> list[tuple[int, int, bool]]:
     # waits for the stopped agent's action through the stall and that silence, hence 20 s
     ("agv1", ("step_timeout=20.0", "feedback_timeout=6.0", "heartbeat_period=0.2"), 2, 8.0),
 ], ids=["world", "agent"])
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, stopped, sets, stalls, stall_s):
     """Issue 20: kill -STOP, then -CONT, of one node process of a real `cq-ros launch`, several times. A stalled
     node handles what is waiting in its queues before it judges anyone late: nobody is timed out, nothing is
@@ -450,21 +443,19 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
 
-    out, namespace = tmp_path / "result", f"stall_{uuid.uuid4().hex[:8]}"
+    out, namespace = tmp_path / "result", unique("stall")
     err = tmp_path / "stderr.txt"
     sets = (*STALL_SETTINGS, *sets)
     with open(err, "wb") as stderr:
         launcher = subprocess.Popen(
-            [sys.executable, "-m", "cq_ros.cli", "launch", "--map", STALL_MAP, "--algo", STALL_ALGO,
-             "--episodes", str(STALL_EPISODES), "--seed", "1", "--out", str(out), "--namespace", namespace,
-             "--no-figures", *[a for s in sets for a in ("--set", s)]], stdout=subprocess.DEVNULL, stderr=stderr)
+            launch_command(out, namespace, STALL_MAP, STALL_ALGO, STALL_EPISODES, sets, "--no-figures"),
+            stdout=subprocess.DEVNULL, stderr=stderr)
     pid = None
     try:
-        wait_for(lambda: re.search(rf"\b{stopped} pid (\d+)", text_of(err)) or launcher.poll() is not None,
-                 LAUNCH_TIMEOUT_S, "process list from the launcher")
-        assert launcher.poll() is None, text_of(err)
-        pid = int(re.search(rf"\b{stopped} pid (\d+)", text_of(err)).group(1))
-        wait_for(lambda: "stepping" in text_of(out / "logs" / "world.log"), LAUNCH_TIMEOUT_S, "first step")
+        pid = int(wait_until(lambda: re.search(rf"\b{stopped} pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                             detail=lambda: text_of(err)).group(1))
+        wait_for_line(out / "logs" / "world.log", "stepping", LAUNCH_TIMEOUT_S, launcher, detail=err)
         for _ in range(stalls):
             os.kill(pid, signal.SIGSTOP)
             time.sleep(stall_s)  # the fault itself: this long stopped
@@ -479,7 +470,8 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
                 pass
         stop_launcher(launcher)
     manifest = json.loads((out / "manifest.json").read_text())
-    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, STALL_EPISODES)
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0,
+                  STALL_EPISODES)
     counted = manifest["world"]["counters"] if stopped == "world" else manifest["communication"][stopped]["counters"]
     if stopped != "world":  # a stall is counted when it outlasts the node's timeout (the agent's here)
         assert counted.get("stalls", 0) >= 1, counted  # the stalls fell inside the run, and were seen
@@ -526,6 +518,7 @@ def tmpfs(where, size_kib: int, read_only: bool = False):
     ["record", "--duration", "1", "--out", "{ro}/bag"],
     ["render", "--map", "grid_game_2", "--episodes", "1", "--out", "{ro}/episode.gif"],
 ], ids=lambda c: c[0])
+@pytest.mark.root
 def test_a_read_only_output_folder_is_one_line_and_exit_2_before_any_work(tmp_path, capsys, command):
     from cq_ros.cli.main import main
 
@@ -551,6 +544,7 @@ def fill(folder) -> None:
     ["experiment", "--map", "grid_game_2", "--algo", "cq", "--runs", "1", "--episodes", "2"],
     ["launch", "--map", "grid_game_2", "--algo", "cq", "--episodes", "2"],
 ], ids=lambda c: c[0])
+@pytest.mark.root
 def test_a_full_disk_at_start_is_one_line_and_leaves_no_folder(tmp_path, capsys, command):
     from cq_ros.cli.main import main
 
@@ -565,6 +559,8 @@ def test_a_full_disk_at_start_is_one_line_and_leaves_no_folder(tmp_path, capsys,
     assert left == ["filler"]  # neither result/ nor the made/ above it
 
 
+@pytest.mark.ros
+@pytest.mark.root
 def test_a_checkpoint_folder_on_a_full_disk_is_refused_at_start(tmp_path):
     with tmpfs(tmp_path / "full", 64) as full:
         fill(full)
@@ -574,6 +570,7 @@ def test_a_checkpoint_folder_on_a_full_disk_is_refused_at_start(tmp_path):
     assert done.stderr.count("\n") == 1 and "No space left on device" in done.stderr, done.stderr
 
 
+@pytest.mark.root
 def test_a_checkpoint_that_cannot_be_written_is_counted_and_learning_goes_on(system_in, spin_until, tmp_path):
     """agv1's checkpoint folder fills after the start: every save fails, is logged and counted, and the
     run goes on to the engine's very episodes."""
@@ -582,12 +579,15 @@ def test_a_checkpoint_that_cannot_be_written_is_counted_and_learning_goes_on(sys
         system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2],
                            agent_extra={1: {"checkpoint": str(folder / "agv1.pkl"), "checkpoint_every": 5}})
         fill(folder)
-        finish(system, spin_until)
+        finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
     assert counters(system, 1)["checkpoint_failed.enospc"] == episodes // 5  # every 5, and the last
     assert not any(k.startswith("checkpoint_failed") for k in counters(system, 2))
 
 
+@pytest.mark.ros
+@pytest.mark.root
+@pytest.mark.slow
 def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_says_why(tmp_path):
     """--out on a 512 KiB tmpfs, filled by the test once the launch has written a few rows: the launcher
     stops the run with one line naming the file and the OS's reason; every row it wrote is whole and the
@@ -601,13 +601,11 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
         out, err = disk / "result", tmp_path / "stderr.txt"
         with open(err, "wb") as stderr:
             launcher = subprocess.Popen(
-                [sys.executable, "-m", "cq_ros.cli", "launch", "--map", STALL_MAP, "--algo", STALL_ALGO,
-                 "--episodes", str(episodes), "--seed", "1", "--out", str(out), "--no-figures",
-                 *[a for s in STALL_SETTINGS for a in ("--set", s)]], stdout=subprocess.DEVNULL, stderr=stderr)
+                launch_command(out, unique("filling"), STALL_MAP, STALL_ALGO, episodes, STALL_SETTINGS,
+                               "--no-figures"), stdout=subprocess.DEVNULL, stderr=stderr)
         try:
-            wait_for(lambda: text_of(out / "episodes.csv").count("\n") > 5 or launcher.poll() is not None,
-                     LAUNCH_TIMEOUT_S, "five rows")
-            assert launcher.poll() is None, text_of(err)
+            wait_until(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "no five rows",
+                       ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
             fill(disk)
             code = launcher.wait(LAUNCH_TIMEOUT_S)
         finally:

@@ -2,11 +2,8 @@
 lines) and reachability (unreachable goals rejected, agents walled in by an early arrival reported)."""
 
 import dataclasses
-from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from cq_ros.gridmap import (
     ACTIONS,

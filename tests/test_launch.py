@@ -11,9 +11,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
-import time
-import uuid
 from pathlib import Path
 
 import numpy as np
@@ -26,14 +23,14 @@ from cq_ros.lab.results import write_results
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
 from cq_ros.mapgen.warehouse import warehouse_text
-from processes import alive_with
+from helpers import SEED, WaitTimeout, alive_with, launch_command, read_episodes, unique, \
+    wait_for_line, wait_until
 from agent_node.checkpoint import save_checkpoints
 from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.world import GridWorld
 from ros_tools.launch import agent_nodes, launch, node_commands, node_specs
 
 LAUNCH_TIMEOUT_S = 120.0  # bound on one launch; each below takes about 10 s on 2 busy cores
-SEED = 1
 # (map, algorithm) -> (episodes, settings): short episodes on tunnel_to_goal (early ones wander for
 # thousands of steps; a negative float also checks that settings reach the nodes typed right), and on
 # grid_game_2 a window CQ fills within 40 episodes, so it marks joint states and subscribes to its peer.
@@ -43,16 +40,6 @@ CASES = {
        for a in ("cq", "js", "loc")},
     **{("grid_game_2", a): (40, ("window=10", "eval_episodes=3")) for a in ("cq", "js", "loc", "jsa")},
 }
-
-
-def unique(prefix: str) -> str:
-    return f"{prefix}_{uuid.uuid4().hex[:8]}"
-
-
-def launch_command(out: Path, namespace: str, map_name: str, algo: str, episodes: int, sets=()) -> list[str]:
-    return [sys.executable, "-m", "cq_ros.cli", "launch", "--map", map_name, "--algo", algo, "--episodes",
-            str(episodes), "--seed", str(SEED), "--out", str(out), "--namespace", namespace,
-            *[arg for s in sets for arg in ("--set", s)]]
 
 
 @pytest.fixture(scope="module")
@@ -76,13 +63,9 @@ def launched(tmp_path_factory):
     return get
 
 
-def read_episodes(out: Path) -> np.ndarray:
-    """episodes.csv's records as a cq_ros.episode table, as RunResult.episodes holds them."""
-    with open(out / "episodes.csv", newline="") as f:
-        return np.array([tuple(float(row[c]) for c in COLUMNS) for row in csv.DictReader(f)], dtype=DTYPE)
-
-
 @pytest.mark.parametrize("map_name, algo", list(CASES))
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name, algo, tmp_path):
     out = launched(map_name, algo)
     episodes, sets = CASES[map_name, algo]
@@ -124,6 +107,7 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.ros
 def test_a_launch_started_from_an_offline_runs_checkpoints_goes_on_as_that_run(tmp_path):
     # the learners of 60 offline episodes, checkpointed, then 15 more episodes offline and over ROS (composed)
     gridmap = load_map("tunnel_to_goal")
@@ -143,6 +127,8 @@ def test_a_launch_started_from_an_offline_runs_checkpoints_goes_on_as_that_run(t
     assert sum(c["peer_messages"] for c in result.manifest["communication"].values()) > 0
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it(tmp_path):
     """--map a path (named unlike any shipped map) is the map used to the last figure; --namespace /name is
     the namespace name, as `-r __ns:=/name` is for a node. Exploration falls to 0 on the nodes' schedule as it
@@ -177,6 +163,8 @@ def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(caps
     assert lines[-1] == "tunnel_to_goal cq greedy: episodes 6/6, 6 collisions, 1 joint states, 12 peer messages"
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_cost(launched):
     out = launched("tunnel_to_goal", "cq")
     stdout = (out.parent / "stdout.txt").read_text()
@@ -193,6 +181,8 @@ def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_
 
 
 @pytest.mark.parametrize("map_name", ["tunnel_to_goal", "grid_game_2"])
+@pytest.mark.ros
+@pytest.mark.slow
 def test_cq_agents_receive_fewer_peer_messages_than_js_agents(launched, map_name):
     def peer_messages(algo: str) -> int:
         manifest = json.loads((launched(map_name, algo) / "manifest.json").read_text())
@@ -208,14 +198,12 @@ def _start_long_launch(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, P
     with open(err, "wb") as f:
         launcher = subprocess.Popen([*launch_command(out, namespace, "tunnel_to_goal", "cq", 100_000, ()), *extra],
                                     stdout=subprocess.DEVNULL, stderr=f)
-    deadline = time.monotonic() + 60
-    world_log = out / "logs" / "world.log"
-    while not (world_log.exists() and "stepping" in world_log.read_text()):
-        if time.monotonic() > deadline or launcher.poll() is not None:
-            launcher.kill()
-            launcher.wait(timeout=30)
-            pytest.fail(f"the launch never started stepping: {err.read_text()}")
-        time.sleep(0.1)
+    try:
+        wait_for_line(out / "logs" / "world.log", "stepping", LAUNCH_TIMEOUT_S, launcher, detail=err)
+    except WaitTimeout:
+        launcher.kill()
+        launcher.wait(timeout=30)
+        raise
     return launcher, out, namespace, err
 
 
@@ -230,6 +218,8 @@ def _wait(launcher: subprocess.Popen, namespace: str) -> int:
             os.kill(int(cmdline.split(":")[0]), signal.SIGKILL)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
     launcher, out, namespace, err = _start_long_launch(tmp_path)
     agent = [p for p in alive_with(f"__ns:=/{namespace}") if "__node:=agv1" in p]
@@ -250,6 +240,8 @@ def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
     assert not (out / "manifest.json").exists()
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
     launcher, out, namespace, err = _start_long_launch(tmp_path)
     launcher.send_signal(signal.SIGINT)
@@ -262,6 +254,7 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
         assert "Traceback" not in log.read_text(), log.name
 
 
+@pytest.mark.slow
 def test_a_second_launch_in_a_running_systems_namespace_refuses_and_counts_none_of_its_episodes(tmp_path,
                                                                                                   ros_domain_id):
     """Issue 20: the second launch's world refuses (exit 2) and the launch says why in one line. Its listener
@@ -272,10 +265,9 @@ def test_a_second_launch_in_a_running_systems_namespace_refuses_and_counts_none_
     domain = ("--domain-id", str(ros_domain_id))  # one domain for both: a launch draws its own otherwise
     first, out, namespace, err = _start_long_launch(tmp_path, *domain)
     try:
-        deadline = time.monotonic() + LAUNCH_TIMEOUT_S  # until the first system has episodes to be mistaken for
-        while len((out / "episodes.csv").read_text().splitlines()) < 4:
-            assert time.monotonic() < deadline and first.poll() is None, err.read_text()
-            time.sleep(0.1)
+        # until the first system has episodes to be mistaken for
+        wait_until(lambda: len((out / "episodes.csv").read_text().splitlines()) >= 4, LAUNCH_TIMEOUT_S,
+                   "the first launch's fourth row", ended=lambda: first.poll() is not None, detail=err.read_text)
         other = tmp_path / "second"
         second = subprocess.run([*launch_command(other, namespace, "tunnel_to_goal", "cq", 100_000, ()), *domain,
                                  "--seed", str(SEED + 1)], capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
@@ -316,6 +308,7 @@ def test_nodes_are_given_the_settings_that_differ_from_the_maps_own(tmp_path):
     assert given(Settings()) == [{"reward_step", "gamma", "epsilon_decay_episodes"}] * 9
 
 
+@pytest.mark.ros
 def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_offline_run(tmp_path):
     path = tmp_path / "w2.txt"
     path.write_text(warehouse_text(2, aisles=1, aisle_length=2, seed=3))
@@ -334,6 +327,8 @@ def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_of
     assert manifest["settings_from_map"] == {"reward_step": -1.0, "gamma": 0.98, "epsilon_decay_episodes": 1500}
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_included(tmp_path):
     """Issue 11: CQ's AGVs over ROS on a generated warehouse, with a window short enough that an agent marks
     a joint state and subscribes to a peer within the run, give the offline engine's episodes exactly."""

@@ -393,11 +393,13 @@ def test_cq_look_if_decisive_changes_no_greedy_action_of_a_frozen_copy(map_name)
         greedy.choose = lambda: actions.append(tuple(inner())) or actions[-1]
         episodes = [greedy.episode() for _ in range(5)]
         played[look] = (actions, [(e.steps, e.collisions, e.ret, e.truncated) for e in episodes])
-        heard[look] = sum(learner.heard for learner in greedy.learners) - sum(learner.heard for learner in team.learners)
+        heard[look] = (sum(learner.heard for learner in greedy.learners)
+                       - sum(learner.heard for learner in team.learners))
     assert played[1] == played[0]
     assert 0 <= heard[1] < heard[0]
 
 
+@pytest.mark.slow
 def test_cq_look_if_decisive_run_is_reproducible():
     gm = load_map("tunnel_to_goal_3")
     on = Settings(slip=0.1, epsilon_decay_episodes=100, step_cap=400, eval_episodes=3, cq_look_if_decisive=1)
@@ -427,6 +429,7 @@ def test_cq_mark_range_0_marks_every_peer_as_the_paper():
 
 
 @pytest.mark.parametrize("bootstrap_acted", [0, 1])
+@pytest.mark.slow
 def test_cq_greedy_deadlock_on_the_tunnel_is_the_papers_bootstrap(bootstrap_acted):
     """A regression test on the one run in ten (seed 0, run 6, 10,000 episodes) whose greedy policy the
     paper's bootstrap leaves stuck at the step cap on tunnel_to_goal; with ours the same run gets both
@@ -919,7 +922,7 @@ def test_pickle_round_trip_preserves_behaviour(algo):
     learners = make_learners(algo, gm, SMALL, seed=4, run=0)
     play(learners, gm, SMALL, 10)
     copies = pickle.loads(pickle.dumps(learners))
-    assert [type(c) for c in copies] == [type(l) for l in learners]
+    assert [type(c) for c in copies] == [type(learner) for learner in learners]
     a, ra = play(learners, gm, SMALL, 10)
     b, rb = play(copies, gm, SMALL, 10)
     assert a == b and ra == rb
@@ -990,8 +993,8 @@ def test_make_learners_one_per_agent_or_one_central():
     assert set(ALGORITHMS) == {"indep", "js", "jsa", "loc", "cq"}
     for algo in ALGORITHMS:
         learners = make_learners(algo, gm, Settings(), seed=0, run=0)
-        assert all(isinstance(l, LEARNERS[algo]) for l in learners)
-        assert [l.agent for l in learners] == ([0] if algo == "jsa" else [0, 1])
+        assert all(isinstance(learner, LEARNERS[algo]) for learner in learners)
+        assert [learner.agent for learner in learners] == ([0] if algo == "jsa" else [0, 1])
 
 
 def test_fcq_windows_keep_sampled_q_values_where_cq_keeps_rewards():

@@ -253,7 +253,10 @@ class Scripted(Learner):
 def test_statistics_equal_the_offline_team_for_the_same_moves(map_name):
     gridmap = load_map(map_name)
     settings = Settings(step_cap=150)
-    scripted = lambda: [Scripted(i, gridmap, settings, 100 + i) for i in range(gridmap.n_agents)]
+
+    def scripted():
+        return [Scripted(i, gridmap, settings, 100 + i) for i in range(gridmap.n_agents)]
+
     offline = Team(GridWorld(gridmap, settings), scripted())
     expected = [offline.episode() for _ in range(8)]
     learners = scripted()

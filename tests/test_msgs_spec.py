@@ -247,7 +247,8 @@ def test_serialize_gives_rclpys_bytes_and_decoders_read_them(strategy):
         # none lies among the values at the end.
         theirs = serialize_message(msg)
         differ = [i for i, (a, b) in enumerate(zip(raw, theirs)) if a != b]
-        values_start = len(raw) - len(msg.data) * (8 if isinstance(msg.data[0], float) else 4) if len(msg.data) else len(raw)
+        values_start = (len(raw) - len(msg.data) * (8 if isinstance(msg.data[0], float) else 4) if len(msg.data)
+                        else len(raw))
         assert len(raw) == len(theirs) and all(raw[i] == 0 and i < values_start for i in differ)
         decode = {ms.Feedback: dfb, ms.Position: dpos, ms.Action: dact}[type(p)]
         assert decode(raw, **_expect(p), key=key) == p
@@ -591,8 +592,8 @@ def test_the_mac_is_hmac_sha256_of_the_domain_label_and_values(key, label, packe
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(st.one_of(st.floats(), st.integers(-2**31 - 2, 2**31 + 1).map(float), st.sampled_from([0.0, 1.0, -0.0])),
-                min_size=len(FB.fields), max_size=len(FB.fields)))
+@given(st.lists(st.one_of(st.floats(), st.integers(-2**31 - 2, 2**31 + 1).map(float),
+                          st.sampled_from([0.0, 1.0, -0.0])), min_size=len(FB.fields), max_size=len(FB.fields)))
 def test_the_float_arrays_one_pass_reading_is_the_checked_one(values):
     from msgs_spec.arrays import _typed
     fast = FB.from_floats(tuple(values))
@@ -752,7 +753,7 @@ def ros_context(tmp_path, monkeypatch):
         rclpy.try_shutdown(context=ctx)
 
 
-def test_every_topic_delivers_over_dds_with_its_qos_and_position_is_latched(ros_context):
+def test_every_topic_delivers_over_dds_with_its_qos_and_position_is_latched(ros_context, spin_until):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
@@ -776,15 +777,11 @@ def test_every_topic_delivers_over_dds_with_its_qos_and_position_is_latched(ros_
 
         for spec in ms.TOPICS:
             subscribe(spec, pubs[spec.key][1])
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline and any(p.get_subscription_count() < 1 for p, _, _ in pubs.values()):
-            ex.spin_once(timeout_sec=0.05)
+        spin_until(ex, lambda: all(p.get_subscription_count() >= 1 for p, _, _ in pubs.values()), 10.0)
         for key, (pub, _, example) in pubs.items():
             if key != "position":
                 pub.publish(ms.encode(example))
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline and not all(got.values()):
-            ex.spin_once(timeout_sec=0.05)
+        spin_until(ex, lambda: all(got.values()), 10.0)
         for spec in ms.TOPICS:
             example = doc.EXAMPLES[spec.key]
             assert got[spec.key], f"nothing on {spec.pattern}"

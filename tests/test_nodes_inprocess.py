@@ -9,20 +9,17 @@ import itertools
 import os
 import subprocess
 import sys
-from dataclasses import dataclass, field
 
-import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
 from std_msgs.msg import Int32MultiArray, MultiArrayDimension
 
 from agent_node import AgentNode
 from agent_node.checkpoint import load_checkpoint
-from cq_ros.engine import Team, make_learners, run, world_seed
+from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
@@ -30,101 +27,8 @@ from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
     agent_stats_topic, decode_action, decode_agent_stats, decode_world_stats, encode, feedback_topic,
 )
+from helpers import GRID, RUN_TIMEOUT_S, System, finish, offline, offline_rows, parameters, start_system
 from world_node import WorldNode
-
-RUN_TIMEOUT_S = 300.0  # a bound for any one system run; the runs below take seconds (a minute at load 18)
-
-
-@dataclass
-class System:
-    """A world, its agents and a probe recording world/stats and agv<k>/stats, on one executor."""
-
-    world: WorldNode
-    agents: list[AgentNode]
-    executor: SingleThreadedExecutor
-    world_stats: list = field(default_factory=list)
-    agent_stats: dict = field(default_factory=dict)
-    others: list = field(default_factory=list)  # further nodes on the executor (probe, injectors)
-
-    def add(self, node):
-        self.others.append(node)
-        self.executor.add_node(node)
-        return node
-
-    def finished(self) -> bool:
-        return self.world.done.done() and all(a.done.done() for a in self.agents)
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        for node in [self.world, *self.agents, *self.others]:
-            node.destroy_node()
-
-
-def parameters(**values) -> list[Parameter]:
-    return [Parameter(name, value=value) for name, value in values.items()]
-
-
-def start_system(ctx, algo, map_name, seed, episodes, settings=(), *, world_extra=None,
-                 agent_extra=None, common_extra=None, agent_class=None) -> System:
-    """A world and its agents as a launcher starts them, and a probe recording every statistics message:
-    the world waits for the probe's world/stats subscription and each agent holds its statistics until the
-    probe's agv<k>/stats subscription has matched (min_stats_subscribers=1 for both). `common_extra` goes
-    to every node, `agent_class` (agent id -> class) replaces AgentNode for some."""
-    common = {"map": map_name, "episodes": episodes, "seed": seed, **dict(settings), **(common_extra or {})}
-    world = WorldNode(context=ctx, parameter_overrides=parameters(
-        **{**common, "step_timeout": 30.0, "min_stats_subscribers": 1, **(world_extra or {})}))
-    n = load_map(map_name).n_agents
-    ids = [0] if algo == "jsa" else range(1, n + 1)
-    agents = [(agent_class or {}).get(k, AgentNode)(f"agv{k}" if k else "central", context=ctx,
-                                                    parameter_overrides=parameters(
-        **common, algo=algo, agent_id=k, min_stats_subscribers=1, **(agent_extra or {}).get(k, {})))
-        for k in ids]
-    system = System(world, agents, SingleThreadedExecutor(context=ctx))
-    probe = system.add(rclpy.create_node("probe", context=ctx))
-    probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
-                              lambda m: system.world_stats.append(decode_world_stats(m)), WORLD_STATS.qos)
-    for k in range(1, n + 1):
-        system.agent_stats[k] = []
-        probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k), lambda m, k=k: system.agent_stats[
-            k].append(decode_agent_stats(m)), AGENT_STATS.qos)
-    for node in (*agents, world):
-        system.executor.add_node(node)
-    return system
-
-
-def finish(system: System, spin_until) -> System:
-    assert spin_until(system.executor, system.finished, RUN_TIMEOUT_S), "the run did not finish in time"
-    episodes = system.world.config.total_episodes
-    everything = [system.world_stats, *system.agent_stats.values()]
-    assert spin_until(system.executor, lambda: all(len(got) >= episodes for got in everything), 30.0), \
-        [len(got) for got in everything]
-    assert system.world.done.result() == 0 and all(a.done.result() == 0 for a in system.agents)
-    return system
-
-
-@pytest.fixture
-def system_in(ros_context):
-    """start_system(...) in the test's own context; closed after the test."""
-    systems = []
-
-    def start(*args, **kwargs) -> System:
-        systems.append(start_system(ros_context, *args, **kwargs))
-        return systems[-1]
-
-    yield start
-    for s in systems:
-        s.close()
-
-
-def offline(algo, map_name, seed, episodes, settings=()):
-    return run(algo, load_map(map_name), Settings().with_overrides(dict(settings)), seed, 0, episodes)
-
-
-def offline_rows(algo, map_name, seed, episodes, settings=()):
-    """The engine's rows of every episode a ROS run plays: the learning ones, then the greedy ones."""
-    result = offline(algo, map_name, seed, episodes, settings)
-    return np.concatenate([result.episodes, result.greedy])
-
 
 # Small enough for a test, long enough for collisions, truncations and (cq, loc) peer subscriptions; a few
 # greedy episodes (a barely trained greedy policy may run to step_cap).
@@ -133,7 +37,6 @@ TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 300), ("eval_episod
 # marked joint state, subscribing anew every other step (about 20 s an episode here); the GRID case plays
 # CQ's greedy episodes.
 CQ_TUNNEL = ("tunnel_to_goal", 4, (("window", 10), ("step_cap", 500), ("eval_episodes", 0)))
-GRID = ("grid_game_2", 1, (("window", 5), ("eval_episodes", 3)))
 CASES = [("cq", CQ_TUNNEL, 40), ("js", TUNNEL, 8),
          ("loc", ("tunnel_to_goal", 4, (("step_cap", 200), ("eval_episodes", 1))), 6),
          ("jsa", TUNNEL, 8), ("indep", TUNNEL, 8)]
@@ -149,7 +52,7 @@ def case_run(case, ros_domain_id, spin_until) -> System:
         rclpy.init(context=ctx, domain_id=ros_domain_id)
         system = start_system(ctx, algo, map_name, seed, episodes, settings)
         try:
-            _RUNS[case] = finish(system, spin_until)
+            _RUNS[case] = finish(system)
         finally:
             system.close()
             rclpy.try_shutdown(context=ctx)
@@ -157,6 +60,7 @@ def case_run(case, ros_domain_id, spin_until) -> System:
 
 
 @pytest.mark.parametrize("case", CASES, ids=[f"{c[0]}-{c[1][0]}" for c in CASES])
+@pytest.mark.slow
 def test_a_ros_run_equals_the_offline_engine(case, ros_domain_id, spin_until):
     algo, (map_name, seed, settings), episodes = case
     system = case_run(case, ros_domain_id, spin_until)
@@ -173,6 +77,7 @@ def test_a_ros_run_equals_the_offline_engine(case, ros_domain_id, spin_until):
         [(int(e["joint_plays"]), int(e["states"])) for e in table]
 
 
+@pytest.mark.slow
 def test_cq_listens_to_its_peer_far_less_than_js(ros_domain_id, spin_until):
     cq = case_run(("cq", GRID, 60), ros_domain_id, spin_until)
     js = case_run(("js", GRID, 60), ros_domain_id, spin_until)
@@ -250,7 +155,7 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
                 pub.publish(msg)
 
     injector.create_timer(0.005, inject)
-    finish(system, spin_until)
+    finish(system)
     table = offline_rows(algo, map_name, seed, episodes, settings)
     assert [(s.steps, s.collisions) for s in system.world_stats] == [(int(e["steps"]), int(e["collisions"])) for e in table]
     assert all(s.missed_actions == 0 for s in system.world_stats)
@@ -298,7 +203,7 @@ def test_a_peer_position_the_executor_never_announces_is_taken_from_its_reader(s
     algo, (map_name, seed, settings), episodes = "cq", GRID, 40
     system = system_in(algo, map_name, seed, episodes, settings, world_extra={"step_timeout": 1.0},
                        agent_class={1: UnannouncedPositions, 2: UnannouncedPositions})
-    finish(system, spin_until)
+    finish(system)
     table = offline_rows(algo, map_name, seed, episodes, settings)
     assert [(s.steps, s.collisions, s.truncated) for s in system.world_stats] == \
         [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in table]
@@ -316,7 +221,7 @@ def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(syst
     path = tmp_path / "agv1.ckpt"
     system = system_in("cq", *GRID[:2], 30, GRID[2],
                        agent_extra={1: {"checkpoint": str(path), "checkpoint_every": 7}})
-    finish(system, spin_until)
+    finish(system)
     # after episodes 6, 13, 20, 27 and the last learning one, 29 (none in the greedy episodes after it): each
     # a rename of a finished temporary file
     assert [dest for _, dest in replaced] == [str(path)] * 5
@@ -356,7 +261,7 @@ def test_a_killed_agent_resumes_from_its_checkpoint(system_in, ros_context, tmp_
     assert restarted.driver.learner.q_local == saved.q_local  # it starts from what it had learnt
     system.agents[1] = restarted
     system.executor.add_node(restarted)
-    finish(system, spin_until)
+    finish(system)
     assert sum(s.missed_actions for s in system.world_stats) >= 1
     assert restarted.driver.skipped_steps == 0 and restarted.driver.drops.total == 0
     assert system.agent_stats[2][-1].episode == 30 and restarted.driver.greedy  # after 30 learning, 1 greedy
@@ -462,6 +367,7 @@ def test_a_node_started_by_hand_takes_the_maps_defaults_under_the_settings_it_is
     ("world_node", ["-p", "step_timeout:=-1.0"], "parameter step_timeout must be > 0"),
     ("agent_node", ["-p", "agent_id:=1", "-p", "slip:=2.0"], "setting slip must be in [0, 1]"),
 ])
+@pytest.mark.ros
 def test_the_command_line_exits_2_with_one_line_for_a_bad_parameter(module, args, message):
     done = subprocess.run([sys.executable, "-m", module, "--ros-args", *args], capture_output=True, text=True,
                           timeout=60)

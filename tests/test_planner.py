@@ -10,7 +10,9 @@ import pytest
 from cq_ros.cli.main import main
 from cq_ros.cli.plan import PlanProgress
 from cq_ros.gridmap import available_maps, load_map, parse_map
-from cq_ros.mapf.planner import NoPlan, Plan, PlanError, conflict_based_search, distances_to, plan, prioritized, validate
+from cq_ros.mapf.planner import (
+    NoPlan, Plan, PlanError, conflict_based_search, distances_to, plan, prioritized, validate,
+)
 from cq_ros.world import N_ACTIONS, GridWorld
 
 PRIORITIZED = {"cbs_nodes": 0}  # plan() options that skip conflict-based search

@@ -259,12 +259,14 @@ def test_write_figures_for_several_maps_prefixes_each_set(tmp_path):
     loaded = []
     paths = plots.write_figures(directory, map_loader=lambda name: loaded.append(name) or FakeMap(name=name))
     # Without CQ or LoC there are no joint plays or state space; observe.csv still holds CQ rows.
-    expected = {f"{m}_{figure}.png" for m in ("alpha", "beta") for figure in ("collisions", "collisions_log", "observe_map", "steps")}
+    expected = {f"{m}_{figure}.png" for m in ("alpha", "beta")
+                for figure in ("collisions", "collisions_log", "observe_map", "steps")}
     assert {path.name for path in paths} == expected
     assert loaded == ["alpha", "beta"]
     assert all(path.read_bytes()[:8] == PNG_MAGIC for path in paths)
 
 
+@pytest.mark.slow
 def test_state_space_of_a_map_the_manifest_does_not_describe_comes_from_the_map(tmp_path):
     directory = write_result(tmp_path / "grid", maps=("alpha", "beta"), algos=("cq",))
     loaded = []

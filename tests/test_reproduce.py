@@ -89,7 +89,8 @@ def test_claim_6_share_of_joint_states_at_the_tunnel_entrance(tmp_path):
 
 def at_2000(collisions: dict[str, float], steps: dict[str, float]) -> dict:
     """tunnel_to_goal_3 runs of 2000 episodes with these collisions and steps per episode throughout."""
-    return {("tunnel_to_goal_3", a): {"collisions": np.full((2, 2000), collisions[a]), "steps": np.full((2, 2000), steps[a])}
+    return {("tunnel_to_goal_3", a): {"collisions": np.full((2, 2000), collisions[a]),
+                                      "steps": np.full((2, 2000), steps[a])}
             for a in ("js", "jsa", "cq")}
 
 
@@ -116,6 +117,7 @@ def test_claims_1_and_2_are_judged_over_three_seeds_and_not_on_one():
     one = _regime_finding("fixed", seeds[:1], (0,))
     assert "not judged" in one and not any(f"episode {n}" in one for n in (200, 400, 150))  # no crossing quoted
     three = _regime_finding("fixed", seeds, (0, 1, 2))
-    assert "below 0.05: grid_game_2 episodes 296-496" in three  # calm from episode 200-400, the 100-episode average 96 later
+    # calm from episode 200-400, the 100-episode average 96 later
+    assert "below 0.05: grid_game_2 episodes 296-496" in three
     assert "Claim 1 (CQ collision-free on all four maps) holds below 0.05" in three
     assert "claim 2 (CQ there before every baseline) does not hold (holds at 2 of 3 seeds) below 0.05" in three

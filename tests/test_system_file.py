@@ -1,7 +1,7 @@
 """A system in a file (ros_tools.system_file): every launch writes params.yaml with wildcard keys; it starts the
 same system under another namespace, with `cq-ros launch --params-file` (the same episodes) and by hand with
-`python -m ros_tools.compose`, whose results `cq-ros collect` writes (the same again); a key made by `cq-ros key` is named there and kept; a file that cannot describe a
-system is one line naming it."""
+`python -m ros_tools.compose`, whose results `cq-ros collect` writes (the same again); a key made by
+`cq-ros key` is named there and kept; a file that cannot describe a system is one line naming it."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import yaml
 from cq_ros.cli.main import main
 from cq_ros.settings import run_settings
 from cq_ros.gridmap import load_map
-from processes import alive_with
+from helpers import alive_with, unique
 from ros_tools.launch import node_specs
 from ros_tools.system_file import SystemFileError, read_system, write_system
 
@@ -73,13 +73,16 @@ def test_a_file_that_describes_no_system_is_one_line(tmp_path, capsys, edit, phr
 
 def test_params_file_and_the_options_it_replaces_do_not_mix(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
-        main(["launch", "--params-file", str(tmp_path / "p.yaml"), "--map", "grid_game_2", "--out", str(tmp_path / "o")])
+        main(["launch", "--params-file", str(tmp_path / "p.yaml"), "--map", "grid_game_2", "--out",
+              str(tmp_path / "o")])
     assert stop.value.code == 2 and "--params-file gives the system: drop --map" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["launch", "--out", str(tmp_path / "o")])
     assert "--map and --algo are required" in capsys.readouterr().err
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(tmp_path, capsys, monkeypatch):
     key = tmp_path / "run.key"
     assert main(["key", "--out", str(key)]) == 0
@@ -136,8 +139,9 @@ def test_a_launch_s_params_yaml_starts_the_same_system_under_another_namespace(t
     assert not alive_with(namespace)
 
 
+@pytest.mark.ros
 def test_collect_without_a_system_is_one_line_and_writes_nothing(tmp_path, capsys):
-    assert main(["collect", "--namespace", f"none_{uuid.uuid4().hex[:6]}", "--wait", "1", "--out", str(tmp_path / "r")]) == 1
+    assert main(["collect", "--namespace", unique("none"), "--wait", "1", "--out", str(tmp_path / "r")]) == 1
     err = capsys.readouterr().err
     assert "cq-ros collect: error: no system" in err and len(err.strip().splitlines()) == 2  # after "looking for"
     assert not (tmp_path / "r").exists()

@@ -22,7 +22,7 @@ from msgs_spec import (
     position_topic,
 )
 from msgs_spec.doc import to_yaml
-from processes import alive_with
+from helpers import alive_with, wait_until
 
 TOOL_TIMEOUT_S = 60.0  # bound on any one tool process; each takes a few seconds
 PERIOD_S = 0.05  # the talker publishes every 50 ms
@@ -43,15 +43,12 @@ class Talker:
         from rclpy.duration import Duration
 
         deadline = time.monotonic() + timeout_s
-        while not all(p.get_subscription_count() for p in self.publishers):
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.05)
+        if not wait_until(lambda: all(p.get_subscription_count() for p in self.publishers), timeout_s, "matched",
+                          fail=False):
+            return False
         matched_at = self.ticks[0]
-        while self.ticks[0] < matched_at + 2:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.05)
+        if not wait_until(lambda: self.ticks[0] >= matched_at + 2, deadline - time.monotonic(), "ticks", fail=False):
+            return False
         left = max(0.0, deadline - time.monotonic())
         return all(p.wait_for_all_acked(Duration(seconds=left)) for p in self.publishers)
 

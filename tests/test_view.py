@@ -7,14 +7,12 @@ current client offers is tried; the one older clients offer alone is refused (do
 from __future__ import annotations
 
 import json
-import selectors
 import signal
 import socket
 import struct
 import subprocess
 import sys
 import threading
-import time
 import uuid
 
 import pytest
@@ -30,6 +28,7 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 from cq_ros.gridmap import load_map  # noqa: E402
 from cq_ros.gridmap import lattice  # noqa: E402
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene  # noqa: E402
+from helpers import launch_command, unique, wait_for_line, wait_until  # noqa: E402
 
 START_S = 90.0  # bound on the view process starting and finding the system on 2 busy cores
 RECV_S = 30.0
@@ -53,22 +52,6 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def wait_for_line(process: subprocess.Popen, phrase: str, timeout_s: float) -> str:
-    """The first stderr line of `process` holding `phrase` (bounded by timeout_s)."""
-    selector = selectors.DefaultSelector()
-    selector.register(process.stderr, selectors.EVENT_READ)
-    deadline, seen = time.monotonic() + timeout_s, []
-    while time.monotonic() < deadline:
-        if selector.select(timeout=0.5):
-            line = process.stderr.readline()
-            seen.append(line)
-            if phrase in line:
-                return line
-            if not line and process.poll() is not None:
-                break
-    raise AssertionError(f"no {phrase!r} from cq-ros view: {''.join(seen)}")
-
-
 def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S,
             offer: tuple[str, ...] = ("foxglove.sdk.v1",)) -> dict[str, object]:
     """Connect to the Foxglove server at `port` as a Foxglove client does, offering the subprotocols `offer`, and
@@ -79,18 +62,23 @@ def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S,
         assert ws.subprotocol == ACCEPTED_OFFERS[offer]
         channels: dict[int, dict] = {}
         schemas: dict[int, dict] = {}  # sdk.v1.1 advertises each schema once, by id; sdk.v1 inlines it in the channel
-        deadline = time.monotonic() + timeout_s
-        while {c["topic"] for c in channels.values()} < set(wanted):
-            assert time.monotonic() < deadline, f"advertised only {channels}"
+
+        def advertised() -> bool:  # every wanted topic, or else the next frame read
+            if {c["topic"] for c in channels.values()} >= set(wanted):
+                return True
             frame = ws.recv(timeout=timeout_s)
             if isinstance(frame, str) and json.loads(frame)["op"] == "advertise":
-                advertised = json.loads(frame)
-                schemas.update({sc["id"]: sc for sc in advertised.get("schemas", [])})
-                for c in advertised["channels"]:
+                advertisement = json.loads(frame)
+                schemas.update({sc["id"]: sc for sc in advertisement.get("schemas", [])})
+                for c in advertisement["channels"]:
                     if "schemaId" in c:
                         schema = schemas[c["schemaId"]]
                         c |= {"schemaName": schema["name"], "schemaEncoding": schema["encoding"]}
                     channels[c["id"]] = c
+            return False
+
+        wait_until(advertised, timeout_s, "not every wanted topic advertised", poll_s=0,
+                   detail=lambda: f"advertised only {channels}")
         ours = {cid: c for cid, c in channels.items() if c["topic"] in wanted}
         for c in ours.values():
             assert c["encoding"] == "cdr" and c["schemaEncoding"] == "ros2msg"
@@ -100,17 +88,23 @@ def relayed(port: int, wanted: dict[str, type], timeout_s: float = RECV_S,
                                                                 for i, cid in enumerate(ours)]}))
         topic_of = {i: ours[cid]["topic"] for i, cid in enumerate(ours)}
         got: dict[str, object] = {}
-        while set(got) < set(wanted):
-            assert time.monotonic() < deadline + timeout_s, f"received only {list(got)}"
+
+        def received() -> bool:  # a message of every wanted topic, or else the next frame read
+            if set(got) >= set(wanted):
+                return True
             frame = ws.recv(timeout=timeout_s)
             if isinstance(frame, bytes) and frame[0] == 0x01:  # message data: subscription id, log time, payload
                 subscription, _log_time = struct.unpack_from("<IQ", frame, 1)
                 topic = topic_of[subscription]
                 got[topic] = deserialize_message(frame[13:], wanted[topic])
+            return False
+
+        wait_until(received, timeout_s, "not a message of every wanted topic", poll_s=0,
+                   detail=lambda: f"received only {list(got)}")
     return got
 
 
-def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, ros_domain_id):
+def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, ros_domain_id, tmp_path):
     from rclpy.executors import SingleThreadedExecutor
 
     gridmap = load_map("grid_game_2")
@@ -136,10 +130,12 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
     spinner.start()
 
     port = free_port()
-    viewer = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "view", "--domain-id", str(ros_domain_id),
-                               "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    err = tmp_path / "view.stderr"
+    with open(err, "wb") as f:
+        viewer = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "view", "--domain-id", str(ros_domain_id),
+                                   "--port", str(port)], stdout=subprocess.DEVNULL, stderr=f)
     try:
-        assert f"relaying /{ns} on ws://127.0.0.1:{port}" in wait_for_line(viewer, "relaying", START_S)
+        assert f"relaying /{ns} on ws://127.0.0.1:{port}" in wait_for_line(err, "relaying", START_S, viewer)
         # The map was published once, long before the clients: each gets it only if the relay sends it again.
         for offer in ACCEPTED_OFFERS:
             got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray}, offer=offer)
@@ -152,7 +148,7 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
     finally:
         if viewer.poll() is None:
             viewer.kill()
-        viewer.communicate(timeout=30)
+        viewer.wait(timeout=30)
         stopping.set()
         spinner.join(timeout=10)
         executor.shutdown()
@@ -160,14 +156,16 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
         agent.destroy_node()
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
-    ns, port = f"lview_{uuid.uuid4().hex[:6]}", free_port()
-    launch = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "launch", "--map", "tunnel_to_goal", "--algo", "cq",
-                               "--episodes", "100000", "--compose", "--namespace", ns, "--view", str(port),
-                               "--no-figures", "--out", str(tmp_path / "r")], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True)
+    ns, port, err = unique("lview"), free_port(), tmp_path / "launch.stderr"
+    with open(err, "wb") as f:
+        launch = subprocess.Popen(launch_command(tmp_path / "r", ns, "tunnel_to_goal", "cq", 100_000, (), "--compose",
+                                                 "--view", str(port), "--no-figures"),
+                                  stdout=subprocess.DEVNULL, stderr=f)
     try:
-        assert f"ws://127.0.0.1:{port}" in wait_for_line(launch, "Foxglove view on", START_S)
+        assert f"ws://127.0.0.1:{port}" in wait_for_line(err, "Foxglove view on", START_S, launch)
         # The client comes before the nodes have started (their processes take seconds on 2 busy cores).
         got = relayed(port, {f"/{ns}/world/map": OccupancyGrid, f"/{ns}/world/markers": MarkerArray}, START_S)
         assert MAP.decode(got[f"/{ns}/world/map"]).lattice == lattice(load_map("tunnel_to_goal"))
@@ -177,7 +175,7 @@ def test_a_launch_with_view_serves_its_run_to_a_foxglove_client(tmp_path):
     finally:
         if launch.poll() is None:
             launch.kill()
-        launch.communicate(timeout=30)
+        launch.wait(timeout=30)
 
 
 def test_a_client_offering_only_foxglove_websocket_v1_is_refused(ros_context):

@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 from PIL import Image
@@ -22,7 +21,7 @@ from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz
 from ros_tools.commands import read_view_bag
-from test_nodes_inprocess import finish, system_in  # noqa: F401 (system_in: a fixture)
+from helpers import finish, wait_until
 
 GRID = ("grid_game_2", 1, (("window", 5), ("eval_episodes", 0)))
 EPISODES = 30  # CQ marks joint states by then, so its agents look at each other now and then
@@ -53,19 +52,28 @@ def watch(ctx, system) -> dict:
     return seen
 
 
+def viewer_publishers(system) -> list:
+    return [system.world._view.scene] + [p for a in system.agents for p in a._view.pubs.values()]
+
+
 def matched(system, stats_subscribers: int) -> bool:
     """Every viewer publication of the system has a subscriber, and world/stats `stats_subscribers` (asking
     needs no spinning)."""
-    pubs = [system.world._view.scene] + [p for a in system.agents for p in a._view.pubs.values()]
-    return (all(p.get_subscription_count() >= 1 for p in pubs)
+    return (all(p.get_subscription_count() >= 1 for p in viewer_publishers(system))
             and system.world._stats.get_subscription_count() >= stats_subscribers)
 
 
 def wait_matched(system, stats_subscribers: int = 1) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while not matched(system, stats_subscribers):
-        assert time.monotonic() < deadline, "the viewer's subscriptions never matched"
-        time.sleep(0.02)
+    wait_until(lambda: matched(system, stats_subscribers), WAIT_S, "the viewer's subscriptions never matched",
+               poll_s=0.02)
+
+
+def acknowledged(system) -> bool:
+    """Every subscriber (a recorder) has acknowledged every message of the viewer publications and world/stats
+    (all reliable)."""
+    from rclpy.duration import Duration
+
+    return all(p.wait_for_all_acked(Duration(seconds=1)) for p in [*viewer_publishers(system), system.world._stats])
 
 
 @pytest.mark.parametrize("algo", ["cq", "jsa"])  # decentralised looks, and the central node's for every AGV
@@ -74,7 +82,7 @@ def test_a_live_run_shows_what_the_offline_episode_shows(system_in, ros_context,
     system = system_in(algo, map_name, seed, EPISODES, settings)
     seen = watch(ros_context, system)
     wait_matched(system)  # before the first step: the world steps only once it is spun
-    finish(system, spin_until)
+    finish(system)
     assert spin_until(system.executor, lambda: seen["map"] and {s.episode for s in seen["scenes"]} >= {EPISODES - 1}
                       and len(seen["scenes"]) == sum(s.steps + 1 for s in system.world_stats), 5.0)
     assert [m.lattice for m in seen["map"]] == [lattice(load_map(map_name))]
@@ -93,7 +101,7 @@ def test_nothing_is_built_for_viewers_while_nobody_subscribes(system_in, ros_con
                             lambda p, _encode=encode, **kw: (built.__setitem__(type(p), built[type(p)] + 1),
                                                              _encode(p, **kw))[1])
     map_name, seed, settings = GRID
-    system = finish(system_in("cq", map_name, seed, 10, settings), spin_until)
+    finish(system_in("cq", map_name, seed, 10, settings))
     assert built == {viz.Occupancy: 1, viz.Scene: 0, viz.Looks: 0}  # the latched map, once
 
 
@@ -104,9 +112,10 @@ def test_markers_false_creates_no_publisher_for_viewers(system_in, spin_until):
     node = off.world
     assert off.world._view is None and all(a._view is None for a in off.agents)
     assert node.count_publishers(viz.SCENE_TOPIC) == node.count_publishers(viz.MAP_TOPIC) == 0
-    finish(off, spin_until)
+    finish(off)
 
 
+@pytest.mark.slow
 def test_a_recorded_bag_replays_the_run_and_renders_as_a_gif(system_in, tmp_path, spin_until, ros_domain_id):
     bag, gif = tmp_path / "bag", tmp_path / "episode.gif"
     env = {**os.environ, "ROS_DOMAIN_ID": str(ros_domain_id)}
@@ -116,8 +125,8 @@ def test_a_recorded_bag_replays_the_run_and_renders_as_a_gif(system_in, tmp_path
         map_name, seed, settings = GRID
         system = system_in("cq", map_name, seed, EPISODES, settings)
         wait_matched(system, stats_subscribers=2)  # the probe's statistics subscription, and the recorder's
-        finish(system, spin_until)
-        time.sleep(0.5)  # the recorder's last messages
+        finish(system)
+        wait_until(lambda: acknowledged(system), WAIT_S, "the recorder never acknowledged the run's last messages")
         recorder.send_signal(signal.SIGINT)
         out, err = recorder.communicate(timeout=30)
         assert recorder.returncode == 0, err
@@ -155,6 +164,7 @@ def test_render_says_when_the_bag_cut_the_episode_it_draws():
     assert cut_by_bag(later, 3) is None  # ended short of the goals, but the next episode began: the step cap
 
 
+@pytest.mark.slow
 def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
     gif = tmp_path / "tunnel.gif"
     args = ["--map", "tunnel_to_goal", "--algo", "cq", "--episodes", "20", "--seed", "3", "--set", "step_cap=60"]
@@ -171,6 +181,7 @@ def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
     assert not (tmp_path / "x.gif").exists()
 
 
+@pytest.mark.slow
 def test_render_draws_the_greedy_episode_after_learning_at_the_dpi_asked(tmp_path):
     gif = tmp_path / "greedy.gif"
     gridmap = load_map("tunnel_to_goal")

@@ -22,6 +22,7 @@ def test_cq_greedy_policy_brings_every_agv_of_a_small_warehouse_home(seed):
     assert steps.max() <= 2 * longest + 4
 
 
+@pytest.mark.slow
 def test_on_a_small_delayed_warehouse_cq_collides_less_than_independent_learners():
     """Where AGVs are delayed (slip 0.1, the generator's delayed defaults), looking pays: summed over six
     consecutive seeds (map and learners alike), none chosen to pass, CQ's greedy policy collides less than

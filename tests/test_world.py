@@ -537,7 +537,8 @@ def check_random_play(gm, actions_seed, slip, start_hold=0):
         delayed = w.delayed
         assert slip > 0 or not any(delayed)
         assert not any(d and done for d, done in zip(delayed, done_before))  # an agent at its goal draws nothing
-        targets = [c if d or late else gm.neighbours[c][a] for c, d, late, a in zip(before, done_before, delayed, actions)]
+        targets = [c if d or late else gm.neighbours[c][a]
+                   for c, d, late, a in zip(before, done_before, delayed, actions)]
         final, pairs = resolve_moves(before, targets, goals)
         assert final == after
         assert w.last_collisions == len(pairs)

@@ -1,0 +1,211 @@
+"""The suite's shared helpers (conftest.py turns the ROS ones into fixtures); no test module imports another.
+
+- `wait_until`: the one bounded wait. Every wait in the suite polls an event (a file's line, a process's state,
+  a message heard) until it holds or a deadline passes, and fails naming what it waited for.
+- `wait_for_line`, `launch_command`, `read_episodes`, `unique`, `alive_with`: a launch as a process, and what
+  it leaves behind.
+- `System`, `start_system`, `finish`, `offline_rows`: a world and its agents in this process, on one executor.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+
+SEED = 1  # the launches' seed
+RUN_TIMEOUT_S = 300.0  # a bound for any one in-process system run; they take seconds (a minute at load 18)
+# The in-process runs' grid_game_2 case: a window CQ fills within a few dozen episodes, and a few greedy episodes.
+GRID = ("grid_game_2", 1, (("window", 5), ("eval_episodes", 3)))
+
+
+class WaitTimeout(AssertionError):
+    """A bounded wait ran out (or what it waited on ended first)."""
+
+
+def wait_until(predicate: Callable[[], T], timeout_s: float, what: str, *, between: Callable[[], object] | None = None,
+               poll_s: float = 0.05, ended: Callable[[], bool] | None = None, detail: Callable[[], str] | None = None,
+               fail: bool = True) -> T | bool:
+    """Call predicate() until it returns something true, and return that. Between two calls, `between()` (spin an
+    executor once, say) or a sleep of poll_s. Once timeout_s has passed, or `ended()` holds (a process that has
+    exited will never log the line), raise WaitTimeout saying `what` was not seen, with `detail()` (a log's tail);
+    with fail=False return False instead."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value:
+            return value
+        stopped = ended is not None and ended()
+        if stopped and (value := predicate()):  # it came just before the end
+            return value
+        if stopped or time.monotonic() > deadline:
+            if not fail:
+                return False
+            why = "what it waited on ended first" if stopped else f"not within {timeout_s:g} s"
+            raise WaitTimeout(f"{what}: {why}" + (f"\n{detail()}" if detail is not None else ""))
+        if between is not None:
+            between()
+        else:
+            time.sleep(poll_s)
+
+
+def spin_until(executor, predicate: Callable[[], bool], timeout_s: float) -> bool:
+    """Spin `executor` until predicate() holds: True, or False at the timeout (the caller asserts)."""
+    return bool(wait_until(predicate, timeout_s, "spin_until", between=lambda: executor.spin_once(timeout_sec=0.05),
+                           fail=False))
+
+
+def _read(path: Path) -> str:
+    try:
+        return path.read_text(errors="replace")
+    except FileNotFoundError:
+        return ""
+
+
+def wait_for_line(log: Path, phrase: str, timeout_s: float, process=None, detail: Path | None = None) -> str:
+    """The first line of the file `log` that holds `phrase`, once written (bounded by timeout_s; fails sooner if
+    `process` exits first), failing with the tail of `detail` (default: the log itself)."""
+
+    def line() -> str | None:
+        return next((s for s in _read(log).splitlines() if phrase in s), None)
+
+    return wait_until(line, timeout_s, f"no {phrase!r} in {log.name}",
+                      ended=None if process is None else lambda: process.poll() is not None,
+                      detail=lambda: _read(detail or log)[-3000:])
+
+
+def unique(prefix: str) -> str:
+    """A name unique to one test (a namespace, say), for alive_with to find its processes by."""
+    return f"{prefix}_{uuid.uuid4().hex[:8]}"
+
+
+def launch_command(out: Path, namespace: str, map_name: str, algo: str, episodes: int, sets=(), *extra: str,
+                   seed: int = SEED) -> list[str]:
+    """`cq-ros launch` as a process, with `--set` for each of `sets` and further arguments `extra`."""
+    return [sys.executable, "-m", "cq_ros.cli", "launch", "--map", map_name, "--algo", algo, "--episodes",
+            str(episodes), "--seed", str(seed), "--out", str(out), "--namespace", namespace,
+            *[arg for s in sets for arg in ("--set", s)], *extra]
+
+
+def read_episodes(out: Path) -> np.ndarray:
+    """episodes.csv's records as a cq_ros.episode table, as RunResult.episodes holds them."""
+    from cq_ros.episode import COLUMNS, DTYPE
+
+    with open(out / "episodes.csv", newline="") as f:
+        return np.array([tuple(float(row[c]) for c in COLUMNS) for row in csv.DictReader(f)], dtype=DTYPE)
+
+
+def alive_with(token: str) -> list[str]:
+    """Command lines of live processes that mention `token` (a namespace or path unique to one test): no orphan may
+    outlive its test."""
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:  # gone meanwhile
+            continue
+        if token in cmdline and int(pid) != os.getpid():
+            found.append(f"{pid}: {cmdline}")
+    return found
+
+
+@dataclass
+class System:
+    """A world, its agents and a probe recording world/stats and agv<k>/stats, on one executor."""
+
+    world: object  # WorldNode
+    agents: list  # of AgentNode
+    executor: object  # SingleThreadedExecutor
+    world_stats: list = field(default_factory=list)
+    agent_stats: dict = field(default_factory=dict)
+    others: list = field(default_factory=list)  # further nodes on the executor (probe, injectors)
+
+    def add(self, node):
+        self.others.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def finished(self) -> bool:
+        return self.world.done.done() and all(a.done.done() for a in self.agents)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        for node in [self.world, *self.agents, *self.others]:
+            node.destroy_node()
+
+
+def parameters(**values) -> list:
+    from rclpy.parameter import Parameter
+
+    return [Parameter(name, value=value) for name, value in values.items()]
+
+
+def start_system(ctx, algo, map_name, seed, episodes, settings=(), *, world_extra=None,
+                 agent_extra=None, common_extra=None, agent_class=None) -> System:
+    """A world and its agents as a launcher starts them, and a probe recording every statistics message:
+    the world waits for the probe's world/stats subscription and each agent holds its statistics until the
+    probe's agv<k>/stats subscription has matched (min_stats_subscribers=1 for both). `common_extra` goes
+    to every node, `agent_class` (agent id -> class) replaces AgentNode for some."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from agent_node import AgentNode
+    from cq_ros.gridmap import load_map
+    from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
+        decode_world_stats
+    from world_node import WorldNode
+
+    common = {"map": map_name, "episodes": episodes, "seed": seed, **dict(settings), **(common_extra or {})}
+    world = WorldNode(context=ctx, parameter_overrides=parameters(
+        **{**common, "step_timeout": 30.0, "min_stats_subscribers": 1, **(world_extra or {})}))
+    n = load_map(map_name).n_agents
+    ids = [0] if algo == "jsa" else range(1, n + 1)
+    agents = [(agent_class or {}).get(k, AgentNode)(f"agv{k}" if k else "central", context=ctx,
+                                                    parameter_overrides=parameters(
+        **common, algo=algo, agent_id=k, min_stats_subscribers=1, **(agent_extra or {}).get(k, {})))
+        for k in ids]
+    system = System(world, agents, SingleThreadedExecutor(context=ctx))
+    probe = system.add(rclpy.create_node("probe", context=ctx))
+    probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
+                              lambda m: system.world_stats.append(decode_world_stats(m)), WORLD_STATS.qos)
+    for k in range(1, n + 1):
+        system.agent_stats[k] = []
+        probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k), lambda m, k=k: system.agent_stats[
+            k].append(decode_agent_stats(m)), AGENT_STATS.qos)
+    for node in (*agents, world):
+        system.executor.add_node(node)
+    return system
+
+
+def finish(system: System) -> System:
+    """Spin `system` to its end (bounded) and until the probe has every statistics message; every node exited 0."""
+    assert spin_until(system.executor, system.finished, RUN_TIMEOUT_S), "the run did not finish in time"
+    episodes = system.world.config.total_episodes
+    everything = [system.world_stats, *system.agent_stats.values()]
+    assert spin_until(system.executor, lambda: all(len(got) >= episodes for got in everything), 30.0), \
+        [len(got) for got in everything]
+    assert system.world.done.result() == 0 and all(a.done.result() == 0 for a in system.agents)
+    return system
+
+
+def offline(algo, map_name, seed, episodes, settings=()):
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    return run(algo, load_map(map_name), Settings().with_overrides(dict(settings)), seed, 0, episodes)
+
+
+def offline_rows(algo, map_name, seed, episodes, settings=()):
+    """The engine's rows of every episode a ROS run plays: the learning ones, then the greedy ones."""
+    result = offline(algo, map_name, seed, episodes, settings)
+    return np.concatenate([result.episodes, result.greedy])
