@@ -173,7 +173,8 @@ class Team:
         cells, done, needs, learners = w.cells, w.done, self.needs, self.learners
         for i, a in enumerate(actions):
             if a is not None:  # an agent that did not act has nothing to learn and stays over
-                needs[i] = step_outcome(learners[i], cells[i], rewards[i], done[i], over or done[i])
+                d = done[i]
+                needs[i] = step_outcome(learners[i], cells[i], rewards[i], d, over or d)
         return over
 
     def episode(self, on_step: StepHook | None = None) -> Episode:
