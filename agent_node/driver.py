@@ -4,11 +4,13 @@ The drivers decide everything the agent node does and return it as effects for t
 (`Subscribe`/`Unsubscribe` a peer's position topic, `Send` an Action or AgentStats, `SaveCheckpoint`,
 `Finish`), so the protocol is tested without a ROS graph (tests/test_driver.py):
 
-- `AgentDriver` runs one decentralised learner (indep, js, loc, cq) exactly as `cq_ros.engine.Team` does:
-  on Feedback(e, s) it learns from the outcome of its action of step s-1, asks the learner which peers it
-  must see (`observe`), and acts once the positions stamped (e, s) of exactly those peers are in.
-- `CentralDriver` runs the JSA learner for every AGV: it waits for the feedback of every acting agent,
-  learns from the sum of their rewards and answers with every acting agent's action.
+- `AgentDriver` runs one decentralised learner (indep, js, loc, cq) through the engine's own step functions,
+  as `cq_ros.engine.Team` does: on Feedback(e, s), `step_outcome` learns from the outcome of its action of
+  step s-1 and names the peers it must see; once the positions stamped (e, s) of exactly those peers are
+  in, `step_act` gives its action.
+- `CentralDriver` runs the JSA learner for every AGV through the engine's central adapter
+  (`central_outcome`, `central_act`): it waits for the feedback of every acting agent, learns from the sum
+  of their rewards and answers with every acting agent's action.
 
 Greedy evaluation: after its `episodes` learning episodes a driver plays `eval_episodes` more, as
 `cq_ros.engine.greedy_episodes` does after `run`: on a deep copy of the learner with epsilon 0 (learning goes
@@ -27,7 +29,8 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from cq_ros.learners import Learner, decode_joint_action
+from cq_ros.engine import central_act, central_outcome, step_act, step_outcome
+from cq_ros.learners import Learner
 from msgs_spec import Action, AgentStats, DropCounter, MarkedJointState, decode_feedback, feedback_topic
 
 from .effects import Effects, Finish, SaveCheckpoint, Send
@@ -123,6 +126,7 @@ class AgentDriver:
         out: Effects = []
         if self._played:
             for episode in range(self.expect[0], fb.episode):
+                step_outcome(self.learner, None, over=True)  # left behind: no last outcome to learn from
                 out += self._end_episode(episode)
                 self._plays_before = self.learner.joint_plays
         self.expect = None
@@ -142,17 +146,20 @@ class AgentDriver:
             self._plays_before = self.learner.joint_plays
         # Learn only from the outcome of an action we sent and the world applied: after a skipped step or a
         # restart there is none; one that came after step_timeout (or was lost) the world stepped without.
-        if self._acted is not None and self._acted[:2] == (fb.episode, fb.step - 1):
-            if fb.applied == self._acted[2]:
-                self.learner.learn(fb.reward, cell, fb.done)
+        reward = None
+        acted = self._acted
+        if acted is not None and acted[0] == fb.episode and acted[1] == fb.step - 1:
+            if fb.applied == acted[2]:
+                reward = fb.reward
             else:
                 self._unapplied(fb)
         self._acted = None
-        if fb.done or fb.truncated:
+        need = step_outcome(self.learner, cell, reward, fb.done, fb.done or fb.truncated)
+        if need is None:
             return self._end_episode(fb.episode)
         self.expect = (fb.episode, fb.step + 1)
         self.peers.advance(fb.episode, fb.step)
-        need = tuple(j + 1 for j in self.learner.observe(cell))
+        need = tuple(j + 1 for j in need)
         self._pending = (fb.episode, fb.step, need)
         return self.peers.need(need) + self._try_act()
 
@@ -164,7 +171,7 @@ class AgentDriver:
         if cells is None:
             return []
         self._pending = None
-        action = self.learner.act({j - 1: c for j, c in cells.items()})
+        action = step_act(self.learner, {j - 1: c for j, c in cells.items()})
         self._acted = (episode, step, action)
         return [Send(Action(self.agent, episode, step, action))]
 
@@ -174,7 +181,7 @@ class AgentDriver:
                   f"{fb.step - 1} (it came after step_timeout, or was lost): nothing learnt from that step")
 
     def _end_episode(self, episode: int) -> Effects:
-        self.learner.end_episode()
+        """The learner has ended `episode` (step_outcome): on to the next, with this one's statistics."""
         self.expect = (episode + 1, 0)
         self.peers.advance(episode + 1, 0, between_episodes=True)
         # Until its next episode the agent sees nobody, except a joint-state learner, which will need every
@@ -316,6 +323,9 @@ class CentralDriver:
             self._collect(set(self.agents))
             return out
         self._plays_before = self.learner.joint_plays
+        # The greedy switch first: a resume may join the world past the learning episodes.
+        _greedy_from(self, episode)
+        central_outcome(self.learner, self._cells, None, False, False)  # nothing to learn: observe only
         return out + self._act(episode, step)
 
     def on_heartbeat(self, msg: Any) -> Effects:
@@ -345,6 +355,7 @@ class CentralDriver:
         if self._played:
             current = min(e for e, _ in filter(None, self.expect.values()))
             for episode in range(current, fb.episode):
+                central_outcome(self.learner, self._cells, None, False, True)  # left behind: nothing to learn
                 out += self._end_episode(episode)
                 self._plays_before = self.learner.joint_plays
         self._played = True
@@ -364,7 +375,11 @@ class CentralDriver:
             unapplied += fb.applied != self._sent.get(k)
         if fb.step == 0:
             self._plays_before = self.learner.joint_plays
+        # A no-op but after a resume from a truncated step, which may join the world past the learning
+        # episodes without passing through _end_episode.
+        _greedy_from(self, fb.episode)
         finished = all(self._done)
+        rewards = None
         if self._acted == (fb.episode, fb.step - 1):
             # The joint action is learnt only as the world applied it whole.
             if unapplied:
@@ -372,9 +387,9 @@ class CentralDriver:
                 self._log(f"episode {fb.episode}: the world stepped to {fb.step} without {unapplied} of our "
                           f"actions of step {fb.step - 1}: nothing learnt from that step")
             else:
-                self.learner.learn(sum(self._rewards), tuple(self._cells), finished)
+                rewards = self._rewards
         self._acted = None
-        if finished or self._truncated:
+        if central_outcome(self.learner, self._cells, rewards, finished, finished or self._truncated) is None:
             return self._end_episode(fb.episode)
         return self._act(fb.episode, fb.step)
 
@@ -393,11 +408,8 @@ class CentralDriver:
         self._truncated = False
 
     def _act(self, episode: int, step: int) -> Effects:
-        # A no-op but after a resume, which may join the world past the learning episodes (from a
-        # truncated step or from positions, neither passing through _end_episode).
-        _greedy_from(self, episode)
-        self.learner.observe(tuple(self._cells))
-        joint = decode_joint_action(self.learner.act({}), self.n)
+        """The learner has observed this step (central_outcome): every acting agent's action."""
+        joint = central_act(self.learner, self.n)
         acting = self.acting
         self._acted = (episode, step)
         self._sent = {k: joint[k - 1] for k in acting}
@@ -405,7 +417,7 @@ class CentralDriver:
         return [Send(Action(k, episode, step, joint[k - 1])) for k in acting]
 
     def _end_episode(self, episode: int) -> Effects:
-        self.learner.end_episode()
+        """The learner has ended `episode` (central_outcome): on to the next, with this one's statistics."""
         self._done = [False] * self.n
         self._collect(set(self.agents))
         out: Effects = [Send(self._stats(k, episode)) for k in self.agents]

@@ -54,15 +54,14 @@ def main() -> int:
     for episode in range(args.greedy):
         w.reset_joint()
         trail = collections.defaultdict(lambda: collections.deque(maxlen=LAST))
-        while not w.finished and w.t < w.step_cap:
+        over = greedy.start()  # Team.episode's loop, with the trail kept (learn ends the learners' episodes)
+        while not over:
             actions = greedy.choose()
             rewards = w.step_joint(actions)
-            greedy.learn(actions, rewards)
+            over = greedy.learn(actions, rewards)
             for i in range(w.n):
                 if not w.done[i]:
                     trail[i].append((w.cells[i], actions[i], rewards[i]))
-        for learner in greedy.learners:
-            learner.end_episode()
         home = [i + 1 for i in range(w.n) if w.done[i]]
         print(f"greedy episode {episode}: {w.t} steps, {len(home)}/{w.n} home, arrivals "
               f"{dict((i + 1, t) for i, t in enumerate(w.arrival) if t is not None)}")

@@ -66,7 +66,8 @@ def classify(gridmap: GridMap, settings: Settings, algo: str, runs: int, episode
         for episode in range(episodes):
             late = episode >= 0.9 * episodes
             world.reset_joint()
-            while not world.finished and world.t < world.step_cap:
+            over = team.start()  # Team.episode's loop, watched (learn ends the learners' episodes)
+            while not over:
                 explored.clear()
                 seen.clear()
                 before = list(world.cells)
@@ -80,9 +81,7 @@ def classify(gridmap: GridMap, settings: Settings, algo: str, runs: int, episode
                             else "both greedy"
                         saw = "saw" if j in seen.get(i, ()) or i in seen.get(j, ()) else "unseen"
                         kinds[(kind, saw, geometry(before, targets, actions, i, j))] += 1
-                team.learn(actions, rewards)
-            for learner in team.learners:
-                learner.end_episode()
+                over = team.learn(actions, rewards)
     return kinds
 
 

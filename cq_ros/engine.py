@@ -1,8 +1,12 @@
 """The offline engine: runs learners in a GridWorld episode after episode, with nothing in between.
 
-`Team` is the loop body shared by the engine and the ROS nodes' tests: it asks each learner what it
-needs to see, hands it exactly that, applies the joint action and feeds the outcome back. `run` plays
-one (algorithm, run) for a number of episodes and returns its per-episode records (cq_ros.episode: their
+One learner's step is `step_outcome` (learn from the outcome of its last action, then end the episode or
+observe and name the peers it must see) and `step_act` (act on those peers' cells), with one adapter for the
+central JSA learner (`central_outcome`, `central_act`, `central_looks`): `Team` steps its learners through
+them, and so do the agent node's drivers, so the order of a learner's calls is written once. `Team` asks
+each learner what it needs to see, hands it exactly that, applies the joint action and feeds the outcome
+back; its per-step hook lets a caller watch an episode (the renderer films one). `run` plays one
+(algorithm, run) for a number of episodes and returns its per-episode records (cq_ros.episode: their
 columns); the lab (cq_ros.lab) spreads runs over the cores and writes result files.
 
 Seeds: the learner of agent i in run r draws from `learner_seed(seed, r, i)`, the world (only used
@@ -12,8 +16,9 @@ with delays: slip, start_hold) from `world_seed(seed, r)`: the same seed gives t
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -46,51 +51,140 @@ def make_learners(algo: str, gridmap: GridMap, settings: Settings, seed: int, ru
     return [make_learner(algo, gridmap, settings, seed, run, i) for i in agents]
 
 
+# -- one learner's step ------------------------------------------------------------------------------
+#
+# The order of a learner's calls lives here, and only here: the engine's Team, the agent node's drivers and
+# (through Team's per-step hook) the renderer all step a learner through these functions. A step is cut where
+# an agent node waits: for the world's outcome of its action (then `step_outcome`: learn from it, then end the
+# episode or observe the new cell), and for the positions of the peers its learner asked for (then `step_act`).
+
+def step_outcome(learner: Learner, cell: Any, reward: float | None = None, done: bool = False,
+                 over: bool = False) -> tuple[int, ...] | None:
+    """The world has moved the agent to `cell`: learn from the outcome of its action (`reward`, `done`; None: no
+    outcome to learn from, as at an episode's first step, or when the world did not apply the action); then, if
+    the episode is `over` for the agent (at its goal, or truncated), end it and return None, else observe
+    `cell` and return the peers (0-based) whose cells the learner must see to choose its move. `cell` is not
+    read when the episode is over and there is nothing to learn (an episode ended without a last outcome)."""
+    if reward is not None:
+        learner.learn(reward, cell, done)
+    if over:
+        learner.end_episode()
+        return None
+    return learner.observe(cell)
+
+
+def step_act(learner: Learner, seen: Mapping[int, Any]) -> int:
+    """The cells of the peers `step_outcome` named (peer -> cell, 0-based) are in: the learner's action."""
+    return learner.act(seen)
+
+
+# The central (JSA) learner steps through the same two functions as one agent whose cell is the tuple of every
+# agent's cell, whose reward is the sum of the agents' rewards (0 for those at their goals, as
+# GridWorld.step_joint gives them), whose episode is done when every agent is, who never asks for a peer (it
+# sees every cell) and whose action encodes every agent's move (decode_joint_action). These three functions
+# are that adapter, used by Team and by the central agent node alike.
+
+def central_outcome(learner: Learner, cells: Sequence[int], rewards: Sequence[float] | None, finished: bool,
+                    over: bool) -> tuple[int, ...] | None:
+    """step_outcome for the central learner: `rewards` every agent's (None: no outcome to learn from),
+    `finished` every agent at its goal, `over` the episode ended (finished or truncated)."""
+    return step_outcome(learner, tuple(cells), None if rewards is None else sum(rewards), finished, over)
+
+
+def central_act(learner: Learner, n: int) -> list[int]:
+    """step_act for the central learner: the move of each of the `n` agents (those at their goals ignore it)."""
+    return decode_joint_action(step_act(learner, _NOBODY), n)
+
+
+def central_looks(done: Sequence[bool]) -> list[tuple[int, ...] | None]:
+    """Whom each agent looks at when the central learner chooses: every other acting agent (it chooses on the
+    joint state); None for an agent at its goal."""
+    acting = [i for i, d in enumerate(done) if not d]
+    return [None if d else tuple(j for j in acting if j != i) for i, d in enumerate(done)]
+
+
+StepHook = Callable[[GridWorld, list, list], Any]
+
+
 class Team:
-    """Learners acting together in one world: one joint step at a time."""
+    """Learners acting together in one world: one joint step at a time, each learner stepped by
+    step_outcome/step_act (the central learner by its adapter, central_outcome/central_act).
+
+    `needs[i]` is what agent i's learner asked to see at the current step (the peers, 0-based; None for an
+    agent whose episode is over); `start` fills it at an episode's first step, `learn` at every later one."""
 
     def __init__(self, world: GridWorld, learners: list[Learner]):
         self.world = world
         self.learners = learners
         self.central = learners[0].central
+        self.needs: list[tuple[int, ...] | None] = []
+
+    def start(self) -> bool:
+        """The episode's first step (the world just reset): every learner observes where its agent starts;
+        one that starts at its goal ends its episode here (it never acts). Whether the episode is over."""
+        w = self.world
+        finished = w.finished
+        over = finished or w.t >= w.step_cap
+        if self.central:
+            self.needs = [central_outcome(self.learners[0], w.cells, None, finished, over)]
+        else:
+            cells, done = w.cells, w.done
+            self.needs = [step_outcome(learner, cells[i], None, False, over or done[i])
+                          for i, learner in enumerate(self.learners)]
+        return over
 
     def choose(self) -> list[int | None]:
-        """Each acting agent's action (None for agents at their goals)."""
+        """Each acting agent's action (None for agents at their goals), each learner given the cells of the
+        peers it asked for."""
         w = self.world
         if self.central:
-            learner = self.learners[0]
-            learner.observe(tuple(w.cells))
-            joint = decode_joint_action(learner.act(_NOBODY), w.n)
+            joint = central_act(self.learners[0], w.n)
             return [None if d else a for a, d in zip(joint, w.done)]
-        cells, actions = w.cells, [None] * w.n
-        for i, learner in enumerate(self.learners):
-            if not w.done[i]:
-                need = learner.observe(cells[i])
-                actions[i] = learner.act({j: cells[j] for j in need} if need else _NOBODY)
+        # Plain loops, not comprehensions, here and in learn: on Python 3.11 a comprehension is one more call
+        # per joint step, which the engine's speed feels.
+        cells, actions = w.cells, []
+        for learner, need in zip(self.learners, self.needs):
+            if need is None:
+                actions.append(None)
+            else:
+                actions.append(step_act(learner, {j: cells[j] for j in need} if need else _NOBODY))
         return actions
 
-    def learn(self, actions: list[int | None], rewards: list[float]) -> None:
+    def learn(self, actions: list[int | None], rewards: list[float]) -> bool:
+        """After the world applied `actions`: every agent that acted learns from its outcome, then ends its
+        episode (at its goal, or the episode truncated) or observes its next step. Whether the episode is
+        over."""
         w = self.world
+        finished = w.finished
+        over = finished or w.t >= w.step_cap
         if self.central:
-            self.learners[0].learn(sum(rewards), tuple(w.cells), w.finished)
-            return
-        for i, learner in enumerate(self.learners):
-            if actions[i] is not None:
-                learner.learn(rewards[i], w.cells[i], w.done[i])
+            self.needs = [central_outcome(self.learners[0], w.cells, rewards, finished, over)]
+            return over
+        cells, done, needs, learners = w.cells, w.done, self.needs, self.learners
+        for i, a in enumerate(actions):
+            if a is not None:  # an agent that did not act has nothing to learn and stays over
+                d = done[i]
+                needs[i] = step_outcome(learners[i], cells[i], rewards[i], d, over or d)
+        return over
 
-    def episode(self) -> Episode:
+    def episode(self, on_step: StepHook | None = None) -> Episode:
+        """Play one episode. `on_step(world, actions, looks)`, if given, is called at every joint step after
+        the learners chose `actions` and before the world applies them; `looks[i]` is whom agent i looked at
+        (the peers, 0-based; for the central learner central_looks; None for an agent at its goal)."""
         w = self.world
         w.reset_joint()
         plays = sum(learner.joint_plays for learner in self.learners)
         collisions, ret = 0, 0.0
-        while not w.finished and w.t < w.step_cap:
-            actions = self.choose()
-            rewards = w.step_joint(actions)
-            self.learn(actions, rewards)
+        over = self.start()
+        choose, learn, step_joint = self.choose, self.learn, w.step_joint  # bound once: the loop is hot
+        while not over:
+            actions = choose()
+            if on_step is not None:
+                on_step(w, actions, central_looks(w.done) if self.central else self.needs)
+            rewards = step_joint(actions)
+            over = learn(actions, rewards)
             collisions += w.last_collisions
             ret += sum(rewards)
-        for learner in self.learners:
-            learner.end_episode()
         return Episode(
             steps=w.t,
             collisions=collisions,

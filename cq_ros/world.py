@@ -78,7 +78,9 @@ def resolve_moves(cells: list[int], targets: list[int], goals: tuple[int, ...]) 
     final = list(targets)
     n = len(final)
     edges = {(c, t) for c, t in zip(cells, final) if c != t}
-    swap = any((t, c) in edges for c, t in edges)
+    # Some move's reverse is also a move: a swap. A set operation, not any() over a generator: this runs at
+    # every joint step.
+    swap = not edges.isdisjoint([(t, c) for c, t in edges])
     if not swap and len(set(final)) == n:
         return final, set()  # the common step: every move ends in its own cell, nobody swaps
     pairs: set[tuple[int, int]] = set()
@@ -175,20 +177,22 @@ class GridWorld:
         `last_collisions` (colliding pairs), `last_bumps`, `delayed` (whose move failed) and `last_delays`
         (how many) describe the new state; an agent already at its goal gets reward 0, one delayed or without an action reward_step.
         """
-        cells, done, nbr, r = self.cells, self.done, self.map.neighbours, self.rewards
+        cells, done, nbr, r, goals = self.cells, self.done, self.map.neighbours, self.rewards, self.map.goals
         targets = list(cells)
         bumped = [False] * self.n
         delayed = self._delayed() if self.slip or self.start_hold else [False] * self.n
         for i, a in enumerate(actions):
             if done[i] or a is None or delayed[i]:
                 continue
-            targets[i] = nbr[cells[i]][a]
-            bumped[i] = targets[i] == cells[i]
-        final, pairs = resolve_moves(cells, targets, self.map.goals)
+            c = cells[i]
+            targets[i] = t = nbr[c][a]
+            bumped[i] = t == c
+        final, pairs = resolve_moves(cells, targets, goals)
         collided = [False] * self.n
         for i, j in pairs:
             collided[i] = collided[j] = True
         rewards = [0.0] * self.n
+        bumps = 0  # walls hit (a bump that collided counts as a collision)
         for i in range(self.n):
             if done[i]:
                 continue
@@ -197,14 +201,15 @@ class GridWorld:
             elif targets[i] == cells[i] and not bumped[i]:  # delayed, or no action: stayed, a step lost
                 rewards[i] = r.step
             else:  # a move nobody was in the way of: it ends at `targets[i]`, its own cell after a bump
-                rewards[i] = r.of_move(cells[i], targets[i], self.map.goals[i])
-                if targets[i] == self.map.goals[i]:
+                rewards[i] = r.of_move(cells[i], targets[i], goals[i])
+                bumps += bumped[i]
+                if targets[i] == goals[i]:
                     done[i] = True
                     self.arrival[i] = self.t + 1
         self.cells = final
         self.t += 1
         self.last_collisions = len(pairs)
-        self.last_bumps = sum(bumped[i] and not collided[i] for i in range(self.n))
+        self.last_bumps = bumps
         self.delayed = delayed
         self.last_delays = sum(delayed)
         return rewards

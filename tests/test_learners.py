@@ -617,6 +617,7 @@ def test_exploration_draws_every_action_alike(algo):
     n_actions = N_MOVES + 1 if algo == "loc" else N_MOVES ** gm.n_agents if algo == "jsa" else N_MOVES
     counts = np.zeros(n_actions)
     for _ in range(400 * n_actions):
+        team.start()  # observe the start again: every draw is a first step's
         team.choose()
         counts[learner.choice if algo == "loc" else learner.a] += 1
     assert counts.min() > 0, counts

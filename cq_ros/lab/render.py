@@ -5,7 +5,7 @@ animation writers: Pillow for GIF, ffmpeg for MP4 where it is installed).
 The same picture as a ROS viewer gets from the world's and the agents' markers (msgs_spec/viz.py), with the
 same geometry (cell (row, col) centred at x = col + 0.5, y = -(row + 0.5)), the same map lattice and the same
 colours (matplotlib's tab10). Frames come from the offline engine (`engine_frames`, which films one episode
-of `cq_ros.engine.run` without changing it) or from a recorded bag (`frames_from`, given the decoded
+of `cq_ros.engine.run` through Team's per-step hook, without changing it) or from a recorded bag (`frames_from`, given the decoded
 messages). No ROS import here.
 """
 
@@ -39,51 +39,6 @@ class Frame:
     looks: dict[int, tuple[tuple[int, int, int], ...]] = field(default_factory=dict)
 
 
-class _FilmedWorld:
-    """The engine's world, recording a Frame before every joint step (with the looks its learners reported
-    while choosing) and one after the last."""
-
-    def __init__(self, world: GridWorld, episode: int):
-        self._world, self.episode = world, episode
-        self.frames: list[Frame] = []
-        self.looks: dict[int, tuple[tuple[int, int, int], ...]] = {}
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._world, name)
-
-    def shoot(self) -> None:
-        w = self._world
-        self.frames.append(Frame(self.episode, w.t, tuple(w.map.cells[c] for c in w.cells), self.looks))
-        self.looks = {}
-
-    def step_joint(self, actions: list[int | None]) -> list[float]:
-        self.shoot()
-        return self._world.step_joint(actions)
-
-
-class _FilmedLearner:
-    """A learner reporting to the filmed world whom it looks at: the peers its observe() names (for the
-    central JSA learner, every other acting agent: it chooses on the joint state)."""
-
-    def __init__(self, learner: Any, world: _FilmedWorld):
-        self._learner, self._world = learner, world
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._learner, name)
-
-    def observe(self, cell: Any) -> tuple[int, ...]:
-        need = self._learner.observe(cell)
-        w = self._world._world
-        cells = [w.map.cells[c] for c in w.cells]
-        acting = [i for i in range(w.n) if not w.done[i]]
-        looking = acting if self._learner.central else [self._learner.agent]
-        for i in looking:
-            peers = [j for j in acting if j != i] if self._learner.central else need
-            if peers:
-                self._world.looks[i + 1] = tuple((j + 1, *cells[j]) for j in peers)
-        return need
-
-
 def engine_frames(gridmap: GridMap, algo: str, settings: Settings, seed: int, episodes: int,
                   episode: int | None = None, progress: Callable[[int], Any] | None = None,
                   greedy: bool = False) -> list[Frame]:
@@ -105,11 +60,18 @@ def engine_frames(gridmap: GridMap, algo: str, settings: Settings, seed: int, ep
             progress(e)
     if greedy:
         team, episode = greedy_team(team), episodes
-    filmed = _FilmedWorld(team.world, episode)
-    team.world, team.learners = filmed, [_FilmedLearner(learner, filmed) for learner in team.learners]
-    team.episode()
-    filmed.shoot()
-    return filmed.frames
+    frames: list[Frame] = []
+    place = gridmap.cells
+
+    def shoot(world: GridWorld, _actions: Any, looks: Any) -> None:
+        cells = tuple(place[c] for c in world.cells)
+        frames.append(Frame(episode, world.t, cells, {i + 1: tuple((j + 1, *cells[j]) for j in peers)
+                                                      for i, peers in enumerate(looks) if peers}))
+
+    team.episode(on_step=shoot)
+    w = team.world
+    frames.append(Frame(episode, w.t, tuple(place[c] for c in w.cells), {}))
+    return frames
 
 
 def frames_from(scenes: Iterable[Any], looks: Iterable[Any]) -> list[Frame]:
