@@ -14,8 +14,9 @@ The drivers decide everything the agent node does and return it as effects for t
 
 Greedy evaluation: after its `episodes` learning episodes a driver plays `eval_episodes` more, as
 `cq_ros.engine.greedy_episodes` does after `run`: on a deep copy of the learner with epsilon 0 (learning goes
-on inside the copy unless the setting eval_learning is 0), so its random stream continues exactly as the engine's copy does. The world plays
-them as ordinary episodes (episode indices episodes..episodes+eval_episodes-1) and the AgentStats go on.
+on inside the copy unless the setting eval_learning is 0), so its random stream continues exactly as the engine's
+copy does. The world plays them as ordinary episodes (episode indices episodes..episodes+eval_episodes-1) and the
+AgentStats go on.
 
 The pieces they share have their own modules: `effects` (what a driver returns), `world_link` (liveness and
 catching up), `peer_view` (peer subscriptions and positions), `checkpoint`, `reading`; `config` makes a

@@ -165,7 +165,8 @@ def coerce(key: str, value, kind: type):
             return int(value) if not isinstance(value, str) else int(value, 10)
         return float(value)
     except (TypeError, ValueError):
-        raise SettingsError(f"setting {key} takes {'an integer' if kind is int else 'a number'}, got {value!r}") from None
+        wanted = "an integer" if kind is int else "a number"
+        raise SettingsError(f"setting {key} takes {wanted}, got {value!r}") from None
 
 
 def _check(ok: bool, name: str, value, what: str) -> None:

@@ -175,7 +175,8 @@ class GridWorld:
 
         Afterwards `cells`, `done`, `arrival` (the step each agent reached its goal, None before), `t`,
         `last_collisions` (colliding pairs), `last_bumps`, `delayed` (whose move failed) and `last_delays`
-        (how many) describe the new state; an agent already at its goal gets reward 0, one delayed or without an action reward_step.
+        (how many) describe the new state; an agent already at its goal gets reward 0, one delayed or without an
+        action reward_step.
         """
         cells, done, nbr, r, goals = self.cells, self.done, self.map.neighbours, self.rewards, self.map.goals
         targets = list(cells)

@@ -44,13 +44,15 @@ __all__ = [
     # codec
     "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "HEARTBEAT_LAYOUT", "ARRAY_LAYOUTS",
     "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
-    "encode", "serialize", "decode", "check_sequence", "encode_feedback", "decode_feedback", "encode_position", "decode_position",
+    "encode", "serialize", "decode", "check_sequence", "encode_feedback", "decode_feedback", "encode_position",
+    "decode_position",
     "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
     "decode_world_stats",
     "encode_agent_stats", "decode_agent_stats",
     # topics
     "AGENT_PREFIX", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
     "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "HEARTBEAT", "AGENT_STATS", "WORLD_STATS", "TOPICS",
-    "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic", "action_topic",
+    "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic",
+    "action_topic",
     "agent_stats_topic", "agent_topics", "parse_topic", "qos_summary", "type_name",
 ]

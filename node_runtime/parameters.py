@@ -74,7 +74,8 @@ def _with_settings(use: str, table: dict[str, tuple[Any, str]]) -> dict[str, tup
 
 
 # Every parameter of the world node (with the Settings fields: _with_settings).
-WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings("world dynamics use the rewards, step_cap and the delays (slip, start_hold)", {
+WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings(
+    "world dynamics use the rewards, step_cap and the delays (slip, start_hold)", {
     "map": ("tunnel_to_goal", "map shipped with cq_ros (e.g. tunnel_to_goal_3) or path to a map file"),
     "episodes": (500, "learning episodes; then eval_episodes more, where the agents play their greedy policy "
                       "(cq_ros.engine.greedy_episodes); the node exits 0 after the last of all"),

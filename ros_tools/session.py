@@ -21,7 +21,8 @@ from rclpy.signals import SignalHandlerOptions
 
 __all__ = ["ToolError", "StopSignals", "environment", "ros_session", "spin_until", "find_system", "WORLD", "FIND_S"]
 
-FIND_S = 60.0  # how long to look for the system's nodes by default: a node process takes seconds to start on 2 busy cores
+# How long to look for the system's nodes by default: a node process takes seconds to start on 2 busy cores.
+FIND_S = 60.0
 WORLD = "world"
 _AGENT_NODE = re.compile(r"agv[1-9][0-9]*|jsa")
 

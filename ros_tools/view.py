@@ -111,7 +111,8 @@ class Relay:
                 self.channels[topic].log(self.latched[topic], log_time=time.time_ns())
 
 
-def serve(node: Any, ns: str, host: str = "127.0.0.1", port: int = 8765, n_agents: int | None = None) -> tuple[Any, Relay]:
+def serve(node: Any, ns: str, host: str = "127.0.0.1", port: int = 8765,
+          n_agents: int | None = None) -> tuple[Any, Relay]:
     """A Foxglove server at host:port relaying namespace `ns` through `node`, rescanned on a timer of `node` (so
     whoever spins it, `cq-ros view` or a launch's listener, relays); with `n_agents`, every topic of such a
     system by the contract as well. Stop it with server.stop()."""

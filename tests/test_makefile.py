@@ -18,7 +18,8 @@ def test_setup_with_a_python_other_than_3_11_is_one_line_and_makes_no_venv(tmp_p
     if version is not None:  # a stand-in that answers as that Python would
         major, minor, _ = version.split(".")
         python.write_text(f"#!/bin/sh\n[ \"$1\" = --version ] && echo 'Python {version}' && exit 0\n"
-                          f"[ \"$1\" = -c ] && exec python3 -c \"import sys; sys.version_info = ({major}, {minor}); $2\"\n"
+                          f"[ \"$1\" = -c ] && exec python3 -c "
+                          f"\"import sys; sys.version_info = ({major}, {minor}); $2\"\n"
                           "exit 1\n")
         python.chmod(0o755)
     done = subprocess.run(["make", f"PYTHON={python}", ".venv/.installed"], cwd=tmp_path, capture_output=True,

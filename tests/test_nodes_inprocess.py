@@ -157,7 +157,8 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
     injector.create_timer(0.005, inject)
     finish(system)
     table = offline_rows(algo, map_name, seed, episodes, settings)
-    assert [(s.steps, s.collisions) for s in system.world_stats] == [(int(e["steps"]), int(e["collisions"])) for e in table]
+    assert [(s.steps, s.collisions) for s in system.world_stats] == \
+        [(int(e["steps"]), int(e["collisions"])) for e in table]
     assert all(s.missed_actions == 0 for s in system.world_stats)
     world_counts = system.world_stats[-1].counters
     assert {f"dropped.{k}" for k in bad_actions} <= world_counts.keys(), world_counts

@@ -21,7 +21,8 @@ def test_parallel_api(name, observation):
 
 
 # A paper map and a generated warehouse, each seen both ways.
-PETTINGZOO_CASES = [(name, observation) for name in ("tunnel_to_goal", "warehouse_8") for observation in ("local", "joint")]
+PETTINGZOO_CASES = [(name, observation) for name in ("tunnel_to_goal", "warehouse_8")
+                    for observation in ("local", "joint")]
 
 
 @pytest.mark.parametrize("name, observation", PETTINGZOO_CASES)

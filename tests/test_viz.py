@@ -171,7 +171,8 @@ def test_render_draws_an_offline_episode_with_one_frame_per_step(tmp_path):
     done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--episode", "4", "--out", str(gif)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    steps = run("cq", load_map("tunnel_to_goal"), Settings().with_overrides({"step_cap": 60}), 3, 0, 20).episodes["steps"][4]
+    learnt = run("cq", load_map("tunnel_to_goal"), Settings().with_overrides({"step_cap": 60}), 3, 0, 20)
+    steps = learnt.episodes["steps"][4]
     with Image.open(gif) as image:
         assert image.n_frames == int(steps) + 1 and min(image.size) >= 150
     bad = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", *args, "--episode", "20", "--out",

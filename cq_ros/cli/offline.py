@@ -188,7 +188,8 @@ def render(args) -> int:
     _note(f"drawing {len(frames)} steps to {args.out}")
     out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps, dpi=args.dpi or DPI,
                           progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
-    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames" + (" (cut by the bag)" if args.bag and cut else ""))
+    cut_note = " (cut by the bag)" if args.bag and cut else ""
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames{cut_note}")
     return 0
 
 

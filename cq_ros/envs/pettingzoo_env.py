@@ -5,10 +5,11 @@
     obs, infos = env.reset(seed=0)
     obs, rewards, terminations, truncations, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
 
-Observations are numpy values of the declared spaces: a cell index (an `int64` array of shape (), in `Discrete(n_cells)`)
-for "local" (a 0-d array: PettingZoo wants arrays), every agent's cell (an `int64` array, in `MultiDiscrete([n_cells] * n_agents)`) for "joint".
-`state()` is the joint cells too, in `state_space`, for a centralised critic. Cells are numbered row by
-row over the map's free cells (`env.world.map.cells[i]` is cell i's (row, col)).
+Observations are numpy values of the declared spaces: a cell index (an `int64` array of shape (), in
+`Discrete(n_cells)`) for "local" (a 0-d array: PettingZoo wants arrays), every agent's cell (an `int64` array, in
+`MultiDiscrete([n_cells] * n_agents)`) for "joint". `state()` is the joint cells too, in `state_space`, for a
+centralised critic. Cells are numbered row by row over the map's free cells (`env.world.map.cells[i]` is cell i's
+(row, col)).
 
 Actions, `Discrete(4)`: 0 NORTH, 1 EAST, 2 SOUTH, 3 WEST (`cq_ros.gridmap.ACTIONS`); a move into a wall
 leaves the agent where it is. An agent at its goal leaves `env.agents`; the episode is truncated after the

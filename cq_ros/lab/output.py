@@ -3,10 +3,10 @@ only, full, not a folder, not ours) is one line at once instead of a traceback a
 
 `check_folder` makes the folder if needed and writes a small probe file there (a read-only or full file
 system refuses exactly that, whatever the permission bits say, and root passes every permission check);
-`check_parent` does the same for the folder a file (or a bag directory) goes in. Both raise `OutputError` (a ValueError: the
-CLI prints it as one line and exits 2) naming the folder and the operating system's reason, and leave no folder
-they made. `made_by` says which folder making one would make, for a command that removes it when it fails
-before its results (`removed_if_failing`).
+`check_parent` does the same for the folder a file (or a bag directory) goes in. Both raise `OutputError` (a
+ValueError: the CLI prints it as one line and exits 2) naming the folder and the operating system's reason, and
+leave no folder they made. `made_by` says which folder making one would make, for a command that removes it when it
+fails before its results (`removed_if_failing`).
 """
 
 from __future__ import annotations

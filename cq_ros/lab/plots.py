@@ -1,9 +1,9 @@
 """The paper's figures, drawn from an experiment's result directory as PNGs a person can put in a paper.
 
 Fig. 3 collisions per episode (on a linear axis, as the paper draws it, and on a linear-then-log axis that
-shows late fractions of a collision beside early hundreds), Fig. 4 joint plays (CQ, LoC), Fig. 5a CQ's state space per agent against
-the local and the joint state space, Fig. 5b where each CQ agent observes its peers and how confidently,
-plus steps (and return) per episode. Every curve is the mean over runs with a band of one standard
+shows late fractions of a collision beside early hundreds), Fig. 4 joint plays (CQ, LoC), Fig. 5a CQ's state space
+per agent against the local and the joint state space, Fig. 5b where each CQ agent observes its peers and how
+confidently, plus steps (and return) per episode. Every curve is the mean over runs with a band of one standard
 deviation over runs, each run first smoothed by a trailing moving average (``summary.moving_average``).
 
 Figures are built on ``matplotlib.figure.Figure`` directly, never through pyplot: that renders PNGs with
@@ -352,12 +352,13 @@ def write_figures(
     """Draw every figure of a result directory into it and return their paths.
 
     Reads ``episodes.csv``, ``manifest.json`` and, if present, ``observe.csv``. Writes collisions.png
-    (linear axis), collisions_log.png (linear-then-log axis), steps.png, joint_plays.png (if LoC or CQ ran), state_space.png (if CQ ran) and observe_map.png (if the
-    directory has an observe.csv; other algorithms found there get observe_map_<algo>.png). A directory
-    holding several maps gets one set per map, each file name prefixed with ``<map>_``. ``smooth`` is
-    the moving-average window of the per-episode curves, by default 1% of the episodes. ``map_loader``
-    turns a map name into a GridMap, for the observe map and for maps the manifest does not describe; by
-    default the manifest's map is read from the file it was read from (``map_source``), any other by name.
+    (linear axis), collisions_log.png (linear-then-log axis), steps.png, joint_plays.png (if LoC or CQ ran),
+    state_space.png (if CQ ran) and observe_map.png (if the directory has an observe.csv; other algorithms found
+    there get observe_map_<algo>.png). A directory holding several maps gets one set per map, each file name
+    prefixed with ``<map>_``. ``smooth`` is the moving-average window of the per-episode curves, by default 1% of
+    the episodes. ``map_loader`` turns a map name into a GridMap, for the observe map and for maps the manifest does
+    not describe; by default the manifest's map is read from the file it was read from (``map_source``), any other
+    by name.
     """
     result_dir = Path(result_dir)
     data = load_episodes(result_dir / EPISODES)

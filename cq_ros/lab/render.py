@@ -5,8 +5,8 @@ animation writers: Pillow for GIF, ffmpeg for MP4 where it is installed).
 The same picture as a ROS viewer gets from the world's and the agents' markers (msgs_spec/viz.py), with the
 same geometry (cell (row, col) centred at x = col + 0.5, y = -(row + 0.5)), the same map lattice and the same
 colours (matplotlib's tab10). Frames come from the offline engine (`engine_frames`, which films one episode
-of `cq_ros.engine.run` through Team's per-step hook, without changing it) or from a recorded bag (`frames_from`, given the decoded
-messages). No ROS import here.
+of `cq_ros.engine.run` through Team's per-step hook, without changing it) or from a recorded bag (`frames_from`,
+given the decoded messages). No ROS import here.
 """
 
 from __future__ import annotations

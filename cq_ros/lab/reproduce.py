@@ -156,7 +156,8 @@ def render_report(out: Path, runs: int, episodes: int, seeds: Sequence[int], set
         + (f" with settings changed from the defaults: {_changes(settings)}" if _changes(settings) else ""),
         f"Wall time: {wall:.0f} s on {_where(executed_on, v)} ({v['machine']}, Python {v['python']}, "
         f"cq_ros {v['cq_ros']}). Every parameter and seed is in each map's `manifest.json`. The greedy episodes "
-        + ("go on learning" if settings.eval_learning else "are played frozen") + f" (eval_learning={settings.eval_learning}).",
+        + ("go on learning" if settings.eval_learning else "are played frozen")
+        + f" (eval_learning={settings.eval_learning}).",
         "",
         "Collisions are counted per episode as colliding pairs; \"collision-free from\" is the first episode after "
         f"which the 100-episode moving average of the mean over runs stays below {SETTLED} for good (claims 1 and "
@@ -267,7 +268,8 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
     lines = []
     cq = {m: metrics[(m, "cq")] for m in PAPER_MAPS}
     # per (regime, threshold): one {(map, algo): episode} per seed
-    settled = {(name, t): [settled_at(d, t) for d in per_seed] for name, per_seed in regimes.items() for t in THRESHOLDS}
+    settled = {(name, t): [settled_at(d, t) for d in per_seed]
+               for name, per_seed in regimes.items() for t in THRESHOLDS}
     few = len(seeds) < MIN_SEEDS
     not_judged = (f"not judged: when an average settles moves with the seed, and this report has {len(seeds)} of "
                   f"the {MIN_SEEDS} seeds it takes (`--seeds`).")
@@ -278,13 +280,14 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
     for (name, t), per_seed in settled.items():
         lines.append(f"   - {name}, below {t:g}: " + (not_judged if few else
                      f"{_at_seeds([claim_collision_free(s) for s in per_seed])}. CQ from, over {_seed_list(seeds)}: "
-                     + "; ".join(f"{m} {over_seeds([s[(m, 'cq')] for s in per_seed], seeds)}" for m in PAPER_MAPS) + "."))
+                     + "; ".join(f"{m} {over_seeds([s[(m, 'cq')] for s in per_seed], seeds)}"
+                                 for m in PAPER_MAPS) + "."))
     greedy = {m: _greedy(out / m) for m in PAPER_MAPS}
     if all("cq" in g for g in greedy.values()):
         ok = all(g["cq"].collisions == 0 and g["cq"].stuck == 0 for g in greedy.values())
-        lines.append(f"   - The policy CQ has learnt, played greedily (epsilon 0) at the end, collision-free and reaching "
-                     f"the goals: {_verdict(ok)}. Collisions/episode (steps/episode, runs stuck until the step cap), "
-                     "mean over runs: " + "; ".join(f"{m} {_g(g['cq'])}" for m, g in greedy.items())
+        lines.append("   - The policy CQ has learnt, played greedily (epsilon 0) at the end, collision-free and "
+                     f"reaching the goals: {_verdict(ok)}. Collisions/episode (steps/episode, runs stuck until the "
+                     "step cap), mean over runs: " + "; ".join(f"{m} {_g(g['cq'])}" for m, g in greedy.items())
                      + ". The other algorithms, greedy: "
                      + "; ".join(f"{m}: " + ", ".join(f"{a} {_g(v)}" for a, v in g.items() if a != "cq")
                                  for m, g in greedy.items()) + ".")
@@ -314,7 +317,8 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
     states = data[("tunnel_to_goal_3", "cq")]["states"] / 2  # two agents: per agent
     n_cells = load_map("tunnel_to_goal_3").n_cells
     peak = float(states.mean(axis=0).max())
-    lines.append(f"5. *CQ's state space on TunnelToGoal_3 stays far below {n_cells ** 2}*: {_verdict(peak < 0.1 * n_cells ** 2)}. "
+    lines.append(f"5. *CQ's state space on TunnelToGoal_3 stays far below {n_cells ** 2}*: "
+                 f"{_verdict(peak < 0.1 * n_cells ** 2)}. "
                  f"Per agent, mean over runs: at most {peak:.1f} states (local space {n_cells}), "
                  f"{float(states[:, -1].mean()):.1f} at the end.")
 
@@ -355,7 +359,8 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
     greedy = {m: _greedy_runs(out / m) for m in PAPER_MAPS}
     if all("cq" in g for g in greedy.values()):
         stuck = {m: sum(r.truncated > 0 for r in g["cq"]) for m, g in greedy.items()}
-        ending = {m: {a: [r.steps for r in runs if not r.truncated] for a, runs in g.items()} for m, g in greedy.items()}
+        ending = {m: {a: [r.steps for r in runs if not r.truncated] for a, runs in g.items()}
+                  for m, g in greedy.items()}
         shortest = {m: min(((sum(v) / len(v), a) for a, v in e.items() if a != "cq" and v), default=None)
                     for m, e in ending.items()}
         worst = {m: max(r.collisions for r in g["cq"]) for m, g in greedy.items()}
@@ -369,7 +374,8 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
                if any(stuck.values()) else "no run loops until the step cap")
             + ". Over the runs that reach the goals, steps per episode: "
             + "; ".join(f"{m} CQ {sum(e['cq']) / len(e['cq']):.1f}"
-                        + ("" if shortest[m] is None else f", the shortest baseline {shortest[m][1]} {shortest[m][0]:.1f}")
+                        + ("" if shortest[m] is None
+                           else f", the shortest baseline {shortest[m][1]} {shortest[m][0]:.1f}")
                         for m, e in ending.items() if e["cq"]) + ".")
     isr = metrics[("isr", "cq")]
     lines.append(f"- **On isr CQ plays joint** {isr.joint_plays_tail:.1f} times per episode in the last 10% "
@@ -379,7 +385,8 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
         (lo, low), (hi, high) = (f(((m.collisions_tail, n) for n, m in sweep.items())) for f in (min, max))
         lines.append(f"- **The settings sweep** (CQ on {SWEEP_MAP}, fixed epsilon, each setting the paper leaves "
                      f"open moved on its own, {_seed_list(seeds[:1])}): CQ collides from {lo:.3f} ({low}) to {hi:.3f} "
-                     f"({high}) times per episode in the last 10% of episodes; " + _same_when_scaled(out, variants) + ".")
+                     f"({high}) times per episode in the last 10% of episodes; "
+                     + _same_when_scaled(out, variants) + ".")
     return lines
 
 
@@ -455,8 +462,9 @@ def _at_2000(data) -> dict[str, tuple[float, float]] | None:
     """{algo: (collisions, steps) per episode over episodes 1901-2000} on TunnelToGoal_3 for JS, JSA and CQ."""
     if data[("tunnel_to_goal_3", "cq")]["steps"].shape[1] < 2000:
         return None
-    return {algo: (float(data[("tunnel_to_goal_3", algo)]["collisions"][:, 1900:2000].mean()),
-                   float(data[("tunnel_to_goal_3", algo)]["steps"][:, 1900:2000].mean())) for algo in ("js", "jsa", "cq")}
+    late = {algo: data[("tunnel_to_goal_3", algo)] for algo in ("js", "jsa", "cq")}
+    return {algo: (float(d["collisions"][:, 1900:2000].mean()), float(d["steps"][:, 1900:2000].mean()))
+            for algo, d in late.items()}
 
 
 def joint_learners_slow(at: dict[str, tuple[float, float]]) -> bool:
@@ -468,7 +476,8 @@ def _claim_joint_learners_slow(data) -> str:
     """JS and JSA "still haven't learnt a good policy after 2000 episodes" on TunnelToGoal_3 (Fig. 3)."""
     at = _at_2000(data)
     if at is None:
-        return "4. *JS and JSA are still poor after 2000 episodes on TunnelToGoal_3*: not measured (fewer than 2000 episodes)."
+        return ("4. *JS and JSA are still poor after 2000 episodes on TunnelToGoal_3*: not measured (fewer than 2000 "
+                "episodes).")
     return ("4. *JS and JSA are still poor after 2000 episodes on TunnelToGoal_3*, judged on collisions as Fig. 3 "
             f"plots them (poor = more collisions than CQ): {_verdict(joint_learners_slow(at))}. Episodes 1901-2000, "
             "collisions per episode (steps per episode beside): "

@@ -213,7 +213,8 @@ def _note(window: int, threshold: float, tail: float, settled: bool = True) -> s
     return (
         f"Collisions per episode over the last {tail:.0%} of episodes as mean ± s.d. over runs. "
         + (f"Collision-free from = first episode from which the {window}-episode trailing mean of the "
-           f"run-mean collisions stays below {threshold:g} ('never' if it is not below at the end). " if settled else "")
+           f"run-mean collisions stays below {threshold:g} ('never' if it is not below at the end). "
+           if settled else "")
         + "Final states = local plus joint states of all agents after the last episode, mean over runs."
     )
 

@@ -21,7 +21,8 @@ class JointStateActionQ(Learner):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         if self.n_agents > MAX_AGENTS:
-            raise ValueError(f"jsa supports at most {MAX_AGENTS} agents (4^n joint actions), the map has {self.n_agents}")
+            raise ValueError(f"jsa supports at most {MAX_AGENTS} agents (4^n joint actions), "
+                             f"the map has {self.n_agents}")
         self.n_joint = N_MOVES ** self.n_agents
         self.q_joint: dict[tuple, list[float]] = {}
 

@@ -35,11 +35,10 @@ stretch that the next must leave first; on warehouse_32 a loop of AGVs round a t
 When AGVs wait on each other in a cycle (each for a cell that the next must leave first), none of them will
 move again by itself, whatever the others do: then, among the AGVs waiting on such a cycle, the one whose
 next move comes first in the plan and whose next cell alone is released sets out (the bare ADG) and holds
-where its next cell is not yet released; that is counted in `stalls`. The bare ADG has a cycle only where the plan moves AGVs round a
-loop of cells all in one step (which the world allows and no move that can fail survives); an execution
-that meets one stops, recorded as `stuck`, with the AGVs not home counted, rather than wait for ever.
-`stall_risk` finds the cycles of stretches in a plan before any execution; where it finds none, no
-execution stalls.
+where its next cell is not yet released; that is counted in `stalls`. The bare ADG has a cycle only where the plan
+moves AGVs round a loop of cells all in one step (which the world allows and no move that can fail survives); an
+execution that meets one stops, recorded as `stuck`, with the AGVs not home counted, rather than wait for ever.
+`stall_risk` finds the cycles of stretches in a plan before any execution; where it finds none, no execution stalls.
 
 Every random choice is the world's (`GridWorld`, seeded with `cq_ros.engine.world_seed(seed, run)`), so
 execution `run` meets exactly the delays a learner's run `run` meets.

@@ -32,12 +32,13 @@ import textwrap
 from ..gridmap import GridMap, _render, _STEPS, parse_map
 from ..settings import Settings, SettingsError
 
-__all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "DELAYED_COLLISION", "MAP_DEFAULTS", "default_aisles", "warehouse_command", "warehouse_map",
-           "warehouse_text"]
+__all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "DELAYED_COLLISION", "MAP_DEFAULTS", "default_aisles",
+           "warehouse_command", "warehouse_map", "warehouse_text"]
 
 DEFAULT_AISLE_LENGTH = 6
 # Setting -> (value, why). On warehouse_16, indep with reward_step=-1 and gamma 0.9 ran 924 of 1,000 episodes
-# to the 5,000-step cap; with gamma 0.98, 17 of 3,000, and every greedy policy got all home (docs/warehouses.md, "The maps").
+# to the 5,000-step cap; with gamma 0.98, 17 of 3,000, and every greedy policy got all home (docs/warehouses.md,
+# "The maps").
 MAP_DEFAULTS = {
     "reward_step": ("-1", "steps cost: with free steps, learners wander in the safe cross-aisles rather than "
                           "cross an entrance where they have collided"),
