@@ -125,7 +125,7 @@ def test_a_composed_launch_writes_the_offline_engines_episodes_from_one_process(
 def test_nodes_done_in_a_composed_launch_never_stall_the_agents_still_playing(tmp_path):
     """A node that has played its last episode gives its last messages up to 2 s to be acknowledged, on a
     timer: waiting inside its callback stalled the whole container, and the world timed out the agents
-    still playing (warehouse_8's last greedy episode, issue 10). The AGVs here reach their goals at
+    still playing (warehouse_8's last greedy episode). The AGVs here reach their goals at
     different steps of the last episode, the others subscribing to a peer whenever one is close (LoC), and
     the world gives an action 1 s."""
     out, namespace = tmp_path / "result", unique("ending")

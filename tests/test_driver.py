@@ -150,7 +150,7 @@ def test_learns_only_from_the_outcome_of_its_own_action():
 
 
 def test_an_action_the_world_did_not_apply_is_not_learnt_and_is_counted():
-    """Issue 20's reproduction: step 0's EAST was applied (it moved); step 1's came after step_timeout and the
+    """A stall seen in a real run: step 0's EAST was applied (it moved); step 1's came after step_timeout and the
     world stepped without it (it stayed, feedback of step 2 from the same cell): nothing is learnt from
     step 1, and the agent plays step 2 as usual."""
     learner = Stub()
@@ -607,7 +607,7 @@ def test_catching_up_across_episodes_sends_the_statistics_of_every_episode_left_
 
 
 def test_a_restart_from_a_checkpoint_counts_its_catch_up():
-    """Issue 20: a node resumed from its checkpoint joins the world where it is, counted as caught_up as a
+    """a node resumed from its checkpoint joins the world where it is, counted as caught_up as a
     restart without one is (it was not)."""
     d = AgentDriver(Stub(), 1, episodes=5, linger=0, resync=True)
     assert sent(d.on_feedback(1, fb(1, 2, 7, 0, 1))) == [Action(1, 2, 7, 1)]

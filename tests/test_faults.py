@@ -1,4 +1,4 @@
-"""Faults on the wire, driven for real on rclpy (issue 9): a restart without a checkpoint, one dropped
+"""Faults on the wire, driven for real on rclpy: a restart without a checkpoint, one dropped
 feedback, bursts of junk on every topic, a second writer of positions and actions without the run's key,
 stale positions, an agent waiting at its goal for longer than its timeout, a second system in the same
 namespace, and every bad parameter. A run finishes with exactly the offline engine's episodes wherever no
@@ -273,7 +273,7 @@ def test_a_second_system_on_the_same_domain_and_namespace_is_refused(ros_domain_
 
 def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything(system_in, ros_domain_id,
                                                                                    spin_until):
-    """Issue 20: a second world in the namespace of a running system finds that system's agents connected at
+    """a second world in the namespace of a running system finds that system's agents connected at
     once; it refuses (exit 2) before its first step, so none of its messages reaches them, and the system's
     run is the engine's."""
     from rclpy.context import Context
@@ -305,7 +305,7 @@ def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything
 
 
 def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics(ros_context):
-    """Issue 20: the lockstep subscriptions listen to the message-lost event (node_runtime.lost); a report's new
+    """the lockstep subscriptions listen to the message-lost event (node_runtime.lost); a report's new
     losses go into the node's statistics as `lost_samples`. Driven through the handlers rclpy made, since
     the pip Fast DDS reports none (benchmarks/lost_samples.py)."""
     from types import SimpleNamespace
@@ -436,7 +436,7 @@ def read_rows(path) -> list[tuple[int, int, bool]]:
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, stopped, sets, stalls, stall_s):
-    """Issue 20: kill -STOP, then -CONT, of one node process of a real `cq-ros launch`, several times. A stalled
+    """kill -STOP, then -CONT, of one node process of a real `cq-ros launch`, several times. A stalled
     node handles what is waiting in its queues before it judges anyone late: nobody is timed out, nothing is
     dropped, the run is the offline engine's, and the node counts the stalls."""
     from cq_ros.engine import run

@@ -257,7 +257,7 @@ def test_sigint_to_the_launcher_stops_every_node_cleanly(tmp_path):
 @pytest.mark.slow
 def test_a_second_launch_in_a_running_systems_namespace_refuses_and_counts_none_of_its_episodes(tmp_path,
                                                                                                   ros_domain_id):
-    """Issue 20: the second launch's world refuses (exit 2) and the launch says why in one line. Its listener
+    """the second launch's world refuses (exit 2) and the launch says why in one line. Its listener
     holds its own run's key and drops the first system's statistics, so the episodes it reports are its own
     (none, or the few its world stepped before it saw the first one), where it used to report the first
     system's count as its own; the first system's run is the engine's. The second runs another seed, so its
@@ -330,7 +330,7 @@ def test_a_generated_warehouse_file_launches_with_its_defaults_and_equals_the_of
 @pytest.mark.ros
 @pytest.mark.slow
 def test_cq_on_a_four_agv_warehouse_file_equals_the_offline_run_joint_states_included(tmp_path):
-    """Issue 11: CQ's AGVs over ROS on a generated warehouse, with a window short enough that an agent marks
+    """CQ's AGVs over ROS on a generated warehouse, with a window short enough that an agent marks
     a joint state and subscribes to a peer within the run, give the offline engine's episodes exactly."""
     path = tmp_path / "w4.txt"
     path.write_text(warehouse_text(4, aisles=2, aisle_length=2, seed=0))

@@ -319,7 +319,7 @@ def test_the_wait_for_a_missing_agent_is_step_timeout_to_a_tick():
 
 
 def test_a_world_stopped_past_step_timeout_takes_the_actions_waiting_for_it():
-    """Issue 20: stopped for 5 s (SIGSTOP) with both actions in its queue, the world's first tick after
+    """stopped for 5 s (SIGSTOP) with both actions in its queue, the world's first tick after
     the stop comes before them; the stall is counted, nobody is judged late, and the step is played."""
     core, clock = lockstep(CORRIDOR, timeout=2.0)
     core.begin()

@@ -172,7 +172,7 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
 class UnannouncedPositions(AgentNode):
     """An agent node whose peer position subscriptions the executor never hears of: they are made on a node
     that no executor spins, so every position waits in its reader unannounced, as a latched sample does when
-    the middleware drops the announcement of a new subscription's first sample (issue 10, composed mode)."""
+    the middleware drops the announcement of a new subscription's first sample (composed mode)."""
 
     def __init__(self, node_name: str, **kwargs):
         self._hidden = rclpy.create_node(f"{node_name}_hidden", context=kwargs["context"])

@@ -1,4 +1,4 @@
-"""CQ-learning brings a small generated warehouse home (issue 11): after a short run, its greedy policy gets
+"""CQ-learning brings a small generated warehouse home: after a short run, its greedy policy gets
 every AGV to its goal with no collision and no truncation, for consecutive seeds (map and learners alike),
 none chosen to pass. The 8- to 32-AGV figures are benchmarks (benchmarks/bench_warehouse.py), not tests."""
 
