@@ -14,6 +14,7 @@ import contextlib
 import importlib.util
 import io
 import re
+import subprocess
 from importlib import resources
 from pathlib import Path
 
@@ -288,3 +289,19 @@ def test_the_choices_pages_state_count_is_the_reports():
     page = (ROOT / "docs" / "choices.md").read_text()
     assert "each CQ agent ends with 62 states (55 local + 7 joint)" in report
     assert "count per agent climbs from 55 to 62 over all 10,000 episodes" in page
+
+
+# A citation the repository cannot follow: the design brief it was built from, or a tracker's issue number.
+OUTSIDE = re.compile(r"DESIGN\.md|\b[Ii]ssues? #?[0-9]+\b|\(#[0-9]+\)")
+
+
+def test_no_project_file_cites_a_document_or_tracker_outside_the_repository():
+    tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True,
+                             timeout=60).stdout.split()
+    here = Path(__file__).relative_to(ROOT).as_posix()
+    texts = [name for name in tracked if name != here and (ROOT / name).is_file()
+             and Path(name).suffix in (".py", ".md", ".toml", ".txt", ".yaml", ".xml", ".cfg", "")]
+    cited = [f"{name}:{n}: {line.strip()}" for name in texts
+             for n, line in enumerate((ROOT / name).read_text(errors="replace").splitlines(), 1) if OUTSIDE.search(line)]
+    assert cited == []
+    assert OUTSIDE.search("see issue 18") and OUTSIDE.search("(DESIGN.md, field notes)")
