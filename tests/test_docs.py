@@ -302,6 +302,7 @@ def test_no_project_file_cites_a_document_or_tracker_outside_the_repository():
     texts = [name for name in tracked if name != here and (ROOT / name).is_file()
              and Path(name).suffix in (".py", ".md", ".toml", ".txt", ".yaml", ".xml", ".cfg", "")]
     cited = [f"{name}:{n}: {line.strip()}" for name in texts
-             for n, line in enumerate((ROOT / name).read_text(errors="replace").splitlines(), 1) if OUTSIDE.search(line)]
+             for n, line in enumerate((ROOT / name).read_text(errors="replace").splitlines(), 1)
+             if OUTSIDE.search(line)]
     assert cited == []
     assert OUTSIDE.search("see issue 18") and OUTSIDE.search("(DESIGN.md, field notes)")
