@@ -1,7 +1,8 @@
 """What every learner offers the engine and the agent node, and the two rules they all share:
 epsilon-greedy action selection and the Q-learning update (the paper's Equation 3).
 
-A step, as the engine and the agent node drive it:
+A step, as `cq_ros.engine.step_outcome` and `step_act` drive it (the engine's Team and the agent node's drivers
+call those two, so this order is written once):
 
     peers = learner.observe(cell)           # my cell; which peers must I see to choose? (ids, 0-based)
     action = learner.act({j: cell_j ...})   # those peers' cells at this step; my action
