@@ -663,7 +663,7 @@ def test_keyed_messages_of_an_earlier_run_with_the_same_key_file_are_refused(sys
         (feedback_topic(1), FEEDBACK, serialize(Feedback(1, 2, 0, 0, 0, 0.0), key=earlier)),
         (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(10**6, 2, 0), key=earlier)),
         (position_topic(2), POSITION, serialize(Position(2, 0, 1, 0, 0), key=earlier))])
-    finish(system, spin_until)
+    finish(system)
     assert len(sent) >= 3
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     assert all(s.missed_actions == 0 for s in system.world_stats)
@@ -695,7 +695,7 @@ def test_a_feedback_from_far_ahead_is_refused_and_counted_without_a_loop(system_
     sent = _inject_once_under_way(system, ros_context, spin_until, [
         (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(far, far, 0), key=key)),
         (feedback_topic(1), FEEDBACK, serialize(Feedback(1, far, 0, 0, 0, 0.0), key=key))])
-    finish(system, spin_until)
+    finish(system)
     assert time.monotonic() - start < RUN_TIMEOUT_S and len(sent) >= 2
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     agv1 = counters(system, 1)

@@ -1,5 +1,6 @@
 """`make`'s set-up checks the Python version before it makes .venv, and says in one line what to do."""
 
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -22,8 +23,11 @@ def test_setup_with_a_python_other_than_3_11_is_one_line_and_makes_no_venv(tmp_p
                           f"\"import sys; sys.version_info = ({major}, {minor}); $2\"\n"
                           "exit 1\n")
         python.chmod(0o755)
+    # As a newcomer runs it: not inside another make (`make test` runs this test), whose level would show
+    # in make's own lines (make[1]: ...).
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKELEVEL", "MAKEFLAGS", "MFLAGS")}
     done = subprocess.run(["make", f"PYTHON={python}", ".venv/.installed"], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=60)
+                          text=True, timeout=60, env=env)
     assert done.returncode != 0
     said = [line for line in done.stderr.splitlines() if not line.startswith("make:")]
     assert len(said) == 1 and "make PYTHON=python3.11" in said[0], done.stderr
