@@ -63,6 +63,11 @@ class Settings:
         0, "CQ's W1 (ours, 0 is the paper's): 0, the first N rewards of each (cell, action); 1, the rewards of "
            "acting alone there (the world's reward for the move with nobody else, a share slip of them delayed), "
            "so that a conflict present from the start, as under delays, shows as a drop")
+    cq_waits_fresh: int = setting(
+        0, "CQ's new joint states (ours, 0 is the paper's): 0, a new Q^j is a copy of Q_k; 1, in the copy each wait "
+           "(a move into a wall, which leaves the agent in its cell) is worth at least one step lost plus the free "
+           "road, reward_wall + gamma * max Q_k of the cell, since Q_k's waits hold what early exploration left "
+           "and, never tried again once exploration stops, would keep the agent from waiting where it must")
     cq_look_if_decisive: int = setting(
         0, "CQ's looks when greedy (ours, 0 is the paper's): 0, at a cell with marked joint states the agent looks "
            "at every peer they name, every step; 1, at epsilon 0 it does not look where Q_k and every Q^j of the "
@@ -103,6 +108,7 @@ class Settings:
         _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
         _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
         _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
+        _check(self.cq_waits_fresh in (0, 1), "cq_waits_fresh", self.cq_waits_fresh, "0 or 1")
         _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
@@ -165,7 +171,8 @@ def coerce(key: str, value, kind: type):
             return int(value) if not isinstance(value, str) else int(value, 10)
         return float(value)
     except (TypeError, ValueError):
-        raise SettingsError(f"setting {key} takes {'an integer' if kind is int else 'a number'}, got {value!r}") from None
+        what = "an integer" if kind is int else "a number"
+        raise SettingsError(f"setting {key} takes {what}, got {value!r}") from None
 
 
 def _check(ok: bool, name: str, value, what: str) -> None:
