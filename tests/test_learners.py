@@ -1103,6 +1103,33 @@ def test_cq_waits_fresh_a_new_joint_states_waits_are_never_below_the_floor():
             assert row[a] == (max(q_k[a], floor) if to == s else q_k[a])
 
 
+# --- heard: the peer positions counted per episode, in the result files ------------------------------------
+
+
+@pytest.mark.parametrize("algo", sorted(LEARNERS))
+def test_heard_per_episode_in_episodes_and_greedy_csv_is_what_the_learners_counted(algo, tmp_path, monkeypatch):
+    from cq_ros.lab.results import load_episodes, write_results
+
+    gm = load_map("tunnel_to_goal")
+    settings = Settings(window=10, step_cap=300, eval_episodes=3)
+    counted = []  # what the learners counted over each episode, learning and greedy
+    played = Team.episode
+
+    def episode(team, *args, **kwargs):
+        before = sum(learner.heard for learner in team.learners)
+        result = played(team, *args, **kwargs)
+        counted.append(sum(learner.heard for learner in team.learners) - before)
+        return result
+
+    monkeypatch.setattr(Team, "episode", episode)
+    result = engine.run(algo, gm, settings, seed=3, run_index=0, episodes=20)
+    write_results(tmp_path, gm, [result], {})
+    files = [load_episodes(tmp_path / name)[(gm.name, algo)]["heard"][0] for name in ("episodes.csv", "greedy.csv")]
+    assert [*files[0], *files[1]] == counted
+    if algo == "indep":
+        assert sum(counted) == 0  # it never looks
+
+
 # --- the greedy evaluation: learning or frozen (eval_learning) --------------------------------------------
 
 KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "waiting")
