@@ -154,12 +154,13 @@ _FIELDS = {f.name: f for f in fields(Settings)}
 UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1}
 
 
-def run_settings(gridmap: "GridMap", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
-    """The settings of a run on `gridmap`: the defaults, then the map's (its `set` lines), then `overrides`
-    (`key=value` strings, or a dict such as a node's parameters that were given); where the result has a delay,
-    UNDER_DELAYS for those of them neither the map nor `overrides` sets."""
+def run_settings(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
+    """The settings of a run on `gridmap` (None: maps without defaults of their own, as the paper's grid): the
+    defaults, then the map's (its `set` lines), then `overrides` (`key=value` strings, or a dict such as a
+    node's parameters that were given); where the result has a delay, UNDER_DELAYS for those of them neither
+    the map nor `overrides` sets."""
     given = dict(overrides) if isinstance(overrides, Mapping) else dict(split_pair(p) for p in overrides)
-    chosen = {**gridmap.defaults, **given}
+    chosen = {**(gridmap.defaults if gridmap is not None else {}), **given}
     settings = Settings().with_overrides(chosen)
     if settings.slip > 0 or settings.start_hold > 0:
         settings = settings.with_overrides({k: v for k, v in UNDER_DELAYS.items() if k not in chosen})

@@ -179,6 +179,9 @@ def test_under_delays_cq_detects_against_acting_alone_and_values_waits_afresh_un
         assert run_settings(load_map(name)) == Settings().with_overrides(load_map(name).defaults), name
     off = run_settings(delayed, ["slip=0"])
     assert (off.cq_w1_alone, off.cq_waits_fresh) == (0, 0)
+    # the paper's grid (cq-ros reproduce): no map defaults, the same rule
+    assert run_settings(None) == Settings()
+    assert (run_settings(None, ["slip=0.1"]).cq_w1_alone, run_settings(None, ["slip=0.1"]).cq_waits_fresh) == (1, 1)
 
 
 def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():

@@ -60,9 +60,9 @@ def experiment(args) -> int:
 def reproduce(args) -> int:
     from ..lab.reproduce import reproduce
 
-    # The paper's maps carry no defaults of their own.
+    # The paper's maps carry no defaults of their own; a delay given by --set brings CQ's settings under delays.
     report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
-                       Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
+                       run_settings(None, args.overrides), workers=args.jobs, force=args.force,
                        sweep=args.sweep, cluster=args.cluster)
     print(f"report: {report}")
     return 0
@@ -188,7 +188,8 @@ def render(args) -> int:
     _note(f"drawing {len(frames)} steps to {args.out}")
     out = write_animation(args.out, occupancy, goals, frames, title=title, fps=args.fps, dpi=args.dpi or DPI,
                           progress=_every_30_s(f"frame {{}}/{len(frames)} drawn"))
-    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames" + (" (cut by the bag)" if args.bag and cut else ""))
+    cut_note = " (cut by the bag)" if args.bag and cut else ""
+    print(f"{out}: episode {frames[0].episode}, {len(frames)} frames{cut_note}")
     return 0
 
 
