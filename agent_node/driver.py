@@ -50,6 +50,12 @@ def state_counts(learner: Learner) -> tuple[int, int]:
     return local, total - local
 
 
+def counts(learner: Learner) -> tuple[int, int]:
+    """(joint plays, peer positions heard) so far: the learner keeps them for its life, an episode's statistics
+    carry what they grew by since the episode began."""
+    return learner.joint_plays, learner.heard
+
+
 # -- the decentralised agent ---------------------------------------------------------------------------
 
 
@@ -80,7 +86,7 @@ class AgentDriver:
         self._played = False  # a feedback played: episodes left behind since get their statistics
         self._acted: tuple[int, int, int] | None = None  # (episode, step, action) of the action just sent
         self._pending: tuple[int, int, tuple[int, ...]] | None = None  # (episode, step, peers) awaiting positions
-        self._plays_before = learner.joint_plays  # joint plays before the current episode
+        self._before = counts(learner)  # joint plays and peer positions heard before the current episode
 
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback (the node subscribes to its own agent's only)."""
@@ -129,7 +135,7 @@ class AgentDriver:
             for episode in range(self.expect[0], fb.episode):
                 step_outcome(self.learner, None, over=True)  # left behind: no last outcome to learn from
                 out += self._end_episode(episode)
-                self._plays_before = self.learner.joint_plays
+                self._before = counts(self.learner)
         self.expect = None
         return out if self.finished else out + self._play(fb, cell)
 
@@ -144,7 +150,7 @@ class AgentDriver:
         if self.expect is None:  # resumed: the world may be past the learning episodes already
             _greedy_from(self, fb.episode)
         if fb.step == 0 or self.expect is None:
-            self._plays_before = self.learner.joint_plays
+            self._before = counts(self.learner)
         # Learn only from the outcome of an action we sent and the world applied: after a skipped step or a
         # restart there is none; one that came after step_timeout (or was lost) the world stepped without.
         reward = None
@@ -197,7 +203,8 @@ class AgentDriver:
         local, joint = state_counts(learner)
         marked = tuple(MarkedJointState(*cells[s], j + 1, *cells[c], conf) for s, j, c, conf in learner.joint_states())
         return AgentStats(agent=self.agent, episode=episode, algorithm=learner.name,
-                          joint_plays=learner.joint_plays - self._plays_before, local_states=local,
+                          joint_plays=learner.joint_plays - self._before[0], heard=learner.heard - self._before[1],
+                          local_states=local,
                           joint_states=joint, subscriptions_created=self.peers.created,
                           subscriptions_active=len(self.peers.idle), peer_messages=self.peers.messages,
                           marked=marked, counters=self.counters())
@@ -224,7 +231,7 @@ def _greedy_from(driver: "AgentDriver | CentralDriver", episode: int) -> None:
     Exactly what cq_ros.engine.greedy_episodes does (a deep copy, then Learner.make_greedy: epsilon 0, frozen
     unless eval_learning), so the copy's random
     stream continues as the engine's does; the learner checkpointed before stays the trained one. The copy
-    keeps joint_plays, so the per-episode counts (joint_plays - _plays_before) go on unchanged."""
+    keeps joint_plays and heard, so the per-episode counts (since `_before`, `counts`) go on unchanged."""
     if episode >= driver.episodes and not driver.greedy:
         driver.learner = copy.deepcopy(driver.learner)
         driver.learner.make_greedy()
@@ -270,7 +277,7 @@ class CentralDriver:
         self._acted: tuple[int, int] | None = None
         self._sent: dict[int, int] = {}  # agent -> its action of the step acted at (self._acted)
         self.unapplied_actions = 0  # actions sent that the world did not apply (late or lost)
-        self._plays_before = learner.joint_plays
+        self._before = counts(learner)
 
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback."""
@@ -323,7 +330,7 @@ class CentralDriver:
             self._done = [False] * self.n
             self._collect(set(self.agents))
             return out
-        self._plays_before = self.learner.joint_plays
+        self._before = counts(self.learner)
         # The greedy switch first: a resume may join the world past the learning episodes.
         _greedy_from(self, episode)
         central_outcome(self.learner, self._cells, None, False, False)  # nothing to learn: observe only
@@ -358,7 +365,7 @@ class CentralDriver:
             for episode in range(current, fb.episode):
                 central_outcome(self.learner, self._cells, None, False, True)  # left behind: nothing to learn
                 out += self._end_episode(episode)
-                self._plays_before = self.learner.joint_plays
+                self._before = counts(self.learner)
         self._played = True
         self.link.heard()
         for inbox in self._inbox.values():
@@ -375,7 +382,7 @@ class CentralDriver:
             self._truncated |= fb.truncated
             unapplied += fb.applied != self._sent.get(k)
         if fb.step == 0:
-            self._plays_before = self.learner.joint_plays
+            self._before = counts(self.learner)
         # A no-op but after a resume from a truncated step, which may join the world past the learning
         # episodes without passing through _end_episode.
         _greedy_from(self, fb.episode)
@@ -428,7 +435,8 @@ class CentralDriver:
     def _stats(self, agent: int, episode: int) -> AgentStats:
         local, joint = state_counts(self.learner)
         return AgentStats(agent=agent, episode=episode, algorithm=self.learner.name,
-                          joint_plays=self.learner.joint_plays - self._plays_before, local_states=local,
+                          joint_plays=self.learner.joint_plays - self._before[0],
+                          heard=self.learner.heard - self._before[1], local_states=local,
                           joint_states=joint, subscriptions_created=self.peers.created,
                           subscriptions_active=len(self.peers.idle), peer_messages=self.peers.messages,
                           counters=self.counters())

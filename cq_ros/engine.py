@@ -174,6 +174,7 @@ class Team:
         w = self.world
         w.reset_joint()
         plays = sum(learner.joint_plays for learner in self.learners)
+        heard = sum(learner.heard for learner in self.learners)
         collisions, ret = 0, 0.0
         over = self.start()
         choose, learn, step_joint = self.choose, self.learn, w.step_joint  # bound once: the loop is hot
@@ -192,6 +193,7 @@ class Team:
             states=sum(learner.state_count() for learner in self.learners),
             ret=ret,
             truncated=w.truncated,
+            heard=sum(learner.heard for learner in self.learners) - heard,
         )
 
 

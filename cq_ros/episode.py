@@ -26,6 +26,8 @@ class Episode:
     states: int = _column("states the learners condition on at the episode's end (local plus joint), summed")
     ret: float = _column("rewards summed over the agents and steps", name="return")  # `return` is a keyword
     truncated: bool = _column("1 if the step cap ended the episode before every agent reached its goal")
+    heard: int = _column("peer positions the learners' decisions took in (their communication cost), summed over "
+                         "the learners")
 
     def values(self) -> tuple[float, ...]:
         """The fields in COLUMNS' order, as floats (the table's type)."""
@@ -34,6 +36,8 @@ class Episode:
 
 COLUMNS: tuple[str, ...] = tuple(f.metadata["column"] or f.name for f in fields(Episode))
 MEANINGS: dict[str, str] = {name: f.metadata["meaning"] for name, f in zip(COLUMNS, fields(Episode))}
+# Result files written before `heard` was a column end at `truncated`; the readers take them too.
+KEPT_COLUMNS: tuple[str, ...] = COLUMNS[:COLUMNS.index("heard")]
 INTEGER = tuple(name for name, f in zip(COLUMNS, fields(Episode)) if f.type != "float")  # written as whole numbers
 # float64 throughout: a JS state space past 2**53 (cells**N) goes through the same rounding in every writer, so it
 # is written alike offline and by a launch, which hears it exactly.

@@ -3,7 +3,8 @@ them, our choices where it does not (docs/choices.md), each written into every r
 
 `Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
 parameters reach it, so a bad key or value is reported the same way everywhere. `run_settings` is the one
-place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- the user's.
+place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- the user's,
+and where the world is then delayed, CQ's settings for delays (UNDER_DELAYS) that neither of them set.
 """
 
 from __future__ import annotations
@@ -62,7 +63,14 @@ class Settings:
     cq_w1_alone: int = setting(
         0, "CQ's W1 (ours, 0 is the paper's): 0, the first N rewards of each (cell, action); 1, the rewards of "
            "acting alone there (the world's reward for the move with nobody else, a share slip of them delayed), "
-           "so that a conflict present from the start, as under delays, shows as a drop")
+           "so that a conflict present from the start, as under delays, shows as a drop; 1 where the world is "
+           "delayed (slip or start_hold above 0) unless the map or the user sets it")
+    cq_waits_fresh: int = setting(
+        0, "CQ's new joint states (ours, 0 is the paper's): 0, a new Q^j is a copy of Q_k; 1, in the copy each wait "
+           "(a move into a wall, which leaves the agent in its cell) is worth at least one step lost plus the free "
+           "road, reward_wall + gamma * max Q_k of the cell, since Q_k's waits hold what early exploration left "
+           "and, never tried again once exploration stops, would keep the agent from waiting where it must; 1 where "
+           "the world is delayed (slip or start_hold above 0) unless the map or the user sets it")
     cq_look_if_decisive: int = setting(
         0, "CQ's looks when greedy (ours, 0 is the paper's): 0, at a cell with marked joint states the agent looks "
            "at every peer they name, every step; 1, at epsilon 0 it does not look where Q_k and every Q^j of the "
@@ -103,6 +111,7 @@ class Settings:
         _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
         _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
         _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
+        _check(self.cq_waits_fresh in (0, 1), "cq_waits_fresh", self.cq_waits_fresh, "0 or 1")
         _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
@@ -139,11 +148,23 @@ class Settings:
 _FIELDS = {f.name: f for f in fields(Settings)}
 
 
-def run_settings(gridmap: "GridMap", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
-    """The settings of a run on `gridmap`: the defaults, then the map's (its `set` lines), then `overrides`
-    (`key=value` strings, or a dict such as a node's parameters that were given)."""
+# CQ's behaviour wherever the world is delayed (slip or start_hold above 0), unless the map or the user sets
+# them: under delays a conflict is there from the first episode on, so W1 of the first rewards is no measure of
+# being alone, and a new Q^j's waits must be worth waiting (docs/choices.md). Without delays, the paper's.
+UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1}
+
+
+def run_settings(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
+    """The settings of a run on `gridmap` (None: maps without defaults of their own, as the paper's grid): the
+    defaults, then the map's (its `set` lines), then `overrides` (`key=value` strings, or a dict such as a
+    node's parameters that were given); where the result has a delay, UNDER_DELAYS for those of them neither
+    the map nor `overrides` sets."""
     given = dict(overrides) if isinstance(overrides, Mapping) else dict(split_pair(p) for p in overrides)
-    return Settings().with_overrides({**gridmap.defaults, **given})
+    chosen = {**(gridmap.defaults if gridmap is not None else {}), **given}
+    settings = Settings().with_overrides(chosen)
+    if settings.slip > 0 or settings.start_hold > 0:
+        settings = settings.with_overrides({k: v for k, v in UNDER_DELAYS.items() if k not in chosen})
+    return settings
 
 
 def split_pair(pair: str) -> tuple[str, str]:

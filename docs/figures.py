@@ -176,8 +176,16 @@ def printed(folder: str, name: str) -> str:
     return "\n".join([f"`{command}`", "", "```", *lines, "```"]) + "\n"
 
 
+def delays_held_out() -> str:
+    """What the held-out protocol (bench_delays.py --generate) printed: docs/data/delays/heldout/*.txt in the
+    order of their numbers, each as printed()."""
+    files = sorted((DATA / "delays" / "heldout").glob("*.txt"), key=lambda path: int(path.name.split("-", 1)[0]))
+    return "\n".join(printed("delays/heldout", path.stem) for path in files)
+
+
 FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens,
                                          "warehouses": warehouses, "delays": delays,
+                                         "delays-held-out": delays_held_out,
                                          **{name: partial(printed, "speed", name)
                                             for name in ("engine", "ros", "codec")},
                                          "lost-samples": partial(printed, "faults", "lost_samples")}
@@ -415,7 +423,8 @@ def delays_say() -> str:
         f"runs at {cost(both):.2f}x the planner's sum of costs; on warehouse_16_delayed at -20 (the "
         f"{nth_table('14-warehouse_16_delayed-collision-20-look-if-decisive-conf_down')} table) the pair brings "
         f"every AGV home in {both16['greedy home']} runs, colliding {coll(both16):.2f} times a greedy episode "
-        f"against {coll(plain16):.2f} with CQ's defaults, hearing {float(both16['heard/step greedy']):.3f} a step.",
+        f"against {coll(plain16):.2f} with CQ's earlier defaults, hearing "
+        f"{float(both16['heard/step greedy']):.3f} a step.",
         f"- Across slips (the {nth_table('4-warehouse_8_delayed-slips')} table): without delays CQ collides "
         f"{coll(slips['0', 'cq']):.3f} times a greedy episode and indep {coll(slips['0', 'indep']):.3f}; at slip "
         f"0.05 CQ {coll(s5['cq']):.3f} against "
@@ -434,8 +443,8 @@ def delays_say() -> str:
         f"{w16('7-warehouse_16_delayed-collision-10')}; at -30 with gamma 0.99, CQ "
         f"{w16('9-warehouse_16_delayed-gamma0.99')}.",
         "",
-        "The targets set for CQ on warehouse_8, against these figures, for CQ's defaults and with both settings: "
-        "greedy collisions at most 0.1 an episode "
+        "The targets set for CQ on warehouse_8, against these figures, for CQ's earlier defaults and with both "
+        "settings: greedy collisions at most 0.1 an episode "
         f"({met(coll(cq) <= 0.1)}: {coll(cq):.3f}; {met(coll(both) <= 0.1)}: {coll(both):.3f}), 5x below the "
         f"independent learners' ({met(coll(indep) >= 5 * coll(cq))}: {coll(indep) / coll(cq):.1f}x; "
         f"{met(coll(indep) >= 5 * coll(both))}: {coll(indep) / coll(both):.1f}x), at most a quarter of near's peer "

@@ -104,7 +104,7 @@ class AgentStats:
     """Agent -> tools, once per episode (published when the agent's episode ends).
 
     Counts named `*_created`/`peer_messages` are cumulative since the node started (monotonic, like
-    Prometheus counters); `joint_plays` is for this episode; the state counts are the sizes in use now.
+    Prometheus counters); `joint_plays` and `heard` are for this episode; the state counts are the sizes in use now.
     `counters` holds any further monotonic counts, e.g. DropCounter.as_counters() -> {"dropped.stale_step": 2}.
     """
 
@@ -112,6 +112,7 @@ class AgentStats:
     episode: int
     algorithm: str
     joint_plays: int = 0  # times this episode the agent acted on global information (CQ) / chose COORDINATE (LoC)
+    heard: int = 0  # peer positions the learner's decisions took in this episode (cq_ros.episode: `heard`)
     local_states: int = 0  # local states in use
     joint_states: int = 0  # joint states in use (CQ: marked joint states; JS: all joint states seen)
     subscriptions_created: int = 0  # peer position subscriptions created since start (communication cost)

@@ -49,6 +49,7 @@ AGENT_STATS_KEYS: Mapping[str, tuple[str, str]] = {
     "episode": ("int", "episode that just ended for this agent"),
     "algorithm": ("str", "learner name, e.g. cq, indep, js, loc"),
     "joint_plays": ("int", "times this episode the agent used global information / chose COORDINATE"),
+    "heard": ("int", "peer positions the learner's decisions took in this episode"),
     "local_states": ("int", "local states in use (any size, as are joint_states)"),
     "joint_states": ("int", "joint states in use; JS's joint state space, cells**N, can pass int64"),
     "subscriptions_created": ("int", "peer position subscriptions created since start"),
@@ -250,7 +251,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
                       counters=counters)
 
 
-_AGENT_INT_KEYS = ("agent", "episode", "joint_plays", "local_states", "joint_states",
+_AGENT_INT_KEYS = ("agent", "episode", "joint_plays", "heard", "local_states", "joint_states",
                    "subscriptions_created", "subscriptions_active", "peer_messages")
 # State counts of any size: a JS agent conditions on cells**N states (about 4.7e36 on warehouse_16), which
 # the text of a diagnostic value carries exactly where an int32 could not. Bounded, so a forged value of a
@@ -333,7 +334,7 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
     _no_leftovers(values)
     check_sequence(ints["episode"], None, episode, None)
     return AgentStats(agent=ints["agent"], episode=ints["episode"], algorithm=algorithm,
-                      joint_plays=ints["joint_plays"], local_states=ints["local_states"],
+                      joint_plays=ints["joint_plays"], heard=ints["heard"], local_states=ints["local_states"],
                       joint_states=ints["joint_states"], subscriptions_created=ints["subscriptions_created"],
                       subscriptions_active=ints["subscriptions_active"], peer_messages=ints["peer_messages"],
                       marked=tuple(found[i] for i in range(len(found))), counters=counters)

@@ -115,14 +115,14 @@ class StatsListener:
     def row(self, episode: int, learners: list[int]) -> Episode | None:
         """Episode `episode`'s record, as the engine's, once the world's statistics and every learner's of it
         are in (else None): steps, collisions and truncation and the return summed over the agents from
-        WorldStats; joint plays and states summed over the learners' AgentStats."""
+        WorldStats; joint plays, states and peer positions heard summed over the learners' AgentStats."""
         w = self.world.get(episode)
         a = [self.agents[k].get(episode) for k in learners]
         if w is None or None in a:
             return None
         return Episode(steps=w.steps, collisions=w.collisions, joint_plays=sum(s.joint_plays for s in a),
                        states=sum(s.local_states + s.joint_states for s in a), ret=sum(w.returns),
-                       truncated=w.truncated)
+                       truncated=w.truncated, heard=sum(s.heard for s in a))
 
     @property
     def complete(self) -> bool:

@@ -88,8 +88,9 @@ def test_composed_nodes_give_exactly_the_offline_engines_episodes(map_name, algo
     reporters = [1] if algo == "jsa" else list(agent_stats)  # the central node reports alike on every agv<k>
     assert all(len(agent_stats[k]) == len(table) for k in agent_stats)
     assert [(sum(agent_stats[k][e].joint_plays for k in reporters),
-             sum(agent_stats[k][e].local_states + agent_stats[k][e].joint_states for k in reporters))
-            for e in range(len(table))] == [(int(r["joint_plays"]), int(r["states"])) for r in table]
+             sum(agent_stats[k][e].local_states + agent_stats[k][e].joint_states for k in reporters),
+             sum(agent_stats[k][e].heard for k in reporters))
+            for e in range(len(table))] == [(int(r["joint_plays"]), int(r["states"]), int(r["heard"])) for r in table]
     if (map_name, algo) == ("grid_game_2", "cq"):  # its peer subscriptions come and go under this executor
         assert all(agent_stats[k][-1].subscriptions_created > 0 for k in agent_stats)
 
@@ -194,13 +195,14 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
     gridmap = load_map(path)
     settings = run_settings(gridmap, sets)
     assert (settings.slip, settings.start_hold) == (0.2, 2)
+    assert (settings.cq_w1_alone, settings.cq_waits_fresh) == (1, 1)  # CQ's settings under delays, by default
     offline = run("cq", gridmap, settings, SEED, 0, 12)
-    with open(out / "episodes.csv", newline="") as f:
-        rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
-    assert rows == [(int(e["steps"]), int(e["collisions"]), int(e["joint_plays"])) for e in offline.episodes]
-    with open(out / "greedy.csv", newline="") as f:
-        greedy = [(int(r["steps"]), int(r["collisions"])) for r in csv.DictReader(f)]
-    assert greedy == [(int(e["steps"]), int(e["collisions"])) for e in offline.greedy]
+    for name, table in (("episodes.csv", offline.episodes), ("greedy.csv", offline.greedy)):
+        with open(out / name, newline="") as f:
+            rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"]), int(r["heard"]))
+                    for r in csv.DictReader(f)]
+        assert rows == [(int(e["steps"]), int(e["collisions"]), int(e["joint_plays"]), int(e["heard"]))
+                        for e in table], name
     assert json.loads((out / "manifest.json").read_text())["world"]["missed_actions"] == 0
 
 
@@ -222,6 +224,9 @@ def test_a_launch_where_cq_looks_only_where_it_is_decisive_equals_the_offline_ru
     offline = run("cq", gridmap, run_settings(gridmap, sets), SEED, 0, 60)
     looking_always = run("cq", gridmap, run_settings(gridmap, sets[:-1]), SEED, 0, 60)
     assert offline.episodes["joint_plays"].sum() != looking_always.episodes["joint_plays"].sum()
+    assert offline.episodes["heard"].sum() > 0
     with open(out / "episodes.csv", newline="") as f:
-        rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"])) for r in csv.DictReader(f)]
-    assert rows == [(int(e["steps"]), int(e["collisions"]), int(e["joint_plays"])) for e in offline.episodes]
+        rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"]), int(r["heard"]))
+                for r in csv.DictReader(f)]
+    assert rows == [(int(e["steps"]), int(e["collisions"]), int(e["joint_plays"]), int(e["heard"]))
+                    for e in offline.episodes]

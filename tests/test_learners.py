@@ -1069,6 +1069,67 @@ def test_cq_w1_alone_marks_a_conflict_that_was_there_from_the_start():
     assert marked == {0: False, 1: True}
 
 
+# --- CQ's new joint states: waits valued afresh (cq_waits_fresh) -------------------------------------------
+
+
+@pytest.mark.parametrize("fresh", [0, 1])
+def test_cq_waits_fresh_values_a_new_joint_states_waits_at_least_a_step_lost_plus_the_free_road(fresh):
+    """Cell 0 of the row has walls north, south and west: those three moves are waits."""
+    learner = cq_with_conflict(cq_waits_fresh=fresh, gamma=0.9, reward_wall=-1.0)
+    q_k = [-27.6, -7.2, 3.0, -100.0]  # waits left low by early exploration, the best of them above the floor
+    learner.q_local[0] = list(q_k)
+    learner.observe(2)
+    learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3)
+    floor = -1.0 + 0.9 * 3.0
+    expected = [floor, -7.2, 3.0, floor] if fresh else q_k
+    assert set(learner.q_joint) == {(0, 1, 1), (0, 2, 3)}
+    for row in learner.q_joint.values():
+        assert row == pytest.approx(expected)
+    assert learner.q_local[0] == q_k  # Q_k itself is left as it was
+
+
+def test_cq_waits_fresh_a_new_joint_states_waits_are_never_below_the_floor():
+    gm = make_map(3, ((0, 0), (1, 2)), ((1, 2), (0, 0)), height=2)
+    rng = random.Random(5)
+    for _ in range(200):
+        learner = CQLearner(0, gm, Settings(cq_waits_fresh=1, cq_mark_range=0, gamma=0.9, reward_wall=-2.0), seed=1)
+        s = rng.randrange(gm.n_cells)
+        q_k = [rng.uniform(-30.0, 10.0) for _ in range(N_MOVES)]
+        learner.q_local[s] = list(q_k)
+        (js,) = learner._mark(s, {1: rng.randrange(gm.n_cells)})
+        floor = -2.0 + 0.9 * max(q_k)
+        for a, to in enumerate(gm.neighbours[s]):
+            row = learner.q_joint[js]
+            assert row[a] == (max(q_k[a], floor) if to == s else q_k[a])
+
+
+# --- heard: the peer positions counted per episode, in the result files ------------------------------------
+
+
+@pytest.mark.parametrize("algo", sorted(LEARNERS))
+def test_heard_per_episode_in_episodes_and_greedy_csv_is_what_the_learners_counted(algo, tmp_path, monkeypatch):
+    from cq_ros.lab.results import load_episodes, write_results
+
+    gm = load_map("tunnel_to_goal")
+    settings = Settings(window=10, step_cap=300, eval_episodes=3)
+    counted = []  # what the learners counted over each episode, learning and greedy
+    played = Team.episode
+
+    def episode(team, *args, **kwargs):
+        before = sum(learner.heard for learner in team.learners)
+        result = played(team, *args, **kwargs)
+        counted.append(sum(learner.heard for learner in team.learners) - before)
+        return result
+
+    monkeypatch.setattr(Team, "episode", episode)
+    result = engine.run(algo, gm, settings, seed=3, run_index=0, episodes=20)
+    write_results(tmp_path, gm, [result], {})
+    files = [load_episodes(tmp_path / name)[(gm.name, algo)]["heard"][0] for name in ("episodes.csv", "greedy.csv")]
+    assert [*files[0], *files[1]] == counted
+    if algo == "indep":
+        assert sum(counted) == 0  # it never looks
+
+
 # --- the greedy evaluation: learning or frozen (eval_learning) --------------------------------------------
 
 KEPT = ("q_local", "q_joint", "q_coord", "q_near", "confidence", "marked", "watch", "windows", "waiting")

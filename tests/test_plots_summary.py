@@ -78,8 +78,9 @@ def hand_made(algo: str) -> dict[str, np.ndarray]:
     joint_plays = column(4 if algo in ("cq", "loc") else 0)
     truncated = column(0)
     truncated[1, :3] = 1
+    heard = column(7 if algo in ("cq", "loc") else 0)
     return {"steps": steps, "collisions": collisions, "joint_plays": joint_plays, "states": states,
-            "return": -steps, "truncated": truncated}
+            "return": -steps, "truncated": truncated, "heard": heard}
 
 
 def write_episodes(path: Path, tables: dict[tuple[str, str], dict[str, np.ndarray]], reverse: bool = False) -> None:
@@ -132,7 +133,7 @@ def test_load_episodes_gives_runs_by_episodes_whatever_the_row_order(tmp_path):
 
 def test_load_episodes_reads_counts_written_as_floats(tmp_path):
     path = tmp_path / "episodes.csv"
-    rows = ["m,cq,0.0,0.0,12.0,1.0,0.0,9.0,-3.5,0.0", "m,cq,0.0,1.0,8.0,0.0,1.0,10.0,2.0,0.0"]
+    rows = ["m,cq,0.0,0.0,12.0,1.0,0.0,9.0,-3.5,0.0,4.0", "m,cq,0.0,1.0,8.0,0.0,1.0,10.0,2.0,0.0,0.0"]
     path.write_text("\n".join([",".join(EPISODE_COLUMNS), *rows]) + "\n")
     data = load_episodes(path)
     np.testing.assert_array_equal(data[("m", "cq")]["steps"], [[12, 8]])
@@ -142,10 +143,10 @@ def test_load_episodes_reads_counts_written_as_floats(tmp_path):
 @pytest.mark.parametrize(
     "body, message",
     [
-        ("m,cq,0,0,5,0,0,9,1,0\nm,cq,0,2,5,0,0,9,1,0\n", "episodes 0..2"),  # episode 1 missing
-        ("m,cq,0,0,5,0,0,9,1,0\nm,cq,0,0,5,0,0,9,1,0\n", "episodes 0..0"),  # a row twice
-        ("m,cq,0,0,5,0,0,9,1,0\nm,cq,1,0,5,0,0,9,1,0\nm,cq,1,1,5,0,0,9,1,0\n", "2 runs"),  # a short run
-        ("m,cq,0,-1,5,0,0,9,1,0\nm,cq,0,0,5,0,0,9,1,0\n", "episodes"),  # before the first
+        ("m,cq,0,0,5,0,0,9,1,0,2\nm,cq,0,2,5,0,0,9,1,0,2\n", "episodes 0..2"),  # episode 1 missing
+        ("m,cq,0,0,5,0,0,9,1,0,2\nm,cq,0,0,5,0,0,9,1,0,2\n", "episodes 0..0"),  # a row twice
+        ("m,cq,0,0,5,0,0,9,1,0,2\nm,cq,1,0,5,0,0,9,1,0,2\nm,cq,1,1,5,0,0,9,1,0,2\n", "2 runs"),  # a short run
+        ("m,cq,0,-1,5,0,0,9,1,0,2\nm,cq,0,0,5,0,0,9,1,0,2\n", "episodes"),  # before the first
     ],
 )
 def test_load_episodes_rejects_incomplete_groups(tmp_path, body, message):
@@ -153,6 +154,17 @@ def test_load_episodes_rejects_incomplete_groups(tmp_path, body, message):
     path.write_text(",".join(EPISODE_COLUMNS) + "\n" + body)
     with pytest.raises(ValueError, match=message):
         load_episodes(path)
+
+
+def test_load_episodes_reads_a_file_kept_from_before_heard_was_a_column(tmp_path):
+    path = tmp_path / "episodes.csv"
+    kept = [c for c in EPISODE_COLUMNS if c != "heard"]
+    assert EPISODE_COLUMNS[-1] == "heard"
+    path.write_text(",".join(kept) + "\nm,cq,0,0,12,1,0,9,-3.5,0\nm,cq,0,1,8,0,1,10,2,0\n")
+    data = load_episodes(path)[("m", "cq")]
+    assert "heard" not in data
+    np.testing.assert_array_equal(data["steps"], [[12, 8]])
+    np.testing.assert_array_equal(data["truncated"], [[0, 0]])
 
 
 def test_load_episodes_rejects_another_header(tmp_path):

@@ -156,6 +156,34 @@ def test_run_settings_puts_the_maps_defaults_under_the_users_overrides():
         assert manifest["settings_from_map"] == from_map
 
 
+PAPER_MAPS = ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr", "cit", "cmu")
+
+
+def test_under_delays_cq_detects_against_acting_alone_and_values_waits_afresh_unless_told_otherwise():
+    delayed = load_map("warehouse_8_delayed")
+    assert delayed.defaults["slip"] > 0 and "cq_w1_alone" not in delayed.defaults
+    on = run_settings(delayed)
+    assert (on.cq_w1_alone, on.cq_waits_fresh) == (1, 1)
+    # a delay given by --set (or a node's parameter), on a map without one
+    for delay in (["slip=0.1"], ["start_hold=3"], {"slip": 0.05}):
+        s = run_settings(load_map("warehouse_8"), delay)
+        assert (s.cq_w1_alone, s.cq_waits_fresh) == (1, 1), delay
+    # an explicit value wins, from the user or the map's own set lines
+    assert run_settings(delayed, ["cq_w1_alone=0"]).cq_w1_alone == 0
+    assert run_settings(delayed, ["cq_w1_alone=0"]).cq_waits_fresh == 1
+    assert run_settings(delayed, {"cq_waits_fresh": 0}).cq_waits_fresh == 0
+    own = parse_map("agent 1: start 0,0  goal 0,1\nset slip=0.1\nset cq_waits_fresh=0\n+-+-+\n|. .|\n+-+-+\n")
+    assert (run_settings(own).cq_w1_alone, run_settings(own).cq_waits_fresh) == (1, 0)
+    # no delay, no change: the paper's maps, the undelayed warehouses, a delayed map whose delay is taken away
+    for name in (*PAPER_MAPS, "warehouse_8", "warehouse_16"):
+        assert run_settings(load_map(name)) == Settings().with_overrides(load_map(name).defaults), name
+    off = run_settings(delayed, ["slip=0"])
+    assert (off.cq_w1_alone, off.cq_waits_fresh) == (0, 0)
+    # the paper's grid (cq-ros reproduce): no map defaults, the same rule
+    assert run_settings(None) == Settings()
+    assert (run_settings(None, ["slip=0.1"]).cq_w1_alone, run_settings(None, ["slip=0.1"]).cq_waits_fresh) == (1, 1)
+
+
 def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():
     from node_runtime.parameters import PARAMETERS
 

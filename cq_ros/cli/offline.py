@@ -60,9 +60,9 @@ def experiment(args) -> int:
 def reproduce(args) -> int:
     from ..lab.reproduce import reproduce
 
-    # The paper's maps carry no defaults of their own.
+    # The paper's maps carry no defaults of their own; a delay given by --set brings CQ's settings under delays.
     report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
-                       Settings().with_overrides(args.overrides), workers=args.jobs, force=args.force,
+                       run_settings(None, args.overrides), workers=args.jobs, force=args.force,
                        sweep=args.sweep, cluster=args.cluster)
     print(f"report: {report}")
     return 0

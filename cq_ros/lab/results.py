@@ -4,7 +4,8 @@ and `cq-ros collect` write, and what the summary, the plots, the reproduction's 
 A result directory holds, for one map:
 - `episodes.csv`: one row per algorithm, run and learning episode: EPISODE_COLUMNS, the keys (map, algo, run,
   episode; runs and episodes numbered from 0 as on the wire and in bags) then an episode's record
-  (cq_ros.episode.COLUMNS, whose meanings it states);
+  (cq_ros.episode.COLUMNS, whose meanings it states; files kept from before `heard` was a column are read too,
+  without it);
 - `greedy.csv`: the same columns, one row per greedy episode played after learning (episodes numbered from 0
   within each run's greedy episodes);
 - `observe.csv`: OBSERVE_COLUMNS, the joint states each CQ agent keeps at the end of each run (Fig. 5b);
@@ -139,10 +140,14 @@ def versions() -> dict:
 
 # --- reading -------------------------------------------------------------------------------------------
 
-_VALUES = EPISODE_COLUMNS[2:]  # what follows map and algo: all numbers
-# Counts parse three times faster as integers than as floats, which matters at 2M rows.
-_FAST_DTYPE = np.dtype([(name, "i8" if name in (*KEYS, *record.INTEGER) else "f8") for name in _VALUES])
-_ANY_DTYPE = np.dtype([(name, "f8") for name in _VALUES])
+_KEPT_EPISODE_COLUMNS = (*KEYS, *record.KEPT_COLUMNS)  # episodes.csv and greedy.csv as written before `heard`
+
+
+def _dtypes(values: tuple[str, ...]) -> tuple[np.dtype, np.dtype]:
+    """The columns after map and algo (all numbers): counts as integers, which parse three times faster than
+    floats (it matters at 2M rows), and all as floats."""
+    fast = np.dtype([(name, "i8" if name in (*KEYS, *record.INTEGER) else "f8") for name in values])
+    return fast, np.dtype([(name, "f8") for name in values])
 
 
 def load_episodes(path: str | os.PathLike) -> Episodes:
@@ -152,17 +157,21 @@ def load_episodes(path: str | os.PathLike) -> Episodes:
     1..E exactly once; anything else is a ValueError naming the group, so a half-written file is noticed
     rather than averaged.
     """
-    _check_header(path, EPISODE_COLUMNS)
-    keys, codes = _group_codes(path)
+    header = _header(path)
+    if header not in (EPISODE_COLUMNS, _KEPT_EPISODE_COLUMNS):
+        _check_header(path, EPISODE_COLUMNS)
+    keys, codes = _group_codes(path, len(header) - 2)
     if codes.size == 0:
         return {}
-    values = _numeric_columns(path)
+    values = _numeric_columns(path, header[2:])
     if values.size != codes.size:
         raise ValueError(f"{path}: {codes.size} data lines but {values.size} parsed rows")
     order = np.argsort(codes, kind="stable")
     bounds = np.cumsum(np.bincount(codes, minlength=len(keys)))
     groups = np.split(order, bounds[:-1])
-    return {key: _rectangle(values[rows], key, path) for key, rows in sorted(zip(keys, groups), key=lambda kv: kv[0])}
+    names = header[len(KEYS):]
+    return {key: _rectangle(values[rows], key, path, names)
+            for key, rows in sorted(zip(keys, groups), key=lambda kv: kv[0])}
 
 
 def _header(path: str | os.PathLike) -> tuple[str, ...]:
@@ -176,8 +185,9 @@ def _check_header(path: str | os.PathLike, expected: tuple[str, ...]) -> None:
         raise ValueError(f"{path}: header must be {','.join(expected)!r}, got {','.join(header)!r}")
 
 
-def _group_codes(path: str | os.PathLike) -> tuple[list[tuple[str, str]], np.ndarray]:
-    """The distinct (map, algo) pairs and, per data line, the index of its pair.
+def _group_codes(path: str | os.PathLike, numbers: int) -> tuple[list[tuple[str, str]], np.ndarray]:
+    """The distinct (map, algo) pairs and, per data line (of `numbers` numeric fields after them), the index of
+    its pair.
 
     A dict lookup on the text before the numeric fields is the cheapest way to turn the two string
     columns into integers (numpy's string parsing is about twice as slow).
@@ -186,23 +196,24 @@ def _group_codes(path: str | os.PathLike) -> tuple[list[tuple[str, str]], np.nda
     with open(path, encoding="utf-8") as f:
         next(f)
         codes = np.fromiter(
-            (codes_of.setdefault(line.rsplit(",", len(_VALUES))[0], len(codes_of)) for line in f if not line.isspace()),
+            (codes_of.setdefault(line.rsplit(",", numbers)[0], len(codes_of)) for line in f if not line.isspace()),
             dtype=np.int64,
         )
     keys = [tuple(prefix.split(",")) for prefix in codes_of]
     return keys, codes
 
 
-def _numeric_columns(path: str | os.PathLike) -> np.ndarray:
-    columns = range(2, len(EPISODE_COLUMNS))
+def _numeric_columns(path: str | os.PathLike, values: tuple[str, ...]) -> np.ndarray:
+    columns = range(2, 2 + len(values))
+    fast, floats = _dtypes(values)
     try:
-        return np.loadtxt(path, delimiter=",", skiprows=1, usecols=columns, dtype=_FAST_DTYPE, ndmin=1)
+        return np.loadtxt(path, delimiter=",", skiprows=1, usecols=columns, dtype=fast, ndmin=1)
     except ValueError:
         # A writer that formats counts as floats ("12.0") is still within the contract, only slower to read.
-        return np.loadtxt(path, delimiter=",", skiprows=1, usecols=columns, dtype=_ANY_DTYPE, ndmin=1)
+        return np.loadtxt(path, delimiter=",", skiprows=1, usecols=columns, dtype=floats, ndmin=1)
 
 
-def _rectangle(rows: np.ndarray, key: tuple[str, str], path: str | os.PathLike) -> Runs:
+def _rectangle(rows: np.ndarray, key: tuple[str, str], path: str | os.PathLike, names: tuple[str, ...]) -> Runs:
     runs, run_index = np.unique(rows["run"], return_inverse=True)
     episodes = int(rows["episode"].max()) + 1
     cell = run_index * episodes + rows["episode"].astype(np.int64)
@@ -212,7 +223,7 @@ def _rectangle(rows: np.ndarray, key: tuple[str, str], path: str | os.PathLike) 
             f"({runs.size * episodes} rows), found {rows.size} rows"
         )
     columns = {}
-    for name in record.COLUMNS:
+    for name in names:
         table = np.empty(runs.size * episodes)
         table[cell] = rows[name]
         columns[name] = table.reshape(runs.size, episodes)

@@ -40,6 +40,9 @@ below:
 - `cq_w1_alone`: W1 starts full of what acting alone earns, since under delays a conflict is there from the
   first episode on and the first rewards are no measure of being alone (the earlier CQ-learning of
   De Hauwere et al. 2010 took W1 from a single-agent phase);
+- `cq_waits_fresh`: a new Q^j values each wait (a move into a wall) at least at one step lost plus the free
+  road, since Q_k's waits hold what early exploration left, never tried again once it stops, and a Q^j copied
+  from them would not wait where the joint state says it must;
 - `cq_look_if_decisive`: a greedy agent skips looking at a marked cell whose Q_k and every Q^j agree on one
   strictly best action, since whatever it saw it would do the same; a look it cannot act on is a message
   paid for nothing.
@@ -210,12 +213,23 @@ class CQLearner(Learner):
             if js in self.confidence:
                 self.confidence[js] = max(self.confidence[js], st.conf_init)
                 continue
-            self.q_joint[js] = list(self.q_local[s])
+            self.q_joint[js] = self._new_row(s)
             made.append(js)
             self.confidence[js] = st.conf_init
             self.marked.setdefault(s, []).append(js)
         self._rewatch(s)
         return made
+
+    def _new_row(self, s):
+        """A new Q^j of cell s: a copy of Q_k, whose waits, under cq_waits_fresh, are worth at least one step
+        lost (a wall bump) plus the free road from s."""
+        row = list(self.q_local[s])
+        if self.settings.cq_waits_fresh:
+            floor = self.settings.reward_wall + self.gamma * max(row)
+            for a, to in enumerate(self.map.neighbours[s]):
+                if to == s:  # a wait: the move bumps into a wall and leaves the agent where it is
+                    row[a] = max(row[a], floor)
+        return row
 
     def _meet(self, s, peer_cells):
         """Lines 6 and 9: the joint states of cell s met now, the most confident first (the first marked among
