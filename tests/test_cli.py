@@ -241,5 +241,8 @@ def test_ctrl_c_on_an_experiment_before_its_results_leaves_no_folder(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.communicate(timeout=30)
-    assert proc.returncode == 130, err
+    # 130 is main()'s answer to Ctrl-C. Under `python -m`, 2 of 15 such runs here printed "interrupted", returned
+    # 130 from main() and still ended killed by SIGINT (CPython's exit for an interrupted run): either is Ctrl-C's.
+    assert proc.returncode in (130, -signal.SIGINT), err
+    assert "interrupted" in err, err
     assert "Traceback" not in err and not (tmp_path / "made").exists(), err
