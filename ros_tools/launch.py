@@ -20,12 +20,14 @@ the nodes and the protocol are the same.
 
 Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
 for a run (timeouts, heartbeat, linger, checkpoints: `SETTABLE`), checked by the nodes' own rules before
-anything starts. Each launch writes a fresh key to a file only the user can read (msgs_spec.auth) and hands
-every node its path (`key_file`): a writer outside the launch cannot steer the run; the file is removed at
-the end.
+anything starts. Each launch makes a fresh key (msgs_spec.auth) in a file that has no name, only the user can
+read, and exists while the launcher has it open (O_TMPFILE), and hands every node its path through the
+launcher's descriptor (`key_file` /proc/<launcher pid>/fd/<n>): a writer outside the launch cannot steer the
+run, and no end of the launch, kill -9 of the launcher included, leaves the key behind in a file.
 
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
-code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
+code (the world's 3: a twin of a node, `WORLD_TWIN`); Ctrl-C or SIGTERM to the launcher ends it with
+`Interrupted`. Either way every child still running gets
 SIGINT, then SIGTERM after 3 s, then SIGKILL after 2 more. Children run in sessions of their own, so a
 terminal's Ctrl-C reaches the launcher only and it stops them in that order, and the kernel sends them SIGTERM
 if the launcher itself dies (PR_SET_PDEATHSIG on Linux): none outlives it. Each child's output goes to
@@ -47,6 +49,13 @@ it took, the launch ends early with one line naming the file and the OS's reason
 a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason. The manifest
 adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
 messages; the world's missed actions and dropped-message counters).
+
+Ends. Every end writes manifest.json: `ended` says how (finished, degraded, node_failed, twin, interrupted,
+disk), the one-line reason and the exit status, beside the counters heard so far (ros_tools.launch_results);
+only a launch whose world refused at its start (a second system here) leaves nothing but its line. The exit
+status tells a clean run (`EXIT_CLEAN`, 0) from one that played every episode but left the offline engine's
+behaviour somewhere (`EXIT_DEGRADED`, 3: a missed or unapplied action, a feedback never heard; the summary
+says how many episodes that touched), a launch that failed or ended early (1) and one interrupted (130).
 """
 
 from __future__ import annotations
@@ -60,6 +69,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -77,7 +87,7 @@ from cq_ros.lab.output import made_by, os_reason, removed_if_failing
 from node_runtime.parameters import check_names
 from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
 from msgs_spec import agent_namespace, new_key_file
-from msgs_spec.auth import new_run
+from msgs_spec.auth import KEY_BYTES, new_run
 from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key_parameter
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import world_config
@@ -85,14 +95,21 @@ from world_node.lockstep import world_config
 from .session import StopSignals, ToolError, environment, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
-    EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, write_ended_early, write_heard,
+    EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, departures, describe_departures, write_ended_early,
+    write_heard,
 )
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
-__all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
+__all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN",
+           "DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
            "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener",
            "Progress", "write_heard"]
 
+# The launch's exit status (`cq-ros launch`): every episode played as the offline engine plays it; a launch that
+# failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
+# feedback never heard: the summary says where); Ctrl-C or SIGTERM.
+EXIT_CLEAN, EXIT_FAILED, EXIT_DEGRADED, EXIT_INTERRUPTED = 0, 1, 3, 130
+WORLD_TWIN = 3  # the world's exit code when two live nodes act as one agent (world_node.node)
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
 CHECKPOINT_EVERY = 50
@@ -112,9 +129,13 @@ SETTABLE = {name: default for params in (WORLD_PARAMETERS, AGENT_PARAMETERS)
 class LaunchError(RuntimeError):
     """The launch failed (a child died or hung, statistics went missing); the message is one line."""
 
+    exit_status = EXIT_FAILED
+
 
 class Interrupted(LaunchError):
     """Ctrl-C or SIGTERM to the launcher; every child was stopped."""
+
+    exit_status = EXIT_INTERRUPTED
 
 
 class EndedEarly(LaunchError):
@@ -298,6 +319,29 @@ def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str
                  out / "logs" / "container.log")
 
 
+class _RunKeyFile:
+    """The launch's own key in a file without a name (O_TMPFILE where the kernel has it, else unlinked at once),
+    mode 0600, which the nodes open through the launcher's descriptor (`path`, /proc/<pid>/fd/<n>) while the
+    launcher lives: they read it once, at their start, and a node outlives the launcher by nothing (its
+    PR_SET_PDEATHSIG). So whatever ends the launch, kill -9 included, no key stays behind in a file. Without
+    /proc, a named file (msgs_spec.auth.new_key_file) removed by `close`."""
+
+    def __init__(self) -> None:
+        self.named: Path | None = None
+        self.file = tempfile.TemporaryFile("w+")
+        self.file.write(secrets.token_hex(KEY_BYTES) + "\n")
+        self.file.flush()
+        self.path = Path(f"/proc/{os.getpid()}/fd/{self.file.fileno()}")
+        if not self.path.exists():
+            self.file.close()
+            self.named = self.path = new_key_file()
+
+    def close(self) -> None:
+        self.file.close()
+        if self.named is not None:
+            self.named.unlink(missing_ok=True)
+
+
 def _stop(children: list[Child]) -> None:
     """SIGINT to every child still running, then SIGTERM, then SIGKILL, each with a bounded wait; reaps them."""
     running = [c for c in children if c.running]
@@ -409,7 +453,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         for sub in ("logs", "checkpoints"):
             (out / sub).mkdir(exist_ok=True)
         kept_key = key_file is not None  # the system's own key (cq-ros key), named in params.yaml and kept
-        key_file = Path(key_file).resolve() if kept_key else new_key_file()
+        own_key = None if kept_key else _RunKeyFile()
+        key_file = Path(key_file).resolve() if kept_key else own_key.path
         run_key = read_key_parameter(os.fspath(key_file))
         nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
                            node_parameters, key_file)
@@ -445,9 +490,16 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
                 for c in children}
 
+    learner_nodes = list(nodes)[1:]
+
+    def write_ended(reason: str, how: str, status: int) -> str:
+        """The manifest of a launch that ended before its results (`reason`): what became of it, for the line."""
+        return write_ended_early(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, rows,
+                                 node_info(), run_info, reason, listener, learners, learner_nodes,
+                                 ended={"how": how, "reason": reason, "exit_status": status})
+
     def ended_early(reason: str) -> EndedEarly:
-        kept = write_ended_early(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, rows,
-                                 node_info(), run_info, reason)
+        kept = write_ended(f"the launcher {reason}", "disk", EndedEarly.exit_status)
         return EndedEarly(f"the launcher {reason}: the run ended early after {rows.written}/{episodes} "
                           f"episodes; those rows are in {rows.path}, and {kept}")
 
@@ -465,8 +517,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 server, _ = serve(node, f"/{namespace}", port=view_port, n_agents=gridmap.n_agents)
             except ToolError as e:
                 rows.close()
-                if not kept_key:
-                    key_file.unlink(missing_ok=True)
+                if own_key is not None:
+                    own_key.close()
                 _remove(made)
                 raise LaunchError(str(e)) from None
             tqdm.write(f"cq-ros launch: Foxglove view on ws://127.0.0.1:{server.port}", file=sys.stderr)
@@ -492,29 +544,35 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             rows.close()
             if isinstance(e, EndedEarly):
                 raise ended_early(str(e)) from None
-            rows.free()
             stopped = f"; stopped {', '.join(stopping)}" if stopping else ""
             # A node that refused (exit 2: a second system here) before any row of this run leaves nothing worth
-            # keeping, and the line says why; a node that crashed or was stopped leaves its log to read.
+            # keeping, and the line says why; a node that crashed or was stopped leaves its log to read, and the
+            # manifest says how the run ended, with the counters heard so far.
             refused = any(c.exit_code == 2 for c in children)
             if rows.written == 0 and refused and made is not None:
+                rows.free()
                 _remove(made)
                 raise type(e)(f"{e}{stopped}; {made} removed") from None
             if not refused:
                 listener.show_held()
-            raise type(e)(f"{e}{stopped} (logs in {out / 'logs'})") from None
+            how = "interrupted" if isinstance(e, Interrupted) else \
+                "twin" if children[0].exit_code == WORLD_TWIN and not compose else "node_failed"
+            kept = write_ended(f"{e}{stopped}", how, e.exit_status)
+            raise type(e)(f"{e}{stopped} (logs in {out / 'logs'}; {kept})") from None
         finally:
             _stop(children)
-            if not kept_key:
-                key_file.unlink(missing_ok=True)
+            if own_key is not None:
+                own_key.close()
             if server is not None:
                 server.stop()
             bar.close()
 
     rows.close()
     try:
+        # Degraded or clean: known from the statistics only, so the manifest is written with both and then told.
         result = write_heard(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started,
-                             listener, learners, list(nodes)[1:], node_info(), run_info, episodes_written=True)
+                             listener, learners, learner_nodes, node_info(), run_info, episodes_written=True,
+                             ended=_ended_as(listener, learners))
         rows.free()
         if figures:
             from cq_ros.lab.plots import write_figures  # matplotlib only where figures are wanted
@@ -527,6 +585,15 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             print(f"cq-ros launch: warning: {name}: checkpoint {nodes[name][1]['checkpoint']} not written: "
                   f"{failure}; learning went on", file=sys.stderr)
     return result
+
+
+def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
+    """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why)."""
+    found = departures(listener, learners)
+    if found:
+        return {"how": "degraded", "reason": describe_departures(found), "exit_status": EXIT_DEGRADED}
+    return {"how": "finished", "reason": "every episode played as the offline engine plays it",
+            "exit_status": EXIT_CLEAN}
 
 
 def _remove(made: Path | None) -> None:
