@@ -461,7 +461,7 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
             time.sleep(stall_s)  # the fault itself: this long stopped
             os.kill(pid, signal.SIGCONT)
             time.sleep(0.2)  # a few steps played between two stalls
-        assert launcher.wait(LAUNCH_TIMEOUT_S) == 0, text_of(err)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
     finally:
         if pid is not None:
             try:
@@ -476,6 +476,7 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
     if stopped != "world":  # a stall is counted when it outlasts the node's timeout (the agent's here)
         assert counted.get("stalls", 0) >= 1, counted  # the stalls fell inside the run, and were seen
     missed = manifest["world"]["missed_actions"]
+    assert code == (0 if missed == 0 else 3), text_of(err)  # 3: every episode played, one step not as offline
     # Judged on wall time, every stall would time out both agents (6 and more missed actions); judged on what
     # came, none. On a loaded machine one answer may really come late after a stall: then it is counted at
     # both ends (the world's miss, the agent's unapplied action), and from there the run leaves the offline one.
@@ -489,6 +490,55 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
                        for c in manifest["communication"].values())
     else:
         assert sum(c["counters"].get("unapplied_actions", 0) for c in manifest["communication"].values()) == 1
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_an_agent_stopped_past_step_timeout_ends_degraded_and_says_where(tmp_path):
+    """agv1 stopped for 3 s against a 1 s step_timeout, once, mid-launch: the world steps on without it (missed
+    actions), its late action is not applied. The launch plays every episode, but its exit status is 3, not 0,
+    and its last line and the manifest say how many episodes left the offline run and from which one; every
+    episode before that one is the offline engine's."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    episodes = 400
+    out, namespace, err = tmp_path / "result", unique("degraded"), tmp_path / "stderr.txt"
+    sets = (*STALL_SETTINGS, "step_timeout=1.0", "feedback_timeout=10.0", "heartbeat_period=0.2")
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
+                                                   "--no-figures"), stdout=subprocess.DEVNULL, stderr=stderr)
+    pid = None
+    try:
+        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                             detail=lambda: text_of(err)).group(1))
+        wait_until(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "no five rows",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        os.kill(pid, signal.SIGSTOP)
+        time.sleep(3.0)  # the fault itself: three step timeouts stopped
+        os.kill(pid, signal.SIGCONT)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        if pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGCONT)
+        stop_launcher(launcher)
+    assert code == 3, text_of(err)
+    manifest = json.loads((out / "manifest.json").read_text())
+    found = manifest["departures"]
+    assert manifest["ended"]["how"] == "degraded" and manifest["ended"]["exit_status"] == 3
+    assert found["missed_actions"] >= 1 and found["missed_actions"] == manifest["world"]["missed_actions"]
+    assert 1 <= found["episodes"] <= episodes - found["first_episode"]
+    last = text_of(err).strip().splitlines()[-1]
+    assert "left the offline engine's behaviour" in last and f"in {found['episodes']} episode" in last, last
+    assert f"the first: episode {found['first_episode']}" in last and "exit status 3" in last, last
+    rows = read_rows(out / "episodes.csv")
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, episodes)
+    expected = [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
+    first = found["first_episode"]
+    assert len(rows) == episodes and first >= 5 and rows[:first] == expected[:first]
 
 
 # -- disks: read-only, full, filling -------------------------------------------------------------------------

@@ -95,6 +95,8 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["mode"] == "ros" and manifest["seed"] == SEED and manifest["episodes"] == episodes
     assert "greedy" not in manifest  # as cq-ros experiment's: greedy.csv holds them
+    assert manifest["ended"] == {"how": "finished", "reason": "every episode played as the offline engine plays it",
+                                 "exit_status": 0} and manifest["departures"] == {}
     assert manifest["settings"] == Settings().with_overrides(list(sets)).as_dict()
     learners = ["jsa"] if algo == "jsa" else [f"agv{k}" for k in range(1, gridmap.n_agents + 1)]
     assert set(manifest["communication"]) == set(learners)
