@@ -34,6 +34,12 @@ class Patience:
         self._tick = clock()  # the last timer call
         self.restart()
 
+    def start(self) -> None:
+        """The node's timer starts calling now (its first wait begins): the time before, a start-up wait for
+        peers, say, is no stall."""
+        self._tick = self._clock()
+        self.restart()
+
     def restart(self) -> None:
         """The wait starts now (something was heard, or a new wait begins)."""
         self.waited = 0.0

@@ -333,6 +333,16 @@ def test_a_world_stopped_past_step_timeout_takes_the_actions_waiting_for_it():
     assert ticks(core, clock, clock.now + 1.9) == []  # the next step waits its whole step_timeout
 
 
+def test_the_wait_for_the_agents_before_the_first_step_is_no_stall():
+    """A world that waited 12 s for its agents to connect (startup) before its first step counts no stall:
+    its step timer starts with the first step."""
+    core, clock = lockstep(CORRIDOR, timeout=2.0)
+    clock.now += 12.0
+    core.begin()
+    assert ticks(core, clock, clock.now + 0.5) == []
+    assert "stalls" not in core.counters()
+
+
 def test_heartbeats_count_up_and_say_where_the_world_is():
     core, _ = lockstep(CORRIDOR)
     assert core.heartbeat() == Heartbeat(1, 0, 0)  # before the first step

@@ -121,6 +121,7 @@ class Lockstep:
 
     def begin(self) -> Outbox:
         """Start episode 0: every agent's position and step-0 feedback."""
+        self._patience.start()  # the wait for the agents to connect was no stall
         return self._next_episode()
 
     def on_action(self, agent: int, msg: Any) -> Outbox:
