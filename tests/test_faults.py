@@ -77,7 +77,8 @@ class Deaf(AgentNode):
 
 def test_a_restart_without_a_checkpoint_joins_the_world_where_it_is(system_in, ros_context, spin_until, key_file):
     """agv2 dies mid-run and comes back with a fresh learner: it adopts the world's (episode, step) at once
-    (the run is keyed, as a launch is) and the run ends with every episode."""
+    (the run is keyed, as a launch is), however far past max_catch_up the world is (a fresh learner has no
+    episodes to end on the way), and the run ends with every episode."""
     settings = {**dict(CASE[2]), "eval_episodes": 1}
     system = system_in("cq", *CASE[:2], 20, settings, world_extra={"step_timeout": 0.3},
                        common_extra={"key_file": key_file})
@@ -87,7 +88,8 @@ def test_a_restart_without_a_checkpoint_joins_the_world_where_it_is(system_in, r
     agent2.destroy_node()
     assert spin_until(system.executor, lambda: world.core.missed_actions > 0, 5.0)
     restarted = AgentNode("agv2", context=ros_context, parameter_overrides=parameters(
-        map=CASE[0], episodes=20, seed=CASE[1], algo="cq", agent_id=2, key_file=key_file, **settings))
+        map=CASE[0], episodes=20, seed=CASE[1], algo="cq", agent_id=2, key_file=key_file, max_catch_up=2,
+        **settings))
     system.agents[1] = restarted
     system.executor.add_node(restarted)
     # the dead agv2's last statistics may have died with it: the restarted one's are checked
@@ -541,6 +543,52 @@ def test_an_agent_stopped_past_step_timeout_ends_degraded_and_says_where(tmp_pat
     assert len(rows) == episodes and first >= 5 and rows[:first] == expected[:first]
 
 
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_twin_agent_started_by_hand_with_the_key_ends_the_launch_naming_it(tmp_path, key_file, ros_domain_id):
+    """A second agv1, started by hand mid-launch from the launch's own params.yaml with its key file: both
+    incarnations act, so the world ends the run at the old one's next action (exit code 3, one line naming
+    agv1), the launch exits 1 (never a silent 0) with that line, and the manifest says how it ended (`twin`)
+    with the world's counters; the rows before the twin came are the offline engine's."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    episodes = 100_000
+    out, namespace, err = tmp_path / "result", unique("twin"), tmp_path / "stderr.txt"
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(
+            launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, STALL_SETTINGS, "--no-figures", "--key",
+                           key_file, "--domain-id", str(ros_domain_id)), stdout=subprocess.DEVNULL, stderr=stderr)
+    twin = None
+    try:
+        wait_until(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "no five rows",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        with open(tmp_path / "twin.log", "wb") as log:
+            twin = subprocess.Popen([sys.executable, "-m", "agent_node", "--ros-args", "-r", f"__ns:=/{namespace}",
+                                     "-r", "__node:=agv1", "--params-file", str(out / "params.yaml")],
+                                    stdout=log, stderr=subprocess.STDOUT)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+        if twin is not None:
+            twin.kill()
+            twin.wait(30)
+    assert code == 1, text_of(err)
+    last = text_of(err).strip().splitlines()[-1]
+    assert re.search(r"world \(pid \d+\) exited with code 3 \(two live nodes act as agv1: .*: ending the run\)",
+                     last), last
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["ended"]["how"] == "twin" and manifest["ended"]["exit_status"] == 1
+    assert "two live nodes act as agv1" in manifest["ended"]["reason"]
+    rows = read_rows(out / "episodes.csv")
+    assert manifest["ended_early"]["episodes_written"] == len(rows) < episodes
+    world = manifest["world"]["counters"]  # as of the last episode heard: the twin may have come after it
+    assert world.get("replaced_incarnations", 0) <= 1
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, 5)
+    assert rows[:5] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
+
+
 # -- disks: read-only, full, filling -------------------------------------------------------------------------
 
 
@@ -713,7 +761,7 @@ def test_keyed_messages_of_an_earlier_run_with_the_same_key_file_are_refused(sys
         (feedback_topic(1), FEEDBACK, serialize(Feedback(1, 2, 0, 0, 0, 0.0), key=earlier)),
         (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(10**6, 2, 0), key=earlier)),
         (position_topic(2), POSITION, serialize(Position(2, 0, 1, 0, 0), key=earlier))])
-    finish(system, spin_until)
+    finish(system)
     assert len(sent) >= 3
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     assert all(s.missed_actions == 0 for s in system.world_stats)
@@ -745,7 +793,7 @@ def test_a_feedback_from_far_ahead_is_refused_and_counted_without_a_loop(system_
     sent = _inject_once_under_way(system, ros_context, spin_until, [
         (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(far, far, 0), key=key)),
         (feedback_topic(1), FEEDBACK, serialize(Feedback(1, far, 0, 0, 0, 0.0), key=key))])
-    finish(system, spin_until)
+    finish(system)
     assert time.monotonic() - start < RUN_TIMEOUT_S and len(sent) >= 2
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     agv1 = counters(system, 1)
