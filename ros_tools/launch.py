@@ -90,7 +90,7 @@ from msgs_spec import agent_namespace, new_key_file
 from msgs_spec.auth import KEY_BYTES, new_run
 from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key_parameter
 from node_runtime.run import EXECUTOR_ENV, executor_kind
-from world_node.lockstep import world_config
+from world_node.lockstep import TWIN_EXIT as WORLD_TWIN, world_config
 
 from .session import StopSignals, ToolError, environment, ros_session, spin_until
 from .hosts import Hosts
@@ -109,7 +109,6 @@ __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WO
 # failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
 # feedback never heard: the summary says where); Ctrl-C or SIGTERM.
 EXIT_CLEAN, EXIT_FAILED, EXIT_DEGRADED, EXIT_INTERRUPTED = 0, 1, 3, 130
-WORLD_TWIN = 3  # the world's exit code when two live nodes act as one agent (world_node.node)
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
 CHECKPOINT_EVERY = 50
@@ -556,7 +555,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             if not refused:
                 listener.show_held()
             how = "interrupted" if isinstance(e, Interrupted) else \
-                "twin" if children[0].exit_code == WORLD_TWIN and not compose else "node_failed"
+                "twin" if children[0].exit_code == WORLD_TWIN else "node_failed"
             kept = write_ended(f"{e}{stopped}", how, e.exit_status)
             raise type(e)(f"{e}{stopped} (logs in {out / 'logs'}; {kept})") from None
         finally:

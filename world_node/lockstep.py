@@ -21,6 +21,13 @@ Every `heartbeat_period` the world sends a `Heartbeat` (`heartbeat()`), whether 
 agent waiting at its goal for the episode's end knows the world is alive. With a `key_file` every message
 that steers the run is keyed and every action checked (msgs_spec.auth).
 
+One agent, one node. With the key, an agent's actions carry its incarnation; a newer one replaces the one
+before (an agent restarted from its checkpoint goes on), and the replaced one's actions are refused
+(`other_incarnation`). One that still comes means the replaced node is alive: two nodes act as that agent (a
+second node started with its name and the key). Each would steer the run, so the world names it in `twin`
+and the node ends the run (exit code `TWIN_EXIT`): never a run that passes for the offline one with two
+learners behind one AGV.
+
 `world_config` turns the node's parameters into a checked `WorldConfig`; a bad value raises `SettingsError`
 with one line naming the parameter. The node plays `episodes + eval_episodes` episodes: the agents learn
 in the first `episodes` and play their greedy policy in the rest, as `cq_ros.engine.run` then
@@ -47,7 +54,9 @@ from msgs_spec.auth import RunKey
 from node_runtime.parameters import run_key_parameters
 from node_runtime.patience import Patience
 
-__all__ = ["WorldConfig", "world_config", "Lockstep"]
+__all__ = ["TWIN_EXIT", "WorldConfig", "world_config", "Lockstep"]
+
+TWIN_EXIT = 3  # the world's exit code when two live nodes act as one agent (`Lockstep.twin`)
 
 
 @dataclass(frozen=True)
@@ -112,6 +121,7 @@ class Lockstep:
         self.collisions = self.missed_actions = 0  # in the current episode so far
         self.returns: list[float] = []  # of each agent in the current episode so far
         self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
+        self.twin: str | None = None  # why the run cannot go on: two live nodes act as one agent
         self._actions: list[int | None] = []
         self._patience = Patience(step_timeout, self.tick_period, clock)  # the wait for the step's actions
 
@@ -129,6 +139,11 @@ class Lockstep:
         action = self.drops.guard(decode_action, msg, bounds=self.bounds, agent=agent, episode=self.episode,
                                   step=self.step, key=self.key, source=action_topic(agent))
         if action is None:
+            if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
+                self.twin = (f"two live nodes act as {agent_namespace(agent)}: actions of its replaced "
+                             "incarnation still come after a newer one's (a second node started with its name "
+                             "and the run's key?)")
+                self.waiting.clear()  # no step more: the node ends the run at its next tick
             return []
         if agent not in self.waiting:
             self.unexpected_actions += 1
