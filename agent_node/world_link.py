@@ -14,8 +14,8 @@ The catch-up is bounded: a feedback past the run's last episode, or (once the ag
 `max_catch_up` episodes past the one expected, is refused and counted (`far_ahead`), whoever vouches for it.
 Adopting ends every episode left behind one by one (its statistics, maybe a checkpoint), so one forged or
 corrupt stamp far ahead (episode 2**31-1, keyed by a key holder's bug, or vouched for by a forged heartbeat
-where there is no key) would otherwise loop for ever. A node that has played nothing yet (a fresh learner, a restart without a
-checkpoint, a twin) has no episode to end on the way: it joins the world wherever it is in the run.
+where there is no key) would otherwise loop for ever. A node that has played nothing yet (a fresh learner, a
+restart without a checkpoint, a twin) has no episode to end on the way: it joins the world wherever it is.
 
 Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
 and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not. The node
