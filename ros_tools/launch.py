@@ -25,6 +25,13 @@ read, and exists while the launcher has it open (O_TMPFILE), and hands every nod
 launcher's descriptor (`key_file` /proc/<launcher pid>/fd/<n>): a writer outside the launch cannot steer the
 run, and no end of the launch, kill -9 of the launcher included, leaves the key behind in a file.
 
+Restarts. With `restart_agents` N (off by default), an agent node that dies while the world runs is started
+again, up to N times in all, with the same command: it resumes from its checkpoint (agent_node.checkpoint,
+every CHECKPOINT_EVERY episodes) or, before the first, joins as a fresh learner. Each restart is a line and
+counted (manifest `restarts`); the episodes it was away for have no statistics of it, and their rows sum the
+other learners' (manifest `restarts.episodes_without`); the world missed its actions meanwhile, so such a run
+ends degraded (exit status 3).
+
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code (the world's 3: a twin of a node, `WORLD_TWIN`); Ctrl-C or SIGTERM to the launcher ends it with
 `Interrupted`. Either way every child still running gets
@@ -164,9 +171,11 @@ class Child:
     log: Path
     process: subprocess.Popen | None = None
     env: dict[str, str] = field(default_factory=dict)  # its own, over the launch's
+    restarts: int = 0  # times the launch started it again after it died (`restart_agents`)
 
     def start(self, env: dict[str, str]) -> None:
-        with open(self.log, "wb") as log:  # the child keeps its own copy of the descriptor
+        # the child keeps its own copy of the descriptor; a restarted one's log goes on after its first life's
+        with open(self.log, "ab" if self.restarts else "wb") as log:
             self.process = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, stdout=log,
                                             stderr=subprocess.STDOUT, env={**env, **self.env},
                                             start_new_session=True, preexec_fn=_die_with_launcher)
@@ -404,7 +413,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
            discovery: str = "subnet", key_file: str | os.PathLike | None = None,
-           view_port: int | None = None, start_from: str | os.PathLike | None = None) -> LaunchResult:
+           view_port: int | None = None, start_from: str | os.PathLike | None = None,
+           restart_agents: int = 0) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -419,6 +429,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
     ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
+    `restart_agents`: how many times in all an agent node that dies is started again (the module's "Restarts").
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write, a missing checkpoint)
     raises ValueError or a subclass before any process starts; LaunchError/Interrupted after every child has
@@ -486,8 +497,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                     node_parameters=node_parameters, authenticated=True)
 
     def node_info() -> dict:
-        return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
-                for c in children}
+        return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out)),
+                         **({"restarts": c.restarts} if c.restarts else {})} for c in children}
 
     learner_nodes = list(nodes)[1:]
 
@@ -529,7 +540,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 tqdm.write(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "  # above the bar
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
-            _watch(children, listener, executor, stop, bar, learners, rows)
+            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose)
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
@@ -586,6 +597,19 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     return result
 
 
+def _restart(child: Child, env: dict, listener: StatsListener, learners: list[int]) -> None:
+    """Start a dead agent node again (it resumes from its checkpoint), saying so; its learners are marked
+    restarted in the listener (the episodes they miss meanwhile are written without them)."""
+    said = child.describe_exit()
+    child.restarts += 1
+    ids = learners if child.name == "jsa" else [int(child.name.removeprefix("agv"))]
+    listener.restarted.update(ids)
+    child.start(env)
+    tqdm.write(f"cq-ros launch: {said} after {len(listener.world)}/{listener.episodes} episodes: restarted it "
+               f"(restart {child.restarts}, pid {child.process.pid}); it resumes from its checkpoint",
+               file=sys.stderr)
+
+
 def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
     """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why)."""
     found = departures(listener, learners)
@@ -611,9 +635,11 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
 
 
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
-           learners: list[int], rows: EpisodeRows) -> None:
+           learners: list[int], rows: EpisodeRows, restart_agents: int = 0, env: dict | None = None,
+           compose: bool = False) -> None:
     """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
-    soon as one fails, EndedEarly as soon as a row cannot be written."""
+    soon as one fails (an agent node restarted instead while `restart_agents` allows), EndedEarly as soon as a
+    row cannot be written."""
     world_done_at = None
     while True:
         if stop:
@@ -628,6 +654,10 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
                        sum(s.peer_messages for s in latest))
         failed = [c for c in children if c.exit_code not in (None, 0)]
+        if failed and not compose and children[0].running and failed[0] is not children[0] and \
+                sum(c.restarts for c in children) < restart_agents:
+            _restart(failed[0], env, listener, learners)
+            continue
         if failed:
             raise LaunchError(f"{failed[0].describe_exit()} after {len(listener.world)}/{listener.episodes} "
                               f"episodes (its log: {failed[0].log})")

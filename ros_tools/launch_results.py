@@ -86,6 +86,9 @@ class StatsListener:
         self.collisions = 0  # over the episodes heard so far, for the progress display
         self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
         self.newest: dict[int, AgentStats] = {}  # each agent's statistics of its latest episode so far
+        # Learners whose node the launch restarted: an episode of theirs never heard before a later one is one
+        # they were away for (a node sends its statistics in order, and resumes where the world is).
+        self.restarted: set[int] = set()
         self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
                                                      partial(self._on_agent, k), AGENT_STATS.qos)
                             for k in self.agents]
@@ -125,24 +128,37 @@ class StatsListener:
         are in (else None): steps, collisions and truncation and the return summed over the agents from
         WorldStats; joint plays and states summed over the learners' AgentStats."""
         w = self.world.get(episode)
-        a = [self.agents[k].get(episode) for k in learners]
+        a = [self.agents[k].get(episode) for k in learners if not self.away(k, episode)]
         if w is None or None in a:
             return None
         return Episode(steps=w.steps, collisions=w.collisions, joint_plays=sum(s.joint_plays for s in a),
                        states=sum(s.local_states + s.joint_states for s in a), ret=sum(w.returns),
                        truncated=w.truncated)
 
+    def away(self, agent: int, episode: int) -> bool:
+        """Was `agent`'s node restarted, and away for `episode` (its statistics of a later one came, of this one
+        none)?"""
+        return agent in self.restarted and episode not in self.agents[agent] and \
+            agent in self.newest and self.newest[agent].episode > episode
+
+    def without(self) -> dict[int, list[int]]:
+        """agent -> the episodes its restarted node was away for."""
+        return {k: [e for e in range(self.episodes) if self.away(k, e)] for k in sorted(self.restarted)}
+
     @property
     def complete(self) -> bool:
-        return len(self.world) == self.episodes and all(len(s) == self.episodes for s in self.agents.values())
+        return len(self.world) == self.episodes and all(
+            len(s) == self.episodes or (k in self.restarted and all(e in s or self.away(k, e)
+                                                                     for e in range(self.episodes)))
+            for k, s in self.agents.items())
 
     def missing(self) -> list[str]:
         """What has not come yet, e.g. ['world/stats episodes 7-9', 'agv2/stats episode 0']."""
         wanted = range(self.episodes)
         out = []
-        heard = [(WORLD_STATS_TOPIC, self.world)] + [(agent_stats_topic(k), v) for k, v in self.agents.items()]
-        for topic, got in heard:
-            gone = [e for e in wanted if e not in got]
+        heard = [(WORLD_STATS_TOPIC, self.world, None)] + [(agent_stats_topic(k), v, k) for k, v in self.agents.items()]
+        for topic, got, agent in heard:
+            gone = [e for e in wanted if e not in got and (agent is None or not self.away(agent, e))]
             if gone:
                 out.append(f"{topic} episode{'s' if len(gone) > 1 else ''} {_ranges(gone)}")
         return out
@@ -227,6 +243,7 @@ def departures(listener: StatsListener, learners: list[int]) -> dict[str, Any]:
                 continue
             for name in DEPARTURES:
                 now, was = stats.counters.get(name, 0), before[k].get(name, 0)
+                was = 0 if now < was else was  # a restarted node counts from 0 again
                 if now > was:
                     grew = True
                     totals[name] = totals.get(name, 0) + now - was
@@ -270,12 +287,12 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
     them."""
     played = range(listener.episodes)
     world = [listener.world[e] for e in played]
-    per_learner = [[listener.agents[k][e] for k in learners] for e in played]
+    per_learner = [[listener.agents[k][e] for k in learners if e in listener.agents[k]] for e in played]
     rows = record.table(listener.row(e, learners) for e in played)
     table, greedy = rows[:episodes], rows[episodes:]
     kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
              m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
-    final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
+    final = [listener.newest[k] for k in learners]  # the counters are cumulative: the last hold the launch's
     manifest = manifest_for(
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
         communication={name: {"subscriptions_created": s.subscriptions_created,
@@ -285,7 +302,9 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
         world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher={"dropped": listener.drops.as_counters()},
-        departures=departures(listener, learners), **({"ended": ended} if ended is not None else {}))
+        departures=departures(listener, learners), **({"ended": ended} if ended is not None else {}),
+        **({"restarts": {"episodes_without": {f"agv{k}": _ranges(v) for k, v in listener.without().items() if v}}}
+           if listener.restarted else {}))
     write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=episodes_written)
     return LaunchResult(out, table, greedy, manifest)
 

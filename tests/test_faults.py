@@ -622,6 +622,50 @@ def test_a_twin_agent_started_by_hand_with_the_key_ends_the_launch_naming_it(tmp
     assert rows[:5] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
 
 
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoint(tmp_path):
+    """`--restart-agents 1`: agv1 killed (kill -9) once it has written a checkpoint; the launcher starts it
+    again, it resumes from the checkpoint, and the launch plays every episode: counted (the node's `restarts`,
+    the episodes it was away for), degraded (the world missed its actions meanwhile: exit status 3), and every
+    episode before that is the offline engine's."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    episodes = 400
+    out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
+    sets = (*STALL_SETTINGS, "step_timeout=1.0")
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
+                                                   "--no-figures", "--restart-agents", "1"),
+                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                             detail=lambda: text_of(err)).group(1))
+        wait_until(lambda: (out / "checkpoints" / "agv1.pkl").exists(), LAUNCH_TIMEOUT_S, "no checkpoint of agv1",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        os.kill(pid, signal.SIGKILL)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+    assert code == 3, text_of(err)
+    assert re.search(r"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/400 episodes: "
+                     r"restarted it \(restart 1, pid \d+\)", text_of(err)), text_of(err)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["nodes"]["agv1"]["restarts"] == 1 and "restarts" not in manifest["nodes"]["agv2"]
+    assert set(manifest["restarts"]["episodes_without"]) <= {"agv1"}  # none when it rejoined within an episode
+    assert manifest["ended"]["how"] == "degraded" and manifest["departures"]["missed_actions"] >= 1
+    assert "resum" in text_of(out / "logs" / "agv1.log") or "joining" in text_of(out / "logs" / "agv1.log")
+    rows = read_rows(out / "episodes.csv")
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, episodes)
+    first = manifest["departures"]["first_episode"]
+    assert len(rows) == episodes and first >= 50
+    assert rows[:first] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"]))
+                            for e in offline.episodes][:first]
+
+
 # -- disks: read-only, full, filling -------------------------------------------------------------------------
 
 

@@ -65,7 +65,8 @@ def launch(args) -> int:
         args.map, args.algo, args.episodes, args.seed, args.out, settings, domain_id=args.domain_id,
         namespace=args.namespace, step_timeout=args.step_timeout, peer_linger_steps=args.peer_linger_steps,
         compose=args.compose, executor=args.executor, node_parameters=node_parameters, force=args.force,
-        figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key, view_port=args.view))
+        figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key, view_port=args.view,
+        restart_agents=args.restart_agents))
     if result is None:
         return code
     print_summary(result.out)
