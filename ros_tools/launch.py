@@ -58,8 +58,9 @@ adds the communication cost over the whole launch (per agent node: peer subscrip
 messages; the world's missed actions and dropped-message counters).
 
 Ends. Every end writes manifest.json: `ended` says how (finished, degraded, node_failed, twin, interrupted,
-disk), the one-line reason and the exit status, beside the counters heard so far (ros_tools.launch_results);
-only a launch whose world refused at its start (a second system here) leaves nothing but its line. The exit
+disk, incomplete: a node hung or statistics never came), the one-line reason and the exit status, beside the
+counters heard so far (ros_tools.launch_results); only a launch whose world refused at its start (a second
+system here) leaves nothing but its line. The exit
 status tells a clean run (`EXIT_CLEAN`, 0) from one that played every episode but left the offline engine's
 behaviour somewhere (`EXIT_DEGRADED`, 3: a missed or unapplied action, a feedback never heard; the summary
 says how many episodes that touched), a launch that failed or ended early (1) and one interrupted (130).
@@ -565,8 +566,9 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 raise type(e)(f"{e}{stopped}; {made} removed") from None
             if not refused:
                 listener.show_held()
-            how = "interrupted" if isinstance(e, Interrupted) else \
-                "twin" if children[0].exit_code == WORLD_TWIN else "node_failed"
+            failed = any(c.exit_code not in (None, 0) for c in children)
+            how = "interrupted" if isinstance(e, Interrupted) else "twin" if children[0].exit_code == WORLD_TWIN \
+                else "node_failed" if failed else "incomplete"  # incomplete: a node hung, or statistics never came
             kept = write_ended(f"{e}{stopped}", how, e.exit_status)
             raise type(e)(f"{e}{stopped} (logs in {out / 'logs'}; {kept})") from None
         finally:
