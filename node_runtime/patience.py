@@ -7,7 +7,8 @@ Judged on wall time, everyone it waits for looks late, and the answers already t
 `Patience` counts the time between the calls of its node's periodic timer (`expired()`, every `period`),
 each gap at most `STALL_PERIODS` periods: a longer one is a stall, which does not count as waiting (one
 longer than the timeout itself, which on wall time would have run the wait out alone, is counted in
-`stalls`; a busy machine's shorter gaps are not). And a wait that has run out is judged at the next call, not this one: the executor hands over
+`stalls`; a busy machine's shorter gaps are not, nor is the time before `start()`, a wait for peers at
+start-up). And a wait that has run out is judged at the next call, not this one: the executor hands over
 whatever came in between (a message is queued before that next timer event), so what was waiting in the
 queues is always handled before anyone is judged late. Both only ever lengthen a wait, and by at most one
 period beside the time the node was not running.

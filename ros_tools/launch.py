@@ -53,8 +53,8 @@ every agv<k>/stats, counts once. The learning episodes' rows make episodes.csv, 
 episode's AgentStats make observe.csv (the engine takes them before its greedy episodes too). episodes.csv
 is written row by row as the episodes are heard (ros_tools.launch_results: a disk that fills keeps every row
 it took, the launch ends early with one line naming the file and the OS's reason, and the manifest says so);
-a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason. The manifest
-adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
+a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason.
+The manifest adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
 messages; the world's missed actions and dropped-message counters).
 
 Ends. Every end writes manifest.json: `ended` says how (finished, degraded, node_failed, twin, interrupted,
@@ -494,7 +494,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
                     domain_id=domain_id, namespace=f"/{namespace}",
                     step_timeout_s=node_parameters["step_timeout"], **on_hosts,
-                    peer_linger_steps=node_parameters.get("peer_linger_steps", AGENT_PARAMETERS["peer_linger_steps"][0]),
+                    peer_linger_steps=node_parameters.get("peer_linger_steps",
+                                                          AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
 
     def node_info() -> dict:

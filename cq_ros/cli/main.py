@@ -168,7 +168,8 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
-    p.add_argument("--namespace", default=None, help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
+    p.add_argument("--namespace", default=None,
+                   help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
     p.add_argument("--step-timeout", type=_seconds, default=2.0, metavar="S",
                    help="seconds the world waits for an action before the agent stays (default 2)")
     p.add_argument("--peer-linger-steps", type=_number(0, kind=int), default=None, metavar="N",
@@ -283,8 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
             "pick stations in bays beside the aisles (cq_ros.mapgen.warehouse)")
     p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
                          "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
-                         "goal with the others parked at theirs. The map carries `set reward_step=-1`, `set gamma=0.98` "
-                         "and `set epsilon_decay_episodes=1500`.")
+                         "goal with the others parked at theirs. The map carries `set reward_step=-1`, "
+                         "`set gamma=0.98` and `set epsilon_decay_episodes=1500`.")
     p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
     p.add_argument("--aisles", type=_side, default=None, metavar="A",
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
