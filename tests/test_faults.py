@@ -339,6 +339,22 @@ def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
 
 
+def test_a_restarted_nodes_ghost_is_no_second_writer():
+    """A restarted agv1's dead DDS entry stays in the graph until its lease runs out: two writers on
+    agv1/action, both named /run/agv1. That is counted as `same_name_writers`, not as a second writer, which
+    a writer of another name still is."""
+    from node_runtime.graph import GraphWatch
+
+    logs = []
+    watch = GraphWatch("world", "/run", logs.append)
+    nodes = [("world", "/run"), ("agv1", "/run"), ("agv1", "/run")]
+    assert watch.check(nodes, {"/run/agv1/action": [("agv1", "/run", b"old"), ("agv1", "/run", b"new")]}) is None
+    assert watch.counters() == {"same_name_writers": 1} and "all named /run/agv1" in logs[-1]
+    watch.check(nodes, {"/run/agv1/action": [("agv1", "/run", b"new"), ("intruder", "/run", b"x")]})
+    assert watch.counters() == {"second_writers": 1, "same_name_writers": 1}
+    assert "(/run/agv1, /run/intruder)" in logs[-1]
+
+
 def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics(ros_context):
     """Issue 20: the lockstep subscriptions listen to the message-lost event (node_runtime.lost); a report's new
     losses go into the node's statistics as `lost_samples`. Driven through the handlers rclpy made, since
