@@ -114,6 +114,7 @@ class AgentNode(Node):
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._closing = False  # finishing: flushing the last statistics before `done`
+        self.gave_up: str | None = None  # the line the node gave up on the world with
         watch_period = min(cfg.feedback_timeout / 10, 1.0)
         self.driver.link.patience = Patience(cfg.feedback_timeout, watch_period)
         self._watchdog = self.create_timer(watch_period, self._check_world)
@@ -170,9 +171,17 @@ class AgentNode(Node):
     def _check_world(self) -> None:
         link = self.driver.link
         if link.patience.expired() and not self.done.done():
-            self.get_logger().error(f"no valid message from the world (feedback or heartbeat) for "
-                                    f"{link.patience.waited:.1f} s awake, {link.silent_for():.1f} s of wall time "
-                                    f"(feedback_timeout={self.config.feedback_timeout}): giving up")
+            # A world restarted mid-run is another incarnation, of another run unless it was given this one's
+            # nonce: its messages are refused, never taken for the world this agent played with, so the run
+            # ends here, saying so.
+            other = self.driver.drops["other_incarnation"] + self.driver.drops["other_run"]
+            why = (f"; {other} messages came from another world incarnation or run (other_incarnation, "
+                   "other_run): the world restarted (or another run's messages were replayed), and this run "
+                   "cannot go on with it") if other else ""
+            self.gave_up = (f"no valid message from the world (feedback or heartbeat) for "
+                            f"{link.patience.waited:.1f} s awake, {link.silent_for():.1f} s of wall time "
+                            f"(feedback_timeout={self.config.feedback_timeout}){why}: giving up")
+            self.get_logger().error(self.gave_up)
             self._finish(1)
 
     def _take_unannounced(self) -> None:

@@ -10,11 +10,12 @@ run's key every message is the world's; without one, the world's heartbeat must 
 dropped (`future_*`) if the expected one comes first. A node started without a checkpoint file starts a
 fresh learner wherever the world is.
 
-The catch-up is bounded: a feedback past the run's last episode, or more than `max_catch_up` episodes past the
-one expected, is refused and counted (`far_ahead`), whoever vouches for it. Adopting ends every episode left
-behind one by one (its statistics, maybe a checkpoint), so one forged or corrupt stamp far ahead (episode
-2**31-1, keyed by a key holder's bug, or vouched for by a forged heartbeat where there is no key) would
-otherwise loop for ever.
+The catch-up is bounded: a feedback past the run's last episode, or (once the agent has played) more than
+`max_catch_up` episodes past the one expected, is refused and counted (`far_ahead`), whoever vouches for it.
+Adopting ends every episode left behind one by one (its statistics, maybe a checkpoint), so one forged or
+corrupt stamp far ahead (episode 2**31-1, keyed by a key holder's bug, or vouched for by a forged heartbeat
+where there is no key) would otherwise loop for ever. A node that has played nothing yet (a fresh learner, a
+restart without a checkpoint, a twin) has no episode to end on the way: it joins the world wherever it is.
 
 Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
 and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not. The node
@@ -53,6 +54,7 @@ class WorldLink:
         self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
         # The earliest later feedback the world has not vouched for yet: (stamp, agent, feedback, cell, expected)
         self.held: tuple | None = None
+        self.joined = False  # a feedback played or adopted: later ones are caught up to episode by episode
 
     def heard(self) -> None:
         self.last_heard = self._clock()
@@ -81,15 +83,18 @@ class WorldLink:
             return ""
         if expected is None:  # resuming (from a checkpoint): joining the world where it is, a catch-up too
             self._drop_held()
+            self.joined = True
             return "adopt"
         if stamp == expected:
             self._drop_held()
+            self.joined = True
             return "play"
         if stamp < expected:
             record_sequence(self.drops, stamp, expected, feedback_topic(agent))
             return ""
         if self.vouches_for(stamp):
             self._drop_held()
+            self.joined = True
             return "adopt"
         if self.held is None or stamp < self.held[0]:
             self._drop_held()
@@ -103,7 +108,7 @@ class WorldLink:
         counted (`far_ahead`) and never caught up to."""
         if fb.episode > self.last_episode:
             bound = "the run's last episode"
-        elif expected is not None and fb.episode > expected[0] + self.max_catch_up:
+        elif self.joined and expected is not None and fb.episode > expected[0] + self.max_catch_up:
             bound = f"max_catch_up={self.max_catch_up}"
         else:
             return False
@@ -122,6 +127,7 @@ class WorldLink:
             return None
         _, agent, fb, cell, _ = self.held
         self.held = None
+        self.joined = True
         return agent, fb, cell
 
     def adopted(self, expected: tuple[int, int] | None, fb: Any) -> str:

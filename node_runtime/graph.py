@@ -5,7 +5,10 @@ matched-subscription count from its events, for what a node checks every step.
 rclpy 7.1.6's message info names no publisher, so a second writer cannot be told apart message by message;
 the graph (`get_publishers_info_by_topic`) does list every writer. Every topic of ours has one rightful
 writer (the world, or one agent node), so more than one writer on a topic is logged, once per new set of
-writers, and counted (`second_writers` in the node's statistics).
+writers, and counted (`second_writers` in the node's statistics). Writers that all bear one node's name are
+counted apart (`same_name_writers`): a restarted node's ghost (its DDS entry stays until its lease runs out,
+about 20 s), a false alarm as a second writer, or a twin of it, which the run's key tells apart (the world
+ends the run on a twin agent: world_node.lockstep).
 
 A second system on the same ROS_DOMAIN_ID and namespace shows as a second world node in our namespace. A
 world that sees a twin within `REFUSE_WITHIN_S` of its start refuses to run (the node exits 2 with the
@@ -38,6 +41,7 @@ class GraphWatch:
         self._refuse_until = clock() + refuse_within_s
         self._seen: dict[str, frozenset] = {}  # topic -> the set of writers last logged
         self.second_writers = 0  # times a topic was seen with a new set of more than one writer
+        self.same_name_writers = 0  # the same, when every writer bears one node's name (a restart's ghost)
         self._twin_logged = False
 
     def check(self, nodes: Iterable[tuple[str, str]], writers: Mapping[str, list[tuple[str, str, Any]]]) -> str | None:
@@ -60,14 +64,22 @@ class GraphWatch:
             who = frozenset((n, ns, bytes(gid)) for n, ns, gid in pubs)
             if who != self._seen.get(topic):
                 self._seen[topic] = who
+                names = sorted({f"{ns.rstrip('/')}/{n}" for n, ns, _ in who})
+                if len(names) == 1:
+                    self.same_name_writers += 1
+                    self._log(f"{len(pubs)} writers on {topic}, all named {names[0]}: a restarted node's ghost "
+                              "until its DDS lease runs out (about 20 s), or a twin of it (with the run's key, a "
+                              "twin agent ends the run)")
+                    continue
                 self.second_writers += 1
-                names = ", ".join(sorted(f"{ns.rstrip('/')}/{n}" for n, ns, _ in who))
-                self._log(f"{len(pubs)} writers on {topic} ({names}): it has one rightful writer; messages "
-                          "of the others are dropped only if they fail the checks (a key makes sure they do)")
+                self._log(f"{len(pubs)} writers on {topic} ({', '.join(names)}): it has one rightful writer; "
+                          "messages of the others are dropped only if they fail the checks (a key makes sure "
+                          "they do)")
         return None
 
     def counters(self) -> dict[str, int]:
-        return {"second_writers": self.second_writers} if self.second_writers else {}
+        out = {"second_writers": self.second_writers, "same_name_writers": self.same_name_writers}
+        return {k: v for k, v in out.items() if v}
 
 
 def watch_graph(node: Any, watch: Any, topics: list[str]) -> str | None:

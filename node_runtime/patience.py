@@ -7,10 +7,11 @@ Judged on wall time, everyone it waits for looks late, and the answers already t
 `Patience` counts the time between the calls of its node's periodic timer (`expired()`, every `period`),
 each gap at most `STALL_PERIODS` periods: a longer one is a stall, which does not count as waiting (one
 longer than the timeout itself, which on wall time would have run the wait out alone, is counted in
-`stalls`; a busy machine's shorter gaps are not). And a wait that has run out is judged at the next call, not this
-one: the executor hands over whatever came in between (a message is queued before that next timer event), so what
-was waiting in the queues is always handled before anyone is judged late. Both only ever lengthen a wait, and by at
-most one period beside the time the node was not running.
+`stalls`; a busy machine's shorter gaps are not, nor is the time before `start()`, a wait for peers at
+start-up). And a wait that has run out is judged at the next call, not this one: the executor hands over
+whatever came in between (a message is queued before that next timer event), so what was waiting in the
+queues is always handled before anyone is judged late. Both only ever lengthen a wait, and by at most one
+period beside the time the node was not running.
 """
 
 from __future__ import annotations
@@ -32,6 +33,12 @@ class Patience:
         self.timeout, self.period, self._clock = timeout, period, clock
         self.stalls = 0  # timer gaps longer than the timeout: the node was stopped (or starved that long)
         self._tick = clock()  # the last timer call
+        self.restart()
+
+    def start(self) -> None:
+        """The node's timer starts calling now (its first wait begins): the time before, a start-up wait for
+        peers, say, is no stall."""
+        self._tick = self._clock()
         self.restart()
 
     def restart(self) -> None:

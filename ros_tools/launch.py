@@ -20,12 +20,21 @@ the nodes and the protocol are the same.
 
 Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
 for a run (timeouts, heartbeat, linger, checkpoints: `SETTABLE`), checked by the nodes' own rules before
-anything starts. Each launch writes a fresh key to a file only the user can read (msgs_spec.auth) and hands
-every node its path (`key_file`): a writer outside the launch cannot steer the run; the file is removed at
-the end.
+anything starts. Each launch makes a fresh key (msgs_spec.auth) in a file that has no name, only the user can
+read, and exists while the launcher has it open (O_TMPFILE), and hands every node its path through the
+launcher's descriptor (`key_file` /proc/<launcher pid>/fd/<n>): a writer outside the launch cannot steer the
+run, and no end of the launch, kill -9 of the launcher included, leaves the key behind in a file.
+
+Restarts. With `restart_agents` N (off by default), an agent node that dies while the world runs is started
+again, up to N times in all, with the same command: it resumes from its checkpoint (agent_node.checkpoint,
+every CHECKPOINT_EVERY episodes) or, before the first, joins as a fresh learner. Each restart is a line and
+counted (manifest `restarts`); the episodes it was away for have no statistics of it, and their rows sum the
+other learners' (manifest `restarts.episodes_without`); the world missed its actions meanwhile, so such a run
+ends degraded (exit status 3).
 
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
-code; Ctrl-C or SIGTERM to the launcher ends it with `Interrupted`. Either way every child still running gets
+code (the world's 3: a twin of a node, `WORLD_TWIN`); Ctrl-C or SIGTERM to the launcher ends it with
+`Interrupted`. Either way every child still running gets
 SIGINT, then SIGTERM after 3 s, then SIGKILL after 2 more. Children run in sessions of their own, so a
 terminal's Ctrl-C reaches the launcher only and it stops them in that order, and the kernel sends them SIGTERM
 if the launcher itself dies (PR_SET_PDEATHSIG on Linux): none outlives it. Each child's output goes to
@@ -44,9 +53,17 @@ every agv<k>/stats, counts once. The learning episodes' rows make episodes.csv, 
 episode's AgentStats make observe.csv (the engine takes them before its greedy episodes too). episodes.csv
 is written row by row as the episodes are heard (ros_tools.launch_results: a disk that fills keeps every row
 it took, the launch ends early with one line naming the file and the OS's reason, and the manifest says so);
-a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason. The
-manifest adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
+a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason.
+The manifest adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
 messages; the world's missed actions and dropped-message counters).
+
+Ends. Every end writes manifest.json: `ended` says how (finished, degraded, node_failed, twin, interrupted,
+disk, incomplete: a node hung or statistics never came), the one-line reason and the exit status, beside the
+counters heard so far (ros_tools.launch_results); only a launch whose world refused at its start (a second
+system here) leaves nothing but its line. The exit
+status tells a clean run (`EXIT_CLEAN`, 0) from one that played every episode but left the offline engine's
+behaviour somewhere (`EXIT_DEGRADED`, 3: a missed or unapplied action, a feedback never heard; the summary
+says how many episodes that touched), a launch that failed or ended early (1) and one interrupted (130).
 """
 
 from __future__ import annotations
@@ -60,6 +77,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -77,22 +95,28 @@ from cq_ros.lab.output import made_by, os_reason, removed_if_failing
 from node_runtime.parameters import check_names
 from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split_pair
 from msgs_spec import agent_namespace, new_key_file
-from msgs_spec.auth import new_run
+from msgs_spec.auth import KEY_BYTES, new_run
 from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key_parameter
 from node_runtime.run import EXECUTOR_ENV, executor_kind
-from world_node.lockstep import world_config
+from world_node.lockstep import TWIN_EXIT as WORLD_TWIN, world_config
 
 from .session import StopSignals, ToolError, environment, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
-    EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, write_ended_early, write_heard,
+    EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, departures, describe_departures, write_ended_early,
+    write_heard,
 )
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
-__all__ = ["DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
+__all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN",
+           "DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
            "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener",
            "Progress", "write_heard"]
 
+# The launch's exit status (`cq-ros launch`): every episode played as the offline engine plays it; a launch that
+# failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
+# feedback never heard: the summary says where); Ctrl-C or SIGTERM.
+EXIT_CLEAN, EXIT_FAILED, EXIT_DEGRADED, EXIT_INTERRUPTED = 0, 1, 3, 130
 DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
 CHECKPOINT_EVERY = 50
@@ -112,9 +136,13 @@ SETTABLE = {name: default for params in (WORLD_PARAMETERS, AGENT_PARAMETERS)
 class LaunchError(RuntimeError):
     """The launch failed (a child died or hung, statistics went missing); the message is one line."""
 
+    exit_status = EXIT_FAILED
+
 
 class Interrupted(LaunchError):
     """Ctrl-C or SIGTERM to the launcher; every child was stopped."""
+
+    exit_status = EXIT_INTERRUPTED
 
 
 class EndedEarly(LaunchError):
@@ -144,9 +172,11 @@ class Child:
     log: Path
     process: subprocess.Popen | None = None
     env: dict[str, str] = field(default_factory=dict)  # its own, over the launch's
+    restarts: int = 0  # times the launch started it again after it died (`restart_agents`)
 
     def start(self, env: dict[str, str]) -> None:
-        with open(self.log, "wb") as log:  # the child keeps its own copy of the descriptor
+        # the child keeps its own copy of the descriptor; a restarted one's log goes on after its first life's
+        with open(self.log, "ab" if self.restarts else "wb") as log:
             self.process = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, stdout=log,
                                             stderr=subprocess.STDOUT, env={**env, **self.env},
                                             start_new_session=True, preexec_fn=_die_with_launcher)
@@ -298,6 +328,29 @@ def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str
                  out / "logs" / "container.log")
 
 
+class _RunKeyFile:
+    """The launch's own key in a file without a name (O_TMPFILE where the kernel has it, else unlinked at once),
+    mode 0600, which the nodes open through the launcher's descriptor (`path`, /proc/<pid>/fd/<n>) while the
+    launcher lives: they read it once, at their start, and a node outlives the launcher by nothing (its
+    PR_SET_PDEATHSIG). So whatever ends the launch, kill -9 included, no key stays behind in a file. Without
+    /proc, a named file (msgs_spec.auth.new_key_file) removed by `close`."""
+
+    def __init__(self) -> None:
+        self.named: Path | None = None
+        self.file = tempfile.TemporaryFile("w+")
+        self.file.write(secrets.token_hex(KEY_BYTES) + "\n")
+        self.file.flush()
+        self.path = Path(f"/proc/{os.getpid()}/fd/{self.file.fileno()}")
+        if not self.path.exists():
+            self.file.close()
+            self.named = self.path = new_key_file()
+
+    def close(self) -> None:
+        self.file.close()
+        if self.named is not None:
+            self.named.unlink(missing_ok=True)
+
+
 def _stop(children: list[Child]) -> None:
     """SIGINT to every child still running, then SIGTERM, then SIGKILL, each with a bounded wait; reaps them."""
     running = [c for c in children if c.running]
@@ -361,7 +414,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
            executor: str | None = None, markers: bool = True, force: bool = False, figures: bool = True,
            progress: bool = True, node_parameters: dict[str, Any] | None = None, hosts: Hosts | None = None,
            discovery: str = "subnet", key_file: str | os.PathLike | None = None,
-           view_port: int | None = None, start_from: str | os.PathLike | None = None) -> LaunchResult:
+           view_port: int | None = None, start_from: str | os.PathLike | None = None,
+           restart_agents: int = 0) -> LaunchResult:
     """Run one (map, algorithm, seed) over ROS and write the result directory `out`: a process per node, or
     with `compose` every node in one process (ros_tools.compose), spinning on `executor` (EXECUTORS; None:
     the environment's $CQ_ROS_EXECUTOR, else the EventsExecutor); `markers` False: no publishers for viewers.
@@ -376,6 +430,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
     ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
+    `restart_agents`: how many times in all an agent node that dies is started again (the module's "Restarts").
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write, a missing checkpoint)
     raises ValueError or a subclass before any process starts; LaunchError/Interrupted after every child has
@@ -409,7 +464,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         for sub in ("logs", "checkpoints"):
             (out / sub).mkdir(exist_ok=True)
         kept_key = key_file is not None  # the system's own key (cq-ros key), named in params.yaml and kept
-        key_file = Path(key_file).resolve() if kept_key else new_key_file()
+        own_key = None if kept_key else _RunKeyFile()
+        key_file = Path(key_file).resolve() if kept_key else own_key.path
         run_key = read_key_parameter(os.fspath(key_file))
         nodes = node_specs(map_name, algo, episodes, seed, settings, out, step_timeout, peer_linger_steps,
                            node_parameters, key_file)
@@ -443,12 +499,19 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                     node_parameters=node_parameters, authenticated=True)
 
     def node_info() -> dict:
-        return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out))}
-                for c in children}
+        return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out)),
+                         **({"restarts": c.restarts} if c.restarts else {})} for c in children}
+
+    learner_nodes = list(nodes)[1:]
+
+    def write_ended(reason: str, how: str, status: int) -> str:
+        """The manifest of a launch that ended before its results (`reason`): what became of it, for the line."""
+        return write_ended_early(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, rows,
+                                 node_info(), run_info, reason, listener, learners, learner_nodes,
+                                 ended={"how": how, "reason": reason, "exit_status": status})
 
     def ended_early(reason: str) -> EndedEarly:
-        kept = write_ended_early(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, rows,
-                                 node_info(), run_info, reason)
+        kept = write_ended(f"the launcher {reason}", "disk", EndedEarly.exit_status)
         return EndedEarly(f"the launcher {reason}: the run ended early after {rows.written}/{episodes} "
                           f"episodes; those rows are in {rows.path}, and {kept}")
 
@@ -466,8 +529,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 server, _ = serve(node, f"/{namespace}", port=view_port, n_agents=gridmap.n_agents)
             except ToolError as e:
                 rows.close()
-                if not kept_key:
-                    key_file.unlink(missing_ok=True)
+                if own_key is not None:
+                    own_key.close()
                 _remove(made)
                 raise LaunchError(str(e)) from None
             tqdm.write(f"cq-ros launch: Foxglove view on ws://127.0.0.1:{server.port}", file=sys.stderr)
@@ -479,7 +542,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 tqdm.write(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "  # above the bar
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
-            _watch(children, listener, executor, stop, bar, learners, rows)
+            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose)
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
@@ -493,29 +556,36 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             rows.close()
             if isinstance(e, EndedEarly):
                 raise ended_early(str(e)) from None
-            rows.free()
             stopped = f"; stopped {', '.join(stopping)}" if stopping else ""
             # A node that refused (exit 2: a second system here) before any row of this run leaves nothing worth
-            # keeping, and the line says why; a node that crashed or was stopped leaves its log to read.
+            # keeping, and the line says why; a node that crashed or was stopped leaves its log to read, and the
+            # manifest says how the run ended, with the counters heard so far.
             refused = any(c.exit_code == 2 for c in children)
             if rows.written == 0 and refused and made is not None:
+                rows.free()
                 _remove(made)
                 raise type(e)(f"{e}{stopped}; {made} removed") from None
             if not refused:
                 listener.show_held()
-            raise type(e)(f"{e}{stopped} (logs in {out / 'logs'})") from None
+            failed = any(c.exit_code not in (None, 0) for c in children)
+            how = "interrupted" if isinstance(e, Interrupted) else "twin" if children[0].exit_code == WORLD_TWIN \
+                else "node_failed" if failed else "incomplete"  # incomplete: a node hung, or statistics never came
+            kept = write_ended(f"{e}{stopped}", how, e.exit_status)
+            raise type(e)(f"{e}{stopped} (logs in {out / 'logs'}; {kept})") from None
         finally:
             _stop(children)
-            if not kept_key:
-                key_file.unlink(missing_ok=True)
+            if own_key is not None:
+                own_key.close()
             if server is not None:
                 server.stop()
             bar.close()
 
     rows.close()
     try:
+        # Degraded or clean: known from the statistics only, so the manifest is written with both and then told.
         result = write_heard(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started,
-                             listener, learners, list(nodes)[1:], node_info(), run_info, episodes_written=True)
+                             listener, learners, learner_nodes, node_info(), run_info, episodes_written=True,
+                             ended=_ended_as(listener, learners))
         rows.free()
         if figures:
             from cq_ros.lab.plots import write_figures  # matplotlib only where figures are wanted
@@ -528,6 +598,28 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             print(f"cq-ros launch: warning: {name}: checkpoint {nodes[name][1]['checkpoint']} not written: "
                   f"{failure}; learning went on", file=sys.stderr)
     return result
+
+
+def _restart(child: Child, env: dict, listener: StatsListener, learners: list[int]) -> None:
+    """Start a dead agent node again (it resumes from its checkpoint), saying so; its learners are marked
+    restarted in the listener (the episodes they miss meanwhile are written without them)."""
+    said = child.describe_exit()
+    child.restarts += 1
+    ids = learners if child.name == "jsa" else [int(child.name.removeprefix("agv"))]
+    listener.restarted.update(ids)
+    child.start(env)
+    tqdm.write(f"cq-ros launch: {said} after {len(listener.world)}/{listener.episodes} episodes: restarted it "
+               f"(restart {child.restarts}, pid {child.process.pid}); it resumes from its checkpoint",
+               file=sys.stderr)
+
+
+def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
+    """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why)."""
+    found = departures(listener, learners)
+    if found:
+        return {"how": "degraded", "reason": describe_departures(found), "exit_status": EXIT_DEGRADED}
+    return {"how": "finished", "reason": "every episode played as the offline engine plays it",
+            "exit_status": EXIT_CLEAN}
 
 
 def _remove(made: Path | None) -> None:
@@ -546,9 +638,11 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
 
 
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
-           learners: list[int], rows: EpisodeRows) -> None:
+           learners: list[int], rows: EpisodeRows, restart_agents: int = 0, env: dict | None = None,
+           compose: bool = False) -> None:
     """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
-    soon as one fails, EndedEarly as soon as a row cannot be written."""
+    soon as one fails (an agent node restarted instead while `restart_agents` allows), EndedEarly as soon as a
+    row cannot be written."""
     world_done_at = None
     while True:
         if stop:
@@ -563,6 +657,10 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
                        sum(s.peer_messages for s in latest))
         failed = [c for c in children if c.exit_code not in (None, 0)]
+        if failed and not compose and children[0].running and failed[0] is not children[0] and \
+                sum(c.restarts for c in children) < restart_agents:
+            _restart(failed[0], env, listener, learners)
+            continue
         if failed:
             raise LaunchError(f"{failed[0].describe_exit()} after {len(listener.world)}/{listener.episodes} "
                               f"episodes (its log: {failed[0].log})")

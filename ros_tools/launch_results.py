@@ -1,6 +1,11 @@
 """What a launch hears and how it is written (ros_tools.launch runs it): the launcher's statistics
 listener, episodes.csv written row by row as the episodes are heard, and the result files at the end.
 
+Every end writes the manifest. Finished, a node that died, Ctrl-C or SIGTERM, a disk that filled, a twin: the
+manifest says how the launch ended (`ended`: how, the one-line reason, the exit status) with the counters heard so
+far (`write_ended_early`), and where the run left the offline engine's behaviour (`departures`: a step whose action
+the world missed or did not apply, a feedback the agent never heard), and how many episodes that touched.
+
 Disks fill. A row is written (whole, or not at all: a row cut short by a full disk is cut off again) as soon
 as the world's and every learner's statistics of its episode are in, so a disk that fills keeps every row it
 could take, and the launch ends early with one line naming the file and the OS's reason. At the start the
@@ -34,11 +39,14 @@ from msgs_spec import (
     decode_agent_stats, decode_world_stats,
 )
 
-__all__ = ["RESERVE_NAME", "RESERVE_BYTES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
-           "write_ended_early", "checkpoint_failures"]
+__all__ = ["RESERVE_NAME", "RESERVE_BYTES", "DEPARTURES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
+           "write_ended_early", "checkpoint_failures", "departures", "describe_departures"]
 
 RESERVE_NAME = ".reserve"  # in the result directory while the launch runs
 RESERVE_BYTES = 64 * 1024  # room for the manifest (a few KiB) once the disk is full
+# An agent's counters that say a step was not played as the offline engine plays it: an action the world did
+# not apply (late or lost), a feedback never heard (caught up past it). The world's own is `missed_actions`.
+DEPARTURES = ("unapplied_actions", "caught_up", "missed_feedback")
 
 
 @dataclass
@@ -78,6 +86,9 @@ class StatsListener:
         self.collisions = 0  # over the episodes heard so far, for the progress display
         self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
         self.newest: dict[int, AgentStats] = {}  # each agent's statistics of its latest episode so far
+        # Learners whose node the launch restarted: an episode of theirs never heard before a later one is one
+        # they were away for (a node sends its statistics in order, and resumes where the world is).
+        self.restarted: set[int] = set()
         self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
                                                      partial(self._on_agent, k), AGENT_STATS.qos)
                             for k in self.agents]
@@ -117,24 +128,37 @@ class StatsListener:
         are in (else None): steps, collisions and truncation and the return summed over the agents from
         WorldStats; joint plays, states and peer positions heard summed over the learners' AgentStats."""
         w = self.world.get(episode)
-        a = [self.agents[k].get(episode) for k in learners]
+        a = [self.agents[k].get(episode) for k in learners if not self.away(k, episode)]
         if w is None or None in a:
             return None
         return Episode(steps=w.steps, collisions=w.collisions, joint_plays=sum(s.joint_plays for s in a),
                        states=sum(s.local_states + s.joint_states for s in a), ret=sum(w.returns),
                        truncated=w.truncated, heard=sum(s.heard for s in a))
 
+    def away(self, agent: int, episode: int) -> bool:
+        """Was `agent`'s node restarted, and away for `episode` (its statistics of a later one came, of this one
+        none)?"""
+        return agent in self.restarted and episode not in self.agents[agent] and \
+            agent in self.newest and self.newest[agent].episode > episode
+
+    def without(self) -> dict[int, list[int]]:
+        """agent -> the episodes its restarted node was away for."""
+        return {k: [e for e in range(self.episodes) if self.away(k, e)] for k in sorted(self.restarted)}
+
     @property
     def complete(self) -> bool:
-        return len(self.world) == self.episodes and all(len(s) == self.episodes for s in self.agents.values())
+        return len(self.world) == self.episodes and all(
+            len(s) == self.episodes or (k in self.restarted and all(e in s or self.away(k, e)
+                                                                     for e in range(self.episodes)))
+            for k, s in self.agents.items())
 
     def missing(self) -> list[str]:
         """What has not come yet, e.g. ['world/stats episodes 7-9', 'agv2/stats episode 0']."""
         wanted = range(self.episodes)
         out = []
-        heard = [(WORLD_STATS_TOPIC, self.world)] + [(agent_stats_topic(k), v) for k, v in self.agents.items()]
-        for topic, got in heard:
-            gone = [e for e in wanted if e not in got]
+        heard = [(WORLD_STATS_TOPIC, self.world, None)] + [(agent_stats_topic(k), v, k) for k, v in self.agents.items()]
+        for topic, got, agent in heard:
+            gone = [e for e in wanted if e not in got and (agent is None or not self.away(agent, e))]
             if gone:
                 out.append(f"{topic} episode{'s' if len(gone) > 1 else ''} {_ranges(gone)}")
         return out
@@ -203,6 +227,43 @@ class EpisodeRows:
         self.reserve.unlink(missing_ok=True)
 
 
+def departures(listener: StatsListener, learners: list[int]) -> dict[str, Any]:
+    """Where the run heard so far left the offline engine's behaviour: the world's missed actions and each
+    DEPARTURES counter of the learners (summed), the episodes in which any of them grew, and the first of those
+    (from there on, learning went another way: every later episode may differ too). Empty: none did."""
+    totals: dict[str, int] = {}
+    touched = []
+    before = {k: {} for k in learners}  # each learner's cumulative counters at its previous episode heard
+    for e in sorted(listener.world):
+        grew = listener.world[e].missed_actions > 0
+        totals["missed_actions"] = totals.get("missed_actions", 0) + listener.world[e].missed_actions
+        for k in learners:
+            stats = listener.agents[k].get(e)
+            if stats is None:
+                continue
+            for name in DEPARTURES:
+                now, was = stats.counters.get(name, 0), before[k].get(name, 0)
+                was = 0 if now < was else was  # a restarted node counts from 0 again
+                if now > was:
+                    grew = True
+                    totals[name] = totals.get(name, 0) + now - was
+            before[k] = stats.counters
+        if grew:
+            touched.append(e)
+    totals = {k: v for k, v in totals.items() if v}
+    if not touched:
+        return {}
+    return {**totals, "episodes": len(touched), "first_episode": touched[0]}
+
+
+def describe_departures(found: dict[str, Any]) -> str:
+    """One line for the summary of a run that left the offline engine's behaviour (`departures`)."""
+    what = ", ".join(f"{found[k]} {k.replace('_', ' ')}" for k in ("missed_actions", *DEPARTURES) if k in found)
+    return (f"this run left the offline engine's behaviour: {what}, in {found['episodes']} episode"
+            f"{'s' if found['episodes'] != 1 else ''} (the first: episode {found['first_episode']}; learning "
+            "went another way from there)")
+
+
 def checkpoint_failures(counters: dict[str, int]) -> list[str]:
     """'[Errno 28] No space left on device (4 times)' for each checkpoint_failed.<errno> an agent counted."""
     out = []
@@ -216,20 +277,22 @@ def checkpoint_failures(counters: dict[str, int]) -> list[str]:
 
 def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
                 wall: float, listener: StatsListener, learners: list[int], learner_nodes: list[str],
-                nodes: dict, run_info: dict, *, episodes_written: bool = False) -> LaunchResult:
+                nodes: dict, run_info: dict, *, episodes_written: bool = False,
+                ended: dict | None = None) -> LaunchResult:
     """episodes.csv (unless `episodes_written`: a launch's EpisodeRows wrote it), observe.csv, greedy.csv and
     manifest.json from the statistics heard: the first `episodes` (learning) and the greedy ones after them
     (ros_tools.launch says what comes from where); `nodes` is the manifest's account of the nodes (a launch's
-    commands and exit codes), run_info the run's own entries. `cq-ros collect` (ros_tools.collect) writes
-    through it too. OSError if the disk refuses them."""
+    commands and exit codes), run_info the run's own entries, `ended` how the launch ended (as
+    write_ended_early's). `cq-ros collect` (ros_tools.collect) writes through it too. OSError if the disk refuses
+    them."""
     played = range(listener.episodes)
     world = [listener.world[e] for e in played]
-    per_learner = [[listener.agents[k][e] for k in learners] for e in played]
+    per_learner = [[listener.agents[k][e] for k in learners if e in listener.agents[k]] for e in played]
     rows = record.table(listener.row(e, learners) for e in played)
     table, greedy = rows[:episodes], rows[episodes:]
     kept = [(s.agent - 1, gridmap.index(m.row, m.col), m.peer - 1, gridmap.index(m.peer_row, m.peer_col),
              m.confidence) for s in per_learner[episodes - 1] for m in s.marked]
-    final = per_learner[-1]  # the counters are cumulative: the last statistics hold the whole launch's
+    final = [listener.newest[k] for k in learners]  # the counters are cumulative: the last hold the launch's
     manifest = manifest_for(
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
         communication={name: {"subscriptions_created": s.subscriptions_created,
@@ -238,17 +301,35 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
                        for name, s in zip(learner_nodes, final)},
         world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
-        launcher={"dropped": listener.drops.as_counters()})
+        launcher={"dropped": listener.drops.as_counters()},
+        departures=departures(listener, learners), **({"ended": ended} if ended is not None else {}),
+        **({"restarts": {"episodes_without": {f"agv{k}": _ranges(v) for k, v in listener.without().items() if v}}}
+           if listener.restarted else {}))
     write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=episodes_written)
     return LaunchResult(out, table, greedy, manifest)
 
 
 def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
-                      wall: float, rows: EpisodeRows, nodes: dict, run_info: dict, reason: str) -> str:
-    """manifest.json of a launch that ended early (`reason`), with the rows written; what became of it, for
-    the launch's last line."""
+                      wall: float, rows: EpisodeRows, nodes: dict, run_info: dict, reason: str,
+                      listener: StatsListener | None = None, learners: list[int] | None = None,
+                      learner_nodes: list[str] | None = None, ended: dict | None = None) -> str:
+    """manifest.json of a launch that ended early (`reason`), with the rows written and, given the `listener`,
+    the counters heard so far (each node's last statistics) and the departures from the offline run; what
+    became of it, for the launch's last line."""
+    heard = {}
+    if listener is not None and learners is not None:
+        world = [listener.world[e] for e in sorted(listener.world)]
+        heard = {"departures": departures(listener, learners),
+                 "world": {"missed_actions": sum(w.missed_actions for w in world),
+                           "counters": dict(world[-1].counters) if world else {}},
+                 "communication": {name: {"episodes_heard": len(listener.agents[k]),
+                                          "peer_messages": listener.newest[k].peer_messages,
+                                          "counters": dict(listener.newest[k].counters)}
+                                   for name, k in zip(learner_nodes or [], learners) if k in listener.newest},
+                 "launcher": {"dropped": listener.drops.as_counters()}}
     manifest = manifest_for(gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
-                            ended_early={"reason": reason, "episodes_written": rows.written})
+                            ended_early={"reason": reason, "episodes_written": rows.written}, **heard,
+                            **({"ended": ended} if ended is not None else {}))
     rows.free()  # room for the manifest on a full disk
     try:
         (out / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")

@@ -77,7 +77,8 @@ class Deaf(AgentNode):
 
 def test_a_restart_without_a_checkpoint_joins_the_world_where_it_is(system_in, ros_context, spin_until, key_file):
     """agv2 dies mid-run and comes back with a fresh learner: it adopts the world's (episode, step) at once
-    (the run is keyed, as a launch is) and the run ends with every episode."""
+    (the run is keyed, as a launch is), however far past max_catch_up the world is (a fresh learner has no
+    episodes to end on the way), and the run ends with every episode."""
     settings = {**dict(CASE[2]), "eval_episodes": 1}
     system = system_in("cq", *CASE[:2], 20, settings, world_extra={"step_timeout": 0.3},
                        common_extra={"key_file": key_file})
@@ -87,7 +88,8 @@ def test_a_restart_without_a_checkpoint_joins_the_world_where_it_is(system_in, r
     agent2.destroy_node()
     assert spin_until(system.executor, lambda: world.core.missed_actions > 0, 5.0)
     restarted = AgentNode("agv2", context=ros_context, parameter_overrides=parameters(
-        map=CASE[0], episodes=20, seed=CASE[1], algo="cq", agent_id=2, key_file=key_file, **settings))
+        map=CASE[0], episodes=20, seed=CASE[1], algo="cq", agent_id=2, key_file=key_file, max_catch_up=2,
+        **settings))
     system.agents[1] = restarted
     system.executor.add_node(restarted)
     # the dead agv2's last statistics may have died with it: the restarted one's are checked
@@ -97,6 +99,39 @@ def test_a_restart_without_a_checkpoint_joins_the_world_where_it_is(system_in, r
     assert sum(s.missed_actions for s in system.world_stats) >= 1
     assert restarted.driver.link.caught_up == 1 and restarted.driver.drops.total == 0
     assert spin_until(system.executor, lambda: {s.episode for s in system.agent_stats[2]} >= set(range(5, 21)), 5.0)
+
+
+@pytest.mark.parametrize("same_run", [False, True], ids=["by-hand-new-run", "same-run-nonce"])
+def test_a_world_restarted_mid_run_ends_the_whole_system_naming_why(system_in, ros_context, spin_until, key_file,
+                                                                    same_run):
+    """The world killed after a few episodes and started again with the same parameters (keyed, as a launch
+    is; by hand it draws a new run nonce, or it is given the run's): a new incarnation, whose messages the
+    agents refuse (other_run, or other_incarnation), so they give up after their
+    feedback_timeout with a line saying the world restarted; the new world, in which no agent ever acts, ends
+    after NO_PROGRESS_STEPS step timeouts saying so. Nothing steps on for ever."""
+    from world_node.lockstep import NO_PROGRESS_STEPS
+
+    world_params = {"map": CASE[0], "episodes": 50, "seed": CASE[1], **dict(CASE[2]), "step_timeout": 0.3,
+                    "min_stats_subscribers": 1, "heartbeat_period": 0.2, "key_file": key_file}
+    system = system_in("cq", *CASE[:2], 50, CASE[2], world_extra={"step_timeout": 0.3},
+                       common_extra={"key_file": key_file, "heartbeat_period": 0.2},
+                       agent_extra={k: {"feedback_timeout": 2.0} for k in (1, 2)})
+    assert spin_until(system.executor, lambda: system.world.core.episode >= 3, RUN_TIMEOUT_S)
+    if same_run:
+        world_params["run_nonce"] = system.world.config.key.run
+    system.executor.remove_node(system.world)
+    system.world.destroy_node()
+    started = time.monotonic()
+    system.world = WorldNode(context=ros_context, parameter_overrides=parameters(**world_params))
+    system.executor.add_node(system.world)
+    bound = 60.0 + NO_PROGRESS_STEPS * 0.3
+    assert spin_until(system.executor, system.finished, bound), "the system did not end"
+    assert time.monotonic() - started < bound
+    for agent in system.agents:
+        assert agent.done.result() == 1 and "the world restarted" in agent.gave_up, agent.gave_up
+        assert agent.driver.drops["other_incarnation" if same_run else "other_run"] >= 1
+    assert system.world.done.result() == 1
+    assert f"no action from any agent in {NO_PROGRESS_STEPS} steps" in system.world.core.no_progress
 
 
 def test_one_dropped_feedback_costs_one_step_timeout_and_is_counted(system_in, spin_until):
@@ -304,6 +339,22 @@ def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
 
 
+def test_a_restarted_nodes_ghost_is_no_second_writer():
+    """A restarted agv1's dead DDS entry stays in the graph until its lease runs out: two writers on
+    agv1/action, both named /run/agv1. That is counted as `same_name_writers`, not as a second writer, which
+    a writer of another name still is."""
+    from node_runtime.graph import GraphWatch
+
+    logs = []
+    watch = GraphWatch("world", "/run", logs.append)
+    nodes = [("world", "/run"), ("agv1", "/run"), ("agv1", "/run")]
+    assert watch.check(nodes, {"/run/agv1/action": [("agv1", "/run", b"old"), ("agv1", "/run", b"new")]}) is None
+    assert watch.counters() == {"same_name_writers": 1} and "all named /run/agv1" in logs[-1]
+    watch.check(nodes, {"/run/agv1/action": [("agv1", "/run", b"new"), ("intruder", "/run", b"x")]})
+    assert watch.counters() == {"second_writers": 1, "same_name_writers": 1}
+    assert "(/run/agv1, /run/intruder)" in logs[-1]
+
+
 def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics(ros_context):
     """the lockstep subscriptions listen to the message-lost event (node_runtime.lost); a report's new
     losses go into the node's statistics as `lost_samples`. Driven through the handlers rclpy made, since
@@ -461,7 +512,7 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
             time.sleep(stall_s)  # the fault itself: this long stopped
             os.kill(pid, signal.SIGCONT)
             time.sleep(0.2)  # a few steps played between two stalls
-        assert launcher.wait(LAUNCH_TIMEOUT_S) == 0, text_of(err)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
     finally:
         if pid is not None:
             try:
@@ -476,6 +527,7 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
     if stopped != "world":  # a stall is counted when it outlasts the node's timeout (the agent's here)
         assert counted.get("stalls", 0) >= 1, counted  # the stalls fell inside the run, and were seen
     missed = manifest["world"]["missed_actions"]
+    assert code == (0 if missed == 0 else 3), text_of(err)  # 3: every episode played, one step not as offline
     # Judged on wall time, every stall would time out both agents (6 and more missed actions); judged on what
     # came, none. On a loaded machine one answer may really come late after a stall: then it is counted at
     # both ends (the world's miss, the agent's unapplied action), and from there the run leaves the offline one.
@@ -489,6 +541,146 @@ def test_a_node_stopped_and_resumed_leaves_the_run_the_offline_one(tmp_path, sto
                        for c in manifest["communication"].values())
     else:
         assert sum(c["counters"].get("unapplied_actions", 0) for c in manifest["communication"].values()) == 1
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_an_agent_stopped_past_step_timeout_ends_degraded_and_says_where(tmp_path):
+    """agv1 stopped for 3 s against a 1 s step_timeout, once, mid-launch: the world steps on without it (missed
+    actions), its late action is not applied. The launch plays every episode, but its exit status is 3, not 0,
+    and its last line and the manifest say how many episodes left the offline run and from which one; every
+    episode before that one is the offline engine's."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    episodes = 400
+    out, namespace, err = tmp_path / "result", unique("degraded"), tmp_path / "stderr.txt"
+    sets = (*STALL_SETTINGS, "step_timeout=1.0", "feedback_timeout=10.0", "heartbeat_period=0.2")
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
+                                                   "--no-figures"), stdout=subprocess.DEVNULL, stderr=stderr)
+    pid = None
+    try:
+        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                             detail=lambda: text_of(err)).group(1))
+        wait_until(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "no five rows",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        os.kill(pid, signal.SIGSTOP)
+        time.sleep(3.0)  # the fault itself: three step timeouts stopped
+        os.kill(pid, signal.SIGCONT)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        if pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGCONT)
+        stop_launcher(launcher)
+    assert code == 3, text_of(err)
+    manifest = json.loads((out / "manifest.json").read_text())
+    found = manifest["departures"]
+    assert manifest["ended"]["how"] == "degraded" and manifest["ended"]["exit_status"] == 3
+    assert found["missed_actions"] >= 1 and found["missed_actions"] == manifest["world"]["missed_actions"]
+    assert 1 <= found["episodes"] <= episodes - found["first_episode"]
+    last = text_of(err).strip().splitlines()[-1]
+    assert "left the offline engine's behaviour" in last and f"in {found['episodes']} episode" in last, last
+    assert f"the first: episode {found['first_episode']}" in last and "exit status 3" in last, last
+    rows = read_rows(out / "episodes.csv")
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, episodes)
+    expected = [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
+    first = found["first_episode"]
+    # (a loaded machine may cost a step before the stop too: then the run left the offline one there)
+    assert len(rows) == episodes and rows[:first] == expected[:first]
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_twin_agent_started_by_hand_with_the_key_ends_the_launch_naming_it(tmp_path, key_file, ros_domain_id):
+    """A second agv1, started by hand mid-launch from the launch's own params.yaml with its key file: both
+    incarnations act, so the world ends the run at the old one's next action (exit code 3, one line naming
+    agv1), the launch exits 1 (never a silent 0) with that line, and the manifest says how it ended (`twin`)
+    with the world's counters; the rows before the twin came are the offline engine's."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    episodes = 100_000
+    out, namespace, err = tmp_path / "result", unique("twin"), tmp_path / "stderr.txt"
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(
+            launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, STALL_SETTINGS, "--no-figures", "--key",
+                           key_file, "--domain-id", str(ros_domain_id)), stdout=subprocess.DEVNULL, stderr=stderr)
+    twin = None
+    try:
+        wait_until(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "no five rows",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        with open(tmp_path / "twin.log", "wb") as log:
+            twin = subprocess.Popen([sys.executable, "-m", "agent_node", "--ros-args", "-r", f"__ns:=/{namespace}",
+                                     "-r", "__node:=agv1", "--params-file", str(out / "params.yaml")],
+                                    stdout=log, stderr=subprocess.STDOUT)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+        if twin is not None:
+            twin.kill()
+            twin.wait(30)
+    assert code == 1, text_of(err)
+    last = text_of(err).strip().splitlines()[-1]
+    assert re.search(r"world \(pid \d+\) exited with code 3 \(two live nodes act as agv1: .*: ending the run\)",
+                     last), last
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["ended"]["how"] == "twin" and manifest["ended"]["exit_status"] == 1
+    assert "two live nodes act as agv1" in manifest["ended"]["reason"]
+    rows = read_rows(out / "episodes.csv")
+    assert manifest["ended_early"]["episodes_written"] == len(rows) < episodes
+    world = manifest["world"]["counters"]  # as of the last episode heard: the twin may have come after it
+    assert world.get("replaced_incarnations", 0) <= 1
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, 5)
+    assert rows[:5] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoint(tmp_path):
+    """`--restart-agents 1`: agv1 killed (kill -9) once it has written a checkpoint; the launcher starts it
+    again, it resumes from the checkpoint, and the launch plays every episode: counted (the node's `restarts`,
+    the episodes it was away for), degraded (the world missed its actions meanwhile: exit status 3), and every
+    episode before that is the offline engine's."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    episodes = 400
+    out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
+    sets = (*STALL_SETTINGS, "step_timeout=1.0")
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
+                                                   "--no-figures", "--restart-agents", "1"),
+                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                             detail=lambda: text_of(err)).group(1))
+        wait_until(lambda: (out / "checkpoints" / "agv1.pkl").exists(), LAUNCH_TIMEOUT_S, "no checkpoint of agv1",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        os.kill(pid, signal.SIGKILL)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+    assert code == 3, text_of(err)
+    assert re.search(r"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/400 episodes: "
+                     r"restarted it \(restart 1, pid \d+\)", text_of(err)), text_of(err)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["nodes"]["agv1"]["restarts"] == 1 and "restarts" not in manifest["nodes"]["agv2"]
+    assert set(manifest["restarts"]["episodes_without"]) <= {"agv1"}  # none when it rejoined within an episode
+    assert manifest["ended"]["how"] == "degraded" and manifest["departures"]["missed_actions"] >= 1
+    assert "resum" in text_of(out / "logs" / "agv1.log") or "joining" in text_of(out / "logs" / "agv1.log")
+    rows = read_rows(out / "episodes.csv")
+    offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, episodes)
+    first = manifest["departures"]["first_episode"]
+    assert len(rows) == episodes  # first: 50 or later, unless a loaded machine cost a step before the kill
+    assert rows[:first] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"]))
+                            for e in offline.episodes][:first]
 
 
 # -- disks: read-only, full, filling -------------------------------------------------------------------------

@@ -95,6 +95,8 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["mode"] == "ros" and manifest["seed"] == SEED and manifest["episodes"] == episodes
     assert "greedy" not in manifest  # as cq-ros experiment's: greedy.csv holds them
+    assert manifest["ended"] == {"how": "finished", "reason": "every episode played as the offline engine plays it",
+                                 "exit_status": 0} and manifest["departures"] == {}
     assert manifest["settings"] == Settings().with_overrides(list(sets)).as_dict()
     learners = ["jsa"] if algo == "jsa" else [f"agv{k}" for k in range(1, gridmap.n_agents + 1)]
     assert set(manifest["communication"]) == set(learners)
@@ -233,11 +235,53 @@ def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
     assert re.fullmatch(r"cq-ros launch: error: agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) "
                         r"after \d+/100020 episodes \(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)",
                         last), last
-    # what was heard is kept (the launcher writes each episode's row as it comes), and no more: the run did
-    # not finish, so there is no manifest
+    # what was heard is kept (the launcher writes each episode's row as it comes), and the manifest says how the
+    # run ended, with the counters heard so far
     heard = int(re.search(r"after (\d+)/100020 episodes", last)[1])
     assert len((out / "episodes.csv").read_text().splitlines()) == 1 + heard
-    assert not (out / "manifest.json").exists()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["ended"]["how"] == "node_failed" and manifest["ended"]["exit_status"] == 1
+    assert "agv1" in manifest["ended"]["reason"] and "SIGKILL" in manifest["ended"]["reason"]
+    assert manifest["ended_early"]["episodes_written"] == heard
+    assert manifest["nodes"]["agv1"]["exit_code"] == -9
+    assert set(manifest["communication"]) <= {"agv1", "agv2"} and "counters" in manifest["world"]
+    assert not (out / ".reserve").exists()
+    _assert_no_key_left(manifest)
+
+
+def _assert_no_key_left(manifest: dict) -> None:
+    """The launch's own key was a file without a name, read through the launcher's descriptor: gone with it."""
+    key_files = {arg.split(":=", 1)[1] for node in manifest["nodes"].values() for arg in node["command"]
+                 if arg.startswith("key_file:=")}
+    assert len(key_files) == 1, key_files
+    (key_file,) = key_files
+    assert key_file.startswith("/proc/") and not os.path.exists(key_file), key_file
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_a_launcher_ended_by_a_signal_leaves_no_key_and_says_how_it_ended(tmp_path, sig):
+    """SIGTERM: every node stopped, exit 130, the manifest written (how: interrupted, with the counters heard).
+    kill -9: nothing can be written, but the nodes go with the launcher (PR_SET_PDEATHSIG) and the key with
+    them: it was never a file with a name."""
+    launcher, out, namespace, err = _start_long_launch(tmp_path)
+    key = next(arg.split(":=", 1)[1] for p in alive_with(f"__ns:=/{namespace}") for arg in p.split()
+               if arg.startswith("key_file:="))
+    assert key.startswith(f"/proc/{launcher.pid}/fd/") and os.path.exists(key)
+    launcher.send_signal(sig)
+    code = _wait(launcher, namespace)
+    wait_until(lambda: not alive_with(namespace), 30, "the nodes gone with the launcher")
+    assert not os.path.exists(key)
+    if sig == signal.SIGKILL:
+        return
+    assert code == 130
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["ended"]["how"] == "interrupted" and manifest["ended"]["exit_status"] == 130
+    assert "interrupted by SIGTERM" in manifest["ended"]["reason"]
+    heard = len((out / "episodes.csv").read_text().splitlines()) - 1
+    assert manifest["ended_early"]["episodes_written"] == heard
+    _assert_no_key_left(manifest)
 
 
 @pytest.mark.ros

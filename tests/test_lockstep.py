@@ -17,7 +17,7 @@ from cq_ros.world import GridWorld
 from msgs_spec import NO_ACTION, Action, Feedback, Heartbeat, Position, WorldStats, encode
 from node_runtime.parameters import SETTING_NAMES
 from node_runtime.parameters import WORLD_PARAMETERS as PARAMETERS
-from world_node.lockstep import Lockstep, world_config
+from world_node.lockstep import NO_PROGRESS_STEPS, Lockstep, world_config
 
 
 class Clock:
@@ -331,6 +331,36 @@ def test_a_world_stopped_past_step_timeout_takes_the_actions_waiting_for_it():
     assert [p.applied for p in out if isinstance(p, Feedback)] == [EAST, EAST]
     assert core.missed_actions == 0 and core.counters() == {"stalls": 1}
     assert ticks(core, clock, clock.now + 1.9) == []  # the next step waits its whole step_timeout
+
+
+def test_the_wait_for_the_agents_before_the_first_step_is_no_stall():
+    """A world that waited 12 s for its agents to connect (startup) before its first step counts no stall:
+    its step timer starts with the first step."""
+    core, clock = lockstep(CORRIDOR, timeout=2.0)
+    clock.now += 12.0
+    core.begin()
+    assert ticks(core, clock, clock.now + 0.5) == []
+    assert "stalls" not in core.counters()
+
+
+def test_a_world_no_agent_acts_in_for_ten_steps_in_a_row_says_it_goes_nowhere():
+    """Every acting agent missed NO_PROGRESS_STEPS steps in a row (agents gone, or bound to the world's earlier
+    life): `no_progress` says why the run cannot go on. One step that a single agent acted in starts the count
+    again."""
+    core, clock = lockstep(load_map("grid_game_2"), episodes=1, timeout=1.0, settings=Settings(step_cap=100))
+    core.begin()
+
+    def time_out(steps):
+        for _ in range(steps):
+            ticks(core, clock, clock.now + 1.0 + 2 * core.tick_period)
+
+    time_out(NO_PROGRESS_STEPS - 1)
+    assert core.silent_steps == NO_PROGRESS_STEPS - 1 and core.no_progress is None
+    core.on_action(1, act(1, 0, core.step, 0))  # one agent acts: the world is not going nowhere
+    time_out(1)
+    assert core.silent_steps == 0
+    time_out(NO_PROGRESS_STEPS)
+    assert core.no_progress is not None and f"no action from any agent in {NO_PROGRESS_STEPS} steps" in core.no_progress
 
 
 def test_heartbeats_count_up_and_say_where_the_world_is():

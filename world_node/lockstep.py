@@ -21,6 +21,17 @@ Every `heartbeat_period` the world sends a `Heartbeat` (`heartbeat()`), whether 
 agent waiting at its goal for the episode's end knows the world is alive. With a `key_file` every message
 that steers the run is keyed and every action checked (msgs_spec.auth).
 
+One agent, one node. With the key, an agent's actions carry its incarnation; a newer one replaces the one
+before (an agent restarted from its checkpoint goes on), and the replaced one's actions are refused
+(`other_incarnation`). One that still comes means the replaced node is alive: two nodes act as that agent (a
+second node started with its name and the key). Each would steer the run, so the world names it in `twin`
+and the node ends the run (exit code `TWIN_EXIT`): never a run that passes for the offline one with two
+learners behind one AGV.
+
+No progress. A world whose acting agents all miss NO_PROGRESS_STEPS steps in a row is alive but goes nowhere
+(agents that gave up on it, or that refuse it: a restarted world is another incarnation, which the agents of
+its earlier life never take for it): it says so in `no_progress`, and the node ends the run (exit code 1).
+
 `world_config` turns the node's parameters into a checked `WorldConfig`; a bad value raises `SettingsError`
 with one line naming the parameter. The node plays `episodes + eval_episodes` episodes: the agents learn
 in the first `episodes` and play their greedy policy in the rest, as `cq_ros.engine.run` then
@@ -47,7 +58,12 @@ from msgs_spec.auth import RunKey
 from node_runtime.parameters import run_key_parameters
 from node_runtime.patience import Patience
 
-__all__ = ["WorldConfig", "world_config", "Lockstep"]
+__all__ = ["TWIN_EXIT", "NO_PROGRESS_STEPS", "WorldConfig", "world_config", "Lockstep"]
+
+TWIN_EXIT = 3  # the world's exit code when two live nodes act as one agent (`Lockstep.twin`)
+# Steps in a row that every acting agent missed (each after a whole step_timeout) before the world gives up: no
+# agent hears it (they gave up on it, or are bound to its earlier life) and the run would step on for ever.
+NO_PROGRESS_STEPS = 10
 
 
 @dataclass(frozen=True)
@@ -112,6 +128,9 @@ class Lockstep:
         self.collisions = self.missed_actions = 0  # in the current episode so far
         self.returns: list[float] = []  # of each agent in the current episode so far
         self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
+        self.twin: str | None = None  # why the run cannot go on: two live nodes act as one agent
+        self.no_progress: str | None = None  # why the run cannot go on: no agent has acted for steps
+        self.silent_steps = 0  # steps in a row that every acting agent missed
         self._actions: list[int | None] = []
         self._patience = Patience(step_timeout, self.tick_period, clock)  # the wait for the step's actions
 
@@ -121,6 +140,7 @@ class Lockstep:
 
     def begin(self) -> Outbox:
         """Start episode 0: every agent's position and step-0 feedback."""
+        self._patience.start()  # the wait for the agents to connect was no stall
         return self._next_episode()
 
     def on_action(self, agent: int, msg: Any) -> Outbox:
@@ -128,6 +148,11 @@ class Lockstep:
         action = self.drops.guard(decode_action, msg, bounds=self.bounds, agent=agent, episode=self.episode,
                                   step=self.step, key=self.key, source=action_topic(agent))
         if action is None:
+            if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
+                self.twin = (f"two live nodes act as {agent_namespace(agent)}: actions of its replaced "
+                             "incarnation still come after a newer one's (a second node started with its name "
+                             "and the run's key?)")
+                self.waiting.clear()  # no step more: the node ends the run at its next tick
             return []
         if agent not in self.waiting:
             self.unexpected_actions += 1
@@ -137,7 +162,10 @@ class Lockstep:
             return []
         self._actions[agent - 1] = action.action
         self.waiting.discard(agent)
-        return [] if self.waiting else self._advance()
+        if self.waiting:
+            return []
+        self.silent_steps = 0
+        return self._advance()
 
     @property
     def tick_period(self) -> float:
@@ -151,6 +179,12 @@ class Lockstep:
         waited = self._patience.waited
         missing = sorted(self.waiting)
         self.missed_actions += len(missing)
+        acting = sum(1 for done in self.world.done if not done)
+        self.silent_steps = self.silent_steps + 1 if len(missing) == acting else 0
+        if self.silent_steps >= NO_PROGRESS_STEPS and self.no_progress is None:
+            self.no_progress = (f"no action from any agent in {self.silent_steps} steps in a row (step_timeout="
+                                f"{self.step_timeout} s each): the agents gave up on this world or refuse it (a "
+                                "world restarted mid-run is another incarnation to them)")
         self._log(f"episode {self.episode} step {self.step}: no action from "
                   f"{', '.join(agent_namespace(k) for k in missing)} within step_timeout={self.step_timeout} s "
                   f"(waited {waited:.2f} s); they stay for this step")

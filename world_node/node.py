@@ -28,7 +28,7 @@ from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.run import when_acked
 
-from .lockstep import Lockstep, world_config
+from .lockstep import TWIN_EXIT, Lockstep, world_config
 from .viz import WorldView
 
 __all__ = ["WorldNode"]
@@ -69,7 +69,9 @@ class WorldNode(Node):
         self._graph_topics = [HEARTBEAT_TOPIC, WORLD_STATS_TOPIC] + [
             name(k) for k in agents for name in (position_topic, feedback_topic, action_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
-        self.done = Future()  # result: the exit code (0 all episodes played, 1 agents never connected)
+        # result: the exit code (0 all episodes played, 1 agents never connected or no agent acts any more,
+        # 2 refused at start: a second system here, TWIN_EXIT two nodes act as one agent)
+        self.done = Future()
         self._closing = False  # finishing: flushing the last messages before `done`
         self._deadline = time.monotonic() + cfg.startup_timeout
         self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
@@ -109,6 +111,12 @@ class WorldNode(Node):
 
     def _tick(self) -> None:
         self._publish(self.core.on_tick())
+        if self.core.twin is not None and not self._closing:
+            self.get_logger().error(f"{self.core.twin}: ending the run")
+            self._finish(TWIN_EXIT)
+        elif self.core.no_progress is not None and not self._closing:
+            self.get_logger().error(f"{self.core.no_progress}: ending the run")
+            self._finish(1)
 
     def _check_graph(self) -> None:
         refusal = watch_graph(self, self._graph, self._graph_topics)

@@ -139,7 +139,12 @@ def _add_domain_option(p: argparse.ArgumentParser) -> None:
 
 def _add_ros_parsers(sub) -> None:
     p = sub.add_parser("launch", help="run one algorithm on one map as ROS 2 nodes (a world process and one "
-                                      "process per AGV) and write results and figures")
+                                      "process per AGV) and write results and figures",
+                       epilog="exit status: 0 every episode played as the offline engine plays it; 3 every episode "
+                              "played, but some step was not (a missed or unapplied action, a feedback never "
+                              "heard: the last line says how many episodes); 1 the launch failed or ended early; "
+                              "2 bad arguments; 130 interrupted. manifest.json says how every launch ended "
+                              "(`ended`).")
     p.add_argument("--map", default=None, help="a shipped map name or a path to a map file (required unless "
                                                 "--params-file)")
     p.add_argument("--algo", type=_algo, default=None, help=f"one of {','.join(ALGORITHMS)} (required unless "
@@ -152,7 +157,10 @@ def _add_ros_parsers(sub) -> None:
                         "--algo, --episodes, --seed, --set")
     p.add_argument("--key", type=Path, default=None, metavar="FILE",
                    help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
-                        "(default: a key of the launch's own, removed at its end)")
+                        "(default: a key of the launch's own, in a file without a name)")
+    p.add_argument("--restart-agents", type=_number(0, 1000, kind=int), default=0, metavar="N",
+                   help="start an agent node that dies again, from its checkpoint, up to N times in all (default 0: "
+                        "a node that dies ends the launch); counted in the manifest (`restarts`)")
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
                    help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
                         "0: any free port, printed at start)")

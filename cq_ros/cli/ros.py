@@ -65,7 +65,8 @@ def launch(args) -> int:
         args.map, args.algo, args.episodes, args.seed, args.out, settings, domain_id=args.domain_id,
         namespace=args.namespace, step_timeout=args.step_timeout, peer_linger_steps=args.peer_linger_steps,
         compose=args.compose, executor=args.executor, node_parameters=node_parameters, force=args.force,
-        figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key, view_port=args.view))
+        figures=args.figures, hosts=hosts, discovery=args.discovery, key_file=args.key, view_port=args.view,
+        restart_agents=args.restart_agents))
     if result is None:
         return code
     print_summary(result.out)
@@ -73,21 +74,25 @@ def launch(args) -> int:
         print(f"{node}: {cost['peer_messages']} peer position messages, "
               f"{cost['subscriptions_created']} subscriptions created")
     print(f"results: {result.out}")
-    return 0
+    ended = result.manifest["ended"]
+    if ended["how"] == "degraded":  # the last line: a summary that looks clean must not hide it
+        print(f"cq-ros launch: {ended['reason']}; exit status {ended['exit_status']}", file=sys.stderr)
+    return ended["exit_status"]
 
 
 def _ended(command: str, run: Callable[[], Any]) -> tuple[Any, int]:
-    """(run()'s result, 0), or (None, exit code) after one line: 130 interrupted, 1 the run failed."""
+    """(run()'s result, 0), or (None, exit code) after one line: 130 interrupted, 1 the run failed (the error's
+    `exit_status`)."""
     from ros_tools.launch import Interrupted, LaunchError
 
     try:
         return run(), 0
     except Interrupted as e:
         print(f"cq-ros {command}: {e}", file=sys.stderr)
-        return None, 130
+        return None, e.exit_status
     except LaunchError as e:
         print(f"cq-ros {command}: error: {e}", file=sys.stderr)
-        return None, 1
+        return None, e.exit_status
 
 
 def collect(args) -> int:
