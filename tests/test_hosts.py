@@ -44,8 +44,9 @@ pytestmark = pytest.mark.skipif(why_not() is not None, reason=f"no network names
 
 LAUNCH_TIMEOUT_S = 90.0  # bound on one launch across hosts; each below takes 10-30 s on 2 busy cores
 CUT_MISSES = 2  # the link stays down until the world has missed agv1 on this many steps (step_timeout 1 s each)
-# agv1's misses once the link is back: the next DDS heartbeat repairs the reliable feedback stream (3 s, three
-# step_timeouts), or the agent catches up; counted in steps, which a busy machine does not stretch as it does seconds
+# agv1's misses once the link is back: the next DDS heartbeat repairs the reliable feedback stream (every 50 ms,
+# node_runtime/fastdds_profile.xml), or the agent catches up; counted in steps, which a busy machine does not
+# stretch as it does seconds
 RECOVERY_MISSES = 8
 
 
@@ -292,7 +293,7 @@ def test_a_link_down_for_2_s_costs_counted_misses_and_the_agent_comes_back_in_st
     agv1 = [(t, e) for t, e, who in misses if "agv1" in who.split(", ")]
     assert agv1
     # Only while the cable was out, and a few steps more until the next DDS heartbeat repairs the reliable
-    # feedback stream (3 s) or the agent catches up: then agv1 answers every step again, to the last episode.
+    # feedback stream (every 50 ms) or the agent catches up: then agv1 answers every step again, to the last episode.
     assert all(down <= t for t, _ in agv1), (down, agv1)
     assert len(agv1_missed_since(up)) <= RECOVERY_MISSES, (up, agv1)
     assert max(e for _, e in agv1) + 5 < episodes
@@ -339,3 +340,58 @@ def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_wa
         learner, episode = load_checkpoint(out / "checkpoints" / f"agv{k}.pkl", "indep", gridmap, k - 1)
         assert episode >= 4 and learner.agent == k - 1
     assert not list((out / "checkpoints").glob("*.tmp"))
+
+
+LOSS = 0.02  # the share of packets dropped each way on the lossy link
+LOSSY_EPISODES = 30
+# Episodes that may differ from the offline run's with LOSS each way on agv1's link. Measured (docs/faults.md, a
+# lossy link): 0 of 30 with the profile's 50 ms heartbeat period (30 of 30, 143 missed actions, with Fast DDS's
+# 3 s). A lost packet is resent within about 50 ms, well inside step_timeout; a step is missed only when the
+# resends keep being lost for a second or a busy machine stalls a node too: a few, not one a lost packet.
+LOSSY_DIFFERING = 3
+
+
+def iptables_why_not() -> str | None:
+    return None if shutil.which("iptables") else "no iptables command here (the lossy link is an iptables rule)"
+
+
+def loss_rules(hosts, host: str) -> list[list[str]]:
+    """iptables arguments that drop LOSS of the packets each way through the host's eth0; run in the host's own
+    namespace, so the machine's own firewall is never touched."""
+    statistic = ["-m", "statistic", "--mode", "random", "--probability", str(LOSS), "-j", "DROP"]
+    return [["INPUT", "-i", "eth0", *statistic], ["OUTPUT", "-o", "eth0", *statistic]]
+
+
+@pytest.mark.root
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.skipif(iptables_why_not() is not None, reason=str(iptables_why_not()))
+def test_a_lossy_link_costs_few_steps_not_a_step_timeout_a_lost_packet(hosts, tmp_path):
+    out, sets = tmp_path / "result", ("step_cap=100", "reward_step=-1", "eval_episodes=2")
+    rules = loss_rules(hosts, "agv1")
+    added = []
+    try:
+        for rule in rules:
+            subprocess.run([*hosts.exec_on("agv1"), "iptables", "-A", *rule], check=True, timeout=10)
+            added.append(rule)
+        start = time.monotonic()
+        done = subprocess.run([*launch_on(hosts, out, "tunnel_to_goal", "indep", LOSSY_EPISODES, sets, "subnet"),
+                               "--step-timeout", "1.0"], capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S)
+        wall = time.monotonic() - start
+        counted = subprocess.run([*hosts.exec_on("agv1"), "iptables", "-L", "-v", "-n", "-x"], capture_output=True,
+                                 text=True, timeout=10).stdout
+    finally:
+        for rule in reversed(added):
+            subprocess.run([*hosts.exec_on("agv1"), "iptables", "-D", *rule], check=True, timeout=10)
+    # 0 (the offline run) or 3 (degraded: some step played without agv1's action); never a failure
+    assert done.returncode in (0, 3), done.stderr
+    offline = run("indep", load_map("tunnel_to_goal"), Settings().with_overrides(list(sets)), SEED, 0, LOSSY_EPISODES)
+    episodes = read_episodes(out)
+    assert episodes.shape == offline.episodes.shape  # every episode written
+    differing = int(np.count_nonzero(episodes != offline.episodes))
+    manifest = json.loads((out / "manifest.json").read_text())
+    dropped = [int(line.split()[0]) for line in counted.splitlines() if "statistic" in line]
+    print(f"\nlossy link: {wall:.1f} s, {differing}/{LOSSY_EPISODES} episodes differ from offline, "
+          f"missed_actions {manifest['world']['missed_actions']}, packets dropped {dropped}")
+    assert sum(dropped) > 0  # the link was lossy
+    assert differing <= LOSSY_DIFFERING, (differing, manifest["world"]["missed_actions"], done.stderr[-2000:])
