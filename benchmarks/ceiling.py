@@ -49,24 +49,29 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         ACTION, FEEDBACK, POSITION, Action, Bounds, Feedback, Position, action_topic, decode_action,
         decode_feedback, decode_position, feedback_topic, position_topic, serialize,
     )
+    from msgs_spec.auth import WORLD, RunKey, new_run
     from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV, make_executor
     from ros_tools.session import environment
 
     if peers not in PEERS:
         raise ValueError(f"peers {peers!r}: choose from {', '.join(PEERS)}")
-    key = secrets.token_bytes(32)  # keyed messages, as a launch sends them (their MAC's words make them longer)
+    # Sealed messages, as a launch sends them (the seal's and the MAC's words make them longer): each node holds
+    # the run's key as a RunKey of its own, bound to the run, as the nodes do (a bare key would take the
+    # reference codec's path, which no node takes).
+    secret, run = secrets.token_bytes(32), new_run()
     ids = range(1, agents + 1)
-    position = {k: serialize(Position(k, 0, 1, 0, 0), key=key) for k in ids}
-    feedback = {k: serialize(Feedback(k, 0, 1, 0, 0, -1.0), key=key) for k in ids}
-    action = {k: serialize(Action(k, 0, 1, 0), key=key) for k in ids}
+    keys = {k: RunKey(secret, run) for k in [WORLD, *ids]}  # the world's (WORLD) and each agent's
+    position = {k: serialize(Position(k, 0, 1, 0, 0), key=keys[WORLD]) for k in ids}
+    feedback = {k: serialize(Feedback(k, 0, 1, 0, 0, -1.0), key=keys[WORLD]) for k in ids}
+    action = {k: serialize(Action(k, 0, 1, 0), key=keys[k]) for k in ids}
     bounds = Bounds(agents, 1, 1)
     clock = [0]  # the step, as the contract's payloads carry it
     if contract:
-        def decoded(decode, raw, k):  # what a node does with each arrival: decode with every check
-            decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=key)
+        def decoded(decode, raw, k, receiver):  # what a node does with each arrival: decode with every check
+            decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=keys[receiver])
 
-        def sent(payload):  # what a node does with each message it sends: the payload, serialized keyed
-            return serialize(payload, key=key)
+        def sent(payload, sender):  # what a node does with each message it sends: the payload, sealed
+            return serialize(payload, key=keys[sender])
     watched = {k: [j for j in ids if j != k] if peers == "all" else [] for k in ids}
     domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
     namespace = f"/ceiling_{secrets.token_hex(4)}"
@@ -91,7 +96,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         for k in ids:
             def action_in(raw, k=k):
                 if contract:
-                    decoded(decode_action, raw, k)
+                    decoded(decode_action, raw, k, WORLD)
                 actions_in[0] += 1
 
             subs.append(world.create_subscription(ACTION.msg_type, action_topic(k), action_in, ACTION.reader_qos,
@@ -104,11 +109,11 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
 
             def arrive(raw, k=k, pub=pub, sender=k):
                 if contract:
-                    decoded(decode_feedback if sender == k else decode_position, raw, sender)
+                    decoded(decode_feedback if sender == k else decode_position, raw, sender, k)
                 got[k] += 1
                 if got[k] == need[k]:
                     got[k] = 0
-                    pub.publish(sent(Action(k, 0, clock[0], 0)) if contract else action[k])
+                    pub.publish(sent(Action(k, 0, clock[0], 0), k) if contract else action[k])
 
             subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
                                                   FEEDBACK.reader_qos, raw=True))
@@ -130,9 +135,9 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
             actions_in[0] = 0
             clock[0] += 1
             for k in ids:
-                pub_position[k].publish(sent(Position(k, 0, clock[0], 0, 0)) if contract else position[k])
+                pub_position[k].publish(sent(Position(k, 0, clock[0], 0, 0), WORLD) if contract else position[k])
             for k in ids:
-                pub_feedback[k].publish(sent(Feedback(k, 0, clock[0], 0, 0, -1.0)) if contract else feedback[k])
+                pub_feedback[k].publish(sent(Feedback(k, 0, clock[0], 0, 0, -1.0), WORLD) if contract else feedback[k])
             stop_at = time.monotonic() + step_timeout_s
             while actions_in[0] < agents:
                 if time.monotonic() > stop_at:
