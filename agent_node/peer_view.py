@@ -46,6 +46,7 @@ class PeerView:
         self.floor = (0, 0)  # the (episode, step) the agent decides at: older positions are stale
         self.between_episodes = False  # its episode is over: older positions are the others' traffic, not faults
         self._seen: dict[int, dict[tuple[int, int], int]] = {}  # peer -> {(episode, step): cell} from floor on
+        self._fresh: set[int] = set()  # peers subscribed whose first position has not come yet
 
     @property
     def subscribed(self) -> list[int]:
@@ -68,10 +69,12 @@ class PeerView:
             if self.idle[j] > self.linger:
                 del self.idle[j]
                 self._seen.pop(j, None)
+                self._fresh.discard(j)
                 out.append(Unsubscribe(j))
         for j in sorted(peers - self.idle.keys()):
             self.idle[j] = 0
             self.created += 1
+            self._fresh.add(j)
             out.append(Subscribe(j))
         return out
 
@@ -87,8 +90,15 @@ class PeerView:
         if cell is None:
             return False
         stamp = (pos.episode, pos.step)
+        # The first position a new subscription delivers may be the writer's latched history from before
+        # anyone listened (the world sends a position only while someone listens): older than what the agent
+        # waits for, and no fault; the world sends the position waited for once the reader has matched.
+        first = peer in self._fresh
+        if first:
+            self._fresh.discard(peer)
         if stamp < self.floor:
-            if not self.between_episodes:  # a peer still playing the episode we are done with is no fault
+            # a peer still playing the episode we are done with is no fault either
+            if not self.between_episodes and not first:
                 record_sequence(self.drops, stamp, self.floor, source)
             return False
         held = self._seen.setdefault(peer, {})
