@@ -62,8 +62,19 @@ class _HeldPublisher:
         self.matched = Matched(then=self.flush)
         self.pub = node.create_publisher(spec.msg_type, topic, spec.qos,
                                          event_callbacks=PublisherEventCallbacks(matched=self.matched))
+        # Serialized bytes go to the publisher's own publish_raw: what Publisher.publish(bytes) calls, the same
+        # bytes, without its per-call type check and handle lock (the node destroys its publishers only after
+        # it has stopped spinning). Statistics are messages, published as such.
+        self._raw = self.pub.handle.publish_raw
 
     def publish(self, payload: Any) -> None:
+        if not self.held and self.matched.count >= self.min_matched:  # matched, nothing held: straight out
+            data = serialize(payload, key=self.key)
+            if type(data) is bytes:
+                self._raw(data)
+            else:
+                self.pub.publish(data)
+            return
         if self.latest_only:
             self.held.clear()
         self.held.append(payload)
@@ -111,6 +122,10 @@ class AgentNode(Node):
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
                                                    HEARTBEAT.reader_qos, raw=True, event_callbacks=lost)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
+        # What each effect a driver returns does, looked up by its type (no chain of patterns per effect)
+        self._carry_out = {Send: self._send, Subscribe: self._subscribe, Unsubscribe: self._unsubscribe,
+                           SaveCheckpoint: lambda e: self._save_checkpoint(e.episode, e.learner),
+                           Finish: lambda _e: self._finish(0)}
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._closing = False  # finishing: flushing the last statistics before `done`
@@ -134,26 +149,29 @@ class AgentNode(Node):
         self._apply(self.driver.on_position(peer, msg))
 
     def _apply(self, effects: list) -> None:
+        carry_out = self._carry_out
         for effect in effects:
-            match effect:
-                case Send(payload=Action() as action):
-                    self._actions[action.agent].publish(action)
-                    if self._view is not None:
-                        self._view.on_action(action)
-                case Send(payload=stats):
-                    self._stats[stats.agent].publish(stats)
-                    if self._view is not None:
-                        self._view.on_stats(stats)
-                case Subscribe(peer=peer):
-                    self._positions[peer] = self.create_subscription(
-                        POSITION.msg_type, position_topic(peer), partial(self._on_position, peer),
-                        POSITION.reader_qos, raw=True)
-                case Unsubscribe(peer=peer):
-                    self.destroy_subscription(self._positions.pop(peer))
-                case SaveCheckpoint(episode=episode, learner=learner):
-                    self._save_checkpoint(episode, learner)
-                case Finish():
-                    self._finish(0)
+            carry_out[type(effect)](effect)
+
+    def _send(self, effect: Send) -> None:
+        payload = effect.payload
+        if type(payload) is Action:
+            self._actions[payload.agent].publish(payload)
+            if self._view is not None:
+                self._view.on_action(payload)
+        else:
+            self._stats[payload.agent].publish(payload)
+            if self._view is not None:
+                self._view.on_stats(payload)
+
+    def _subscribe(self, effect: Subscribe) -> None:
+        peer = effect.peer
+        self._positions[peer] = self.create_subscription(POSITION.msg_type, position_topic(peer),
+                                                         partial(self._on_position, peer), POSITION.reader_qos,
+                                                         raw=True)
+
+    def _unsubscribe(self, effect: Unsubscribe) -> None:
+        self.destroy_subscription(self._positions.pop(effect.peer))
 
     def _save_checkpoint(self, episode: int, learner: Any) -> None:
         """Save, or log and count why not (`checkpoint_failed.<errno>`): a full or read-only disk costs the
