@@ -83,11 +83,16 @@ class PeerView:
         self.messages += 1
         if peer not in self.idle:  # delivered after the subscription was dropped
             return False
-        source = position_topic(peer)
         # No (episode, step) expectation: positions also arrive between two waits; the stamps are judged here.
-        pos = self.drops.guard(decode_position, msg, bounds=self.bounds, agent=peer, key=self.key, source=source)
-        cell = pos and cell_of(self.map, self.drops, pos.row, pos.col, source)
-        if cell is None:
+        # DropCounter.guard's and cell_of's work, the topic's name made only for a message refused.
+        try:
+            pos = decode_position(msg, bounds=self.bounds, agent=peer, key=self.key)
+            cell = self.map.index(pos.row, pos.col)
+        except WireError as e:
+            self.drops.record(e, position_topic(peer))
+            return False
+        except KeyError:
+            cell_of(self.map, self.drops, pos.row, pos.col, position_topic(peer))
             return False
         stamp = (pos.episode, pos.step)
         # The first position a new subscription delivers may be the writer's latched history from before
@@ -99,19 +104,19 @@ class PeerView:
         if stamp < self.floor:
             # a peer still playing the episode we are done with is no fault either
             if not self.between_episodes and not first:
-                record_sequence(self.drops, stamp, self.floor, source)
+                record_sequence(self.drops, stamp, self.floor, position_topic(peer))
             return False
         held = self._seen.setdefault(peer, {})
         if stamp in held:
             if held[stamp] != cell:  # the first writer wins: the world publishes before anyone could copy it
                 self.drops.record(WireError("conflicting", f"episode {stamp[0]} step {stamp[1]}: cell {pos.row},"
-                                            f"{pos.col} after {self.map.cells[held[stamp]]}"), source)
+                                            f"{pos.col} after {self.map.cells[held[stamp]]}"), position_topic(peer))
             return False
         held[stamp] = cell
         if len(held) > AHEAD:  # the farthest goes: the world's next positions are the nearest
             farthest = max(held)
             del held[farthest]
-            record_sequence(self.drops, farthest, self.floor, source)
+            record_sequence(self.drops, farthest, self.floor, position_topic(peer))
             return farthest != stamp
         return True
 

@@ -44,25 +44,26 @@ class _ListenedPosition:
     matches, so a late subscriber still gets the position of the step it waits for (the topic is latched:
     before a reader matched, the writer's history may hold an older one, which the reader drops as stale)."""
 
-    __slots__ = ("matched", "publish", "held")
+    __slots__ = ("matched", "publish", "key", "held")
 
-    def __init__(self, node: Node, topic: str):
-        self.held: bytes | None = None
+    def __init__(self, node: Node, topic: str, key: Any):
+        self.key = key
+        self.held: Position | None = None  # serialized only if it goes out
         self.matched = Matched(then=self._on_match)
         pub = node.create_publisher(POSITION.msg_type, topic, POSITION.qos,
                                     event_callbacks=PublisherEventCallbacks(matched=self.matched))
         self.publish = _raw(pub)
 
-    def send(self, data: bytes) -> None:
+    def send(self, position: Position) -> None:
         if self.matched.count:
-            self.publish(data)
+            self.publish(serialize(position, key=self.key))
             self.held = None
         else:
-            self.held = data
+            self.held = position
 
     def _on_match(self) -> None:
         if self.matched.count and self.held is not None:
-            self.publish(self.held)
+            self.publish(serialize(self.held, key=self.key))
             self.held = None
 
 
@@ -89,14 +90,14 @@ class WorldNode(Node):
         self.core = Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=self.get_logger().warning,
                              key=cfg.key)
         agents = range(1, world.n + 1)
-        self._positions = {k: _ListenedPosition(self, position_topic(k)) for k in agents}
-        self._feedback = {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents}
         key = cfg.key
+        self._positions = {k: _ListenedPosition(self, position_topic(k), key) for k in agents}
+        self._feedback = {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents}
         # What each payload of the core's outbox goes out as, looked up by its type alone (no isinstance chain).
         positions = {k: pub.send for k, pub in self._positions.items()}
         feedback = {k: _raw(pub) for k, pub in self._feedback.items()}
         self._senders = {
-            Position: lambda p: positions[p.agent](serialize(p, key=key)),
+            Position: lambda p: positions[p.agent](p),
             Feedback: lambda f: feedback[f.agent](serialize(f, key=key)),
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
