@@ -42,7 +42,7 @@ def kind(contract: bool) -> str:
 
 
 def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, step_timeout_s: float = 5.0,
-            discovery_timeout_s: float = 30.0, contract: bool = False) -> dict:
+            discovery_timeout_s: float = 30.0, contract: bool = False, churn: float = 0.0) -> dict:
     """Steps per second of the emulated lockstep (`steps` timed after `warmup`), and the deliveries a step;
     with `contract`, every message encoded and decoded as the nodes do (the module's docstring)."""
     import rclpy
@@ -53,6 +53,10 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         decode_feedback, decode_position, feedback_topic, position_topic, serialize,
     )
     from msgs_spec.auth import WORLD, RunKey, new_run
+    from rclpy.event_handler import PublisherEventCallbacks
+
+    from agent_node.node import UNANNOUNCED_CHECK_S
+    from node_runtime.graph import Matched
     from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV, make_executor
     from ros_tools.session import environment
 
@@ -76,6 +80,26 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         def sent(payload, sender):  # what a node does with each message it sends: the payload, sealed
             return serialize(payload, key=keys[sender])
     watched = {k: [j for j in ids if j != k] if peers == "all" else [] for k in ids}
+    # churn: subscriptions made a step (at most 1), each to a peer's position topic for one decision step, as
+    # CQ's agents make them; at the steps of a fixed schedule, the agents and their peers in turn.
+    if not 0.0 <= churn <= 1.0 or (churn and peers != "none"):
+        raise ValueError(f"churn {churn}: from 0 to 1 subscriptions a step, with peers none")
+    schedule, owed = {}, 0.0
+    for t in range(1, warmup + steps + 1):
+        owed += churn
+        if owed >= 1.0:
+            owed -= 1.0
+            k = len(schedule) % agents + 1
+            schedule[t] = (k, k % agents + 1)
+    created = [0]  # subscriptions made mid-run
+    sends: dict = {}  # agent -> its arrival callback
+
+    def position_at(k: int, t: int) -> bytes:
+        return serialize(Position(k, 0, t, 0, 0), key=keys[WORLD])
+
+    def on_match(k: int) -> None:
+        if matched[k].count and k in held:
+            send_position[k](position_at(k, held.pop(k)))
     domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
     namespace = f"/ceiling_{secrets.token_hex(4)}"
     env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", FASTDDS_PROFILE_ENV: os.environ.get(
@@ -92,7 +116,13 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
             return made
 
         world = node("world")
-        pub_position = {k: world.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in ids}
+        # With churn, as the world node does: a position goes out while a reader is matched, the newest held
+        # and sent on a match (a subscription made mid-run waits for it).
+        matched = {k: Matched(then=partial(on_match, k)) for k in ids}
+        held: dict[int, int] = {}  # agent -> the step of its newest position not sent
+        pub_position = {k: world.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos,
+                                                  event_callbacks=PublisherEventCallbacks(matched=matched[k]))
+                        for k in ids}
         pub_feedback = {k: world.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in ids}
         # Straight to the handle, as the nodes publish: what Publisher.publish(bytes) calls, without its checks
         send_position = {k: pub.handle.publish_raw for k, pub in pub_position.items()}
@@ -113,23 +143,48 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                                                   raw=True))
         need = {k: 1 + len(watched[k]) for k in ids}  # arrivals before agent k acts: its feedback and peers'
         got = dict.fromkeys(ids, 0)
+        churning: dict[int, tuple] = {}  # agent -> (its subscription made at this step, the peer, the step)
         for k in ids:
             agent = node(f"agv{k}")
             pub = agent.create_publisher(ACTION.msg_type, action_topic(k), ACTION.qos)
 
-            def arrive(raw, k=k, send=pub.handle.publish_raw, sender=k):
+            def arrive(raw, k=k, send=pub.handle.publish_raw, sender=k, agent=agent):
                 if contract:
                     decoded(decode_feedback if sender == k else decode_position, raw, sender, k)
+                if churn and sender == k:  # its feedback: the decision step of a subscription made mid-run
+                    churn_step(agent, k)
                 got[k] += 1
-                if got[k] == need[k]:
+                if got[k] == need[k] + (k in churning):  # with churn, one more: the peer's position
                     got[k] = 0
                     send(sent(Action(k, 0, clock[0], 0), k) if contract else action[k])
+            sends[k] = arrive
 
             subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
                                                   FEEDBACK.reader_qos, raw=True))
             for j in watched[k]:
                 subs.append(agent.create_subscription(POSITION.msg_type, position_topic(j),
                                                       partial(arrive, sender=j), POSITION.reader_qos, raw=True))
+        def churn_step(agent, k) -> None:
+            """As a CQ agent at a conflict state: drop the subscription of its last decision, subscribe to the
+            peer the schedule names for this one (each made inside the agent's callback, as the nodes do)."""
+            if k in churning:
+                agent.destroy_subscription(churning.pop(k)[0])
+            j = schedule.get(clock[0])
+            if j is not None and j[0] == k:
+                peer = j[1]
+                churning[k] = [agent.create_subscription(POSITION.msg_type, position_topic(peer),
+                                                         partial(peer_in, k), POSITION.reader_qos, raw=True),
+                               peer, clock[0]]
+                created[0] += 1
+
+        def peer_in(k, raw) -> None:
+            """A position of the subscription made at this step: counted once, when it is the one of this step
+            (the writer's latched cache may hold an older one, and a later step's may come before it is dropped)."""
+            held_by = churning.get(k)
+            if held_by is not None and held_by[2] == clock[0] and raw == position_at(held_by[1], clock[0]):
+                held_by[2] = None
+                sends[k](raw, sender=held_by[1])
+
         executor = make_executor("events", ctx)
         for made in nodes:
             executor.add_node(made)
@@ -144,12 +199,30 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         def step() -> None:
             actions_in[0] = 0
             clock[0] += 1
+            if churn:
+                for k in ids:
+                    if matched[k].count:
+                        send_position[k](position_at(k, clock[0]))
+                    else:
+                        held[k] = clock[0]
             for k in listened:
                 send_position[k](sent(Position(k, 0, clock[0], 0, 0), WORLD) if contract else position[k])
             for k in ids:
                 send_feedback[k](sent(Feedback(k, 0, clock[0], 0, 0, -1.0), WORLD) if contract else feedback[k])
-            # One call into the executor a step, until the last action is in, as node_runtime.run spins
-            executor.spin_until_future_complete(stepped[0], timeout_sec=step_timeout_s)
+            # One call into the executor a step, until the last action is in, as node_runtime.run spins; with
+            # churn, every UNANNOUNCED_CHECK_S a waited-for position the executor was never told of is taken
+            # from its reader, as the agent node does (agent_node.node, _take_unannounced).
+            stop_at = time.monotonic() + step_timeout_s
+            while True:
+                executor.spin_until_future_complete(stepped[0], timeout_sec=UNANNOUNCED_CHECK_S if churn
+                                                    else step_timeout_s)
+                if stepped[0].done() or time.monotonic() > stop_at:
+                    break
+                for k, (sub, _, _) in list(churning.items()):
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                    if taken is not None:
+                        peer_in(k, taken[0])
             if actions_in[0] < agents:
                 raise RuntimeError(f"a ceiling step got {actions_in[0]} of {agents} actions in {step_timeout_s} s")
             stepped[0] = Future()
@@ -169,6 +242,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     return {"agents": agents, "peers": peers, "contract": contract, "steps": steps, "seconds": seconds,
             "steps_per_s": steps / seconds,
             "cpu_ms_per_step": cpu / steps * 1e3,
+            "subscriptions_made_per_step": created[0] / (warmup + steps),
             "messages_per_step": 2 * agents + len(listened),
             "deliveries_per_step": 2 * agents + sum(map(len, watched.values()))}
 
@@ -179,14 +253,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--peers", choices=PEERS, default="none")
     ap.add_argument("--contract", action="store_true", help="encode and decode every message as the nodes do")
+    ap.add_argument("--churn", type=float, default=0.0,
+                    help="peer subscriptions made a step (0-1, peers none), each for one decision step, as CQ's")
     args = ap.parse_args(argv)
     if args.agents < 1 or args.steps < 1:
         print("ceiling.py: --agents and --steps must be at least 1", file=sys.stderr)
         return 2
-    r = ceiling(args.agents, args.steps, args.peers, contract=args.contract)
+    r = ceiling(args.agents, args.steps, args.peers, contract=args.contract, churn=args.churn)
     print(f"{kind(r['contract'])}, {r['agents']} agents, peers {r['peers']}: {r['steps_per_s']:,.0f} steps/s "
           f"({r['steps']} steps in {r['seconds']:.2f} s, {r['cpu_ms_per_step']:.3f} ms of CPU a step; "
-          f"{r['deliveries_per_step']} deliveries a step); "
+          f"{r['deliveries_per_step']} deliveries and {r['subscriptions_made_per_step']:.2f} subscriptions made a "
+          "step); "
           f"load average {os.getloadavg()[0]:.2f}")
     return 0
 
