@@ -7,6 +7,8 @@ with the ratios to it and to each other, for independent learners, for a CQ that
 from checkpoints of an offline run of the same map, so joint states are marked and peers subscribed: peer
 messages a step printed beside) and for JS (every peer all the time, against the ceiling with every peer
 subscribed); beside the rclpy round trip between two processes (a step across processes is at least one).
+The learnt CQ is also set against the ceiling making as many peer subscriptions a step as it does (ceiling.py
+--churn; one launch, not timed, counts them): a subscription costs the middleware milliseconds.
 
     python benchmarks/bench_ros.py [--maps tunnel_to_goal,warehouse_16] [--episodes 200,3] [--step-cap 300]
                                    [--algos indep,cq,js] [--repeats 3] [--train-episodes 300] [--extras]
@@ -140,16 +142,18 @@ def main() -> None:
               f"{r['wall_s']:>7.1f} {r['peer_messages'] / r['steps']:>14.2f} {r['subscriptions']:>9} "
               f"{r['missed_actions']:>6}", flush=True)
 
-    def top(block, map_name, agents, peers, contract) -> None:
+    def top(block, map_name, agents, peers, contract, churn=0.0) -> None:
         steps = args.ceiling_steps if peers == "none" else max(args.ceiling_steps // 4, 100)
-        c = ceiling(agents, steps, peers, contract=contract)
-        rates.setdefault((map_name, ("ceiling", peers, contract)), []).append(c["steps_per_s"])
+        c = ceiling(agents, steps, peers, contract=contract, churn=churn)
+        rates.setdefault((map_name, ("ceiling", peers, contract, bool(churn))), []).append(c["steps_per_s"])
         loads.append(os.getloadavg()[0])
-        print(f"{block:>5} {map_name:<15} {agents:>6} {kind(contract)}, peers {peers}: {c['steps_per_s']:,.0f} "
-              f"steps/s ({c['deliveries_per_step']} deliveries a step, {c['cpu_ms_per_step']:.3f} ms of "
-              f"CPU a step; {load()})", flush=True)
+        made = f", {churn:.3f} subscriptions made a step (CQ's)" if churn else ""
+        print(f"{block:>5} {map_name:<15} {agents:>6} {kind(contract)}, peers {peers}{made}: "
+              f"{c['steps_per_s']:,.0f} steps/s ({c['deliveries_per_step']} deliveries a step, "
+              f"{c['cpu_ms_per_step']:.3f} ms of CPU a step; {load()})", flush=True)
 
     summary = []
+    churn: dict[str, float] = {}  # map -> the learnt CQ's peer subscriptions a step
     with tempfile.TemporaryDirectory(prefix="bench_ros_ck_") as ck:
         for map_name, n_episodes in zip(maps, episodes):
             agents = load_map(map_name).n_agents
@@ -161,6 +165,17 @@ def main() -> None:
             # Every mode once a block, the order turned by one each block: each mode sees every part of the load.
             modes = [partial(top, map_name=map_name, agents=agents, peers=peers, contract=contract)
                      for peers in peer_sets for contract in (False, True)]
+            if "cq" in algos:
+                # The learnt CQ's peer subscriptions, the same in every launch of it (one, not timed, says how
+                # many): its ceiling makes as many a step, each for one decision step.
+                r = lockstep(map_name, "cq", n_episodes, settings[map_name], compose=True, start_from=folder,
+                             step_timeout=args.step_timeout)
+                churn[map_name] = min(r["subscriptions"] / r["steps"], 1.0)
+                print(f"{'':>5} {map_name:<15} {agents:>6} cq learnt makes {r['subscriptions']} peer subscriptions in "
+                      f"{r['steps']} steps (a launch not timed)", flush=True)
+                if churn[map_name]:
+                    modes.append(partial(top, map_name=map_name, agents=agents, peers="none", contract=False,
+                                         churn=churn[map_name]))
             modes += [partial(row, map_name=map_name, n_episodes=n_episodes, algo=algo, compose=compose,
                               start_from=runs[algo][0]) for algo in algos for compose in (False, True)]
             for block in range(args.repeats):
@@ -187,7 +202,8 @@ def main() -> None:
           f"{load()} now):")
     for map_name, agents, algo, peers in summary:
         name = algo + (" learnt" if algo == "cq" else "")
-        ceil, contract = med(map_name, ("ceiling", peers, False)), med(map_name, ("ceiling", peers, True))
+        ceil = med(map_name, ("ceiling", peers, False, False))
+        contract = med(map_name, ("ceiling", peers, True, False))
         composed = med(map_name, (name, None, "composed", "events", True))
         apart = med(map_name, (name, None, "processes", "events", True))
         if composed is None or apart is None:
@@ -199,9 +215,16 @@ def main() -> None:
               f"processes {apart:>5,.0f} ({apart / ceil:.0%} of it, "
               f"{apart / allowed:.0%} of the round-trip rate); composed / processes "
               f"{composed / apart:.1f}x; peer messages a step {r['peer_messages'] / r['steps']:.2f}", flush=True)
-        print(f"      each block: ceiling {each(map_name, ('ceiling', peers, False))}; contract "
-              f"{each(map_name, ('ceiling', peers, True))}; composed "
-              f"{each(map_name, (name, None, 'composed', 'events', True))}; processes "
+        churned = med(map_name, ("ceiling", peers, False, True)) if algo == "cq" else None
+        if churned is not None:
+            print(f"      with CQ's peer subscriptions ({churn[map_name]:.3f} made a step) the ceiling is "
+                  f"{churned:,.0f} steps/s: composed {composed / churned:.0%} of it, processes "
+                  f"{apart / churned:.0%}", flush=True)
+        print(f"      each block: ceiling {each(map_name, ('ceiling', peers, False, False))}; contract "
+              f"{each(map_name, ('ceiling', peers, True, False))}; "
+              + (f"ceiling with CQ's subscriptions {each(map_name, ('ceiling', peers, False, True))}; "
+                 if churned is not None else "")
+              + f"composed {each(map_name, (name, None, 'composed', 'events', True))}; processes "
               f"{each(map_name, (name, None, 'processes', 'events', True))}", flush=True)
     if args.extras:
         for name in maps:
