@@ -12,10 +12,11 @@ action is in. Nothing is decoded, checked, learnt or counted but the arrivals: t
 a composed run's is our Python around each message. As the world node does, a position nobody listens to is
 not sent (a writer with no reader still pays for its publish).
 
-`--contract` puts back the wire contract alone: every message is built as its payload for the step and
-serialized with the run's key (msgs_spec.serialize), and every arrival decoded with every check, the MAC
-included (bounds, agent, episode and step), as the nodes do; still no driver, learner or world. The gap
-between the two rates is what the contract costs, the rest of a composed run's gap is the nodes' own Python.
+`--contract` puts back the wire contract alone: every message is built as its payload for the step (as the
+nodes build theirs, msgs_spec.fast's new_*) and sealed with its node's key (msgs_spec.serialize), and every
+arrival decoded with every check, the MAC included (bounds, agent, episode and step), as the nodes do; still
+no driver, learner or world. The gap between the two rates is what the contract costs, the rest of a
+composed run's gap is the nodes' own Python.
 
     python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all] [--contract]
 
@@ -53,6 +54,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         decode_feedback, decode_position, feedback_topic, position_topic, serialize,
     )
     from msgs_spec.auth import WORLD, RunKey, new_run
+    from msgs_spec.fast import new_action, new_feedback, new_position
     from rclpy.event_handler import PublisherEventCallbacks
 
     from agent_node.node import UNANNOUNCED_CHECK_S
@@ -156,7 +158,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                 got[k] += 1
                 if got[k] == need[k] + (k in churning):  # with churn, one more: the peer's position
                     got[k] = 0
-                    send(sent(Action(k, 0, clock[0], 0), k) if contract else action[k])
+                    send(sent(new_action(k, 0, clock[0], 0), k) if contract else action[k])
             sends[k] = arrive
 
             subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
@@ -206,9 +208,10 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                     else:
                         held[k] = clock[0]
             for k in listened:
-                send_position[k](sent(Position(k, 0, clock[0], 0, 0), WORLD) if contract else position[k])
+                send_position[k](sent(new_position(k, 0, clock[0], 0, 0), WORLD) if contract else position[k])
             for k in ids:
-                send_feedback[k](sent(Feedback(k, 0, clock[0], 0, 0, -1.0), WORLD) if contract else feedback[k])
+                send_feedback[k](sent(new_feedback(k, 0, clock[0], 0, 0, -1.0, False, False, -1), WORLD)
+                                 if contract else feedback[k])
             # One call into the executor a step, until the last action is in, as node_runtime.run spins; with
             # churn, every UNANNOUNCED_CHECK_S a waited-for position the executor was never told of is taken
             # from its reader, as the agent node does (agent_node.node, _take_unannounced).
