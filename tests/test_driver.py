@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import os
-import pickle
 import random
 from collections import defaultdict, deque
 
@@ -367,10 +366,10 @@ def test_a_failed_checkpoint_write_leaves_the_previous_one(tmp_path, monkeypatch
     [(tmp, dest)] = replaced
     assert os.path.dirname(tmp) == str(tmp_path) and dest == str(path)  # a rename in the same directory
 
-    def broken_dump(*args, **kwargs):
+    def broken_fsync(*args, **kwargs):  # the temporary file written, its flush to the disk fails
         raise OSError("disk full")
 
-    monkeypatch.setattr(pickle, "dump", broken_dump)
+    monkeypatch.setattr(os, "fsync", broken_fsync)
     with pytest.raises(OSError):
         save_checkpoint(path, learner, 3)
     assert load_checkpoint(path, "indep", gm, 0)[1] == 2 and os.listdir(tmp_path) == ["agv1.ckpt"]
