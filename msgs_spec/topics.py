@@ -22,7 +22,8 @@ from .payloads import Action, AgentStats, Feedback, Heartbeat, Position, WorldSt
 __all__ = [
     "AGENT_PREFIX", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
     "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "HEARTBEAT", "AGENT_STATS", "WORLD_STATS", "TOPICS",
-    "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic", "action_topic",
+    "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic",
+    "action_topic",
     "agent_stats_topic", "agent_topics", "parse_topic", "qos_summary", "type_name",
 ]
 
@@ -229,7 +230,8 @@ def agent_topics(n_agents: int) -> list[tuple[str, TopicSpec, int | None]]:
     return out
 
 
-_TOPIC_RE = re.compile(rf"(?:^|/)(?:{AGENT_PREFIX}([1-9][0-9]*)/(feedback|position|action|stats)|world/(stats|heartbeat))$")
+_TOPIC_RE = re.compile(rf"(?:^|/)(?:{AGENT_PREFIX}([1-9][0-9]*)/(feedback|position|action|stats)"
+                       r"|world/(stats|heartbeat))$")
 _BY_SUFFIX = {"feedback": FEEDBACK, "position": POSITION, "action": ACTION, "stats": AGENT_STATS}
 
 
