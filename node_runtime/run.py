@@ -57,20 +57,32 @@ def make_executor(kind: str | None = None, context: Context | None = None) -> An
 def spin_nodes(executor: Any, nodes: list[Any], stop: Callable[[], bool] = lambda: False) -> int | None:
     """Spin until every node's `done` Future holds its exit code (then the largest of them), or until their
     context is shut down (a signal, under rclpy's handlers) or stop() turns true: None."""
+    from rclpy.task import Future
+
     context = nodes[0].context
     pending = list(nodes)
+    # One call runs every callback due until a node is done or SPIN_S has passed: a composed warehouse has
+    # dozens of callbacks a step, and a spin_once per callback cost a call into the executor (its lock, the GIL
+    # released and taken back) and a turn of this loop each. The EventsExecutor's bounded form returns on time
+    # and hands a signal on as spin_once does; its unbounded spin() is the one that never returns (docs/design.md,
+    # field notes). Each call waits on a Future of its own, woken by any node's `done`: the executor adds a
+    # callback to the Future it is given at every call, which on a node's `done` would pile up all run long.
+    woken: list[Any] = [Future()]
+
+    def wake(_done: Any) -> None:
+        if not woken[0].done():
+            woken[0].set_result(None)
+
+    for node in nodes:
+        node.done.add_done_callback(wake)
     while pending:
         if pending[-1].done.done():
             pending.pop()
             continue
         if not context.ok() or stop():
             return None
-        # One call runs every callback due until that node is done or SPIN_S has passed: a composed warehouse
-        # has dozens of callbacks a step, and a spin_once per callback cost a call into the executor (its lock,
-        # the GIL released and taken back) and a turn of this loop each. The EventsExecutor's bounded form
-        # returns on time and hands a signal on as spin_once does; its unbounded spin() is the one that never
-        # returns (docs/design.md, field notes).
-        executor.spin_until_future_complete(pending[-1].done, timeout_sec=SPIN_S)
+        woken[0] = Future()
+        executor.spin_until_future_complete(woken[0], timeout_sec=SPIN_S)
     return max(node.done.result() for node in nodes)
 
 
