@@ -20,7 +20,8 @@ from cq_ros.gridmap import GridMap
 from cq_ros.learners import Learner
 from cq_ros.settings import SettingsError
 
-__all__ = ["save_checkpoint", "save_checkpoints", "load_checkpoint", "remove_stale_temporaries"]
+__all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "save_checkpoints", "load_checkpoint",
+           "remove_stale_temporaries"]
 
 _CHECKPOINT_FORMAT = 2  # 2: CQ learners keep `looking` (cq_look_if_decisive); a learner pickled before lacks it
 
@@ -32,14 +33,25 @@ def _temporary_prefix(path: str) -> tuple[str, str]:
 
 def save_checkpoint(path: str | os.PathLike, learner: Learner, episode: int) -> None:
     """Write learner and episode to path atomically: a temporary file beside it, fsync, os.replace."""
-    path = os.fspath(path)
+    write_checkpoint(path, checkpoint_bytes(learner, episode))
+
+
+def checkpoint_bytes(learner: Learner, episode: int) -> bytes:
+    """The checkpoint of learner after `episode`, pickled: what `write_checkpoint` writes. Taken at once, as
+    the learner goes on learning; the writing may follow later (the agent node writes on a thread of its own)."""
     state = {"format": _CHECKPOINT_FORMAT, "algo": learner.name, "map": learner.map.name,
              "agent": learner.agent, "episode": episode, "learner": learner}
+    return pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def write_checkpoint(path: str | os.PathLike, data: bytes) -> None:
+    """Write checkpoint_bytes' `data` to path atomically: a temporary file beside it, fsync, os.replace."""
+    path = os.fspath(path)
     folder, prefix = _temporary_prefix(path)
     fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=folder)
     try:
         with os.fdopen(fd, "wb") as f:
-            pickle.dump(state, f, protocol=pickle.HIGHEST_PROTOCOL)
+            f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -32,7 +32,10 @@ from typing import Any, Callable
 
 from cq_ros.engine import central_act, central_outcome, step_act, step_outcome
 from cq_ros.learners import Learner
-from msgs_spec import Action, AgentStats, DropCounter, MarkedJointState, decode_feedback, feedback_topic
+from msgs_spec import (
+    Action, AgentStats, DropCounter, MarkedJointState, WireError, decode_feedback, feedback_topic,
+)
+from msgs_spec.fast import new_action
 
 from .effects import Effects, Finish, SaveCheckpoint, Send
 from .peer_view import PeerView
@@ -90,10 +93,7 @@ class AgentDriver:
 
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback (the node subscribes to its own agent's only)."""
-        source = feedback_topic(agent)
-        fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, key=self.link.key,
-                              source=source)
-        cell = fb and cell_of(self.map, self.drops, fb.row, fb.col, source)
+        fb, cell = _read_feedback(self, agent, msg)
         if cell is None:
             return []
         verdict = self.link.judge(agent, fb, cell, self.expect)
@@ -180,7 +180,7 @@ class AgentDriver:
         self._pending = None
         action = step_act(self.learner, {j - 1: c for j, c in cells.items()})
         self._acted = (episode, step, action)
-        return [Send(Action(self.agent, episode, step, action))]
+        return [Send(new_action(self.agent, episode, step, action))]
 
     def _unapplied(self, fb: Any) -> None:
         self.unapplied_actions += 1
@@ -208,6 +208,20 @@ class AgentDriver:
                           joint_states=joint, subscriptions_created=self.peers.created,
                           subscriptions_active=len(self.peers.idle), peer_messages=self.peers.messages,
                           marked=marked, counters=self.counters())
+
+
+def _read_feedback(driver: "AgentDriver | CentralDriver", agent: int, msg: Any) -> tuple[Any, int | None]:
+    """(the feedback, its cell index) of a message on agv<agent>/feedback, or (None, None) for one refused
+    (logged and counted): DropCounter.guard's work, without repacking the arguments of every message."""
+    try:
+        fb = decode_feedback(msg, bounds=driver.bounds, agent=agent, key=driver.link.key)
+    except WireError as e:
+        driver.drops.record(e, feedback_topic(agent))
+        return None, None
+    try:
+        return fb, driver.map.index(fb.row, fb.col)
+    except KeyError:  # cell_of records why (its topic's name made only then)
+        return fb, cell_of(driver.map, driver.drops, fb.row, fb.col, feedback_topic(agent))
 
 
 def _after_episode(driver: "AgentDriver | CentralDriver", episode: int) -> Effects:
@@ -281,10 +295,7 @@ class CentralDriver:
 
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback."""
-        source = feedback_topic(agent)
-        fb = self.drops.guard(decode_feedback, msg, bounds=self.bounds, agent=agent, key=self.link.key,
-                              source=source)
-        cell = fb and cell_of(self.map, self.drops, fb.row, fb.col, source)
+        fb, cell = _read_feedback(self, agent, msg)
         if cell is None:
             return []
         if self._resync is not None:  # the positions decide; a later feedback moves the step they must show

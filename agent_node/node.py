@@ -13,6 +13,8 @@ the exit code.
 from __future__ import annotations
 
 import errno
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from functools import partial
 from typing import Any
 
@@ -33,7 +35,7 @@ from node_runtime.parameters import declare_node_parameters
 from node_runtime.patience import Patience
 from node_runtime.run import when, when_acked
 
-from .checkpoint import save_checkpoint
+from .checkpoint import checkpoint_bytes, write_checkpoint
 from .config import agent_config, make_driver
 from .effects import Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe
 from .viz import AgentView
@@ -62,8 +64,19 @@ class _HeldPublisher:
         self.matched = Matched(then=self.flush)
         self.pub = node.create_publisher(spec.msg_type, topic, spec.qos,
                                          event_callbacks=PublisherEventCallbacks(matched=self.matched))
+        # Serialized bytes go to the publisher's own publish_raw: what Publisher.publish(bytes) calls, the same
+        # bytes, without its per-call type check and handle lock (the node destroys its publishers only after
+        # it has stopped spinning). Statistics are messages, published as such.
+        self._raw = self.pub.handle.publish_raw
 
     def publish(self, payload: Any) -> None:
+        if not self.held and self.matched.count >= self.min_matched:  # matched, nothing held: straight out
+            data = serialize(payload, key=self.key)
+            if type(data) is bytes:
+                self._raw(data)
+            else:
+                self.pub.publish(data)
+            return
         if self.latest_only:
             self.held.clear()
         self.held.append(payload)
@@ -111,6 +124,12 @@ class AgentNode(Node):
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
                                                    HEARTBEAT.reader_qos, raw=True, event_callbacks=lost)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
+        self._writer: ThreadPoolExecutor | None = None  # writes the checkpoints, in order, off the executor
+        self._writes: list = []  # (episode, concurrent Future) of the checkpoint writes not counted yet
+        # What each effect a driver returns does, looked up by its type (no chain of patterns per effect)
+        self._carry_out = {Send: self._send, Subscribe: self._subscribe, Unsubscribe: self._unsubscribe,
+                           SaveCheckpoint: lambda e: self._save_checkpoint(e.episode, e.learner),
+                           Finish: lambda _e: self._finish(0)}
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
         self._closing = False  # finishing: flushing the last statistics before `done`
@@ -135,40 +154,79 @@ class AgentNode(Node):
         self._apply(self.driver.on_position(peer, msg))
 
     def _apply(self, effects: list) -> None:
+        carry_out = self._carry_out
         for effect in effects:
-            match effect:
-                case Send(payload=Action() as action):
-                    self._actions[action.agent].publish(action)
-                    if self._view is not None:
-                        self._view.on_action(action)
-                case Send(payload=stats):
-                    self._stats[stats.agent].publish(stats)
-                    if self._view is not None:
-                        self._view.on_stats(stats)
-                case Subscribe(peer=peer):
-                    self._positions[peer] = self.create_subscription(
-                        POSITION.msg_type, position_topic(peer), partial(self._on_position, peer),
-                        POSITION.reader_qos, raw=True)
-                case Unsubscribe(peer=peer):
-                    self.destroy_subscription(self._positions.pop(peer))
-                case SaveCheckpoint(episode=episode, learner=learner):
-                    self._save_checkpoint(episode, learner)
-                case Finish():
-                    self._finish(0)
+            carry_out[type(effect)](effect)
+
+    def _send(self, effect: Send) -> None:
+        payload = effect.payload
+        if type(payload) is Action:
+            self._actions[payload.agent].publish(payload)
+            if self._view is not None:
+                self._view.on_action(payload)
+        else:
+            if self._writes:
+                payload = self._settled(payload)
+            self._stats[payload.agent].publish(payload)
+            if self._view is not None:
+                self._view.on_stats(payload)
+
+    def _subscribe(self, effect: Subscribe) -> None:
+        peer = effect.peer
+        self._positions[peer] = self.create_subscription(POSITION.msg_type, position_topic(peer),
+                                                         partial(self._on_position, peer), POSITION.reader_qos,
+                                                         raw=True)
+
+    def _unsubscribe(self, effect: Unsubscribe) -> None:
+        self.destroy_subscription(self._positions.pop(effect.peer))
 
     def _save_checkpoint(self, episode: int, learner: Any) -> None:
-        """Save, or log and count why not (`checkpoint_failed.<errno>`): a full or read-only disk costs the
-        checkpoint, never the learning, which goes on in memory (the next save tries again)."""
-        try:
-            save_checkpoint(self.config.checkpoint, learner, episode)
-        except OSError as e:
-            name = f"checkpoint_failed.{errno.errorcode.get(e.errno, 'other').lower()}"
+        """Pickle the learner now (it goes on learning) and write it on the node's writer thread: the file's
+        fsync took longer than the pickling, on the path every other node of a composed process waits on.
+        A write that fails is logged and counted (`checkpoint_failed.<errno>`) once it is known: a full or
+        read-only disk costs the checkpoint, never the learning, which goes on in memory (the next save
+        tries again). Statistics wait for the writes in flight before them (`_settled`), so they count every
+        failure of a save before them, as when the writes were made in place."""
+        if self._writer is None:
+            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"{self.get_name()}_checkpoint")
+        data = checkpoint_bytes(learner, episode)
+        self._writes.append((episode, self._writer.submit(write_checkpoint, self.config.checkpoint, data)))
+
+    def _count_written(self, wait: bool = False) -> bool:
+        """Count and log the failures of the writes done (with `wait`: of every write, waiting for them);
+        True if any. Run on the executor's thread, which alone touches the counters."""
+        failed = False
+        while self._writes and (wait or self._writes[0][1].done()):
+            episode, write = self._writes.pop(0)
+            error = write.exception()
+            if error is None:
+                continue
+            if not isinstance(error, OSError):  # a bug, not the disk: raised here as it was when written in place
+                raise error
+            failed = True
+            name = f"checkpoint_failed.{errno.errorcode.get(error.errno, 'other').lower()}"
             counters = self.driver.link.extra_counters
             counters[name] = counters.get(name, 0) + 1
             self.get_logger().error(f"checkpoint {self.config.checkpoint} of episode {episode} not written: "
-                                    f"{os_reason(e)}; learning goes on (counted as {name})")
+                                    f"{os_reason(error)}; learning goes on (counted as {name})")
+        return failed
+
+    def _settled(self, stats: Any) -> Any:
+        """`stats` counting every checkpoint write before it: waits for the writes still in flight (seldom: a
+        write takes milliseconds, an episode longer) and, if one failed, rebuilds the counters."""
+        if self._count_written(wait=True):
+            stats = replace(stats, counters=self.driver.counters())
+        return stats
+
+    def destroy_node(self) -> None:
+        writer = getattr(self, "_writer", None)  # none yet: a bad parameter destroys the node in __init__
+        if writer is not None:  # a destroyed node's checkpoints are on disk, as when written in place
+            writer.shutdown(wait=True)
+        super().destroy_node()
 
     def _check_world(self) -> None:
+        if self._writes:
+            self._count_written()
         link = self.driver.link
         if link.patience.expired() and not self.done.done():
             # A world restarted mid-run is another incarnation, of another run unless it was given this one's
@@ -229,4 +287,9 @@ class AgentNode(Node):
             self.get_logger().warning(f"{held} statistics message(s) never sent: fewer than min_stats_subscribers="
                                       f"{self.config.min_stats_subscribers} subscribers within "
                                       f"{STATS_MATCH_TIMEOUT_S} s")
-        when_acked(self, [stats.pub for stats in self._stats.values()], lambda: self.done.set_result(code))
+        # The last checkpoint's write, then the statistics' acknowledgements, both bounded; a write still going
+        # on is waited for when the node is destroyed.
+        when(self, lambda: all(write.done() for _, write in self._writes), STATS_MATCH_TIMEOUT_S,
+             lambda _written: (self._count_written(),
+                               when_acked(self, [stats.pub for stats in self._stats.values()],
+                                          lambda: self.done.set_result(code))))

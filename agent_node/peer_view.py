@@ -46,6 +46,7 @@ class PeerView:
         self.floor = (0, 0)  # the (episode, step) the agent decides at: older positions are stale
         self.between_episodes = False  # its episode is over: older positions are the others' traffic, not faults
         self._seen: dict[int, dict[tuple[int, int], int]] = {}  # peer -> {(episode, step): cell} from floor on
+        self._fresh: set[int] = set()  # peers subscribed whose first position has not come yet
 
     @property
     def subscribed(self) -> list[int]:
@@ -68,10 +69,12 @@ class PeerView:
             if self.idle[j] > self.linger:
                 del self.idle[j]
                 self._seen.pop(j, None)
+                self._fresh.discard(j)
                 out.append(Unsubscribe(j))
         for j in sorted(peers - self.idle.keys()):
             self.idle[j] = 0
             self.created += 1
+            self._fresh.add(j)
             out.append(Subscribe(j))
         return out
 
@@ -80,28 +83,40 @@ class PeerView:
         self.messages += 1
         if peer not in self.idle:  # delivered after the subscription was dropped
             return False
-        source = position_topic(peer)
         # No (episode, step) expectation: positions also arrive between two waits; the stamps are judged here.
-        pos = self.drops.guard(decode_position, msg, bounds=self.bounds, agent=peer, key=self.key, source=source)
-        cell = pos and cell_of(self.map, self.drops, pos.row, pos.col, source)
-        if cell is None:
+        # DropCounter.guard's and cell_of's work, the topic's name made only for a message refused.
+        try:
+            pos = decode_position(msg, bounds=self.bounds, agent=peer, key=self.key)
+            cell = self.map.index(pos.row, pos.col)
+        except WireError as e:
+            self.drops.record(e, position_topic(peer))
+            return False
+        except KeyError:
+            cell_of(self.map, self.drops, pos.row, pos.col, position_topic(peer))
             return False
         stamp = (pos.episode, pos.step)
+        # The first position a new subscription delivers may be the writer's latched history from before
+        # anyone listened (the world sends a position only while someone listens): older than what the agent
+        # waits for, and no fault; the world sends the position waited for once the reader has matched.
+        first = peer in self._fresh
+        if first:
+            self._fresh.discard(peer)
         if stamp < self.floor:
-            if not self.between_episodes:  # a peer still playing the episode we are done with is no fault
-                record_sequence(self.drops, stamp, self.floor, source)
+            # a peer still playing the episode we are done with is no fault either
+            if not self.between_episodes and not first:
+                record_sequence(self.drops, stamp, self.floor, position_topic(peer))
             return False
         held = self._seen.setdefault(peer, {})
         if stamp in held:
             if held[stamp] != cell:  # the first writer wins: the world publishes before anyone could copy it
                 self.drops.record(WireError("conflicting", f"episode {stamp[0]} step {stamp[1]}: cell {pos.row},"
-                                            f"{pos.col} after {self.map.cells[held[stamp]]}"), source)
+                                            f"{pos.col} after {self.map.cells[held[stamp]]}"), position_topic(peer))
             return False
         held[stamp] = cell
         if len(held) > AHEAD:  # the farthest goes: the world's next positions are the nearest
             farthest = max(held)
             del held[farthest]
-            record_sequence(self.drops, farthest, self.floor, source)
+            record_sequence(self.drops, farthest, self.floor, position_topic(peer))
             return farthest != stamp
         return True
 

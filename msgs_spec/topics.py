@@ -143,7 +143,8 @@ FEEDBACK = TopicSpec(
 )
 POSITION = TopicSpec(
     "position", _NS + "position", Int32MultiArray, QOS_POSITION, Position,
-    "world (every agent, every step, before any feedback of that step)",
+    "world (every agent, every step, before any feedback of that step; while a reader is matched, the newest "
+    "on a match)",
     "peers of k while they need k (CQ: in a conflict state; JS: always; LoC: on COORDINATE); tools",
     "data = [agent, episode, step, row, col] (int32)",
     READER_DEPTH,

@@ -1,8 +1,9 @@
 """The run loop of a node process: `python -m world_node`, `python -m agent_node` and the composed container
 (`python -m ros_tools.compose`) all spin their nodes through `run_node`, on the executor `make_executor` picks.
 
-rclpy's EventsExecutor is the default, stepped with spin_once (its spin() in rclpy 7.1.6 busy-loops and ignores
-signals, docs/design.md, field notes); `$CQ_ROS_EXECUTOR=single` picks the SingleThreadedExecutor.
+rclpy's EventsExecutor is the default, stepped in bounded spins (spin_until_future_complete with a timeout; its
+unbounded spin() in rclpy 7.1.6 busy-loops and ignores signals, docs/design.md, field notes);
+`$CQ_ROS_EXECUTOR=single` picks the SingleThreadedExecutor.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ __all__ = ["EXECUTORS", "EXECUTOR_ENV", "SPIN_S", "FASTDDS_PROFILE", "FASTDDS_PR
 # SingleThreadedExecutor, and never slower across processes (benchmarks/bench_ros.py --executors).
 EXECUTORS = ("events", "single")
 EXECUTOR_ENV = "CQ_ROS_EXECUTOR"
-SPIN_S = 0.05  # the longest a node process sleeps in one spin_once before it looks at its nodes again
+SPIN_S = 0.05  # the longest a node process spins in one call before it looks at its nodes again
 # Fast DDS protocol timers for node processes (the file says why): a new peer subscription gets its first
 # sample in a few ms instead of up to 70 ms.
 FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
@@ -44,7 +45,7 @@ def executor_kind(kind: str | None = None) -> str:
 def make_executor(kind: str | None = None, context: Context | None = None) -> Any:
     """A new executor of `executor_kind(kind)` on `context` (None: the default, initialised already).
 
-    Spin it with spin_once in a loop (`spin_nodes`), never spin(): the EventsExecutor's spin() in rclpy 7.1.6
+    Spin it in bounded calls in a loop (`spin_nodes`), never spin(): the EventsExecutor's spin() in rclpy 7.1.6
     busy-loops and ignores signals (docs/design.md, field notes)."""
     if executor_kind(kind) == "single":
         return SingleThreadedExecutor(context=context)
@@ -56,18 +57,32 @@ def make_executor(kind: str | None = None, context: Context | None = None) -> An
 def spin_nodes(executor: Any, nodes: list[Any], stop: Callable[[], bool] = lambda: False) -> int | None:
     """Spin until every node's `done` Future holds its exit code (then the largest of them), or until their
     context is shut down (a signal, under rclpy's handlers) or stop() turns true: None."""
+    from rclpy.task import Future
+
     context = nodes[0].context
-    pending = list(nodes)  # one node looked at per spin: a composed warehouse spins dozens of times a step
-    look_at = 0.0  # when to look at the context and stop() again: every SPIN_S, not every spin
+    pending = list(nodes)
+    # One call runs every callback due until a node is done or SPIN_S has passed: a composed warehouse has
+    # dozens of callbacks a step, and a spin_once per callback cost a call into the executor (its lock, the GIL
+    # released and taken back) and a turn of this loop each. The EventsExecutor's bounded form returns on time
+    # and hands a signal on as spin_once does; its unbounded spin() is the one that never returns (docs/design.md,
+    # field notes). Each call waits on a Future of its own, woken by any node's `done`: the executor adds a
+    # callback to the Future it is given at every call, which on a node's `done` would pile up all run long.
+    woken: list[Any] = [Future()]
+
+    def wake(_done: Any) -> None:
+        if not woken[0].done():
+            woken[0].set_result(None)
+
+    for node in nodes:
+        node.done.add_done_callback(wake)
     while pending:
         if pending[-1].done.done():
             pending.pop()
             continue
-        if time.monotonic() >= look_at:
-            if not context.ok() or stop():
-                return None
-            look_at = time.monotonic() + SPIN_S
-        executor.spin_once(timeout_sec=SPIN_S)
+        if not context.ok() or stop():
+            return None
+        woken[0] = Future()
+        executor.spin_until_future_complete(woken[0], timeout_sec=SPIN_S)
     return max(node.done.result() for node in nodes)
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import os
-import pickle
 import random
 from collections import defaultdict, deque
 
@@ -98,6 +97,19 @@ def test_subscribes_to_exactly_the_named_peers_and_acts_once_their_positions_of_
     assert d.on_position(3, pos(3, 0, 0, 2, 1)) == []  # an older step: not yet
     assert d.on_position(3, pos(3, 0, 1, 2, 2)) == [Send(Action(1, 0, 1, 1))]
     assert learner.calls[-1] == ("act", {2: THREE.index(2, 2)})
+
+
+def test_a_new_subscriptions_first_position_older_than_the_step_waited_for_is_dropped_uncounted():
+    """The world sends a position topic nothing while nobody listens, and its newest position when a reader
+    matches: a new reader may first get the last one sent before, from the latched cache. No fault; a second
+    older one is."""
+    d = AgentDriver(Stub(needs=[(), (2,)]), 1, episodes=1, linger=0)
+    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    assert d.on_feedback(1, fb(1, 0, 1, 0, 1)) == [Subscribe(3)]
+    assert d.on_position(3, pos(3, 0, 0, 2, 1)) == [] and d.drops.total == 0  # the cache's, from before
+    assert d.on_position(3, pos(3, 0, 0, 2, 1)) == [] and d.drops.counts == {"stale_step": 1}
+    assert sent(d.on_position(3, pos(3, 0, 1, 2, 2))) == [Action(1, 0, 1, 1)]
+    assert d.peers.messages == 3
 
 
 def test_waits_for_every_needed_peer():
@@ -354,10 +366,10 @@ def test_a_failed_checkpoint_write_leaves_the_previous_one(tmp_path, monkeypatch
     [(tmp, dest)] = replaced
     assert os.path.dirname(tmp) == str(tmp_path) and dest == str(path)  # a rename in the same directory
 
-    def broken_dump(*args, **kwargs):
+    def broken_fsync(*args, **kwargs):  # the temporary file written, its flush to the disk fails
         raise OSError("disk full")
 
-    monkeypatch.setattr(pickle, "dump", broken_dump)
+    monkeypatch.setattr(os, "fsync", broken_fsync)
     with pytest.raises(OSError):
         save_checkpoint(path, learner, 3)
     assert load_checkpoint(path, "indep", gm, 0)[1] == 2 and os.listdir(tmp_path) == ["agv1.ckpt"]

@@ -51,10 +51,11 @@ from node_runtime.parameters import check_numbers, map_and_settings
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    NO_ACTION, Bounds, DropCounter, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace,
+    NO_ACTION, Bounds, DropCounter, Feedback, Heartbeat, WireError, WorldStats, action_topic, agent_namespace,
     decode_action,
 )
 from msgs_spec.auth import RunKey
+from msgs_spec.fast import new_feedback, new_position
 from node_runtime.parameters import run_key_parameters
 from node_runtime.patience import Patience
 
@@ -145,9 +146,11 @@ class Lockstep:
 
     def on_action(self, agent: int, msg: Any) -> Outbox:
         """A message from agv<agent>/action; the step's outcome once it was the last action missing."""
-        action = self.drops.guard(decode_action, msg, bounds=self.bounds, agent=agent, episode=self.episode,
-                                  step=self.step, key=self.key, source=action_topic(agent))
-        if action is None:
+        try:  # DropCounter.guard's work, without repacking the arguments of every action
+            action = decode_action(msg, bounds=self.bounds, agent=agent, episode=self.episode, step=self.world.t,
+                                   key=self.key)
+        except WireError as e:
+            self.drops.record(e, action_topic(agent))
             if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
                 self.twin = (f"two live nodes act as {agent_namespace(agent)}: actions of its replaced "
                              "incarnation still come after a newer one's (a second node started with its name "
@@ -255,14 +258,16 @@ class Lockstep:
 
     def _positions(self) -> Outbox:
         w = self.world
-        return [Position(i + 1, self.episode, w.t, *w.map.cells[w.cells[i]]) for i in range(w.n)]
+        episode, t, cells = self.episode, w.t, w.map.cells
+        return [new_position(i + 1, episode, t, *cells[c]) for i, c in enumerate(w.cells)]
 
     def _feedback(self, i: int, reward: float, cap: bool, applied: int | None = None) -> Feedback:
         """Agent i's feedback; `applied`: its action the world applied into this step (None: none came)."""
         w = self.world
         row, col = w.map.cells[w.cells[i]]
-        return Feedback(i + 1, self.episode, w.t, row, col, reward, done=w.done[i],
-                        truncated=cap and not w.done[i], applied=NO_ACTION if applied is None else applied)
+        done = w.done[i]
+        return new_feedback(i + 1, self.episode, w.t, row, col, reward, done, cap and not done,
+                            NO_ACTION if applied is None else applied)
 
     def _episode_stats(self) -> WorldStats:
         w = self.world

@@ -12,6 +12,7 @@ import time
 from functools import partial
 from typing import Any
 
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.task import Future
@@ -23,7 +24,7 @@ from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
     Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic, serialize,
 )
-from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, watch_graph
+from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.run import when_acked
@@ -34,6 +35,43 @@ from .viz import WorldView
 __all__ = ["WorldNode"]
 
 STARTUP_POLL_S = 0.05  # how often to look whether every agent is connected, before the first step
+
+
+class _ListenedPosition:
+    """An AGV's position topic, sent only while someone listens, as its matched events tell: most steps of a
+    run nobody does (CQ listens to a peer only in a conflict state, independent learners never), and a writer
+    with no reader still pays for each publish. The newest position not sent is held and sent when a reader
+    matches, so a late subscriber still gets the position of the step it waits for (the topic is latched:
+    before a reader matched, the writer's history may hold an older one, which the reader drops as stale)."""
+
+    __slots__ = ("matched", "publish", "key", "held")
+
+    def __init__(self, node: Node, topic: str, key: Any):
+        self.key = key
+        self.held: Position | None = None  # serialized only if it goes out
+        self.matched = Matched(then=self._on_match)
+        pub = node.create_publisher(POSITION.msg_type, topic, POSITION.qos,
+                                    event_callbacks=PublisherEventCallbacks(matched=self.matched))
+        self.publish = _raw(pub)
+
+    def send(self, position: Position) -> None:
+        if self.matched.count:
+            self.publish(serialize(position, key=self.key))
+            self.held = None
+        else:
+            self.held = position
+
+    def _on_match(self) -> None:
+        if self.matched.count and self.held is not None:
+            self.publish(serialize(self.held, key=self.key))
+            self.held = None
+
+
+def _raw(pub: Any) -> Any:
+    """The publisher's own publish of serialized bytes: what Publisher.publish(bytes) calls, the same bytes,
+    without its per-call type check and handle lock (the node destroys its publishers only after it has
+    stopped spinning)."""
+    return pub.handle.publish_raw
 
 
 class WorldNode(Node):
@@ -52,9 +90,15 @@ class WorldNode(Node):
         self.core = Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=self.get_logger().warning,
                              key=cfg.key)
         agents = range(1, world.n + 1)
-        self._outputs = {
-            Position: {k: self.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in agents},
-            Feedback: {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents},
+        key = cfg.key
+        self._positions = {k: _ListenedPosition(self, position_topic(k), key) for k in agents}
+        self._feedback = {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents}
+        # What each payload of the core's outbox goes out as, looked up by its type alone (no isinstance chain).
+        positions = {k: pub.send for k, pub in self._positions.items()}
+        feedback = {k: _raw(pub) for k, pub in self._feedback.items()}
+        self._senders = {
+            Position: lambda p: positions[p.agent](p),
+            Feedback: lambda f: feedback[f.agent](serialize(f, key=key)),
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
         self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
@@ -64,6 +108,8 @@ class WorldNode(Node):
                                                      ACTION.reader_qos, raw=True, event_callbacks=lost)
                          for k in agents}
         self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
+        self._senders[Heartbeat] = lambda h: self._heartbeat.publish(serialize(h, key=key))
+        self._senders[WorldStats] = lambda w: self._stats.publish(serialize(w, key=key))
         self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
         self._graph_topics = [HEARTBEAT_TOPIC, WORLD_STATS_TOPIC] + [
@@ -82,7 +128,7 @@ class WorldNode(Node):
         """What the first step still waits for: agents whose action or feedback topic is not matched yet
         (a feedback sent before its subscription matched would be lost), and world/stats subscribers."""
         missing = [agent_namespace(k) for k, sub in self._actions.items()
-                   if sub.get_publisher_count() == 0 or self._outputs[Feedback][k].get_subscription_count() == 0]
+                   if sub.get_publisher_count() == 0 or self._feedback[k].get_subscription_count() == 0]
         if self._stats.get_subscription_count() < self.config.min_stats_subscribers:
             missing.append(f"{self.config.min_stats_subscribers} {WORLD_STATS_TOPIC} subscriber(s)")
         return missing
@@ -126,12 +172,9 @@ class WorldNode(Node):
             self._finish(2)
 
     def _send(self, out: list) -> None:
+        senders = self._senders
         for payload in out:
-            if isinstance(payload, (WorldStats, Heartbeat)):
-                pub = self._stats if isinstance(payload, WorldStats) else self._heartbeat
-            else:
-                pub = self._outputs[type(payload)][payload.agent]
-            pub.publish(serialize(payload, key=self.config.key))
+            senders[type(payload)](payload)
 
     def _publish(self, out: list) -> None:
         self._send(out)
@@ -156,4 +199,4 @@ class WorldNode(Node):
         self._graph_timer.cancel()
         # Reliable messages still in flight go with the process: give the readers a bounded moment to
         # acknowledge the last feedback and statistics (an exited agent's reader is no longer waited for).
-        when_acked(self, [self._stats, *self._outputs[Feedback].values()], lambda: self.done.set_result(code))
+        when_acked(self, [self._stats, *self._feedback.values()], lambda: self.done.set_result(code))
