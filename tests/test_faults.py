@@ -847,7 +847,9 @@ def test_keyed_messages_of_an_earlier_run_with_the_same_key_file_are_refused(sys
     from msgs_spec import read_key, serialize
     from msgs_spec.auth import RunKey, new_run
 
-    algo, episodes = "cq", 4
+    # Long enough for the injector to fire several times (every 50 ms) on the lean nodes, which play 4 episodes
+    # of grid_game_2 in about 0.15 s.
+    algo, episodes = "cq", 40
     case = (*CASE[:2], (*CASE[2], ("eval_episodes", 0)))
     system = system_in(algo, case[0], case[1], episodes, case[2], common_extra={"key_file": key_file})
     earlier = RunKey(read_key(key_file), run=new_run())  # the earlier run's world, as it sealed
