@@ -875,7 +875,7 @@ def test_a_feedback_from_far_ahead_is_refused_and_counted_without_a_loop(system_
     from msgs_spec import serialize
     from msgs_spec.auth import RunKey
 
-    algo, episodes = "cq", 4
+    algo, episodes = "cq", 40  # the injector fires every 50 ms: several times in 40 episodes, not in 4
     case = (*CASE[:2], (*CASE[2], ("eval_episodes", 0)))
     system = system_in(algo, case[0], case[1], episodes, case[2],
                        common_extra={"key_file": key_file} if keyed else {})
