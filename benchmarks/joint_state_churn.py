@@ -32,7 +32,6 @@ VISITS = ((0, 1), (1, 10), (10, 100), (100, 1000), (1000, None))
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--map", required=True)
-    p.add_argument("--algo", default="cq", choices=("cq", "fcq"))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--run", type=int, default=0)
     p.add_argument("--episodes", type=int, default=10_000)
@@ -47,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     except (MapError, SettingsError) as e:
         p.exit(2, f"joint_state_churn: error: {e}\n")
     team = Team(GridWorld(gridmap, settings, seed=world_seed(args.seed, args.run)),
-                make_learners(args.algo, gridmap, settings, args.seed, args.run))
+                make_learners("cq", gridmap, settings, args.seed, args.run))
     visits: Counter = Counter()  # (agent, cell) -> decisions taken there in the last block
     last_block = (args.episodes - 1) // args.block
 
@@ -61,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
           f"load average {os.getloadavg()[0]:.2f}")
-    print(f"{args.algo} on {gridmap.name}, seed {args.seed} run {args.run}: conf_init {settings.conf_init}, "
+    print(f"cq on {gridmap.name}, seed {args.seed} run {args.run}: conf_init {settings.conf_init}, "
           f"conf_up {settings.conf_up}, conf_down {settings.conf_down}, conf_max {settings.conf_max}, "
           f"conf_drop {settings.conf_drop}, epsilon {settings.epsilon}")
     print("episodes       marked  dropped  kept  collisions/ep")

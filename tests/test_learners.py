@@ -998,21 +998,6 @@ def test_make_learners_one_per_agent_or_one_central():
         assert [learner.agent for learner in learners] == ([0] if algo == "jsa" else [0, 1])
 
 
-def test_fcq_windows_keep_sampled_q_values_where_cq_keeps_rewards():
-    from cq_ros.learners.fcq import FutureCQLearner
-
-    settings = Settings(**{**GREEDY, "window": 5})
-    learners = {cls: cls(0, ROW2, settings, seed=1) for cls in (CQLearner, FutureCQLearner)}
-    for learner in learners.values():
-        learner.q_local[1] = [0.0, 4.0, 0.0, 0.0]  # max Q_k of the next cell: 4
-        learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]
-        step(learner, 0, {1: 5}, -1.0, 1)
-        step(learner, 0, {1: 5}, 2.0, 0, done=True)
-    gamma = settings.gamma
-    assert learners[CQLearner].windows[0 * N_MOVES + EAST].w1 == [-1.0, 2.0]
-    assert learners[FutureCQLearner].windows[0 * N_MOVES + EAST].w1 == [-1.0 + gamma * 4.0, 2.0]
-
-
 # --- near: every peer in range, every step ------------------------------------------------------------
 
 
@@ -1157,5 +1142,5 @@ def test_a_frozen_greedy_copy_only_acts_and_a_learning_one_learns(algo, eval_lea
     assert (after == trained) == (eval_learning == 0)
     if eval_learning == 0:
         assert len({e.states for e in played}) == 1  # a frozen LoC, near or CQ makes no joint state, drops none
-        if algo in ("cq", "fcq"):
+        if algo == "cq":
             assert sum(e.joint_plays for e in played) > 0  # it acted on its joint states, without touching them

@@ -187,7 +187,7 @@ def marked(draw, agent):
 def agent_stats(draw):
     agent = draw(agents)
     return ms.AgentStats(agent=agent, episode=draw(int32s), algorithm=draw(st.sampled_from(
-        ["cq", "indep", "js", "jsa", "loc", "fcq"])), joint_plays=draw(int32s), local_states=draw(int32s),
+        ["cq", "indep", "js", "jsa", "loc", "near"])), joint_plays=draw(int32s), local_states=draw(int32s),
         joint_states=draw(int32s), subscriptions_created=draw(int32s), subscriptions_active=draw(int32s),
         peer_messages=draw(int32s), marked=tuple(draw(st.lists(marked(agent), max_size=5))),
         counters=draw(counters))

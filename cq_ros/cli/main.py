@@ -13,11 +13,9 @@ from pathlib import Path
 from ..gridmap import MapError
 from ..lab.cluster import ClusterError, scheduler_address
 from ..lab.runner import RunFailed
-from ..learners import ALGORITHMS, LEARNERS, REGISTRY
+from ..learners import ALGORITHMS, LEARNERS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
 from ..settings import SettingsError
-
-_EXPERIMENTAL = ",".join(a.name for a in REGISTRY if a.experimental)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -316,8 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("experiment", help="run algorithms on one map offline and write results and figures")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
     p.add_argument("--algo", type=_algos, default=list(ALGORITHMS),
-                   help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five; "
-                        f"experimental: {_EXPERIMENTAL})")
+                   help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five)")
     p.add_argument("--out", type=Path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     _add_run_options(p, runs=10, episodes=10_000)

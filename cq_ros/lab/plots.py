@@ -31,8 +31,8 @@ from .results import EPISODES, OBSERVE, Episodes, Observation, Runs, load_episod
 from .summary import by_map, moving_average, observation_strength
 
 DPI = 150
-JOINT_PLAY_ALGOS = ("loc", "cq", "fcq")  # the learners that decide where to use global information
-STATE_SPACE_ALGOS = ("cq", "fcq")  # the learners whose state space grows and shrinks
+JOINT_PLAY_ALGOS = ("loc", "cq")  # the learners that decide where to use global information
+STATE_SPACE_ALGOS = ("cq",)  # the learners whose state space grows and shrinks
 
 _LABELS = {a.name: a.label for a in REGISTRY}
 _COLOURS = {a.name: a.colour for a in REGISTRY}

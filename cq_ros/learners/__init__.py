@@ -5,7 +5,6 @@ from dataclasses import dataclass
 
 from .base import Learner
 from .cq import CQLearner
-from .fcq import FutureCQLearner
 from .indep import IndependentQ
 from .js import JointStateQ
 from .jsa import JointStateActionQ, decode_joint_action
@@ -20,7 +19,6 @@ class Algorithm:
     label: str  # in figures and tables
     colour: str  # in figures: a hex colour (matplotlib's tab10), so the science imports no plotting code
     paper: bool  # one of the paper's five: the default of `cq-ros experiment` and the reproduction's grid
-    experimental: bool = False  # not yet shown to do what it is for
 
     @property
     def central(self) -> bool:
@@ -35,7 +33,6 @@ REGISTRY: tuple[Algorithm, ...] = (
     Algorithm("jsa", JointStateActionQ, "JSA", "#9467bd", paper=True),
     Algorithm("loc", LearningOfCoordination, "LoC", "#2ca02c", paper=True),
     Algorithm("cq", CQLearner, "CQ", "#1f77b4", paper=True),
-    Algorithm("fcq", FutureCQLearner, "FCQ (experimental)", "#d62728", paper=False, experimental=True),
     Algorithm("near", NearQ, "Near", "#8c564b", paper=False),
 )
 assert all(a.name == a.learner.name for a in REGISTRY), "an algorithm's name is its learner's"

@@ -135,10 +135,8 @@ class CQLearner(Learner):
         if not self.learning:
             return
         s, a = self.s, self.a
-        target = reward if done else reward + self.gamma * max(self.q_local[next_cell])  # what FCQ's windows keep
-        sample = self.sample(reward, target)
         w = self.windows[s * N_MOVES + a]  # line 11: W1 fills first, then W2 slides; lines 12-13 once both are full
-        conflict = w.add(sample) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, sample)
+        conflict = w.add(reward) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, reward)
         step = Step(s, list(self.keys), a, reward, next_cell, done, conflict=conflict and not done)
         if done or not self.settings.cq_bootstrap_acted:
             self._update(step)  # the paper's bootstrap, Q_k of s', is known now
@@ -168,11 +166,6 @@ class CQLearner(Learner):
         theirs (an action is worth what the most wary of them says)."""
         rows = [self.q_local[self.s] if key is None else self.q_joint[key] for key in self.keys]
         return rows[0] if len(rows) == 1 else [min(q) for q in zip(*rows)]
-
-    @staticmethod
-    def sample(reward, target):
-        """What the windows keep: CQ tests the immediate rewards."""
-        return reward
 
     def end_episode(self):
         super().end_episode()
