@@ -28,7 +28,8 @@ configuration's paired differences from the first (the same maps, the same runs)
 - greedy collisions: per greedy episode;
 - greedy all home: the share of greedy episodes in which every AGV reached its goal before the step cap;
 - greedy heard: peer positions the learners took in per greedy episode (all agents together);
-- exploring collisions: per episode over the last 10% of learning.
+- exploring collisions: per episode over the last 10% of learning;
+- states: the states the learners condition on at the end of learning (local plus joint, summed over them).
 
     python benchmarks/bench_delays.py --generate 8:101,102 [--generate 12:103] [--gen-slip 0.1]
         [--algos cq,indep] [--variant cq_old=cq:cq_w1_alone=0,cq_waits_fresh=0] [--seeds 0] [--runs 3]
@@ -75,7 +76,7 @@ def one_run(map_ref: MapRef, algo: str, slip: float, seed: int, run: int, episod
         done = execute(plan(gridmap), gridmap, settings, seed, run)
         steps = max(a or done.paths[i].__len__() - 1 for i, a in enumerate(done.arrivals))
         cost = sum(len(path) - 1 if a is None else a for path, a in zip(done.paths, done.arrivals))
-        return {"explore": 0.0, "heard": 0.0, "g_heard": done.messages / max(1, steps),
+        return {"explore": 0.0, "heard": 0.0, "states": 0.0, "g_heard": done.messages / max(1, steps),
                 "g_collisions": float(done.collisions), "g_cost": float(cost), "g_home": done.home}
     team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, run)),
                 make_learners(algo, gridmap, settings, seed, run))
@@ -86,6 +87,7 @@ def one_run(map_ref: MapRef, algo: str, slip: float, seed: int, run: int, episod
         steps += played.steps
         if episode >= episodes - tail:
             collisions += played.collisions
+    states = played.states  # at the end of learning: whether a learner had room to learn in that many episodes
     heard = sum(learner.heard for learner in team.learners)
     greedy = greedy_team(team)
     world = greedy.world
@@ -98,7 +100,7 @@ def one_run(map_ref: MapRef, algo: str, slip: float, seed: int, run: int, episod
         g_steps += played.steps
     g_heard = sum(learner.heard for learner in greedy.learners) - heard
     return {
-        "explore": collisions / tail, "heard": heard / max(1, steps),
+        "explore": collisions / tail, "heard": heard / max(1, steps), "states": float(states),
         "g_heard": g_heard / max(1, g_steps), "g_heard_episode": g_heard / len(g_finished),
         "g_collisions": sum(g_collisions) / len(g_collisions), "g_cost": sum(g_costs) / len(g_costs),
         "g_home": all(g_finished), "g_home_share": sum(g_finished) / len(g_finished),
@@ -117,7 +119,7 @@ def row(key: tuple, results: list[dict], planned: int) -> str:
 
 
 HELD_OUT = (("greedy collisions", "g_collisions", 3), ("greedy all home", "g_home_share", 2),
-            ("greedy heard", "g_heard_episode", 1), ("exploring collisions", "explore", 2))
+            ("greedy heard", "g_heard_episode", 1), ("exploring collisions", "explore", 2), ("states", "states", 0))
 
 
 def interval(values: list[float], digits: int) -> str:
