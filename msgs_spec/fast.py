@@ -12,7 +12,9 @@ Where the time went in the reference and what this does instead (per call, docs/
 dataclass's __init__ sets each field through object.__setattr__ (1.5 us for a Feedback), so payloads are built
 from their slot descriptors (0.5 us, the same object); the checks run as one expression on the unpacked tuple
 instead of one function per check; the frame is compared in place (startswith), not sliced; the MAC copies the
-HMAC hashes the node's RunKey primed for the layout.
+HMAC hashes the node's RunKey primed for the layout; a received seal is compared as bytes with the one the key
+holds for its sender (packed once per binding and kept, with the hashes, in the key's `derived`), not unpacked
+and compared word by word.
 """
 
 from __future__ import annotations
@@ -62,10 +64,10 @@ def _build_feedback() -> Callable[..., Feedback]:
 class _Form:
     """One layout's serialized form, keyed or plain (msgs_spec.arrays.ArrayLayout.frame), as the fast path
     reads it: the frame's bytes either side of the label's alignment gap, where the values start and end,
-    where the seal ends, and the Struct of the values and seal together."""
+    where the seal ends, and the Structs of the values, the seal and the MAC."""
 
     __slots__ = ("layout", "length", "head", "head_a", "gap_end", "head_b", "start", "end", "sealed_end",
-                 "values", "with_seal", "mac", "label", "code")
+                 "values", "seal", "mac", "label", "code")
 
     def __init__(self, layout: ArrayLayout, keyed: bool):
         head, (a, b), pad, values = layout.frame(keyed)
@@ -76,8 +78,8 @@ class _Form:
         self.end = self.start + layout._struct.size
         self.values = layout._struct
         seal = f"{SEAL_WORDS}{'I' if self.code == 'i' else 'd'}"
-        self.with_seal = struct.Struct(f"<{layout.size}{self.code}{seal}")
-        self.sealed_end = self.start + self.with_seal.size
+        self.seal = struct.Struct(f"<{seal}")
+        self.sealed_end = self.end + self.seal.size
         self.mac = layout._mac_struct
         self.length = self.sealed_end + self.mac.size if keyed else self.end
 
@@ -86,23 +88,51 @@ class _Form:
         return (len(raw) == self.length and raw.startswith(self.head_a)
                 and raw.startswith(self.head_b, self.gap_end))
 
-    def mac_ok(self, key: RunKey, raw: bytes) -> bool:
-        inner, outer = key.hashes(self.label)
-        inner = inner.copy()
-        inner.update(raw[self.start:self.sealed_end])
-        outer = outer.copy()
-        outer.update(inner.digest())
-        return raw.endswith(self.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest())))
+    def sealing(self, key: RunKey) -> tuple:
+        """(the frame, the seal's bytes, the primed inner and outer HMAC hashes) this form seals with under a
+        RunKey bound to its run, kept in the key's `derived` until its binding changes."""
+        got = key.derived.get(self)
+        if got is None:
+            got = key.derived[self] = (self.head, key.seal(self.code), *key.hashes(self.label))
+        return got
+
+    def checking(self, key: RunKey, sender: int) -> tuple | None:
+        """(the seal's bytes a message from `sender` must carry, the primed inner and outer HMAC hashes) when
+        `key` holds the run and an incarnation of `sender`, kept in the key's `derived` until its binding
+        changes; None when it holds neither (the reference checks, and binds)."""
+        got = key.derived.get((self, sender))
+        if got is None:
+            run, incarnation = key.run, key.held.get(sender)
+            if run is None or incarnation is None:
+                return None
+            try:
+                seal = self.seal.pack(run >> 32, run & 0xFFFFFFFF, incarnation)
+            except struct.error:  # no seal of this form carries it: the reference says why
+                return None
+            got = key.derived[(self, sender)] = (seal, *key.hashes(self.label))
+        return got
 
     def sealed(self, key: RunKey, packed: bytes) -> bytes:
         """The frame, the values, the seal and the MAC: serialize_array's bytes for a bound RunKey."""
-        body = packed + key.seal(self.code)
-        inner, outer = key.hashes(self.label)
+        head, seal, inner, outer = key.derived.get(self) or self.sealing(key)
+        body = packed + seal
         inner = inner.copy()
         inner.update(body)
         outer = outer.copy()
         outer.update(inner.digest())
-        return self.head + body + self.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest()))
+        return head + body + self.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest()))
+
+    def verified(self, key: RunKey, sender: int, raw: bytes) -> bool:
+        """Do bytes of this form (framed) carry the seal `key` holds for `sender` and the MAC of the key? False
+        also when the key holds no binding for `sender` yet (the reference binds)."""
+        held = key.derived.get((self, sender)) or self.checking(key, sender)
+        if held is None or not raw.startswith(held[0], self.end):
+            return False
+        inner = held[1].copy()
+        inner.update(raw[self.start:self.sealed_end])
+        outer = held[2].copy()
+        outer.update(inner.digest())
+        return raw.endswith(self.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest())))
 
 
 _FORMS = {lay.payload: (_Form(lay, False), _Form(lay, True))
@@ -189,35 +219,28 @@ def serialize_array(layout: ArrayLayout, payload: Any, key: Any = None) -> bytes
 # -- decode ---------------------------------------------------------------------------------------------------
 
 
-def _sealed_values(msg: Any, key: Any, plain: _Form, keyed: _Form) -> tuple[tuple, _Form] | None:
-    """(values, then the seal's words when keyed; the form) of bytes in the form `key` reads, their MAC
-    checked; None when the reference must decide (a message object, a bare key, another form, a bad MAC)."""
+def _sealed_values(msg: Any, key: Any, plain: _Form, keyed: _Form, sender: int | None) -> tuple | None:
+    """The values of bytes in the form `key` reads, keyed ones carrying the seal `key` holds for `sender` (None:
+    the agent the values name) and the key's MAC; None when the reference must decide (a message object, a bare
+    key, another form, a seal not held yet, a bad MAC)."""
     if type(msg) is not bytes:
         return None
     if key is None:
-        return (plain.values.unpack_from(msg, plain.start), plain) if plain.framed(msg) else None
-    if type(key) is not RunKey or not keyed.framed(msg) or not keyed.mac_ok(key, msg):
+        return plain.values.unpack_from(msg, plain.start) if plain.framed(msg) else None
+    if type(key) is not RunKey or not keyed.framed(msg):
         return None
-    return keyed.with_seal.unpack_from(msg, keyed.start), keyed
-
-
-def _held(key: RunKey, words: tuple, sender: int) -> bool:
-    """Is the seal (run high, run low, incarnation) the one `key` holds for `sender`? (binding: the reference)"""
-    run = key.run
-    return (run is not None and run >> 32 == words[0] and run & 0xFFFFFFFF == words[1]
-            and key.held.get(sender) == words[2])
+    values = keyed.values.unpack_from(msg, keyed.start)
+    return values if keyed.verified(key, values[0] if sender is None else sender, msg) else None
 
 
 def decode_feedback(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
                     episode: int | None = None, step: int | None = None, key: Any = None) -> Feedback:
     """msgs_spec.arrays.decode_feedback, fast for the bytes a world node sends."""
-    got = _sealed_values(msg, key, _FB, _FB_KEYED)
-    if got is not None:
-        v, form = got
-        a, e, s, r, c, rw, d, t, ap = v[:9]
+    v = _sealed_values(msg, key, _FB, _FB_KEYED, WORLD)
+    if v is not None:
+        a, e, s, r, c, rw, d, t, ap = v
         n, rows, cols = _limits(bounds)
-        if ((form is _FB or _held(key, v[9:], WORLD))
-                and a.is_integer() and e.is_integer() and s.is_integer() and r.is_integer() and c.is_integer()
+        if (a.is_integer() and e.is_integer() and s.is_integer() and r.is_integer() and c.is_integer()
                 and ap.is_integer() and 1 <= a <= n and 0 <= e <= _I32 and 0 <= s <= _I32 and 0 <= r < rows
                 and 0 <= c < cols and -1 <= ap <= 3 and rw - rw == 0.0 and (d == 0.0 or d == 1.0)
                 and (t == 0.0 or t == 1.0) and not (d == 1.0 and t == 1.0)
@@ -230,13 +253,11 @@ def decode_feedback(msg: Any, *, bounds: Bounds | None = None, agent: int | None
 def decode_position(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
                     episode: int | None = None, step: int | None = None, key: Any = None) -> Position:
     """msgs_spec.arrays.decode_position, fast for the bytes a world node sends."""
-    got = _sealed_values(msg, key, _POS, _POS_KEYED)
-    if got is not None:
-        v, form = got
-        a, e, s, r, c = v[:5]
+    v = _sealed_values(msg, key, _POS, _POS_KEYED, WORLD)
+    if v is not None:
+        a, e, s, r, c = v
         n, rows, cols = _limits(bounds)
-        if ((form is _POS or _held(key, v[5:], WORLD))
-                and 1 <= a <= n and e >= 0 and s >= 0 and 0 <= r < rows and 0 <= c < cols
+        if (1 <= a <= n and e >= 0 and s >= 0 and 0 <= r < rows and 0 <= c < cols
                 and (agent is None or a == agent) and (episode is None or e == episode)
                 and (step is None or s == step)):
             return _NEW_POSITION(a, e, s, r, c)
@@ -245,14 +266,13 @@ def decode_position(msg: Any, *, bounds: Bounds | None = None, agent: int | None
 
 def decode_action(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
                   episode: int | None = None, step: int | None = None, key: Any = None) -> Action:
-    """msgs_spec.arrays.decode_action, fast for the bytes an agent node sends."""
-    got = _sealed_values(msg, key, _ACT, _ACT_KEYED)
-    if got is not None:
-        v, form = got
-        a, e, s, x = v[:4]
+    """msgs_spec.arrays.decode_action, fast for the bytes an agent node sends (its sender: the topic's agent,
+    else the agent it names)."""
+    v = _sealed_values(msg, key, _ACT, _ACT_KEYED, agent)
+    if v is not None:
+        a, e, s, x = v
         n = bounds.n_agents if bounds is not None else _I32
-        if ((form is _ACT or _held(key, v[4:], a if agent is None else agent))
-                and 1 <= a <= n and e >= 0 and s >= 0 and 0 <= x <= 3
+        if (1 <= a <= n and e >= 0 and s >= 0 and 0 <= x <= 3
                 and (agent is None or a == agent) and (episode is None or e == episode)
                 and (step is None or s == step)):
             return _NEW_ACTION(a, e, s, x)
@@ -261,11 +281,10 @@ def decode_action(msg: Any, *, bounds: Bounds | None = None, agent: int | None =
 
 def decode_heartbeat(msg: Any, *, after: int | None = None, key: Any = None) -> Heartbeat:
     """msgs_spec.arrays.decode_heartbeat, fast for the bytes a world node sends."""
-    got = _sealed_values(msg, key, _HB, _HB_KEYED)
-    if got is not None:
-        v, form = got
-        b, e, s = v[:3]
-        if (form is _HB or _held(key, v[3:], WORLD)) and b >= 1 and e >= 0 and s >= 0 and (after is None or b > after):
+    v = _sealed_values(msg, key, _HB, _HB_KEYED, WORLD)
+    if v is not None:
+        b, e, s = v
+        if b >= 1 and e >= 0 and s >= 0 and (after is None or b > after):
             return _NEW_HEARTBEAT(b, e, s)
     hb = decode_array(HEARTBEAT_LAYOUT, msg, None, None, None, None, key)
     if after is not None and hb.beat <= after:
