@@ -50,11 +50,11 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     from rclpy.task import Future
 
     from msgs_spec import (
-        ACTION, FEEDBACK, POSITION, Action, Bounds, Feedback, Position, action_topic, decode_action,
-        decode_feedback, decode_position, feedback_topic, position_topic, serialize,
+        ACTION, FEEDBACK, POSITION, Action, Bounds, Feedback, Position, action_topic, decode_feedback,
+        decode_position, feedback_topic, position_topic, serialize,
     )
     from msgs_spec.auth import WORLD, RunKey, new_run
-    from msgs_spec.fast import new_action, new_feedback, new_position
+    from msgs_spec.fast import action_of, new_action, new_feedback, new_position
     from rclpy.event_handler import PublisherEventCallbacks
 
     from agent_node.node import UNANNOUNCED_CHECK_S
@@ -135,8 +135,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         subs = []
         for k in ids:
             def action_in(raw, k=k):
-                if contract:
-                    decoded(decode_action, raw, k, WORLD)
+                if contract:  # as the world node reads an action: its value alone (msgs_spec.fast.action_of)
+                    decoded(action_of, raw, k, WORLD)
                 actions_in[0] += 1
                 if actions_in[0] == agents:
                     stepped[0].set_result(True)
