@@ -54,7 +54,9 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         decode_position, feedback_topic, position_topic, serialize,
     )
     from msgs_spec.auth import WORLD, RunKey, new_run
-    from msgs_spec.fast import action_of, new_action, new_feedback, new_position
+    from msgs_spec.fast import (
+        action_of, new_action, new_feedback, new_position, serialize_action, serialize_feedback, serialize_position,
+    )
     from rclpy.event_handler import PublisherEventCallbacks
 
     from agent_node.node import UNANNOUNCED_CHECK_S
@@ -79,8 +81,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         def decoded(decode, raw, k, receiver):  # what a node does with each arrival: decode with every check
             decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=keys[receiver])
 
-        def sent(payload, sender):  # what a node does with each message it sends: the payload, sealed
-            return serialize(payload, key=keys[sender])
+        def sent(seal, payload, sender):  # what a node does with each message it sends: the payload, sealed by
+            return seal(payload, keys[sender])  # its type's own serializer (msgs_spec.fast), as the nodes call it
     watched = {k: [j for j in ids if j != k] if peers == "all" else [] for k in ids}
     # churn: subscriptions made a step (at most 1), each to a peer's position topic for one decision step, as
     # CQ's agents make them; at the steps of a fixed schedule, the agents and their peers in turn.
@@ -158,7 +160,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                 got[k] += 1
                 if got[k] == need[k] + (k in churning):  # with churn, one more: the peer's position
                     got[k] = 0
-                    send(sent(new_action(k, 0, clock[0], 0), k) if contract else action[k])
+                    send(sent(serialize_action, new_action(k, 0, clock[0], 0), k) if contract else action[k])
             sends[k] = arrive
 
             subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
@@ -208,9 +210,11 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                     else:
                         held[k] = clock[0]
             for k in listened:
-                send_position[k](sent(new_position(k, 0, clock[0], 0, 0), WORLD) if contract else position[k])
+                send_position[k](sent(serialize_position, new_position(k, 0, clock[0], 0, 0), WORLD) if contract
+                             else position[k])
             for k in ids:
-                send_feedback[k](sent(new_feedback(k, 0, clock[0], 0, 0, -1.0, False, False, -1), WORLD)
+                send_feedback[k](sent(serialize_feedback, new_feedback(k, 0, clock[0], 0, 0, -1.0, False, False, -1),
+                                      WORLD)
                                  if contract else feedback[k])
             # One call into the executor a step, until the last action is in, as node_runtime.run spins; with
             # churn, every UNANNOUNCED_CHECK_S a waited-for position the executor was never told of is taken

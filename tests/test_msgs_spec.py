@@ -856,6 +856,9 @@ def test_the_fast_codec_agrees_with_the_reference(payload, sender, state, expect
     lay = reference.LAYOUT_BY_PAYLOAD[type(payload)]
     ours = _outcome(lambda: fast.serialize_array(lay, payload, seal))
     assert ours == _outcome(lambda: reference.serialize_array(lay, payload, seal))
+    other = reference.POSITION_LAYOUT if type(payload) is ms.Action else reference.ACTION_LAYOUT
+    assert (_outcome(lambda: fast.serialize_array(other, payload, seal))
+            == _outcome(lambda: reference.serialize_array(other, payload, seal)))  # a layout not the payload's
     if ours[0] != "value":
         return
     raw = bytearray(ours[1])
