@@ -297,13 +297,14 @@ def decode_feedback(msg: Any, *, bounds: Bounds | None = None, agent: int | None
     if v is not None:
         a, e, s, r, c, rw, d, t, ap = v
         n, rows, cols = _limits(bounds)
-        if (a.is_integer() and e.is_integer() and s.is_integer() and r.is_integer() and c.is_integer()
-                and ap.is_integer() and 1 <= a <= n and 0 <= e <= _I32 and 0 <= s <= _I32 and 0 <= r < rows
-                and 0 <= c < cols and -1 <= ap <= 3 and rw - rw == 0.0 and (d == 0.0 or d == 1.0)
-                and (t == 0.0 or t == 1.0) and not (d == 1.0 and t == 1.0)
-                and (agent is None or a == agent) and (episode is None or e == episode)
-                and (step is None or s == step)):
-            return _NEW_FEEDBACK(int(a), int(e), int(s), int(r), int(c), rw, d == 1.0, t == 1.0, int(ap))
+        # The ranges first (NaN and infinities fail them), so int() cannot raise; whole numbers: int(x) == x.
+        if (1 <= a <= n and 0 <= e <= _I32 and 0 <= s <= _I32 and 0 <= r < rows and 0 <= c < cols
+                and -1 <= ap <= 3 and rw - rw == 0.0 and (d == 0.0 or d == 1.0) and (t == 0.0 or t == 1.0)
+                and not (d == 1.0 and t == 1.0) and (agent is None or a == agent)
+                and (episode is None or e == episode) and (step is None or s == step)):
+            ia, ie, is_, ir, ic, iap = int(a), int(e), int(s), int(r), int(c), int(ap)
+            if ia == a and ie == e and is_ == s and ir == r and ic == c and iap == ap:
+                return _NEW_FEEDBACK(ia, ie, is_, ir, ic, rw, d == 1.0, t == 1.0, iap)
     return decode_array(FEEDBACK_LAYOUT, msg, bounds, agent, episode, step, key)
 
 
