@@ -18,7 +18,12 @@ arrival decoded with every check, the MAC included (bounds, agent, episode and s
 no driver, learner or world. The gap between the two rates is what the contract costs, the rest of a
 composed run's gap is the nodes' own Python.
 
-    python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all] [--contract]
+`--mac-only` makes and checks every message's MAC alone (the primed HMAC hashes copied, as msgs_spec.fast does;
+the bytes sent are the ceiling's, their MAC made anew): no payload, frame, seal, bounds or stamp check. No
+contract sealed with this MAC can cost less in Python; the gap between it and `--contract` is the checks and
+the payloads.
+
+    python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all] [--contract | --mac-only]
 
 Isolation: a random ROS_DOMAIN_ID in 40..99, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, its own rclpy Context;
 every wait is bounded (discovery, and each step).
