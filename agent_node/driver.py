@@ -166,7 +166,7 @@ class AgentDriver:
             return self._end_episode(fb.episode)
         self.expect = (fb.episode, fb.step + 1)
         self.peers.advance(fb.episode, fb.step)
-        need = tuple(j + 1 for j in need)
+        need = tuple([j + 1 for j in need]) if need else ()
         self._pending = (fb.episode, fb.step, need)
         return self.peers.need(need) + self._try_act()
 
@@ -178,7 +178,7 @@ class AgentDriver:
         if cells is None:
             return []
         self._pending = None
-        action = step_act(self.learner, {j - 1: c for j, c in cells.items()})
+        action = step_act(self.learner, {j - 1: c for j, c in cells.items()} if cells else {})
         self._acted = (episode, step, action)
         return [Send(new_action(self.agent, episode, step, action))]
 

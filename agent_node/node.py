@@ -29,6 +29,7 @@ from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
     agent_stats_topic, feedback_topic, position_topic, serialize,
 )
+from msgs_spec.fast import serialize_action
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
@@ -50,6 +51,10 @@ UNANNOUNCED_CHECK_S = 0.05
 STATS_MATCH_TIMEOUT_S = 10.0
 
 
+def _serialize_any(payload: Any, key: Any) -> Any:
+    return serialize(payload, key=key)
+
+
 class _HeldPublisher:
     """A publisher that holds what it is given until its writer has matched `min_matched` subscriptions, then
     sends it in order. Our topics here are volatile: a message published before the match is lost, and only
@@ -68,10 +73,12 @@ class _HeldPublisher:
         # bytes, without its per-call type check and handle lock (the node destroys its publishers only after
         # it has stopped spinning). Statistics are messages, published as such.
         self._raw = self.pub.handle.publish_raw
+        # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
+        self._serialize = serialize_action if spec is ACTION else _serialize_any
 
     def publish(self, payload: Any) -> None:
         if not self.held and self.matched.count >= self.min_matched:  # matched, nothing held: straight out
-            data = serialize(payload, key=self.key)
+            data = self._serialize(payload, self.key)
             if type(data) is bytes:
                 self._raw(data)
             else:
@@ -87,7 +94,7 @@ class _HeldPublisher:
         if self.held and (self.matched.count >= self.min_matched
                           or self.pub.get_subscription_count() >= self.min_matched):
             for payload in self.held:
-                self.pub.publish(serialize(payload, key=self.key))
+                self.pub.publish(self._serialize(payload, self.key))
             self.held.clear()
 
 

@@ -62,6 +62,8 @@ class PeerView:
 
     def need(self, peers: Iterable[int]) -> Effects:
         """A decision step needing `peers`: subscribe to the new ones, drop the ones idle too long."""
+        if not peers and not self.idle:  # most steps of a run: nobody needed, nobody subscribed
+            return []
         peers = set(peers)
         out: Effects = []
         for j in self.subscribed:

@@ -2,7 +2,8 @@
 """ROS mode speed: lockstep steps per second of `cq-ros launch` composed (every node in one process) and with a
 process per node, each against the messaging-only ceiling of the same topology measured in the same run
 (benchmarks/ceiling.py: the same nodes, topics, QoS and message sizes with no decoding, checking or learning;
-and beside it the same with the wire contract put back, every message encoded and decoded as the nodes do),
+and beside it the same with the wire contract put back, every message encoded and decoded as the nodes do, and
+with every message's MAC alone made and checked, the floor of any contract with that MAC in Python),
 with the ratios to it and to each other, for independent learners, for a CQ that has learnt (its agents start
 from checkpoints of an offline run of the same map, so joint states are marked and peers subscribed: peer
 messages a step printed beside) and for JS (every peer all the time, against the ceiling with every peer
@@ -142,13 +143,14 @@ def main() -> None:
               f"{r['wall_s']:>7.1f} {r['peer_messages'] / r['steps']:>14.2f} {r['subscriptions']:>9} "
               f"{r['missed_actions']:>6}", flush=True)
 
-    def top(block, map_name, agents, peers, contract, churn=0.0) -> None:
+    def top(block, map_name, agents, peers, contract, churn=0.0, mac_only=False) -> None:
         steps = args.ceiling_steps if peers == "none" else max(args.ceiling_steps // 4, 100)
-        c = ceiling(agents, steps, peers, contract=contract, churn=churn)
-        rates.setdefault((map_name, ("ceiling", peers, contract, bool(churn))), []).append(c["steps_per_s"])
+        c = ceiling(agents, steps, peers, contract=contract, churn=churn, mac_only=mac_only)
+        what = ("ceiling", peers, "mac" if mac_only else contract, bool(churn))
+        rates.setdefault((map_name, what), []).append(c["steps_per_s"])
         loads.append(os.getloadavg()[0])
         made = f", {churn:.3f} subscriptions made a step (CQ's)" if churn else ""
-        print(f"{block:>5} {map_name:<15} {agents:>6} {kind(contract)}, peers {peers}{made}: "
+        print(f"{block:>5} {map_name:<15} {agents:>6} {kind(contract, mac_only)}, peers {peers}{made}: "
               f"{c['steps_per_s']:,.0f} steps/s ({c['deliveries_per_step']} deliveries a step, "
               f"{c['cpu_ms_per_step']:.3f} ms of CPU a step; {load()})", flush=True)
 
@@ -163,8 +165,11 @@ def main() -> None:
             runs = {"indep": (None, "none"), "cq": (folder, "none"), "js": (None, "all")}
             peer_sets = sorted({runs[a][1] for a in algos}, key=PEERS.index)
             # Every mode once a block, the order turned by one each block: each mode sees every part of the load.
-            modes = [partial(top, map_name=map_name, agents=agents, peers=peers, contract=contract)
-                     for peers in peer_sets for contract in (False, True)]
+            # The ceiling, the contract's row, and between them the floor of any contract with the run's MAC in
+            # Python (every message's MAC made and checked, nothing else)
+            modes = [partial(top, map_name=map_name, agents=agents, peers=peers, contract=contract,
+                             mac_only=mac_only)
+                     for peers in peer_sets for contract, mac_only in ((False, False), (False, True), (True, False))]
             if "cq" in algos:
                 # The learnt CQ's peer subscriptions, the same in every launch of it (one, not timed, says how
                 # many): its ceiling makes as many a step, each for one decision step.
@@ -204,6 +209,7 @@ def main() -> None:
         name = algo + (" learnt" if algo == "cq" else "")
         ceil = med(map_name, ("ceiling", peers, False, False))
         contract = med(map_name, ("ceiling", peers, True, False))
+        macs = med(map_name, ("ceiling", peers, "mac", False))
         composed = med(map_name, (name, None, "composed", "events", True))
         apart = med(map_name, (name, None, "processes", "events", True))
         if composed is None or apart is None:
@@ -211,6 +217,7 @@ def main() -> None:
         r = rows[map_name, (name, None, "composed", "events", True)]
         print(f"  {map_name:<15} {agents:>2} agents {name:<10} ceiling (peers {peers}) "
               f"{ceil:>6,.0f} steps/s; with the contract {contract:>6,.0f} ({contract / ceil:.0%}); "
+              f"its MACs alone {macs:>6,.0f} ({macs / ceil:.0%}); "
               f"composed {composed:>6,.0f} ({composed / ceil:.0%} of it); "
               f"processes {apart:>5,.0f} ({apart / ceil:.0%} of it, "
               f"{apart / allowed:.0%} of the round-trip rate); composed / processes "
@@ -221,7 +228,8 @@ def main() -> None:
                   f"{churned:,.0f} steps/s: composed {composed / churned:.0%} of it, processes "
                   f"{apart / churned:.0%}", flush=True)
         print(f"      each block: ceiling {each(map_name, ('ceiling', peers, False, False))}; contract "
-              f"{each(map_name, ('ceiling', peers, True, False))}; "
+              f"{each(map_name, ('ceiling', peers, True, False))}; MACs alone "
+              f"{each(map_name, ('ceiling', peers, 'mac', False))}; "
               + (f"ceiling with CQ's subscriptions {each(map_name, ('ceiling', peers, False, True))}; "
                  if churned is not None else "")
               + f"composed {each(map_name, (name, None, 'composed', 'events', True))}; processes "

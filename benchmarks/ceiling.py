@@ -18,7 +18,12 @@ arrival decoded with every check, the MAC included (bounds, agent, episode and s
 no driver, learner or world. The gap between the two rates is what the contract costs, the rest of a
 composed run's gap is the nodes' own Python.
 
-    python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all] [--contract]
+`--mac-only` makes and checks every message's MAC alone (the primed HMAC hashes copied, as msgs_spec.fast does;
+the bytes sent are the ceiling's, their MAC made anew): no payload, frame, seal, bounds or stamp check. No
+contract sealed with this MAC can cost less in Python; the gap between it and `--contract` is the checks and
+the payloads.
+
+    python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all] [--contract | --mac-only]
 
 Isolation: a random ROS_DOMAIN_ID in 40..99, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, its own rclpy Context;
 every wait is bounded (discovery, and each step).
@@ -30,6 +35,7 @@ import argparse
 import os
 import random
 import secrets
+import struct
 import sys
 import time
 from functools import partial
@@ -37,24 +43,29 @@ from functools import partial
 PEERS = ("none", "all")
 
 
-def kind(contract: bool) -> str:
+def kind(contract: bool, mac_only: bool = False) -> str:
     """What a ceiling measures, as the benchmarks print it."""
+    if mac_only:
+        return "the messages and their MACs alone"
     return "the messages and the contract" if contract else "messaging-only ceiling"
 
 
 def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, step_timeout_s: float = 5.0,
-            discovery_timeout_s: float = 30.0, contract: bool = False, churn: float = 0.0) -> dict:
+            discovery_timeout_s: float = 30.0, contract: bool = False, churn: float = 0.0,
+            mac_only: bool = False) -> dict:
     """Steps per second of the emulated lockstep (`steps` timed after `warmup`), and the deliveries a step;
     with `contract`, every message encoded and decoded as the nodes do (the module's docstring)."""
     import rclpy
     from rclpy.task import Future
 
     from msgs_spec import (
-        ACTION, FEEDBACK, POSITION, Action, Bounds, Feedback, Position, action_topic, decode_action,
-        decode_feedback, decode_position, feedback_topic, position_topic, serialize,
+        ACTION, ACTION_LAYOUT, FEEDBACK, FEEDBACK_LAYOUT, POSITION, POSITION_LAYOUT, Action, Bounds, Feedback,
+        Position, action_topic, decode_feedback, decode_position, feedback_topic, position_topic, serialize,
     )
-    from msgs_spec.auth import WORLD, RunKey, new_run
-    from msgs_spec.fast import new_action, new_feedback, new_position
+    from msgs_spec.auth import MAC_WORDS, WORLD, RunKey, new_run
+    from msgs_spec.fast import (
+        action_of, new_action, new_feedback, new_position, serialize_action, serialize_feedback, serialize_position,
+    )
     from rclpy.event_handler import PublisherEventCallbacks
 
     from agent_node.node import UNANNOUNCED_CHECK_S
@@ -75,12 +86,63 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     action = {k: serialize(Action(k, 0, 1, 0), key=keys[k]) for k in ids}
     bounds = Bounds(agents, 1, 1)
     clock = [0]  # the step, as the contract's payloads carry it
+    if contract and mac_only:
+        raise ValueError("contract or mac_only, not both")
+    # What goes out: the same bytes every step (the ceiling); the payload of the step, sealed by its type's own
+    # serializer as the nodes call it (contract); or the same bytes with their MAC made anew (mac_only).
+    def make_position(k):
+        return position[k]
+
+    def make_feedback(k):
+        return feedback[k]
+
+    def make_action(k):
+        return action[k]
+    checked = contract or mac_only  # every arrival checked: decoded(decode, raw, sender, receiver)
     if contract:
         def decoded(decode, raw, k, receiver):  # what a node does with each arrival: decode with every check
             decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=keys[receiver])
 
-        def sent(payload, sender):  # what a node does with each message it sends: the payload, sealed
-            return serialize(payload, key=keys[sender])
+        def make_position(k):  # noqa: F811
+            return serialize_position(new_position(k, 0, clock[0], 0, 0), keys[WORLD])
+
+        def make_feedback(k):  # noqa: F811
+            return serialize_feedback(new_feedback(k, 0, clock[0], 0, 0, -1.0, False, False, -1), keys[WORLD])
+
+        def make_action(k):  # noqa: F811
+            return serialize_action(new_action(k, 0, clock[0], 0), keys[k])
+    if mac_only:
+        # The floor of any contract sealed with this MAC in Python: per message sent, the HMAC of its values and
+        # seal made from the primed hashes (as msgs_spec.fast makes it) and the bytes joined; per arrival, its
+        # HMAC made again and compared; no payload, frame, seal, bounds or stamp checked.
+        def macked(layout):  # (the sealed bytes' frame, where the MAC starts, the MAC's Struct, the primed hashes)
+            head, _, pad, values = layout.frame(True)
+            mac = struct.Struct(f"<{MAC_WORDS}{'I' if values.format.endswith('i') else 'd'}")
+            return len(head) + pad, mac, keys[WORLD].hashes(layout.label)
+        forms = {d: macked(lay) for d, lay in ((decode_feedback, FEEDBACK_LAYOUT), (decode_position, POSITION_LAYOUT),
+                                                (action_of, ACTION_LAYOUT))}
+        words = struct.Struct(f">{MAC_WORDS}I")
+
+        def mac_of(form, body):
+            _, mac, (inner, outer) = form
+            inner = inner.copy()
+            inner.update(body)
+            outer = outer.copy()
+            outer.update(inner.digest())
+            return mac.pack(*words.unpack_from(outer.digest()))
+
+        def decoded(decode, raw, k, receiver):  # noqa: F811
+            form = forms[decode]
+            if not raw.endswith(mac_of(form, raw[form[0]:len(raw) - form[1].size])):
+                raise RuntimeError("a MAC did not match")
+
+        def remade(decode, sample):  # the message's bytes with its MAC made anew
+            form = forms[decode]
+            head, body = sample[:form[0]], sample[form[0]:len(sample) - form[1].size]
+            return lambda k: head + body + mac_of(form, body)
+        make_position = remade(decode_position, position[1])  # noqa: F811
+        make_feedback = remade(decode_feedback, feedback[1])  # noqa: F811
+        make_action = remade(action_of, action[1])  # noqa: F811
     watched = {k: [j for j in ids if j != k] if peers == "all" else [] for k in ids}
     # churn: subscriptions made a step (at most 1), each to a peer's position topic for one decision step, as
     # CQ's agents make them; at the steps of a fixed schedule, the agents and their peers in turn.
@@ -135,8 +197,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         subs = []
         for k in ids:
             def action_in(raw, k=k):
-                if contract:
-                    decoded(decode_action, raw, k, WORLD)
+                if checked:  # as the world node reads an action: its value alone (msgs_spec.fast.action_of)
+                    decoded(action_of, raw, k, WORLD)
                 actions_in[0] += 1
                 if actions_in[0] == agents:
                     stepped[0].set_result(True)
@@ -151,14 +213,14 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
             pub = agent.create_publisher(ACTION.msg_type, action_topic(k), ACTION.qos)
 
             def arrive(raw, k=k, send=pub.handle.publish_raw, sender=k, agent=agent):
-                if contract:
+                if checked:
                     decoded(decode_feedback if sender == k else decode_position, raw, sender, k)
                 if churn and sender == k:  # its feedback: the decision step of a subscription made mid-run
                     churn_step(agent, k)
                 got[k] += 1
                 if got[k] == need[k] + (k in churning):  # with churn, one more: the peer's position
                     got[k] = 0
-                    send(sent(new_action(k, 0, clock[0], 0), k) if contract else action[k])
+                    send(make_action(k))
             sends[k] = arrive
 
             subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
@@ -208,10 +270,9 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                     else:
                         held[k] = clock[0]
             for k in listened:
-                send_position[k](sent(new_position(k, 0, clock[0], 0, 0), WORLD) if contract else position[k])
+                send_position[k](make_position(k))
             for k in ids:
-                send_feedback[k](sent(new_feedback(k, 0, clock[0], 0, 0, -1.0, False, False, -1), WORLD)
-                                 if contract else feedback[k])
+                send_feedback[k](make_feedback(k))
             # One call into the executor a step, until the last action is in, as node_runtime.run spins; with
             # churn, every UNANNOUNCED_CHECK_S a waited-for position the executor was never told of is taken
             # from its reader, as the agent node does (agent_node.node, _take_unannounced).
@@ -242,7 +303,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         for made in nodes:
             made.destroy_node()
         rclpy.try_shutdown(context=ctx)
-    return {"agents": agents, "peers": peers, "contract": contract, "steps": steps, "seconds": seconds,
+    return {"agents": agents, "peers": peers, "contract": contract, "mac_only": mac_only, "steps": steps,
+            "seconds": seconds,
             "steps_per_s": steps / seconds,
             "cpu_ms_per_step": cpu / steps * 1e3,
             "subscriptions_made_per_step": created[0] / (warmup + steps),
@@ -256,14 +318,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--peers", choices=PEERS, default="none")
     ap.add_argument("--contract", action="store_true", help="encode and decode every message as the nodes do")
+    ap.add_argument("--mac-only", action="store_true",
+                    help="only make and check every message's MAC: the floor of any contract with it")
     ap.add_argument("--churn", type=float, default=0.0,
                     help="peer subscriptions made a step (0-1, peers none), each for one decision step, as CQ's")
     args = ap.parse_args(argv)
     if args.agents < 1 or args.steps < 1:
         print("ceiling.py: --agents and --steps must be at least 1", file=sys.stderr)
         return 2
-    r = ceiling(args.agents, args.steps, args.peers, contract=args.contract, churn=args.churn)
-    print(f"{kind(r['contract'])}, {r['agents']} agents, peers {r['peers']}: {r['steps_per_s']:,.0f} steps/s "
+    r = ceiling(args.agents, args.steps, args.peers, contract=args.contract, churn=args.churn,
+                mac_only=args.mac_only)
+    print(f"{kind(r['contract'], r['mac_only'])}, {r['agents']} agents, peers {r['peers']}: "
+          f"{r['steps_per_s']:,.0f} steps/s "
           f"({r['steps']} steps in {r['seconds']:.2f} s, {r['cpu_ms_per_step']:.3f} ms of CPU a step; "
           f"{r['deliveries_per_step']} deliveries and {r['subscriptions_made_per_step']:.2f} subscriptions made a "
           "step); "

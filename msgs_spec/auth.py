@@ -119,7 +119,7 @@ class RunKey:
     `incarnation`. Receiving: the incarnation held for each sender (WORLD, or an agent id), bound by the first
     valid message of each. The codec reads and binds it; one per node, from one executor thread."""
 
-    __slots__ = ("secret", "run", "incarnation", "held", "retired", "replaced", "_seals", "_hashes")
+    __slots__ = ("secret", "run", "incarnation", "held", "retired", "replaced", "_seals", "_hashes", "derived")
 
     def __init__(self, secret: bytes, run: int | None = None, incarnation: int | None = None):
         self.secret = secret
@@ -130,6 +130,9 @@ class RunKey:
         self.replaced = 0  # agent incarnations replaced by a newer one (restarts, or a twin)
         self._seals: dict[str, bytes] = {}  # struct code -> the seal words as the wire holds them
         self._hashes: dict[str, tuple] = {}  # label -> (inner, outer) HMAC hashes, as _keyed
+        # What a codec derives from the binding (the run, the incarnations held) to check and seal without
+        # reading it again per message (msgs_spec.fast): dropped whenever the binding changes.
+        self.derived: dict = {}
 
     def __repr__(self) -> str:  # never the secret
         run = "unbound" if self.run is None else f"{self.run:016x}"
@@ -172,8 +175,10 @@ class RunKey:
         if self.run is None:
             self.run = run
             self._seals.clear()
+            self.derived.clear()
         held = self.held.get(sender)
         if held != incarnation:
+            self.derived.clear()
             if held is not None:
                 self.retired.setdefault(sender, set()).add(held)
                 self.replaced += 1

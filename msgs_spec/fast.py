@@ -10,9 +10,11 @@ mutated messages.
 
 Where the time went in the reference and what this does instead (per call, docs/speed.md): a frozen
 dataclass's __init__ sets each field through object.__setattr__ (1.5 us for a Feedback), so payloads are built
-from their slot descriptors (0.5 us, the same object); the checks run as one expression on the unpacked tuple
-instead of one function per check; the frame is compared in place (startswith), not sliced; the MAC copies the
-HMAC hashes the node's RunKey primed for the layout.
+from their slot descriptors, one setter call a field (0.34 us for a Position, the same object); the checks run
+as one expression on the unpacked tuple instead of one function per check; the frame is compared in place
+(startswith), not sliced; the MAC copies the HMAC hashes the node's RunKey primed for the layout; a received
+seal is compared as bytes with the one the key holds for its sender (packed once per binding and kept, with
+the hashes, in the key's `derived`), not unpacked and compared word by word.
 """
 
 from __future__ import annotations
@@ -27,45 +29,59 @@ from .auth import MAC_WORDS, SEAL_WORDS, WORLD, RunKey
 from .errors import WireError
 from .payloads import INT32_MAX, Action, Bounds, Feedback, Heartbeat, Position
 
-__all__ = ["serialize_array", "decode_feedback", "decode_position", "decode_action", "decode_heartbeat", "new_feedback",
-           "new_position", "new_action"]
+__all__ = ["serialize_array", "serialize_feedback", "serialize_position", "serialize_action", "serialize_heartbeat",
+           "decode_feedback", "decode_position", "decode_action", "decode_heartbeat", "action_of",
+           "new_feedback", "new_position", "new_action"]
 
 _reference_serialize = serialize_array
 _DIGEST_WORDS = struct.Struct(f">{MAC_WORDS}I")  # as msgs_spec.auth reads the digest
 
 
 def _builder(payload: type) -> Callable[..., Any]:
-    """payload(*values) without the frozen dataclass's __init__: the same object, a third of the time."""
+    """payload(*values) without the frozen dataclass's __init__: the same object, in half the time. Unrolled
+    (one setter call per field, no loop): a loop over the setters cost as much as the __init__ it replaces."""
     setters = [payload.__dict__[name].__set__ for name in payload.__slots__]
     new = object.__new__
+    if len(setters) == 3:
+        s0, s1, s2 = setters
 
-    def build(*values):
-        obj = new(payload)
-        for set_, v in zip(setters, values):
-            set_(obj, v)
-        return obj
-    return build
+        def build3(a, b, c):
+            o = new(payload)
+            s0(o, a); s1(o, b); s2(o, c)  # noqa: E702
+            return o
+        return build3
+    if len(setters) == 4:
+        s0, s1, s2, s3 = setters
 
+        def build4(a, b, c, d):
+            o = new(payload)
+            s0(o, a); s1(o, b); s2(o, c); s3(o, d)  # noqa: E702
+            return o
+        return build4
+    if len(setters) == 5:
+        s0, s1, s2, s3, s4 = setters
 
-def _build_feedback() -> Callable[..., Feedback]:
-    # unrolled: the loop of _builder costs 0.4 us more on the payload decoded most
-    s0, s1, s2, s3, s4, s5, s6, s7, s8 = (Feedback.__dict__[n].__set__ for n in Feedback.__slots__)
-    new = object.__new__
+        def build5(a, b, c, d, e):
+            o = new(payload)
+            s0(o, a); s1(o, b); s2(o, c); s3(o, d); s4(o, e)  # noqa: E702
+            return o
+        return build5
+    s0, s1, s2, s3, s4, s5, s6, s7, s8 = setters  # Feedback's nine
 
-    def build(a, e, s, r, c, rw, d, t, ap):
-        o = new(Feedback)
-        s0(o, a); s1(o, e); s2(o, s); s3(o, r); s4(o, c); s5(o, rw); s6(o, d); s7(o, t); s8(o, ap)  # noqa: E702
+    def build9(a, b, c, d, e, f, g, h, i):
+        o = new(payload)
+        s0(o, a); s1(o, b); s2(o, c); s3(o, d); s4(o, e); s5(o, f); s6(o, g); s7(o, h); s8(o, i)  # noqa: E702
         return o
-    return build
+    return build9
 
 
 class _Form:
     """One layout's serialized form, keyed or plain (msgs_spec.arrays.ArrayLayout.frame), as the fast path
     reads it: the frame's bytes either side of the label's alignment gap, where the values start and end,
-    where the seal ends, and the Struct of the values and seal together."""
+    where the seal ends, and the Structs of the values, the seal and the MAC."""
 
     __slots__ = ("layout", "length", "head", "head_a", "gap_end", "head_b", "start", "end", "sealed_end",
-                 "values", "with_seal", "mac", "label", "code")
+                 "values", "seal", "mac", "label", "code")
 
     def __init__(self, layout: ArrayLayout, keyed: bool):
         head, (a, b), pad, values = layout.frame(keyed)
@@ -76,8 +92,8 @@ class _Form:
         self.end = self.start + layout._struct.size
         self.values = layout._struct
         seal = f"{SEAL_WORDS}{'I' if self.code == 'i' else 'd'}"
-        self.with_seal = struct.Struct(f"<{layout.size}{self.code}{seal}")
-        self.sealed_end = self.start + self.with_seal.size
+        self.seal = struct.Struct(f"<{seal}")
+        self.sealed_end = self.end + self.seal.size
         self.mac = layout._mac_struct
         self.length = self.sealed_end + self.mac.size if keyed else self.end
 
@@ -86,23 +102,39 @@ class _Form:
         return (len(raw) == self.length and raw.startswith(self.head_a)
                 and raw.startswith(self.head_b, self.gap_end))
 
-    def mac_ok(self, key: RunKey, raw: bytes) -> bool:
-        inner, outer = key.hashes(self.label)
-        inner = inner.copy()
-        inner.update(raw[self.start:self.sealed_end])
-        outer = outer.copy()
-        outer.update(inner.digest())
-        return raw.endswith(self.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest())))
+    def sealing(self, key: RunKey) -> tuple:
+        """(the frame, the seal's bytes, the primed inner and outer HMAC hashes) this form seals with under a
+        RunKey bound to its run, kept in the key's `derived` until its binding changes."""
+        got = key.derived.get(self)
+        if got is None:
+            got = key.derived[self] = (self.head, key.seal(self.code), *key.hashes(self.label))
+        return got
+
+    def checking(self, key: RunKey, sender: int) -> tuple | None:
+        """(the seal's bytes a message from `sender` must carry, the primed inner and outer HMAC hashes) when
+        `key` holds the run and an incarnation of `sender`, kept in the key's `derived` until its binding
+        changes; None when it holds neither (the reference checks, and binds)."""
+        got = key.derived.get((self, sender))
+        if got is None:
+            run, incarnation = key.run, key.held.get(sender)
+            if run is None or incarnation is None:
+                return None
+            try:
+                seal = self.seal.pack(run >> 32, run & 0xFFFFFFFF, incarnation)
+            except struct.error:  # no seal of this form carries it: the reference says why
+                return None
+            got = key.derived[(self, sender)] = (seal, *key.hashes(self.label))
+        return got
 
     def sealed(self, key: RunKey, packed: bytes) -> bytes:
         """The frame, the values, the seal and the MAC: serialize_array's bytes for a bound RunKey."""
-        body = packed + key.seal(self.code)
-        inner, outer = key.hashes(self.label)
+        head, seal, inner, outer = key.derived.get(self) or self.sealing(key)
+        body = packed + seal
         inner = inner.copy()
         inner.update(body)
         outer = outer.copy()
         outer.update(inner.digest())
-        return self.head + body + self.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest()))
+        return head + body + self.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest()))
 
 
 _FORMS = {lay.payload: (_Form(lay, False), _Form(lay, True))
@@ -111,7 +143,7 @@ _FB, _FB_KEYED = _FORMS[Feedback]
 _POS, _POS_KEYED = _FORMS[Position]
 _ACT, _ACT_KEYED = _FORMS[Action]
 _HB, _HB_KEYED = _FORMS[Heartbeat]
-_NEW_FEEDBACK = _build_feedback()
+_NEW_FEEDBACK = _builder(Feedback)
 _NEW_POSITION, _NEW_ACTION, _NEW_HEARTBEAT = _builder(Position), _builder(Action), _builder(Heartbeat)
 # For the nodes' own payloads, built every step: the same objects as Feedback(...), Position(...), Action(...)
 # with every field given in order (no defaults), a third of the time. Their values are checked where they
@@ -139,11 +171,14 @@ def _key_form(key: Any, plain: _Form, keyed: _Form) -> _Form | None:
     return None
 
 
-def serialize_array(layout: ArrayLayout, payload: Any, key: Any = None) -> bytes:
-    """msgs_spec.arrays.serialize_array's bytes, faster for a payload whose values are all of their field's
-    exact type and valid (as nodes build them); the reference for anything else."""
-    t = type(payload)
-    if t is Feedback:
+# One serializer a payload type, which a node holding its payload's type calls straight (serialize_array's
+# lookup is one call more per message); each gives msgs_spec.arrays.serialize_array's bytes, faster for a payload
+# whose values are all of their field's exact type and valid (as nodes build them), the reference's for anything
+# else.
+
+def serialize_feedback(payload: Any, key: Any = None) -> bytes:
+    """serialize_array(FEEDBACK_LAYOUT, payload, key)."""
+    if type(payload) is Feedback:
         form = _key_form(key, _FB, _FB_KEYED)
         if form is not None:
             p = payload
@@ -155,7 +190,12 @@ def serialize_array(layout: ArrayLayout, payload: Any, key: Any = None) -> bytes
                     and 0 <= c <= _I32 and rw - rw == 0.0 and not (d and tr) and -1 <= ap <= 3):
                 packed = form.values.pack(a, e, s, r, c, rw, d, tr, ap)
                 return form.head + packed if key is None else form.sealed(key, packed)
-    elif t is Position:
+    return _reference_serialize(FEEDBACK_LAYOUT, payload, key)
+
+
+def serialize_position(payload: Any, key: Any = None) -> bytes:
+    """serialize_array(POSITION_LAYOUT, payload, key)."""
+    if type(payload) is Position:
         form = _key_form(key, _POS, _POS_KEYED)
         if form is not None:
             p = payload
@@ -165,7 +205,12 @@ def serialize_array(layout: ArrayLayout, payload: Any, key: Any = None) -> bytes
                     and 0 <= c <= _I32):
                 packed = form.values.pack(a, e, s, r, c)
                 return form.head + packed if key is None else form.sealed(key, packed)
-    elif t is Action:
+    return _reference_serialize(POSITION_LAYOUT, payload, key)
+
+
+def serialize_action(payload: Any, key: Any = None) -> bytes:
+    """serialize_array(ACTION_LAYOUT, payload, key)."""
+    if type(payload) is Action:
         form = _key_form(key, _ACT, _ACT_KEYED)
         if form is not None:
             p = payload
@@ -174,7 +219,12 @@ def serialize_array(layout: ArrayLayout, payload: Any, key: Any = None) -> bytes
                     and 0 < a <= _I32 and 0 <= e <= _I32 and 0 <= s <= _I32 and 0 <= x <= 3):
                 packed = form.values.pack(a, e, s, x)
                 return form.head + packed if key is None else form.sealed(key, packed)
-    elif t is Heartbeat:
+    return _reference_serialize(ACTION_LAYOUT, payload, key)
+
+
+def serialize_heartbeat(payload: Any, key: Any = None) -> bytes:
+    """serialize_array(HEARTBEAT_LAYOUT, payload, key)."""
+    if type(payload) is Heartbeat:
         form = _key_form(key, _HB, _HB_KEYED)
         if form is not None:
             p = payload
@@ -183,60 +233,77 @@ def serialize_array(layout: ArrayLayout, payload: Any, key: Any = None) -> bytes
                     and 0 < b <= _I32 and 0 <= e <= _I32 and 0 <= s <= _I32):
                 packed = form.values.pack(b, e, s)
                 return form.head + packed if key is None else form.sealed(key, packed)
+    return _reference_serialize(HEARTBEAT_LAYOUT, payload, key)
+
+
+def serialize_array(layout: ArrayLayout, payload: Any, key: Any = None) -> bytes:
+    """msgs_spec.arrays.serialize_array's bytes: the layout's own serializer above (the reference for a layout
+    of its own)."""
+    if layout is FEEDBACK_LAYOUT:
+        return serialize_feedback(payload, key)
+    if layout is POSITION_LAYOUT:
+        return serialize_position(payload, key)
+    if layout is ACTION_LAYOUT:
+        return serialize_action(payload, key)
+    if layout is HEARTBEAT_LAYOUT:
+        return serialize_heartbeat(payload, key)
     return _reference_serialize(layout, payload, key)
 
 
 # -- decode ---------------------------------------------------------------------------------------------------
 
 
-def _sealed_values(msg: Any, key: Any, plain: _Form, keyed: _Form) -> tuple[tuple, _Form] | None:
-    """(values, then the seal's words when keyed; the form) of bytes in the form `key` reads, their MAC
-    checked; None when the reference must decide (a message object, a bare key, another form, a bad MAC)."""
+def _sealed_values(msg: Any, key: Any, plain: _Form, keyed: _Form, sender: int | None) -> tuple | None:
+    """The values of bytes in the form `key` reads, keyed ones carrying the seal `key` holds for `sender` (None:
+    the agent the values name) and the key's MAC; None when the reference must decide (a message object, a bare
+    key, another form, a seal not held yet, a bad MAC)."""
     if type(msg) is not bytes:
         return None
     if key is None:
-        return (plain.values.unpack_from(msg, plain.start), plain) if plain.framed(msg) else None
-    if type(key) is not RunKey or not keyed.framed(msg) or not keyed.mac_ok(key, msg):
+        return plain.values.unpack_from(msg, plain.start) if plain.framed(msg) else None
+    # the keyed form's frame, seal and MAC checked here, inline: no call per check on every message a node reads
+    if (type(key) is not RunKey or len(msg) != keyed.length or not msg.startswith(keyed.head_a)
+            or not msg.startswith(keyed.head_b, keyed.gap_end)):
         return None
-    return keyed.with_seal.unpack_from(msg, keyed.start), keyed
-
-
-def _held(key: RunKey, words: tuple, sender: int) -> bool:
-    """Is the seal (run high, run low, incarnation) the one `key` holds for `sender`? (binding: the reference)"""
-    run = key.run
-    return (run is not None and run >> 32 == words[0] and run & 0xFFFFFFFF == words[1]
-            and key.held.get(sender) == words[2])
+    values = keyed.values.unpack_from(msg, keyed.start)
+    if sender is None:
+        sender = values[0]
+    held = key.derived.get((keyed, sender)) or keyed.checking(key, sender)
+    if held is None or not msg.startswith(held[0], keyed.end):
+        return None
+    inner = held[1].copy()
+    inner.update(msg[keyed.start:keyed.sealed_end])
+    outer = held[2].copy()
+    outer.update(inner.digest())
+    return values if msg.endswith(keyed.mac.pack(*_DIGEST_WORDS.unpack_from(outer.digest()))) else None
 
 
 def decode_feedback(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
                     episode: int | None = None, step: int | None = None, key: Any = None) -> Feedback:
     """msgs_spec.arrays.decode_feedback, fast for the bytes a world node sends."""
-    got = _sealed_values(msg, key, _FB, _FB_KEYED)
-    if got is not None:
-        v, form = got
-        a, e, s, r, c, rw, d, t, ap = v[:9]
+    v = _sealed_values(msg, key, _FB, _FB_KEYED, WORLD)
+    if v is not None:
+        a, e, s, r, c, rw, d, t, ap = v
         n, rows, cols = _limits(bounds)
-        if ((form is _FB or _held(key, v[9:], WORLD))
-                and a.is_integer() and e.is_integer() and s.is_integer() and r.is_integer() and c.is_integer()
-                and ap.is_integer() and 1 <= a <= n and 0 <= e <= _I32 and 0 <= s <= _I32 and 0 <= r < rows
-                and 0 <= c < cols and -1 <= ap <= 3 and rw - rw == 0.0 and (d == 0.0 or d == 1.0)
-                and (t == 0.0 or t == 1.0) and not (d == 1.0 and t == 1.0)
-                and (agent is None or a == agent) and (episode is None or e == episode)
-                and (step is None or s == step)):
-            return _NEW_FEEDBACK(int(a), int(e), int(s), int(r), int(c), rw, d == 1.0, t == 1.0, int(ap))
+        # The ranges first (NaN and infinities fail them), so int() cannot raise; whole numbers: int(x) == x.
+        if (1 <= a <= n and 0 <= e <= _I32 and 0 <= s <= _I32 and 0 <= r < rows and 0 <= c < cols
+                and -1 <= ap <= 3 and rw - rw == 0.0 and (d == 0.0 or d == 1.0) and (t == 0.0 or t == 1.0)
+                and not (d == 1.0 and t == 1.0) and (agent is None or a == agent)
+                and (episode is None or e == episode) and (step is None or s == step)):
+            ia, ie, is_, ir, ic, iap = int(a), int(e), int(s), int(r), int(c), int(ap)
+            if ia == a and ie == e and is_ == s and ir == r and ic == c and iap == ap:
+                return _NEW_FEEDBACK(ia, ie, is_, ir, ic, rw, d == 1.0, t == 1.0, iap)
     return decode_array(FEEDBACK_LAYOUT, msg, bounds, agent, episode, step, key)
 
 
 def decode_position(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
                     episode: int | None = None, step: int | None = None, key: Any = None) -> Position:
     """msgs_spec.arrays.decode_position, fast for the bytes a world node sends."""
-    got = _sealed_values(msg, key, _POS, _POS_KEYED)
-    if got is not None:
-        v, form = got
-        a, e, s, r, c = v[:5]
+    v = _sealed_values(msg, key, _POS, _POS_KEYED, WORLD)
+    if v is not None:
+        a, e, s, r, c = v
         n, rows, cols = _limits(bounds)
-        if ((form is _POS or _held(key, v[5:], WORLD))
-                and 1 <= a <= n and e >= 0 and s >= 0 and 0 <= r < rows and 0 <= c < cols
+        if (1 <= a <= n and e >= 0 and s >= 0 and 0 <= r < rows and 0 <= c < cols
                 and (agent is None or a == agent) and (episode is None or e == episode)
                 and (step is None or s == step)):
             return _NEW_POSITION(a, e, s, r, c)
@@ -245,27 +312,39 @@ def decode_position(msg: Any, *, bounds: Bounds | None = None, agent: int | None
 
 def decode_action(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
                   episode: int | None = None, step: int | None = None, key: Any = None) -> Action:
-    """msgs_spec.arrays.decode_action, fast for the bytes an agent node sends."""
-    got = _sealed_values(msg, key, _ACT, _ACT_KEYED)
-    if got is not None:
-        v, form = got
-        a, e, s, x = v[:4]
+    """msgs_spec.arrays.decode_action, fast for the bytes an agent node sends (its sender: the topic's agent,
+    else the agent it names)."""
+    v = _sealed_values(msg, key, _ACT, _ACT_KEYED, agent)
+    if v is not None:
+        a, e, s, x = v
         n = bounds.n_agents if bounds is not None else _I32
-        if ((form is _ACT or _held(key, v[4:], a if agent is None else agent))
-                and 1 <= a <= n and e >= 0 and s >= 0 and 0 <= x <= 3
+        if (1 <= a <= n and e >= 0 and s >= 0 and 0 <= x <= 3
                 and (agent is None or a == agent) and (episode is None or e == episode)
                 and (step is None or s == step)):
             return _NEW_ACTION(a, e, s, x)
     return decode_array(ACTION_LAYOUT, msg, bounds, agent, episode, step, key)
 
 
+def action_of(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None, episode: int | None = None,
+              step: int | None = None, key: Any = None) -> int:
+    """decode_action(...).action, with every check of it (its WireError likewise), without the Action: what the
+    world keeps of an action, which it stamps with the agent, episode and step it expected."""
+    v = _sealed_values(msg, key, _ACT, _ACT_KEYED, agent)
+    if v is not None:
+        a, e, s, x = v
+        if (1 <= a <= (bounds.n_agents if bounds is not None else _I32) and e >= 0 and s >= 0 and 0 <= x <= 3
+                and (agent is None or a == agent) and (episode is None or e == episode)
+                and (step is None or s == step)):
+            return x
+    return decode_array(ACTION_LAYOUT, msg, bounds, agent, episode, step, key).action
+
+
 def decode_heartbeat(msg: Any, *, after: int | None = None, key: Any = None) -> Heartbeat:
     """msgs_spec.arrays.decode_heartbeat, fast for the bytes a world node sends."""
-    got = _sealed_values(msg, key, _HB, _HB_KEYED)
-    if got is not None:
-        v, form = got
-        b, e, s = v[:3]
-        if (form is _HB or _held(key, v[3:], WORLD)) and b >= 1 and e >= 0 and s >= 0 and (after is None or b > after):
+    v = _sealed_values(msg, key, _HB, _HB_KEYED, WORLD)
+    if v is not None:
+        b, e, s = v
+        if b >= 1 and e >= 0 and s >= 0 and (after is None or b > after):
             return _NEW_HEARTBEAT(b, e, s)
     hb = decode_array(HEARTBEAT_LAYOUT, msg, None, None, None, None, key)
     if after is not None and hb.beat <= after:

@@ -265,7 +265,9 @@ def missed(world_log: Path) -> list[tuple[float, int, str]]:
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_link_down_for_2_s_costs_counted_misses_and_the_agent_comes_back_in_step(hosts, tmp_path):
-    out, episodes, sets = tmp_path / "result", 60, ("step_cap=100", "reward_step=-1", "eval_episodes=2")
+    # 300 episodes: the link must go down mid-run, and 60 took 1.6 s of stepping on the lean codec (the whole
+    # run was over, or nearly, by the time the launcher had written the 6 rows the cut waits for: no step missed)
+    out, episodes, sets = tmp_path / "result", 300, ("step_cap=100", "reward_step=-1", "eval_episodes=2")
     launcher, err = launch_until(hosts, out, episodes, sets, after=6, step_timeout=1.0)
     world_log = out / "logs" / "world.log"
 

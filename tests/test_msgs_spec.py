@@ -850,12 +850,15 @@ def test_the_fast_codec_agrees_with_the_reference(payload, sender, state, expect
     """On random payloads (valid as nodes build them, or any values) serialized with no key, a bare key or a
     sealed RunKey, then a byte changed or the bytes cut, decoded by receivers in every state: the fast path
     gives the reference's value or its error (kind and detail), leaves the receiver's key as the reference
-    does, and serializes to the same bytes."""
+    does, and serializes to the same bytes; action_of gives the decoded action's action or the same error."""
     incarnation = 5
     seal = {"none": None, "bare": KEY, "sealed": RunKey(KEY, run=7, incarnation=incarnation)}[sender]
     lay = reference.LAYOUT_BY_PAYLOAD[type(payload)]
     ours = _outcome(lambda: fast.serialize_array(lay, payload, seal))
     assert ours == _outcome(lambda: reference.serialize_array(lay, payload, seal))
+    other = reference.POSITION_LAYOUT if type(payload) is ms.Action else reference.ACTION_LAYOUT
+    assert (_outcome(lambda: fast.serialize_array(other, payload, seal))
+            == _outcome(lambda: reference.serialize_array(other, payload, seal)))  # a layout not the payload's
     if ours[0] != "value":
         return
     raw = bytearray(ours[1])
@@ -866,7 +869,7 @@ def test_the_fast_codec_agrees_with_the_reference(payload, sender, state, expect
     if type(payload) is ms.Action and expect.get("agent"):
         who = expect["agent"]
     keys = [None if state == "none" else KEY if state == "bare" else _receiver(state, incarnation, who)
-            for _ in range(2)]
+            for _ in range(3)]
     if type(payload) is ms.Heartbeat:
         got = _outcome(lambda: fast.decode_heartbeat(raw, after=after, key=keys[0]))
         want = _outcome(lambda: reference.decode_heartbeat(raw, after=after, key=keys[1]))
@@ -874,5 +877,10 @@ def test_the_fast_codec_agrees_with_the_reference(payload, sender, state, expect
         got = _outcome(lambda: _FAST[type(payload)](raw, **expect, key=keys[0]))
         want = _outcome(lambda: _REF[type(payload)](raw, **expect, key=keys[1]))
     assert got == want
+    if type(payload) is ms.Action:  # the world's form: the action alone, with the same checks and binding
+        alone = _outcome(lambda: fast.action_of(raw, **expect, key=keys[2]))
+        assert alone == (("value", want[1].action) if want[0] == "value" else want)
     if isinstance(keys[0], RunKey):
         assert (keys[0].run, keys[0].held, keys[0].retired) == (keys[1].run, keys[1].held, keys[1].retired)
+        if type(payload) is ms.Action:
+            assert (keys[2].run, keys[2].held, keys[2].retired) == (keys[1].run, keys[1].held, keys[1].retired)

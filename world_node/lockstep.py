@@ -51,11 +51,10 @@ from node_runtime.parameters import check_numbers, map_and_settings
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    NO_ACTION, Bounds, DropCounter, Feedback, Heartbeat, WireError, WorldStats, action_topic, agent_namespace,
-    decode_action,
+    NO_ACTION, Action, Bounds, DropCounter, Feedback, Heartbeat, WireError, WorldStats, action_topic, agent_namespace,
 )
 from msgs_spec.auth import RunKey
-from msgs_spec.fast import new_feedback, new_position
+from msgs_spec.fast import action_of, new_feedback, new_position
 from node_runtime.parameters import run_key_parameters
 from node_runtime.patience import Patience
 
@@ -146,9 +145,9 @@ class Lockstep:
 
     def on_action(self, agent: int, msg: Any) -> Outbox:
         """A message from agv<agent>/action; the step's outcome once it was the last action missing."""
-        try:  # DropCounter.guard's work, without repacking the arguments of every action
-            action = decode_action(msg, bounds=self.bounds, agent=agent, episode=self.episode, step=self.world.t,
-                                   key=self.key)
+        try:  # DropCounter.guard's work, without repacking the arguments of every action, nor an Action object
+            action = action_of(msg, bounds=self.bounds, agent=agent, episode=self.episode, step=self.world.t,
+                               key=self.key)
         except WireError as e:
             self.drops.record(e, action_topic(agent))
             if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
@@ -160,10 +159,11 @@ class Lockstep:
         if agent not in self.waiting:
             self.unexpected_actions += 1
             if self.unexpected_actions == 1:  # a sender bug, not traffic: once is enough to find it
-                self._log(f"ignored {action}: {agent_namespace(agent)} is not acting at this step or "
+                stamped = Action(agent, self.episode, self.world.t, action)  # as decoded: its stamp was checked
+                self._log(f"ignored {stamped}: {agent_namespace(agent)} is not acting at this step or "
                           "has answered already (counted as ignored.unexpected_action)")
             return []
-        self._actions[agent - 1] = action.action
+        self._actions[agent - 1] = action
         self.waiting.discard(agent)
         if self.waiting:
             return []

@@ -24,6 +24,8 @@ from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
     Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic, serialize,
 )
+# Each payload's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
+from msgs_spec.fast import serialize_feedback, serialize_heartbeat, serialize_position
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
@@ -56,14 +58,14 @@ class _ListenedPosition:
 
     def send(self, position: Position) -> None:
         if self.matched.count:
-            self.publish(serialize(position, key=self.key))
+            self.publish(serialize_position(position, self.key))
             self.held = None
         else:
             self.held = position
 
     def _on_match(self) -> None:
         if self.matched.count and self.held is not None:
-            self.publish(serialize(self.held, key=self.key))
+            self.publish(serialize_position(self.held, self.key))
             self.held = None
 
 
@@ -98,7 +100,7 @@ class WorldNode(Node):
         feedback = {k: _raw(pub) for k, pub in self._feedback.items()}
         self._senders = {
             Position: lambda p: positions[p.agent](p),
-            Feedback: lambda f: feedback[f.agent](serialize(f, key=key)),
+            Feedback: lambda f: feedback[f.agent](serialize_feedback(f, key)),
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
         self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
@@ -108,7 +110,7 @@ class WorldNode(Node):
                                                      ACTION.reader_qos, raw=True, event_callbacks=lost)
                          for k in agents}
         self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
-        self._senders[Heartbeat] = lambda h: self._heartbeat.publish(serialize(h, key=key))
+        self._senders[Heartbeat] = lambda h: self._heartbeat.publish(serialize_heartbeat(h, key))
         self._senders[WorldStats] = lambda w: self._stats.publish(serialize(w, key=key))
         self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
