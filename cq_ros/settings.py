@@ -56,6 +56,11 @@ class Settings:
     cq_mark_range: int = setting(
         2, "CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict "
            "is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is)")
+    cq_mark_colliders: int = setting(
+        0, "CQ marks joint states only with the peers that could have collided with the agent at the step of the "
+           "conflict (ours; 0 is the paper's): 1, none if the agent moved (a collision leaves it in its cell), else "
+           "the peers then at most 1 cell from the cell it moved toward or from its own; 0, every peer that "
+           "cq_mark_range allows")
     cq_all_met: int = setting(
         1, "several marked joint states of one cell met at once (three or more agents; the paper is silent): 1, "
            "the agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and "
@@ -112,6 +117,7 @@ class Settings:
         _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
         _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
         _check(self.cq_waits_fresh in (0, 1), "cq_waits_fresh", self.cq_waits_fresh, "0 or 1")
+        _check(self.cq_mark_colliders in (0, 1), "cq_mark_colliders", self.cq_mark_colliders, "0 or 1")
         _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
