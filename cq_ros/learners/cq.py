@@ -117,7 +117,7 @@ class CQLearner(Learner):
         self.heard += len(peer_cells)
         last, self.waiting = self.waiting, None
         if last is not None and last.conflict:  # line 14, for the last step
-            made = self._mark(last, peer_cells)
+            made = self._mark(last.cell, peer_cells, last)
             if not last.learnt:
                 # its update, still waiting, lands in the new Q^j too, as in the paper, whose Q^j copies a Q_k
                 # that has learnt that step (else the agent repeats the move that collided)
@@ -206,15 +206,16 @@ class CQLearner(Learner):
         a = unique_best(rows[0])
         return a is not None and all(unique_best(row) == a for row in rows[1:])
 
-    def _mark(self, step, peer_cells) -> list[tuple]:
-        """Mark the joint states of the step's cell with the peers near it; returns the joint states made new."""
+    def _mark(self, s, peer_cells, step=None) -> list[tuple]:
+        """Mark the joint states of cell s with the peers near it (under cq_mark_colliders, those that could
+        have collided with the agent at `step`, the step of the conflict); returns the joint states made new."""
         st = self.settings
-        s, near = step.cell, st.cq_mark_range
+        near = st.cq_mark_range
         made = []
         for j in self.peers:
             if near and self.map.distance(s, peer_cells[j]) > near:
                 continue
-            if st.cq_mark_colliders and not self._could_collide(step, peer_cells[j]):
+            if st.cq_mark_colliders and step is not None and not self._could_collide(step, peer_cells[j]):
                 continue
             js = (s, j, peer_cells[j])
             if js in self.confidence:
