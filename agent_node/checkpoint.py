@@ -23,7 +23,9 @@ from cq_ros.settings import SettingsError
 __all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "save_checkpoints", "load_checkpoint",
            "remove_stale_temporaries"]
 
-_CHECKPOINT_FORMAT = 2  # 2: CQ learners keep `looking` (cq_look_if_decisive); a learner pickled before lacks it
+# 2: CQ learners keep `looking` (cq_look_if_decisive); 3: a learner's settings hold cq_mark_colliders. A learner
+# pickled before lacks them.
+_CHECKPOINT_FORMAT = 3
 
 
 def _temporary_prefix(path: str) -> tuple[str, str]:

@@ -55,7 +55,13 @@ class Settings:
            "joint state is valued as waiting, not as the free road Q_k of the same cell promises")
     cq_mark_range: int = setting(
         2, "CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict "
-           "is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is)")
+           "is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is); 1 "
+           "where the world is delayed (slip or start_hold above 0) unless the map or the user sets it")
+    cq_mark_colliders: int = setting(
+        0, "CQ marks joint states only with the peers that could have collided with the agent at the step of the "
+           "conflict (ours; 0 is the paper's): 1, none if the agent moved (a collision leaves it in its cell), else "
+           "the peers then at most 1 cell from the cell it moved toward or from its own; 0, every peer that "
+           "cq_mark_range allows")
     cq_all_met: int = setting(
         1, "several marked joint states of one cell met at once (three or more agents; the paper is silent): 1, "
            "the agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and "
@@ -75,7 +81,8 @@ class Settings:
         0, "CQ's looks when greedy (ours, 0 is the paper's): 0, at a cell with marked joint states the agent looks "
            "at every peer they name, every step; 1, at epsilon 0 it does not look where Q_k and every Q^j of the "
            "cell have the same unique best action (and no waiting update lands in them), since what it saw could "
-           "not change what it does: it acts on Q_k there, meeting no joint state")
+           "not change what it does: it acts on Q_k there, meeting no joint state; 1 where the world is delayed "
+           "(slip or start_hold above 0) unless the map or the user sets it")
     loc_range: int = setting(2, "LoC: active perception is TRUE when a peer is at most this many cells away "
                                 "(Manhattan), i.e. close enough to collide this step")
     loc_cost: float = setting(0.1, "LoC: what choosing COORDINATE costs of the learner's reward")
@@ -112,6 +119,7 @@ class Settings:
         _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
         _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
         _check(self.cq_waits_fresh in (0, 1), "cq_waits_fresh", self.cq_waits_fresh, "0 or 1")
+        _check(self.cq_mark_colliders in (0, 1), "cq_mark_colliders", self.cq_mark_colliders, "0 or 1")
         _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
@@ -150,8 +158,10 @@ _FIELDS = {f.name: f for f in fields(Settings)}
 
 # CQ's behaviour wherever the world is delayed (slip or start_hold above 0), unless the map or the user sets
 # them: under delays a conflict is there from the first episode on, so W1 of the first rewards is no measure of
-# being alone, and a new Q^j's waits must be worth waiting (docs/choices.md). Without delays, the paper's.
-UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1}
+# being alone, and a new Q^j's waits must be worth waiting; a conflict marks only the peers next to the agent,
+# and a greedy agent looks only where what it sees can change its action, since on delayed warehouses every
+# joint state is a peer asked about at each visit of its cell (docs/choices.md). Without delays, the paper's.
+UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1, "cq_look_if_decisive": 1}
 
 
 def run_settings(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:

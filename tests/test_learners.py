@@ -428,6 +428,41 @@ def test_cq_mark_range_0_marks_every_peer_as_the_paper():
     assert set(learner.q_joint) == {(0, 1, 2), (0, 2, 5)}
 
 
+def cq_conflict_at(cell, moved=False, **overrides):
+    """A CQ learner that has just detected a conflict at `cell` moving EAST, having stayed there at every step
+    (a collision) or, at the last one, moved on (no collision)."""
+    learner = cq(**overrides)
+    learner.q_local[cell] = [-100.0, 5.0, -100.0, -100.0]
+    rewards = conflict_rewards()
+    for k, r in enumerate(rewards, start=1):
+        step(learner, cell, ELSEWHERE, r, cell + 1 if moved and k == len(rewards) else cell)
+    assert conflict_at(learner) == cell and not learner.q_joint
+    return learner
+
+
+@pytest.mark.parametrize("colliders, marked", [(1, {(2, 1, 4), (2, 2, 1)}), (0, {(2, 1, 4), (2, 2, 1), (2, 2, 0)})])
+def test_cq_mark_colliders_marks_only_the_peers_that_could_have_collided(colliders, marked):
+    """At cell 2 moving EAST (toward cell 3), an agent that stayed can have collided with a peer within 1 cell of
+    cell 3 (cell 4: both moved into 3) or of cell 2 (cell 1: the peer ran into it); not with one at cell 0, two
+    cells behind it, which cq_mark_range=2 alone marks. Two peers, each met where one of them is."""
+    found = set()
+    for peer_cells in ({1: 4, 2: 1}, {1: 4, 2: 0}):
+        learner = cq_conflict_at(2, cq_mark_range=2, cq_mark_colliders=colliders)
+        learner.observe(2)
+        learner.act(peer_cells)
+        found |= set(learner.q_joint)
+    assert found == marked
+
+
+def test_cq_mark_colliders_marks_no_one_where_the_agent_moved():
+    """A collision leaves the agent in its cell: a conflict found at a step it moved has no peer to blame."""
+    for colliders, marked in ((1, set()), (0, {(0, 1, 2)})):
+        learner = cq_conflict_at(0, moved=True, cq_mark_range=2, cq_mark_colliders=colliders)
+        assert learner.observe(1) == (1, 2)  # it must look at everyone to mark, as without the setting
+        learner.act({1: 2, 2: 5})
+        assert set(learner.q_joint) == marked and learner.watch == ({0: (1,)} if marked else {})
+
+
 @pytest.mark.parametrize("bootstrap_acted", [0, 1])
 @pytest.mark.slow
 def test_cq_greedy_deadlock_on_the_tunnel_is_the_papers_bootstrap(bootstrap_acted):

@@ -32,6 +32,11 @@ its update waits has no row left, and its share of the update is dropped (counte
 Our choices, each a setting whose other value is the paper's reading (docs/choices.md), each a named branch
 below:
 - `cq_mark_range`: only the peers within that many cells are marked (0: every peer, the paper's);
+- `cq_mark_colliders`: only the peers that could have collided with the agent at the step are marked: none
+  if the agent moved (a collision leaves it where it was), else those now at most one cell from the cell it
+  moved toward or from its own (a collision there, a swap, or a peer that ran into it as it stood); a peer
+  anywhere else cannot have caused the step's low reward, and each joint state marked is a peer the agent
+  asks about at every visit to the cell for as long as it is kept (0: every peer the range allows);
 - `cq_bootstrap_acted`: the update bootstraps from the row the agent then acts on, so that waiting in a
   joint state is not valued by Q_k's free road (0: Q_k of the next cell, the paper's: the agent cannot know
   at the update whether it will need coordination next);
@@ -112,7 +117,7 @@ class CQLearner(Learner):
         self.heard += len(peer_cells)
         last, self.waiting = self.waiting, None
         if last is not None and last.conflict:  # line 14, for the last step
-            made = self._mark(last.cell, peer_cells)
+            made = self._mark(last.cell, peer_cells, last)
             if not last.learnt:
                 # its update, still waiting, lands in the new Q^j too, as in the paper, whose Q^j copies a Q_k
                 # that has learnt that step (else the agent repeats the move that collided)
@@ -194,13 +199,16 @@ class CQLearner(Learner):
         a = unique_best(rows[0])
         return a is not None and all(unique_best(row) == a for row in rows[1:])
 
-    def _mark(self, s, peer_cells) -> list[tuple]:
-        """Mark the joint states of cell s with the peers near it; returns the joint states made new."""
+    def _mark(self, s, peer_cells, step=None) -> list[tuple]:
+        """Mark the joint states of cell s with the peers near it (under cq_mark_colliders, those that could
+        have collided with the agent at `step`, the step of the conflict); returns the joint states made new."""
         st = self.settings
         near = st.cq_mark_range
         made = []
         for j in self.peers:
             if near and self.map.distance(s, peer_cells[j]) > near:
+                continue
+            if st.cq_mark_colliders and step is not None and not self._could_collide(step, peer_cells[j]):
                 continue
             js = (s, j, peer_cells[j])
             if js in self.confidence:
@@ -212,6 +220,16 @@ class CQLearner(Learner):
             self.marked.setdefault(s, []).append(js)
         self._rewatch(s)
         return made
+
+    def _could_collide(self, step, cell):
+        """Whether a peer now at `cell` can have collided with the agent at `step` (cq_mark_colliders): the agent
+        stayed (agents in a collision stay), and the peer is at most one cell from where the agent moved toward
+        (both moved into it, a swap, or the agent ran into the peer) or from the agent's own cell (the peer ran
+        into it as it stayed)."""
+        if step.next_cell != step.cell:
+            return False
+        toward = self.map.neighbours[step.cell][step.action]
+        return min(self.map.distance(toward, cell), self.map.distance(step.cell, cell)) <= 1
 
     def _new_row(self, s):
         """A new Q^j of cell s: a copy of Q_k, whose waits, under cq_waits_fresh, are worth at least one step
