@@ -195,7 +195,9 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
     gridmap = load_map(path)
     settings = run_settings(gridmap, sets)
     assert (settings.slip, settings.start_hold) == (0.2, 2)
-    assert (settings.cq_w1_alone, settings.cq_waits_fresh) == (1, 1)  # CQ's settings under delays, by default
+    # CQ's settings under delays, by default
+    assert (settings.cq_w1_alone, settings.cq_waits_fresh, settings.cq_mark_range, settings.cq_look_if_decisive) == (
+        1, 1, 1, 1)
     offline = run("cq", gridmap, settings, SEED, 0, 12)
     for name, table in (("episodes.csv", offline.episodes), ("greedy.csv", offline.greedy)):
         with open(out / name, newline="") as f:
@@ -222,7 +224,8 @@ def test_a_launch_where_cq_looks_only_where_it_is_decisive_equals_the_offline_ru
     assert done.returncode == 0, done.stderr
     gridmap = load_map(path)
     offline = run("cq", gridmap, run_settings(gridmap, sets), SEED, 0, 60)
-    looking_always = run("cq", gridmap, run_settings(gridmap, sets[:-1]), SEED, 0, 60)
+    # on a delayed map cq_look_if_decisive=1 is CQ's default: looking always must be asked for
+    looking_always = run("cq", gridmap, run_settings(gridmap, [*sets[:-1], "cq_look_if_decisive=0"]), SEED, 0, 60)
     assert offline.episodes["joint_plays"].sum() != looking_always.episodes["joint_plays"].sum()
     assert offline.episodes["heard"].sum() > 0
     with open(out / "episodes.csv", newline="") as f:
