@@ -228,7 +228,10 @@ def test_ctrl_c_on_an_experiment_before_its_results_leaves_no_folder(tmp_path):
     out = tmp_path / "made" / "result"
     cmd = [sys.executable, "-m", "cq_ros.cli", "experiment", "--map", "tunnel_to_goal", "--algo", "cq", "--runs", "1",
            "--episodes", "10000000", "--seed", "0", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C's default, as at a terminal: a suite started as a shell's background job runs with SIGINT ignored,
+    # which a child inherits, and Python then leaves it ignored (the experiment ran on, 60 s, in such a run)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 60
         while not out.exists():  # the folder is made (and probed) before any run starts
