@@ -310,18 +310,26 @@ def decode_position(msg: Any, *, bounds: Bounds | None = None, agent: int | None
     return decode_array(POSITION_LAYOUT, msg, bounds, agent, episode, step, key)
 
 
-def decode_action(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
-                  episode: int | None = None, step: int | None = None, key: Any = None) -> Action:
-    """msgs_spec.arrays.decode_action, fast for the bytes an agent node sends (its sender: the topic's agent,
-    else the agent it names)."""
+def _action_values(msg: Any, bounds: Bounds | None, agent: int | None, episode: int | None, step: int | None,
+                   key: Any) -> tuple | None:
+    """(agent, episode, step, action) of bytes an agent node sends that pass every check of decode_action (its
+    sender: the topic's agent, else the agent it names); None when the reference must decide."""
     v = _sealed_values(msg, key, _ACT, _ACT_KEYED, agent)
     if v is not None:
         a, e, s, x = v
-        n = bounds.n_agents if bounds is not None else _I32
-        if (1 <= a <= n and e >= 0 and s >= 0 and 0 <= x <= 3
+        if (1 <= a <= (bounds.n_agents if bounds is not None else _I32) and e >= 0 and s >= 0 and 0 <= x <= 3
                 and (agent is None or a == agent) and (episode is None or e == episode)
                 and (step is None or s == step)):
-            return _NEW_ACTION(a, e, s, x)
+            return v
+    return None
+
+
+def decode_action(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
+                  episode: int | None = None, step: int | None = None, key: Any = None) -> Action:
+    """msgs_spec.arrays.decode_action, fast for the bytes an agent node sends."""
+    v = _action_values(msg, bounds, agent, episode, step, key)
+    if v is not None:
+        return _NEW_ACTION(*v)
     return decode_array(ACTION_LAYOUT, msg, bounds, agent, episode, step, key)
 
 
@@ -329,13 +337,9 @@ def action_of(msg: Any, *, bounds: Bounds | None = None, agent: int | None = Non
               step: int | None = None, key: Any = None) -> int:
     """decode_action(...).action, with every check of it (its WireError likewise), without the Action: what the
     world keeps of an action, which it stamps with the agent, episode and step it expected."""
-    v = _sealed_values(msg, key, _ACT, _ACT_KEYED, agent)
+    v = _action_values(msg, bounds, agent, episode, step, key)
     if v is not None:
-        a, e, s, x = v
-        if (1 <= a <= (bounds.n_agents if bounds is not None else _I32) and e >= 0 and s >= 0 and 0 <= x <= 3
-                and (agent is None or a == agent) and (episode is None or e == episode)
-                and (step is None or s == step)):
-            return x
+        return v[3]
     return decode_array(ACTION_LAYOUT, msg, bounds, agent, episode, step, key).action
 
 
