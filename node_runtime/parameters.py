@@ -85,7 +85,8 @@ WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings(
     "step_timeout": (2.0, "seconds to wait for an acting agent's action; past it the agent stays for "
                           "that step (warned and counted as missed_actions)"),
     "startup_timeout": (30.0, "seconds to wait before the first step until every agent's action and "
-                              "feedback topics are matched; past it the node exits 1"),
+                              "feedback topics are matched; past it the node exits 1. Mid-run, the least "
+                              "time no agent acts before the world ends the run (a restarted agent's join)"),
     "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
                                  "subscriptions (a recorder that must not miss an episode sets 1)"),
     "heartbeat_period": (1.0, "seconds between two world/heartbeat messages (sent from the start, whether or "

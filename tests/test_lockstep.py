@@ -28,9 +28,9 @@ class Clock:
         return self.now
 
 
-def lockstep(gridmap, episodes=3, settings=Settings(), timeout=1.0, log=None):
+def lockstep(gridmap, episodes=3, settings=Settings(), timeout=1.0, log=None, rejoin_time=0.0):
     clock = Clock()
-    core = Lockstep(GridWorld(gridmap, settings), episodes, timeout, log=log, clock=clock)
+    core = Lockstep(GridWorld(gridmap, settings), episodes, timeout, log=log, clock=clock, rejoin_time=rejoin_time)
     return core, clock
 
 
@@ -361,6 +361,30 @@ def test_a_world_no_agent_acts_in_for_ten_steps_in_a_row_says_it_goes_nowhere():
     assert core.silent_steps == 0
     time_out(NO_PROGRESS_STEPS)
     assert core.no_progress is not None and f"no action from any agent in {NO_PROGRESS_STEPS} steps" in core.no_progress
+
+
+def test_a_silent_world_waits_as_long_as_a_start_for_an_agent_to_rejoin():
+    """An agent restarted mid-run needs as long to join as one starting (startup_timeout, here `rejoin_time`
+    12 s): ten silent 1 s steps are not enough to give up on it, twelve are; its action on the way starts the
+    count again, seconds included."""
+    core, clock = lockstep(load_map("grid_game_2"), episodes=1, timeout=1.0, settings=Settings(step_cap=100),
+                           rejoin_time=12.0)
+    core.begin()
+
+    def time_out(steps):
+        for _ in range(steps):
+            ticks(core, clock, clock.now + 1.0 + 2 * core.tick_period)
+
+    time_out(NO_PROGRESS_STEPS + 1)
+    assert core.silent_steps == NO_PROGRESS_STEPS + 1 and core.no_progress is None
+    core.on_action(1, act(1, 0, core.step, 0))
+    time_out(1)
+    assert (core.silent_steps, core.silent_for) == (0, 0.0)
+    time_out(11)
+    assert core.no_progress is None and 11.0 <= core.silent_for < 12.0
+    time_out(1)
+    assert core.no_progress is not None and "in 12 steps in a row" in core.no_progress, core.no_progress
+    assert "startup_timeout=12 s at least" in core.no_progress
 
 
 def test_heartbeats_count_up_and_say_where_the_world_is():

@@ -28,9 +28,12 @@ second node started with its name and the key). Each would steer the run, so the
 and the node ends the run (exit code `TWIN_EXIT`): never a run that passes for the offline one with two
 learners behind one AGV.
 
-No progress. A world whose acting agents all miss NO_PROGRESS_STEPS steps in a row is alive but goes nowhere
-(agents that gave up on it, or that refuse it: a restarted world is another incarnation, which the agents of
-its earlier life never take for it): it says so in `no_progress`, and the node ends the run (exit code 1).
+No progress. A world whose acting agents all miss NO_PROGRESS_STEPS steps in a row, and for at least
+`rejoin_time` (the node's startup_timeout), is alive but goes nowhere (agents that gave up on it, or that
+refuse it: a restarted world is another incarnation, which the agents of its earlier life never take for it):
+it says so in `no_progress`, and the node ends the run (exit code 1). The time is there because an agent
+restarted mid-run (`cq-ros launch --restart-agents`, a respawning supervisor) needs as long to join as one
+starting: on a busy machine that is longer than ten short step timeouts while its peers wait at their goals.
 
 `world_config` turns the node's parameters into a checked `WorldConfig`; a bad value raises `SettingsError`
 with one line naming the parameter. The node plays `episodes + eval_episodes` episodes: the agents learn
@@ -111,7 +114,7 @@ class Lockstep:
 
     def __init__(self, world: GridWorld, episodes: int, step_timeout: float, *,
                  log: Callable[[str], Any] | None = None, clock: Callable[[], float] = time.monotonic,
-                 key: RunKey | bytes | None = None):
+                 key: RunKey | bytes | None = None, rejoin_time: float = 0.0):
         self.world = world
         self.key = key  # the run's key: actions must carry its MAC (None: no authentication)
         self.beats = 0  # heartbeats sent
@@ -131,6 +134,8 @@ class Lockstep:
         self.twin: str | None = None  # why the run cannot go on: two live nodes act as one agent
         self.no_progress: str | None = None  # why the run cannot go on: no agent has acted for steps
         self.silent_steps = 0  # steps in a row that every acting agent missed
+        self.rejoin_time = rejoin_time  # seconds of such silence before `no_progress` too
+        self.silent_for = 0.0  # seconds those steps waited, awake (Patience: a stall of the node is no silence)
         self._actions: list[int | None] = []
         self._patience = Patience(step_timeout, self.tick_period, clock)  # the wait for the step's actions
 
@@ -167,7 +172,7 @@ class Lockstep:
         self.waiting.discard(agent)
         if self.waiting:
             return []
-        self.silent_steps = 0
+        self.silent_steps, self.silent_for = 0, 0.0
         return self._advance()
 
     @property
@@ -183,11 +188,14 @@ class Lockstep:
         missing = sorted(self.waiting)
         self.missed_actions += len(missing)
         acting = sum(1 for done in self.world.done if not done)
-        self.silent_steps = self.silent_steps + 1 if len(missing) == acting else 0
-        if self.silent_steps >= NO_PROGRESS_STEPS and self.no_progress is None:
-            self.no_progress = (f"no action from any agent in {self.silent_steps} steps in a row (step_timeout="
-                                f"{self.step_timeout} s each): the agents gave up on this world or refuse it (a "
-                                "world restarted mid-run is another incarnation to them)")
+        silent = len(missing) == acting
+        self.silent_steps = self.silent_steps + 1 if silent else 0
+        self.silent_for = self.silent_for + waited if silent else 0.0
+        if self.silent_steps >= NO_PROGRESS_STEPS and self.silent_for >= self.rejoin_time and self.no_progress is None:
+            self.no_progress = (f"no action from any agent in {self.silent_steps} steps in a row, "
+                                f"{self.silent_for:.1f} s (step_timeout={self.step_timeout} s each, startup_timeout="
+                                f"{self.rejoin_time:g} s at least): the agents gave up on this world or refuse it "
+                                "(a world restarted mid-run is another incarnation to them)")
         self._log(f"episode {self.episode} step {self.step}: no action from "
                   f"{', '.join(agent_namespace(k) for k in missing)} within step_timeout={self.step_timeout} s "
                   f"(waited {waited:.2f} s); they stay for this step")

@@ -90,7 +90,7 @@ class WorldNode(Node):
             raise
         world = GridWorld(cfg.gridmap, cfg.settings, seed=world_seed(cfg.seed, cfg.run))
         self.core = Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=self.get_logger().warning,
-                             key=cfg.key)
+                             key=cfg.key, rejoin_time=cfg.startup_timeout)
         agents = range(1, world.n + 1)
         key = cfg.key
         self._positions = {k: _ListenedPosition(self, position_topic(k), key) for k in agents}
