@@ -314,10 +314,9 @@ def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_wa
     from agent_node.checkpoint import load_checkpoint
 
     out, sets = tmp_path / "result", ("step_cap=100", "reward_step=-1", "checkpoint_every=5", "feedback_timeout=5")
-    # agv1 gives up 5-5.5 s after the cut (feedback_timeout, checked every 0.5 s); the world would end the run
-    # itself after NO_PROGRESS_STEPS silent steps once agv2 is home, 10 s at step_timeout 1 s: agv1 comes first
-    # (at 0.5 s the two raced, and a suite run saw the world's line)
-    launcher, err = launch_until(hosts, out, 1000, sets, after=6, step_timeout=1.0)
+    # agv1 gives up 5-5.5 s after the cut (feedback_timeout, checked every 0.5 s), long before the world would
+    # end the run itself once agv2 is home (ten silent steps and its startup_timeout, 30 s under a launch)
+    launcher, err = launch_until(hosts, out, 1000, sets, after=6, step_timeout=0.5)
     try:
         hosts.set_link("agv1", up=False)
         code = launcher.wait(timeout=LAUNCH_TIMEOUT_S)
