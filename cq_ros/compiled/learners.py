@@ -1,0 +1,496 @@
+"""The learners the kernel plays (indep, cq) and one episode of them (cq_ros.engine.Team.episode), compiled.
+
+Each function is the twin of a reference method (named in its docstring) and does its float operations in the
+same order, so that a compiled run is the reference's byte for byte (tests/test_compiled.py holds them one).
+A learner is a row of arrays (agent k): `ag[k]` its counters and step, `eps[k]`, `q[k]` (Q_k), `mt[k]` its
+Mersenne Twister. CQ's joint states of every agent live in one pool (`jsi`, `jsf`: cell, peer, peer's cell,
+creation order, the cell's list links; confidence and Q^j), each cell's list in marking order, so a cell's
+joint states, their order and `joint_states()`'s order are the reference's dicts' and lists'. Its waiting
+step is `wt[k]` (with `wtr`, `wtk`: reward, keys) and the keys it acts on `ck[k]`: -1 is Q_k, else a slot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from . import windows as W
+from .mt import randbelow, random
+from .world import reset, step
+
+# ag columns
+S, A, LOOKING, LOOK_N, DROPPED, PLAYED, PLAYS, HEARD, ACTIVE, NKEYS = range(10)
+# jsi columns (jsf: CONF, then the row)
+JS_S, JS_J, JS_C, JS_SEQ, JS_NEXT, JS_PREV, JS_AGENT = range(7)
+CONF = 0
+# wt columns: the waiting step
+W_ON, W_CELL, W_ACTION, W_NEXT, W_DONE, W_CONFLICT, W_LEARNT, W_NKEYS = range(8)
+# fp: the float settings
+ALPHA, GAMMA, EPS0, SLIP, R_STEP, R_WALL, R_COLL, R_GOAL, CONF_INIT, CONF_UP, CONF_DOWN, CONF_MAX, CONF_DROP, \
+    T_TWO, T_ONE = range(15)
+# ip: the int settings
+N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, IS_CQ, MARK_RANGE, MARK_COLLIDERS, BOOT_ACTED, ALL_MET, \
+    WAITS_FRESH, LOOK_DECISIVE = range(12)
+# meta: the pool's free slots, the next creation number
+FREE, SEQ = 0, 1
+
+
+@njit(cache=True)
+def _max(row):
+    """Python's max(row): the first of the largest."""
+    best = row[0]
+    for k in range(1, row.shape[0]):
+        if row[k] > best:
+            best = row[k]
+    return best
+
+
+@njit(cache=True)
+def greedy(row, mt):
+    """base.greedy: the largest value's index, ties broken by rng.choice."""
+    best = _max(row)
+    count = 0
+    first = -1
+    for k in range(row.shape[0]):
+        if row[k] == best:
+            count += 1
+            if first < 0:
+                first = k
+    if count == 1:
+        return first
+    pick = randbelow(mt, count)
+    for k in range(row.shape[0]):
+        if row[k] == best:
+            if pick == 0:
+                return k
+            pick -= 1
+    return -1
+
+
+@njit(cache=True)
+def epsilon_greedy(row, epsilon, mt):
+    if random(mt) < epsilon:
+        return int(random(mt) * row.shape[0])
+    return greedy(row, mt)
+
+
+@njit(cache=True)
+def _distance(geo, a, b):
+    rows, cols = geo[3], geo[4]
+    return abs(rows[a] - rows[b]) + abs(cols[a] - cols[b])
+
+
+@njit(cache=True)
+def end_episode(k, fp, ip, ag, eps):
+    """Learner.end_episode: one more episode played; epsilon on its schedule."""
+    ag[k, PLAYED] += 1
+    decay = ip[DECAY]
+    if decay:
+        fall = 1.0 - ag[k, PLAYED] / decay
+        scaled = fp[EPS0] * (fall if fall > 0.0 else 0.0)
+        if scaled < eps[k]:
+            eps[k] = scaled
+
+
+# -- CQ ------------------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _row(k, key, cell, q, jsf):
+    return q[k, cell] if key < 0 else jsf[key, 1:]
+
+
+@njit(cache=True)
+def _acted_row(k, ag, ck, q, jsf, out):
+    """CQLearner._acted_row into `out`: one row, or the elementwise minimum of the rows met."""
+    cell = ag[k, S]
+    out[:] = _row(k, ck[k, 0], cell, q, jsf)
+    for m in range(1, ag[k, NKEYS]):
+        row = _row(k, ck[k, m], cell, q, jsf)
+        for a in range(out.shape[0]):
+            if row[a] < out[a]:
+                out[a] = row[a]
+    return out
+
+
+@njit(cache=True)
+def _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, next_row, has_next):
+    """CQLearner._update of the step in wt[k] (`next_row` the row acted on at s', if `has_next`)."""
+    cell, action = wt[k, W_CELL], wt[k, W_ACTION]
+    reward = wtr[k]
+    if wt[k, W_DONE]:
+        target = reward
+    elif ip[BOOT_ACTED] and has_next:
+        target = reward + fp[GAMMA] * _max(next_row)
+    else:
+        target = reward + fp[GAMMA] * _max(q[k, wt[k, W_NEXT]])
+    for m in range(wt[k, W_NKEYS]):
+        key = wtk[k, 2 * m]
+        if key >= 0 and jsi[key, JS_SEQ] != wtk[k, 2 * m + 1]:  # forgotten while the update waited
+            ag[k, DROPPED] += 1
+            continue
+        row = _row(k, key, cell, q, jsf)
+        row[action] += fp[ALPHA] * (target - row[action])
+
+
+@njit(cache=True)
+def _unique_best(row):
+    best = _max(row)
+    first, count = -1, 0
+    for a in range(row.shape[0]):
+        if row[a] == best:
+            count += 1
+            if first < 0:
+                first = a
+    return first if count == 1 else -1
+
+
+@njit(cache=True)
+def _decisive(k, cell, ag, eps, q, jsi, jsf, head, wt):
+    """CQLearner._decisive."""
+    if eps[k] != 0:
+        return False
+    if wt[k, W_ON] and not wt[k, W_LEARNT] and wt[k, W_CELL] == cell:
+        return False
+    a = _unique_best(q[k, cell])
+    if a < 0:
+        return False
+    slot = head[k, cell]
+    while slot >= 0:
+        if _unique_best(jsf[slot, 1:]) != a:
+            return False
+        slot = jsi[slot, JS_NEXT]
+    return True
+
+
+@njit(cache=True)
+def _peers_named(k, cell, n, jsi, head, seen):
+    """len(watch[cell]): the peers the cell's joint states name."""
+    seen[:] = False
+    count = 0
+    slot = head[k, cell]
+    while slot >= 0:
+        j = jsi[slot, JS_J]
+        if not seen[j]:
+            seen[j] = True
+            count += 1
+        slot = jsi[slot, JS_NEXT]
+    return count
+
+
+@njit(cache=True)
+def observe_cq(k, cell, n, ip, ag, eps, q, jsi, jsf, head, wt, seen):
+    """CQLearner.observe: how many peers the agent looks at (LOOK_N)."""
+    ag[k, S] = cell
+    if wt[k, W_ON] and wt[k, W_CONFLICT]:
+        ag[k, LOOKING] = 1
+        ag[k, LOOK_N] = n - 1
+        return
+    looking = head[k, cell] >= 0 and not (ip[LOOK_DECISIVE] and _decisive(k, cell, ag, eps, q, jsi, jsf, head, wt))
+    ag[k, LOOKING] = looking
+    ag[k, LOOK_N] = _peers_named(k, cell, n, jsi, head, seen) if looking else 0
+
+
+@njit(cache=True)
+def _forget(slot, jsi, head, tail, meta, free, n_js):
+    k, s = jsi[slot, JS_AGENT], jsi[slot, JS_S]
+    prev, nxt = jsi[slot, JS_PREV], jsi[slot, JS_NEXT]
+    if prev >= 0:
+        jsi[prev, JS_NEXT] = nxt
+    else:
+        head[k, s] = nxt
+    if nxt >= 0:
+        jsi[nxt, JS_PREV] = prev
+    else:
+        tail[k, s] = prev
+    jsi[slot, JS_SEQ] = -1
+    free[meta[FREE]] = slot
+    meta[FREE] += 1
+    n_js[k] -= 1
+
+
+@njit(cache=True)
+def _mark(k, s, geo, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, wt, made):
+    """CQLearner._mark of cell s for the step in wt[k]: the slots made new into `made`; how many."""
+    n = cells.shape[0]
+    nbr = geo[0]
+    near = ip[MARK_RANGE]
+    count = 0
+    for j in range(n):
+        if j == k:
+            continue
+        pc = cells[j]
+        if near and _distance(geo, s, pc) > near:
+            continue
+        if ip[MARK_COLLIDERS]:  # _could_collide
+            if wt[k, W_NEXT] != wt[k, W_CELL]:
+                continue
+            toward = nbr[wt[k, W_CELL], wt[k, W_ACTION]]
+            d1, d2 = _distance(geo, toward, pc), _distance(geo, wt[k, W_CELL], pc)
+            if (d2 if d2 < d1 else d1) > 1:
+                continue
+        slot = head[k, s]
+        while slot >= 0 and not (jsi[slot, JS_J] == j and jsi[slot, JS_C] == pc):
+            slot = jsi[slot, JS_NEXT]
+        if slot >= 0:
+            if fp[CONF_INIT] > jsf[slot, CONF]:
+                jsf[slot, CONF] = fp[CONF_INIT]
+            continue
+        meta[FREE] -= 1
+        slot = free[meta[FREE]]
+        row = jsf[slot, 1:]
+        row[:] = q[k, s]
+        if ip[WAITS_FRESH]:  # _new_row
+            floor = fp[R_WALL] + fp[GAMMA] * _max(row)
+            for a in range(row.shape[0]):
+                if nbr[s, a] == s and floor > row[a]:
+                    row[a] = floor
+        jsi[slot, JS_S], jsi[slot, JS_J], jsi[slot, JS_C], jsi[slot, JS_AGENT] = s, j, pc, k
+        jsi[slot, JS_SEQ] = meta[SEQ]
+        meta[SEQ] += 1
+        jsf[slot, CONF] = fp[CONF_INIT]
+        last = tail[k, s]
+        jsi[slot, JS_PREV], jsi[slot, JS_NEXT] = last, -1
+        if last >= 0:
+            jsi[last, JS_NEXT] = slot
+        else:
+            head[k, s] = slot
+        tail[k, s] = slot
+        n_js[k] += 1
+        made[count] = slot
+        count += 1
+    return count
+
+
+@njit(cache=True)
+def _meet(k, s, fp, ip, ag, cells, jsi, jsf, head, tail, meta, free, n_js, met):
+    """CQLearner._meet: the joint states of cell s met now into `met`, most confident first; how many."""
+    learning = ip[LEARNING]
+    count = 0
+    slot = head[k, s]
+    while slot >= 0:
+        nxt = jsi[slot, JS_NEXT]
+        if cells[jsi[slot, JS_J]] == jsi[slot, JS_C]:
+            met[count] = slot
+            count += 1
+            if learning:
+                up = jsf[slot, CONF] + fp[CONF_UP]
+                jsf[slot, CONF] = up if up < fp[CONF_MAX] else fp[CONF_MAX]
+        elif learning:
+            jsf[slot, CONF] -= fp[CONF_DOWN]
+            if jsf[slot, CONF] < fp[CONF_DROP]:
+                _forget(slot, jsi, head, tail, meta, free, n_js)
+        slot = nxt
+    if count:
+        ag[k, PLAYS] += 1
+    for m in range(1, count):  # a stable sort by falling confidence
+        x = met[m]
+        p = m - 1
+        while p >= 0 and jsf[met[p], CONF] < jsf[x, CONF]:
+            met[p + 1] = met[p]
+            p -= 1
+        met[p + 1] = x
+    return count
+
+
+@njit(cache=True)
+def act_cq(k, geo, fp, ip, ag, eps, q, mt, cells, js, cq, row):
+    """CQLearner.act."""
+    jsi, jsf, free, meta, head, tail, n_js = js
+    wt, wtr, wtk, ck, made, seen = cq
+    ag[k, HEARD] += ag[k, LOOK_N]
+    was_on = wt[k, W_ON]
+    wt[k, W_ON] = 0
+    if was_on and wt[k, W_CONFLICT]:
+        count = _mark(k, wt[k, W_CELL], geo, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, wt, made)
+        if not wt[k, W_LEARNT]:
+            for m in range(count):
+                at = wt[k, W_NKEYS]
+                wtk[k, 2 * at] = made[m]
+                wtk[k, 2 * at + 1] = jsi[made[m], JS_SEQ]
+                wt[k, W_NKEYS] += 1
+    s = ag[k, S]
+    count = 0
+    if ag[k, LOOKING] and head[k, s] >= 0:
+        count = _meet(k, s, fp, ip, ag, cells, jsi, jsf, head, tail, meta, free, n_js, made)
+    if count == 0:
+        ck[k, 0] = -1
+        ag[k, NKEYS] = 1
+    else:
+        keep = count if ip[ALL_MET] else 1
+        ck[k, :keep] = made[:keep]
+        ag[k, NKEYS] = keep
+    if was_on and not wt[k, W_LEARNT]:
+        _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, _acted_row(k, ag, ck, q, jsf, row), True)
+    a = epsilon_greedy(_acted_row(k, ag, ck, q, jsf, row), eps[k], mt[k])
+    ag[k, A] = a
+    return a
+
+
+@njit(cache=True)
+def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, js, cq, win):
+    """CQLearner.learn; returns the windows' sample pool (it grows as it fills)."""
+    wi, wf, pool, used = win
+    if not ip[LEARNING]:
+        return pool
+    jsi, jsf = js[0], js[1]
+    wt, wtr, wtk, ck = cq[0], cq[1], cq[2], cq[3]
+    s, a = ag[k, S], ag[k, A]
+    w = s * 4 + a
+    pool, full = W.add(wi[k, w], wf[k, w], pool, used, reward)
+    conflict = False
+    if full:
+        buf = pool[wi[k, w, W.BUF]]
+        conflict = (W.drop_t(wi[k, w], wf[k, w], buf) < -fp[T_TWO]
+                    and not W.above_t(wi[k, w], wf[k, w], buf, reward) < -fp[T_ONE])
+    wt[k, W_CELL], wt[k, W_ACTION], wt[k, W_NEXT] = s, a, next_cell
+    wt[k, W_DONE] = done
+    wt[k, W_CONFLICT] = conflict and not done
+    wt[k, W_LEARNT] = 0
+    wtr[k] = reward
+    nkeys = ag[k, NKEYS]
+    for m in range(nkeys):
+        wtk[k, 2 * m] = ck[k, m]
+        wtk[k, 2 * m + 1] = jsi[ck[k, m], JS_SEQ] if ck[k, m] >= 0 else -1
+    wt[k, W_NKEYS] = nkeys
+    if done or not ip[BOOT_ACTED]:
+        _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, q[k, s], False)
+        wt[k, W_LEARNT] = 1
+    wt[k, W_ON] = wt[k, W_CONFLICT] or not wt[k, W_LEARNT]
+    return pool
+
+
+@njit(cache=True)
+def end_cq(k, fp, ip, ag, eps, q, js, cq):
+    """CQLearner.end_episode."""
+    end_episode(k, fp, ip, ag, eps)
+    wt, wtr, wtk = cq[0], cq[1], cq[2]
+    if wt[k, W_ON] and not wt[k, W_LEARNT]:
+        wt[k, W_ON] = 0
+        _update(k, fp, ip, ag, q, js[0], js[1], wt, wtr, wtk, q[k, 0], False)
+    wt[k, W_ON] = 0
+
+
+# -- indep ---------------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def learn_indep(k, reward, next_cell, done, fp, ip, ag, q):
+    """IndependentQ.learn."""
+    if not ip[LEARNING]:
+        return
+    target = reward if done else reward + fp[GAMMA] * _max(q[k, next_cell])
+    row = q[k, ag[k, S]]
+    a = ag[k, A]
+    row[a] += fp[ALPHA] * (target - row[a])
+
+
+# -- the episode ---------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _observe(k, cell, n, ip, ag, eps, q, js, cq):
+    if ip[IS_CQ]:
+        observe_cq(k, cell, n, ip, ag, eps, q, js[0], js[1], js[4], cq[0], cq[5])
+    else:
+        ag[k, S] = cell
+
+
+@njit(cache=True)
+def _end(k, fp, ip, ag, eps, q, js, cq):
+    ag[k, ACTIVE] = 0
+    if ip[IS_CQ]:
+        end_cq(k, fp, ip, ag, eps, q, js, cq)
+    else:
+        end_episode(k, fp, ip, ag, eps)
+
+
+@njit(cache=True)
+def grow_pool(jsi, jsf, free, meta):
+    """The joint-state pool twice as large, its new slots free."""
+    cap = jsi.shape[0]
+    jsi2 = np.full((2 * cap, jsi.shape[1]), -1, np.int64)
+    jsi2[:cap] = jsi
+    jsf2 = np.zeros((2 * cap, jsf.shape[1]))
+    jsf2[:cap] = jsf
+    free2 = np.empty(2 * cap, np.int64)
+    free2[:meta[FREE]] = free[:meta[FREE]]
+    for slot in range(2 * cap - 1, cap - 1, -1):
+        free2[meta[FREE]] = slot
+        meta[FREE] += 1
+    return jsi2, jsf2, free2
+
+
+@njit(cache=True)
+def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
+    """Team.episode: one episode; its record into `out` (cq_ros.episode's columns). Returns the pools,
+    which grow as they fill: the joint states' (jsi, jsf, free) and the windows' samples."""
+    nbr, starts, goals = geo[0], geo[1], geo[2]
+    cells, done, hold, wmt, scratch = world
+    jsi, jsf, free, meta, head, tail, n_js = js
+    wi, wf, pool, used = win
+    n = starts.shape[0]
+    is_cq = ip[IS_CQ]
+    rw = np.array([fp[R_STEP], fp[R_WALL], fp[R_COLL], fp[R_GOAL]])
+    row = np.empty(4)
+    actions = np.full(n, -1, np.int64)
+    reset(starts, goals, cells, done, hold, wmt, ip[START_HOLD])
+    plays0 = ag[:, PLAYS].sum()
+    heard0 = ag[:, HEARD].sum()
+    t, collisions, ret = 0, 0, 0.0
+    over = done.all() or ip[STEP_CAP] <= 0
+    for k in range(n):
+        if over or done[k]:
+            _end(k, fp, ip, ag, eps, q, (jsi, jsf, free, meta, head, tail, n_js), cq)
+        else:
+            ag[k, ACTIVE] = 1
+            _observe(k, cells[k], n, ip, ag, eps, q, (jsi, jsf, free, meta, head, tail, n_js), cq)
+    while not over:
+        for k in range(n):
+            actions[k] = -1
+            if not ag[k, ACTIVE]:
+                continue
+            if is_cq:
+                if meta[FREE] < n:
+                    jsi, jsf, free = grow_pool(jsi, jsf, free, meta)
+                actions[k] = act_cq(k, geo, fp, ip, ag, eps, q, mt, cells,
+                                    (jsi, jsf, free, meta, head, tail, n_js), cq, row)
+            else:
+                actions[k] = epsilon_greedy(q[k, ag[k, S]], eps[k], mt[k])
+                ag[k, A] = actions[k]
+        collisions += step(nbr, goals, cells, done, hold, wmt, actions, fp[SLIP], ip[START_HOLD], rw, scratch)
+        t += 1
+        over = done.all() or t >= ip[STEP_CAP]
+        rewards = scratch[4]
+        js_now = (jsi, jsf, free, meta, head, tail, n_js)
+        for k in range(n):
+            if actions[k] < 0:
+                continue
+            if is_cq:
+                pool = learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, js_now, cq, (wi, wf, pool, used))
+            else:
+                learn_indep(k, rewards[k], cells[k], done[k], fp, ip, ag, q)
+            if over or done[k]:
+                _end(k, fp, ip, ag, eps, q, js_now, cq)
+            else:
+                _observe(k, cells[k], n, ip, ag, eps, q, js_now, cq)
+        total = 0.0
+        for k in range(n):
+            total += rewards[k]
+        ret += total
+    out[0] = t
+    out[1] = collisions
+    out[2] = ag[:, PLAYS].sum() - plays0
+    out[3] = n * ip[N_CELLS] + n_js.sum()
+    out[4] = ret
+    out[5] = t >= ip[STEP_CAP] and not done.all()
+    out[6] = ag[:, HEARD].sum() - heard0
+    return jsi, jsf, free, pool
+
+
+@njit(cache=True)
+def play_many(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
+    """`play` for every row of `out`."""
+    jsi, jsf, free, meta, head, tail, n_js = js
+    wi, wf, pool, used = win
+    for e in range(out.shape[0]):
+        jsi, jsf, free, pool = play(geo, fp, ip, world, ag, eps, q, mt, (jsi, jsf, free, meta, head, tail, n_js),
+                                    cq, (wi, wf, pool, used), out[e])
+    return jsi, jsf, free, pool

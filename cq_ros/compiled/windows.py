@@ -1,0 +1,180 @@
+"""CQ's reward windows and t-tests (cq_ros.stats) in compiled form, float operation for float operation.
+
+The windows of every (agent, cell, action) are rows of a few arrays (`Windows`); the samples a window holds
+(W1's until it is full, then W2's ring) live in a shared pool of rows allocated at a window's first reward,
+so a large map costs only the windows its agents visit. `fsum` is CPython's math.fsum (Shewchuk's partials
+and the final correct rounding), so the exact sums, and every decision made from them, are the reference's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..stats import _ROUNDING
+
+# per window: columns of the int table and of the float table
+N1, N2, HEAD, EXACT2, BUF = 0, 1, 2, 3, 4
+SUM1, SQ1, SUM2, SQ2 = 0, 1, 2, 3
+
+
+@njit(cache=True)
+def fsum(values, n, square):
+    """math.fsum(values[:n]) (of their squares if `square`), for finite values."""
+    p = np.empty(n + 1)
+    m = 0
+    for k in range(n):
+        x = values[k] * values[k] if square else values[k]
+        i = 0
+        for j in range(m):
+            y = p[j]
+            if abs(x) < abs(y):
+                x, y = y, x
+            hi = x + y
+            yr = hi - x
+            lo = y - yr
+            if lo != 0.0:
+                p[i] = lo
+                i += 1
+            x = hi
+        m = i
+        if x != 0.0:
+            p[m] = x
+            m += 1
+    hi = 0.0
+    lo = 0.0
+    if m > 0:
+        m -= 1
+        hi = p[m]
+        while m > 0:
+            x = hi
+            m -= 1
+            y = p[m]
+            hi = x + y
+            yr = hi - x
+            lo = y - yr
+            if lo != 0.0:
+                break
+        if m > 0 and ((lo < 0.0 and p[m - 1] < 0.0) or (lo > 0.0 and p[m - 1] > 0.0)):
+            y = lo * 2.0
+            x = hi + y
+            yr = x - hi
+            if y == yr:
+                hi = x
+    return hi
+
+
+def new_windows(shape: tuple[int, ...], size: int):
+    """The windows of `shape` (agents, cells * actions), empty; and an empty sample pool of rows of `size`."""
+    ints = np.zeros((*shape, 5), np.int64)
+    ints[..., EXACT2] = 1
+    ints[..., BUF] = -1
+    return ints, np.zeros((*shape, 4)), np.zeros((16, size)), np.zeros(1, np.int64)
+
+
+@njit(cache=True)
+def _room(pool, used):
+    """The pool with a row free at `used[0]`: the same array, or one twice its size."""
+    if used[0] < pool.shape[0]:
+        return pool
+    bigger = np.zeros((pool.shape[0] * 2, pool.shape[1]))
+    bigger[:pool.shape[0]] = pool
+    return bigger
+
+
+@njit(cache=True)
+def add(wi, wf, pool, used, reward):
+    """RewardWindows.add: store a reward; (the pool, True once both windows are full)."""
+    size = pool.shape[1]
+    if wi[BUF] < 0:
+        pool = _room(pool, used)
+        wi[BUF] = used[0]
+        used[0] += 1
+    buf = pool[wi[BUF]]
+    if wi[N1] < size:
+        buf[wi[N1]] = reward
+        wi[N1] += 1
+        wf[SUM1] += reward
+        wf[SQ1] += reward * reward
+        if wi[N1] == size:
+            wf[SUM1] = fsum(buf, size, False)
+            wf[SQ1] = fsum(buf, size, True)
+        return pool, False
+    if wi[N2] < size:
+        buf[wi[N2]] = reward
+        wi[N2] += 1
+        wf[SUM2] += reward
+        wf[SQ2] += reward * reward
+        if wi[N2] < size:
+            return pool, False
+        _resum(wi, wf, buf)
+        return pool, True
+    old = buf[wi[HEAD]]
+    buf[wi[HEAD]] = reward
+    wi[HEAD] += 1
+    if wi[HEAD] == size:
+        wi[HEAD] = 0
+        _resum(wi, wf, buf)
+    elif reward != old:
+        wf[SUM2] += reward - old
+        wf[SQ2] += reward * reward - old * old
+        wi[EXACT2] = 0
+    return pool, True
+
+
+@njit(cache=True)
+def fill_w1(wf, wi, values):
+    """W1 given whole (cq_w1_alone): as `add` leaves it once W1 is full."""
+    n = values.shape[0]
+    wf[SUM1] = fsum(values, n, False)
+    wf[SQ1] = fsum(values, n, True)
+    wi[N1] = n
+
+
+@njit(cache=True)
+def _resum(wi, wf, buf):
+    n = buf.shape[0]
+    wf[SUM2] = fsum(buf, n, False)
+    wf[SQ2] = fsum(buf, n, True)
+    wi[EXACT2] = 1
+
+
+@njit(cache=True)
+def _spread(total, squares, n):
+    ss = squares - total * total / n
+    return 0.0 if ss <= _ROUNDING * squares else ss
+
+
+@njit(cache=True)
+def _spread2(wi, wf, buf):
+    n = buf.shape[0]
+    ss = _spread(wf[SUM2], wf[SQ2], n)
+    if ss == 0.0 and not wi[EXACT2]:
+        _resum(wi, wf, buf)
+        ss = _spread(wf[SUM2], wf[SQ2], n)
+    return ss
+
+
+@njit(cache=True)
+def _t_or_inf(a, b, se2):
+    if se2 > 0.0:
+        return (a - b) / math.sqrt(se2)
+    if abs(a - b) <= _ROUNDING * (abs(a) + abs(b)):
+        return math.nan
+    return math.copysign(math.inf, a - b)
+
+
+@njit(cache=True)
+def drop_t(wi, wf, buf):
+    n = buf.shape[0]
+    ss = _spread(wf[SUM1], wf[SQ1], n) + _spread2(wi, wf, buf)
+    return _t_or_inf(wf[SUM2] / n, wf[SUM1] / n, ss / (n - 1) / n)
+
+
+@njit(cache=True)
+def above_t(wi, wf, buf, reward):
+    n = buf.shape[0]
+    ss = _spread2(wi, wf, buf)
+    return _t_or_inf(wf[SUM2] / n, reward, ss / (n - 1) / n)

@@ -1,0 +1,120 @@
+"""The compiled engine (cq_ros.compiled) is the reference engine's twin: for the same seed, `run` returns the same
+RunResult (tables equal byte for byte, same dtypes, same joint states) and so the lab writes the same result files,
+on the paper's maps, generated warehouses with and without delays, and small random maps with seeds and settings
+drawn by hypothesis; its Mersenne Twister and fsum are CPython's."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_world import random_maps
+
+from cq_ros import engine
+from cq_ros.compiled import engine as compiled
+from cq_ros.compiled import mt
+from cq_ros.compiled.windows import fsum
+from cq_ros.gridmap import load_map
+from cq_ros.lab.results import EPISODES, GREEDY, OBSERVE, write_results
+from cq_ros.mapgen.warehouse import warehouse_map
+from cq_ros.settings import Settings, run_settings
+
+
+def assert_twins(a, b):
+    assert (a.algo, a.run) == (b.algo, b.run)
+    for table in ("episodes", "greedy"):
+        x, y = getattr(a, table), getattr(b, table)
+        assert x.dtype == y.dtype and x.shape == y.shape
+        assert x.tobytes() == y.tobytes(), f"{table} differ"
+    assert a.joint_states == b.joint_states
+    assert [type(v) for js in a.joint_states for v in js] == [type(v) for js in b.joint_states for v in js]
+
+
+def both(algo, gridmap, s, seed=3, run_index=1, episodes=50):
+    return (compiled.run(algo, gridmap, s, seed, run_index, episodes),
+            engine.run(algo, gridmap, s, seed, run_index, episodes))
+
+
+@given(st.integers(0, 2**64), st.integers(1, 2**32 - 1))
+@settings(max_examples=30, deadline=None)
+def test_mersenne_twister_draws_as_cpython(seed, n):
+    rng = random.Random(seed)
+    words = mt.state_of(rng)
+    ours = [mt.random(words) for _ in range(700)] + [mt.randbelow(words, n) for _ in range(50)]
+    theirs = [rng.random() for _ in range(700)] + [rng.randrange(n) for _ in range(50)]
+    assert ours == theirs
+    assert tuple(words) == rng.getstate()[1]
+
+
+@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False) | st.sampled_from([-10.0, -1.0, 0.1, 10.0, -0.0]),
+                max_size=80))
+@settings(max_examples=200, deadline=None)
+def test_fsum_is_math_fsum(values):
+    array = np.array(values, dtype=float)
+    assert fsum(array, len(values), False) == math.fsum(values)
+    assert fsum(array, len(values), True) == math.fsum(v * v for v in values)
+
+
+@pytest.mark.parametrize("algo", ["indep", "cq"])
+@pytest.mark.parametrize("map_name,episodes", [("tunnel_to_goal", 400), ("tunnel_to_goal_3", 200)])
+@pytest.mark.parametrize("eval_learning", [0, 1])
+def test_paper_maps_byte_identical_result_files(algo, map_name, episodes, eval_learning, tmp_path):
+    gm = load_map(map_name)
+    s = run_settings(gm, {"eval_learning": eval_learning})
+    ours, theirs = both(algo, gm, s, episodes=episodes)
+    assert_twins(ours, theirs)
+    written = {}
+    for name, result in (("compiled", ours), ("reference", theirs)):
+        (tmp_path / name).mkdir()
+        write_results(tmp_path / name, gm, [result], {})
+        written[name] = [(tmp_path / name / f).read_bytes() for f in (EPISODES, GREEDY, OBSERVE)]
+    assert written["compiled"] == written["reference"]
+    if algo == "cq" and map_name == "tunnel_to_goal_3":
+        assert ours.joint_states, "a CQ run that marks nothing compares too little"
+
+
+@pytest.mark.parametrize("algo", ["indep", "cq"])
+@pytest.mark.parametrize("delays", [{}, {"slip": 0.1, "start_hold": 3}])
+def test_generated_warehouse(algo, delays):
+    gm = warehouse_map(6, seed=2, **delays)
+    s = run_settings(gm, {"eval_episodes": 3, "step_cap": 400})
+    assert_twins(*both(algo, gm, s, episodes=6))
+
+
+ALGOS = st.sampled_from(["indep", "cq"])
+
+
+@st.composite
+def drawn_settings(draw):
+    flag = st.integers(0, 1)
+    return Settings(
+        alpha=draw(st.sampled_from([0.1, 0.3, 1.0])), epsilon=draw(st.sampled_from([0.0, 0.1, 0.5])),
+        epsilon_decay_episodes=draw(st.sampled_from([0, 10])), window=draw(st.integers(2, 8)),
+        gamma=draw(st.sampled_from([0.0, 0.9])), reward_step=draw(st.sampled_from([0.0, -1.0, -0.1])),
+        conf_init=draw(st.sampled_from([0.3, 1.0])), conf_down=draw(st.sampled_from([0.02, 0.3])),
+        conf_drop=draw(st.sampled_from([0.0, 0.2])), conf_up=draw(st.sampled_from([0.0, 0.5])),
+        cq_bootstrap_acted=draw(flag), cq_mark_range=draw(st.integers(0, 3)), cq_mark_colliders=draw(flag),
+        cq_all_met=draw(flag), cq_w1_alone=draw(flag), cq_waits_fresh=draw(flag), cq_look_if_decisive=draw(flag),
+        step_cap=draw(st.sampled_from([1, 7, 60])), eval_episodes=draw(st.integers(0, 4)),
+        eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 1.0])),
+        start_hold=draw(st.sampled_from([0, 0, 2])))
+
+
+@given(random_maps(), drawn_settings(), ALGOS, st.integers(0, 2**32), st.integers(0, 3))
+@settings(max_examples=60, deadline=None)
+def test_random_maps_seeds_and_settings(gm, s, algo, seed, run_index):
+    assert_twins(*both(algo, gm, s, seed, run_index, episodes=25))
+
+
+@given(drawn_settings(), st.integers(0, 2**32))
+@settings(max_examples=12, deadline=None)
+def test_three_agents_in_the_tunnel_with_drawn_settings(s, seed):
+    """CQ's settings drawn at random, where three agents meet often enough to mark, meet and forget."""
+    import dataclasses
+
+    s = dataclasses.replace(s, step_cap=200, window=max(s.window, 4))
+    assert_twins(*both("cq", load_map("tunnel_to_goal_3"), s, seed, 0, episodes=60))
