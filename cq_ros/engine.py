@@ -222,6 +222,7 @@ class RunResult:
     episodes: np.ndarray  # one element per episode, cq_ros.episode's named columns (episodes["collisions"])
     joint_states: list[tuple[int, int, int, int, float]]  # (agent, cell, peer, peer_cell, confidence)
     greedy: np.ndarray  # the same for each greedy episode played at the end
+    engine: str = "reference"  # which engine played it (cq_ros.compiled.ENGINES): the same result on either
 
 
 def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int,

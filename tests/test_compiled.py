@@ -118,3 +118,35 @@ def test_three_agents_in_the_tunnel_with_drawn_settings(s, seed):
 
     s = dataclasses.replace(s, step_cap=200, window=max(s.window, 4))
     assert_twins(*both("cq", load_map("tunnel_to_goal_3"), s, seed, 0, episodes=60))
+
+
+def reference_team(algo, gm, s, seed, run_index):
+    return engine.Team(engine.GridWorld(gm, s, seed=engine.world_seed(seed, run_index)),
+                       engine.make_learners(algo, gm, s, seed, run_index))
+
+
+@pytest.mark.parametrize("algo,map_name,overrides", [
+    ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
+    ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_all_met": 0}),
+    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150})])
+def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, overrides):
+    """K episodes compiled, handed over to reference learners, M more on the reference engine (and its greedy
+    episodes) = K + M on the reference engine; the learners hold what the reference's hold."""
+    gm = load_map(map_name)
+    s = run_settings(gm, overrides)
+    kernel = compiled.Kernel(algo, gm, s, 5, 2)
+    first = kernel.play(150)
+    team = compiled.team_of(kernel)
+    reference = reference_team(algo, gm, s, 5, 2)
+    assert first.tobytes() == engine.record.table(reference.episode() for _ in range(150)).tobytes()
+    for ours, theirs in zip(team.learners, reference.learners):
+        assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+        if algo == "cq":
+            assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
+            assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
+            for a, b in zip(ours.windows, theirs.windows):
+                assert [getattr(a, f) for f in a.__slots__] == [getattr(b, f) for f in b.__slots__]
+    assert team.world._rng.getstate() == reference.world._rng.getstate()
+    then = engine.record.table(team.episode() for _ in range(50))
+    assert then.tobytes() == engine.record.table(reference.episode() for _ in range(50)).tobytes()
+    assert engine.greedy_episodes(team, 3).tobytes() == engine.greedy_episodes(reference, 3).tobytes()

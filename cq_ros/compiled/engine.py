@@ -1,8 +1,8 @@
 """The compiled engine: `run` plays one (algorithm, run) as cq_ros.engine.run does and returns the same RunResult,
 byte for byte, drawing from the same Mersenne Twister streams (cq_ros.compiled.mt) as the reference's learners
-and world. `Kernel` holds one run's world and learners as arrays; `Kernel.learners()` hands them over as
-reference learner objects (the learnt tables, the windows, the generators' states), so a run learnt here goes
-on in the reference engine, a filmed episode or a ROS launch exactly as if the reference had learnt it.
+and world. `Kernel` holds one run's world and learners as arrays; `team_of` hands them over as a reference Team
+whose learners hold the learnt tables, the windows and the generators' states, so a run learnt here goes on in
+the reference engine, a filmed episode or a ROS launch exactly as if the reference had learnt it.
 """
 
 from __future__ import annotations
@@ -15,26 +15,27 @@ import numpy as np
 from numpy.lib import recfunctions
 
 from .. import episode as record
-from ..engine import RunResult, learner_seed, world_seed
+from ..engine import RunResult, Team, learner_seed, make_learners, world_seed
 from ..gridmap import GridMap
 from ..settings import Settings
 from ..stats import ConflictTest, _sums
 from ..world import GridWorld, rewards_alone
+from . import KERNEL_ALGORITHMS
 from . import learners as K
 from . import windows as W
-from .mt import state_of
+from ..learners.base import Learner
+from .mt import set_state, state_of
 from .world import new_scratch
 
-ALGORITHMS = ("indep", "cq")  # the learners the kernel plays; the others play on the reference engine
 
 
 class Kernel:
     """One run's world and learners as the kernel's arrays (cq_ros.compiled.learners says their layout)."""
 
     def __init__(self, algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int):
-        if algo not in ALGORITHMS:
-            raise ValueError(f"the compiled engine plays {', '.join(ALGORITHMS)}, not {algo!r}")
-        self.algo, self.map, self.settings, self.run_index = algo, gridmap, settings, run_index
+        if algo not in KERNEL_ALGORITHMS:
+            raise ValueError(f"the compiled engine plays {', '.join(KERNEL_ALGORITHMS)}, not {algo!r}")
+        self.algo, self.map, self.settings, self.seed, self.run_index = algo, gridmap, settings, seed, run_index
         st, cq = settings, algo == "cq"
         n, c = gridmap.n_agents, gridmap.n_cells
         rows, cols = zip(*gridmap.cells)
@@ -123,8 +124,77 @@ class Kernel:
 
 def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int,
         on_episode: Callable[[], None] | None = None) -> RunResult:
-    """cq_ros.engine.run, compiled (for ALGORITHMS)."""
+    """cq_ros.engine.run, compiled (for KERNEL_ALGORITHMS)."""
     kernel = Kernel(algo, gridmap, settings, seed, run_index)
     table = kernel.play(episodes, on_episode)
     greedy = kernel.greedy().play(settings.eval_episodes) if settings.eval_episodes else record.table(())
-    return RunResult(algo, run_index, table, kernel.joint_states(), greedy)
+    return RunResult(algo, run_index, table, kernel.joint_states(), greedy, engine="compiled")
+
+
+_WARM_MAP = """agent 1: start 0,0  goal 0,2
+agent 2: start 0,2  goal 0,0
+
++-+-+-+
+|. . .|
++-+-+-+
+"""
+
+
+def warm_up() -> None:
+    """Load the kernel (compile it where no cache holds it): a few episodes of CQ, under delays, on a tiny map."""
+    from ..gridmap import parse_map
+
+    Kernel("cq", parse_map(_WARM_MAP), Settings(window=2, slip=0.1, step_cap=20), 0, 0).play(3)
+
+
+def _js_key(jsi, slot) -> tuple[int, int, int]:
+    return int(jsi[slot, K.JS_S]), int(jsi[slot, K.JS_J]), int(jsi[slot, K.JS_C])
+
+
+def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
+    """Learner k of the kernel, as the reference learner `learner` (fresh from make_learners) holds it."""
+    set_state(learner.rng, kernel.mt[k])
+    ag = kernel.ag[k]
+    learner.epsilon = float(kernel.eps[k])
+    learner.learning = bool(kernel.ip[K.LEARNING])
+    learner.episodes_played, learner.joint_plays, learner.heard = (int(ag[K.PLAYED]), int(ag[K.PLAYS]),
+                                                                   int(ag[K.HEARD]))
+    learner.s, learner.a = int(ag[K.S]), int(ag[K.A])
+    learner.q_local = kernel.q[k].tolist()
+    if kernel.algo != "cq":
+        return
+    jsi, jsf = kernel.js[0], kernel.js[1]
+    learner.dropped_updates = int(ag[K.DROPPED])
+    learner.looking = bool(ag[K.LOOKING])
+    mine = np.flatnonzero((jsi[:, K.JS_SEQ] >= 0) & (jsi[:, K.JS_AGENT] == k))
+    mine = mine[np.argsort(jsi[mine, K.JS_SEQ])]
+    learner.q_joint = {_js_key(jsi, i): jsf[i, 1:].tolist() for i in mine}
+    learner.confidence = {_js_key(jsi, i): float(jsf[i, K.CONF]) for i in mine}
+    learner.marked, learner.watch = {}, {}
+    for i in mine:
+        learner.marked.setdefault(int(jsi[i, K.JS_S]), []).append(_js_key(jsi, i))
+    for s in learner.marked:
+        learner._rewatch(s)
+    learner.keys = [None if key < 0 else _js_key(jsi, key) for key in kernel.cq[3][k, :ag[K.NKEYS]]]
+    assert not kernel.cq[0][k, K.W_ON], "between episodes no step waits"
+    learner.waiting = None
+    wi, wf, pool = kernel.win[0][k], kernel.win[1][k], kernel.win[2]
+    size = pool.shape[1]
+    for w in np.flatnonzero(wi[:, W.BUF] >= 0):  # the windows untouched are as the learner's constructor made them
+        windows, ints, floats, buf = learner.windows[w], wi[w], wf[w], pool[wi[w, W.BUF]]
+        windows.n1 = int(ints[W.N1])
+        windows.w1 = buf[:windows.n1].tolist() if windows.n1 < size else []
+        windows.w2 = buf[:ints[W.N2]].tolist() if windows.n1 == size else []
+        windows.head, windows.exact2 = int(ints[W.HEAD]), bool(ints[W.EXACT2])
+        windows.sum1, windows.sq1, windows.sum2, windows.sq2 = (float(v) for v in floats)
+
+
+def team_of(kernel: Kernel) -> Team:
+    """The kernel's run as a reference Team (learners and world), between episodes: it plays on as the reference
+    would have, had it learnt what the kernel learnt."""
+    learners = make_learners(kernel.algo, kernel.map, kernel.settings, kernel.seed, kernel.run_index)
+    for k, learner in enumerate(learners):
+        _hand_over(kernel, learner, k)
+    world = GridWorld(kernel.map, kernel.settings)
+    set_state(world._rng, kernel.world[3])
+    return Team(world, learners)
