@@ -150,3 +150,48 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     then = engine.record.table(team.episode() for _ in range(50))
     assert then.tobytes() == engine.record.table(reference.episode() for _ in range(50)).tobytes()
     assert engine.greedy_episodes(team, 3).tobytes() == engine.greedy_episodes(reference, 3).tobytes()
+
+
+def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
+    """The lab's experiment: the kernel plays indep and cq, the reference js (the manifest says so), and
+    --engine reference writes the same files."""
+    import json
+
+    from cq_ros.lab.experiment import experiment
+    from cq_ros.lab.results import MANIFEST
+
+    written = {}
+    for engine_name in ("compiled", "reference"):
+        out = experiment("tunnel_to_goal", ["indep", "js", "cq"], 2, 60, 4, tmp_path / engine_name, workers=1,
+                         figures=False, engine=engine_name)
+        manifest = json.loads((out / MANIFEST).read_text())
+        written[engine_name] = [(out / f).read_bytes() for f in (EPISODES, GREEDY, OBSERVE)]
+        expected = "compiled" if engine_name == "compiled" else "reference"
+        assert manifest["engine"] == {"indep": expected, "js": "reference", "cq": expected}
+    assert written["compiled"] == written["reference"]
+
+
+@pytest.mark.parametrize("greedy,episode", [(False, 40), (True, None)])
+def test_render_films_what_the_reference_films(greedy, episode):
+    from cq_ros.lab.render import engine_frames
+
+    gm, s = load_map("tunnel_to_goal_3"), Settings()
+    ours = engine_frames(gm, "cq", s, 1, 60, episode, greedy=greedy)
+    assert ours == engine_frames(gm, "cq", s, 1, 60, episode, greedy=greedy, engine="reference")
+
+
+def test_without_numba_the_reference_plays_with_one_line_saying_so():
+    import subprocess
+    import sys
+
+    probe = ("import sys; sys.modules['numba'] = None\n"  # `import numba` now raises ImportError
+             "from cq_ros import compiled\nfrom cq_ros.gridmap import load_map\nfrom cq_ros.settings import Settings\n"
+             "r = compiled.play('cq', load_map('tunnel_to_goal'), Settings(eval_episodes=2), 0, 0, 5)\n"
+             "print(r.engine, r.episodes.shape[0], r.greedy.shape[0])")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["reference", "5", "2"]
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert "the compiled engine cannot load" in lines[0] and "the reference engine plays" in lines[0]
+

@@ -10,6 +10,7 @@ import os
 import sys
 from pathlib import Path
 
+from ..compiled import ENGINES
 from ..gridmap import MapError
 from ..lab.cluster import ClusterError, scheduler_address
 from ..lab.runner import RunFailed
@@ -121,7 +122,15 @@ def _add_run_options(p: argparse.ArgumentParser, runs: int, episodes: int) -> No
     where.add_argument("--cluster", type=scheduler_address, default=None, metavar="ADDRESS",
                        help="run on the workers of a running Dask scheduler, tcp://HOST:PORT (needs the extra "
                             "cq-ros[cluster]; docs/cluster.md)")
+    _add_engine_option(p)
     _add_settings_options(p)
+
+
+def _add_engine_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--engine", choices=ENGINES, default="compiled",
+                   help="the compiled engine (default: numba; the reference plays the learners it does not cover, "
+                        "and everything where numba cannot load) or the reference Python engine; both give the same "
+                        "results, the manifest says which played")
 
 
 _seed = _number(0, kind=int)  # numpy's SeedSequence takes no negative seed
@@ -265,6 +274,7 @@ def _add_ros_parsers(sub) -> None:
                    help="pixels an inch of the picture, a cell being 0.6 in (default 72); fewer make a smaller file")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="with --map: change a setting (repeatable)")
+    _add_engine_option(p)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -51,7 +51,8 @@ def experiment(args) -> int:
     settings = run_settings(load_map(args.map), args.overrides)
     with removed_if_failing(args.out):  # results are written at the end: a run cut short leaves no folder
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
+                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster,
+                         engine=args.engine)
     print_summary(out)
     print(f"results: {out}")
     return 0
@@ -63,7 +64,7 @@ def reproduce(args) -> int:
     # The paper's maps carry no defaults of their own; a delay given by --set brings CQ's settings under delays.
     report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
                        run_settings(None, args.overrides), workers=args.jobs, force=args.force,
-                       sweep=args.sweep, cluster=args.cluster)
+                       sweep=args.sweep, cluster=args.cluster, engine=args.engine)
     print(f"report: {report}")
     return 0
 
@@ -161,7 +162,7 @@ def render(args) -> int:
         if args.greedy:
             title += " greedy"
         frames = engine_frames(gridmap, args.algo, settings, args.seed, args.episodes, args.episode,
-                               _every_30_s("episode {} learnt"), greedy=args.greedy)
+                               _every_30_s("episode {} learnt"), greedy=args.greedy, engine=args.engine)
     else:
         from ros_tools import commands as tools
 

@@ -11,9 +11,10 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
-from ..engine import RunResult, run
+from .. import compiled
+from ..engine import RunResult
 from ..gridmap import GridMap, load_map
-from .results import manifest_for, prepare_output, write_results
+from .results import engines_of, manifest_for, prepare_output, write_results
 from .runner import run_all
 from ..settings import Settings, run_settings
 
@@ -26,10 +27,12 @@ class Job:
     episodes: int
     seed: int
     settings: Settings = field(default_factory=Settings)
+    engine: str = "compiled"  # cq_ros.compiled.ENGINES: the compiled engine where it plays the learner
 
 
 def _play(maps: dict[str, GridMap], job: Job, on_episode: Callable[[], None]) -> RunResult:
-    return run(job.algo, maps[job.map_name], job.settings, job.seed, job.run, job.episodes, on_episode)
+    return compiled.play(job.algo, maps[job.map_name], job.settings, job.seed, job.run, job.episodes, on_episode,
+                         engine=job.engine)
 
 
 def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs", progress_interval: float = 30.0,
@@ -38,25 +41,28 @@ def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs", p
     `cluster`), showing progress; each job's result, and where they ran (the manifest's `executed_on`).
     The maps travel with the jobs, read here once: a worker on another machine needs no map file."""
     maps = {job.map_name: load_map(job.map_name) for job in jobs}
+    if any(compiled.engine_of(job.algo, job.engine) == "compiled" for job in jobs):
+        compiled.prepare()  # here, once: the workers then load the compiled engine from its cache
     ran = run_all(jobs, partial(_play, maps), workers, cluster, label, progress_interval)
     return dict(zip(jobs, ran.results)), ran.executed_on
 
 
 def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: int, out: Path,
                settings: Settings | None = None, workers: int | None = None, force: bool = False,
-               figures: bool = True, cluster: str | None = None) -> Path:
+               figures: bool = True, cluster: str | None = None, engine: str = "compiled") -> Path:
     """Run every algorithm on one map and write the result directory; returns it. Without `settings`, the
     run's are the map's (`cq_ros.settings.run_settings`). The runs go to `workers` local processes, or to the
-    Dask scheduler at `cluster`."""
+    Dask scheduler at `cluster`, and play on `engine` (cq_ros.compiled.play)."""
     gridmap = load_map(map_name)
     settings = run_settings(gridmap) if settings is None else settings
     out = prepare_output(out, force)
     started = time.perf_counter()
-    jobs = [Job(str(map_name), a, r, episodes, seed, settings) for a in algos for r in range(runs)]
+    jobs = [Job(str(map_name), a, r, episodes, seed, settings, engine) for a in algos for r in range(runs)]
     results, executed_on = run_jobs(jobs, workers, label=gridmap.name, cluster=cluster)
     wall = time.perf_counter() - started
     write_results(out, gridmap, list(results.values()),
-                  manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, executed_on))
+                  manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, executed_on,
+                               engine=engines_of(results.values())))
     if figures:
         from .plots import write_figures  # matplotlib only where figures are wanted
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from .. import compiled
 from ..engine import Team, greedy_team, make_learners, world_seed
 from ..gridmap import GridMap
 from ..settings import Settings
@@ -41,23 +42,33 @@ class Frame:
 
 def engine_frames(gridmap: GridMap, algo: str, settings: Settings, seed: int, episodes: int,
                   episode: int | None = None, progress: Callable[[int], Any] | None = None,
-                  greedy: bool = False) -> list[Frame]:
+                  greedy: bool = False, engine: str = "compiled") -> list[Frame]:
     """The frames of learning episode `episode` (0-based; None: the last of `episodes`) of the offline run
     `cq_ros.engine.run(algo, gridmap, settings, seed, 0, episodes)`: every step from 0 to the last. With
     `greedy`, instead the run's first greedy episode after its `episodes` learning ones (numbered `episodes`,
     as a ROS run numbers it; the first row of the run's greedy.csv). `progress(e)` is called after each
-    episode e played before it."""
+    episode e played before it. Those play on `engine` (cq_ros.compiled.play), the filmed one on the reference
+    engine from the learners they left (team_of), as the reference would have played it."""
     if greedy and episode is not None:
         raise ValueError("draw either a learning episode or the greedy one after learning, not both")
     episode = episodes - 1 if episode is None else episode
     if not 0 <= episode < episodes:
         raise ValueError(f"episode {episode} is not one of the {episodes} episodes (0..{episodes - 1})")
-    world = GridWorld(gridmap, settings, seed=world_seed(seed, 0))
-    team = Team(world, make_learners(algo, gridmap, settings, seed, 0))
-    for e in range(episodes if greedy else episode):
-        team.episode()
-        if progress is not None:
-            progress(e)
+    before = episodes if greedy else episode
+    if compiled.engine_of(algo, engine) == "compiled":
+        from ..compiled.engine import Kernel, team_of
+
+        kernel = Kernel(algo, gridmap, settings, seed, 0)
+        played = iter(range(before))
+        kernel.play(before, None if progress is None else lambda: progress(next(played)))
+        team = team_of(kernel)
+    else:
+        team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, 0)), make_learners(algo, gridmap, settings,
+                                                                                         seed, 0))
+        for e in range(before):
+            team.episode()
+            if progress is not None:
+                progress(e)
     if greedy:
         team, episode = greedy_team(team), episodes
     frames: list[Frame] = []

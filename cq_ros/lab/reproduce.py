@@ -23,7 +23,7 @@ from ..gridmap import load_map
 from ..learners import ALGORITHMS
 from ..settings import Settings
 from .results import (EPISODES, GREEDY, OBSERVE, GreedyRun, load_episodes, load_greedy, load_observations,
-                      manifest_for, prepare_output, versions, write_results)
+                      engines_of, manifest_for, prepare_output, versions, write_results)
 from .summary import Metrics, compute_metrics, settled_episode, summary_table
 
 PAPER_MAPS = ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr")
@@ -74,7 +74,7 @@ def seed_dir(out: Path, seeds: Sequence[int], seed: int) -> Path:
 
 def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Sequence[int] = 0,
               settings: Settings = Settings(), workers: int | None = None, force: bool = False, sweep: bool = True,
-              figures: bool = True, cluster: str | None = None) -> Path:
+              figures: bool = True, cluster: str | None = None, engine: str = "compiled") -> Path:
     """Run the grid, again with exploration that stops (in decay/), for each master seed in `seed` (one or
     several), and the sweep (first seed), on `workers` local processes or on the Dask scheduler at `cluster`;
     write every map's results and figures (first seed) and REPORT.md; returns its path."""
@@ -83,11 +83,12 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
     started = time.perf_counter()
     decay = decaying(settings, episodes)
     grids = {".": settings, "decay": decay}
-    jobs = [Job(m, a, r, episodes, sd, s) for sd in seeds for s in grids.values() for m in PAPER_MAPS
+    jobs = [Job(m, a, r, episodes, sd, s, engine) for sd in seeds for s in grids.values() for m in PAPER_MAPS
             for a in ALGORITHMS for r in range(runs)]
     variants = sweep_variants(settings) if sweep else []
     for v in variants:
-        jobs += [Job(SWEEP_MAP, "cq", r, episodes, seeds[0], settings.with_overrides(v.changes)) for r in range(runs)]
+        jobs += [Job(SWEEP_MAP, "cq", r, episodes, seeds[0], settings.with_overrides(v.changes), engine)
+                 for r in range(runs)]
     jobs = list(dict.fromkeys(jobs))  # the "defaults" variant is the grid's own CQ runs on the sweep map
     results, executed_on = run_jobs(jobs, workers, label="reproduce", cluster=cluster)
     wall = time.perf_counter() - started
@@ -100,7 +101,8 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
                 folder = seed_dir(out, seeds, sd) / where / m
                 folder.mkdir(parents=True, exist_ok=True)
                 write_results(folder, gridmap, mine,
-                              manifest_for(gridmap, ALGORITHMS, runs, episodes, sd, grid_settings, wall, executed_on))
+                              manifest_for(gridmap, ALGORITHMS, runs, episodes, sd, grid_settings, wall, executed_on,
+                                           engine=engines_of(mine)))
     for v in variants:
         changed = settings.with_overrides(v.changes)
         mine = [results[j] for j in jobs
@@ -109,7 +111,7 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
         where.mkdir(parents=True, exist_ok=True)
         write_results(where, load_map(SWEEP_MAP), mine, manifest_for(load_map(SWEEP_MAP), ["cq"], runs, episodes,
                                                                      seeds[0], changed, wall, executed_on,
-                                                                     variant=v.name))
+                                                                     variant=v.name, engine=engines_of(mine)))
     if figures:
         from .plots import write_figures
 

@@ -43,7 +43,7 @@ GREEDY_COLUMNS = EPISODE_COLUMNS
 OBSERVE_COLUMNS = ("map", "algo", "run", "agent", "row", "col", "peer", "peer_row", "peer_col", "confidence")
 # The manifest's fields that are the run's own circumstances: all the others are the same, byte for byte,
 # whether the runs executed in one process, with --jobs or on a cluster.
-CIRCUMSTANCES = ("command", "finished_at", "wall_time_s", "executed_on")
+CIRCUMSTANCES = ("command", "finished_at", "wall_time_s", "executed_on", "engine")
 
 Runs = dict[str, np.ndarray]  # column name -> array shaped (runs, episodes)
 Episodes = dict[tuple[str, str], Runs]  # (map, algo) -> its columns
@@ -100,6 +100,15 @@ def write_results(out: Path, gridmap: GridMap, results: list[RunResult], manifes
     (out / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
 
 
+def engines_of(results) -> dict[str, str | list[str]]:
+    """The manifest's `engine`: which engine played each algorithm's runs (cq_ros.compiled.ENGINES), one name
+    where all its runs played on one, else one per run in run order. Both engines give the same files."""
+    played: dict[str, list[str]] = {}
+    for r in sorted(results, key=lambda r: (algo_sort_key(r.algo), r.run)):
+        played.setdefault(r.algo, []).append(r.engine)
+    return {algo: names[0] if len(set(names)) == 1 else names for algo, names in played.items()}
+
+
 def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, settings: Settings,
                  wall_time: float, executed_on: dict | None = None, **extra) -> dict:
     """The manifest of a result folder; `executed_on` says where the runs ran (cq_ros.lab.runner), where they
@@ -130,7 +139,7 @@ def manifest_for(gridmap: GridMap, algos, runs: int, episodes: int, seed: int, s
 def versions() -> dict:
     found = {"cq_ros": __version__, "python": platform.python_version(), "machine": platform.machine(),
              "cores": os.cpu_count()}
-    for package in ("numpy", "scipy", "matplotlib"):
+    for package in ("numpy", "numba", "scipy", "matplotlib"):
         try:
             found[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
