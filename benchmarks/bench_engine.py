@@ -1,10 +1,13 @@
-"""Offline engine speed: joint steps per second of every algorithm on tunnel_to_goal and tunnel_to_goal_3
-(one core, one run each, learning only: no greedy evaluation), CQ's ratio to independent learners; the CPU
-cost per agent-step (a joint step's CPU time over the fleet) of indep and CQ on warehouse_8, _16 and _32 with
-the maps' own settings, and its ratio of warehouse_32 to warehouse_8 (1.0 for a step linear in the fleet);
-optionally the wall time of the whole reproduce grid on all cores.
+"""Offline engine speed: the compiled engine against the reference (Python) engine in the same run, CPU time
+per agent-step (a joint step's CPU time over the fleet) of indep and CQ on tunnel_to_goal and warehouse_16,
+medians of interleaved repeats, their ratio, and whether both gave the same episodes; then, on `--engine`
+(default compiled), the joint steps per second of every algorithm on the two tunnels (one core, one run each,
+learning only: no greedy evaluation), CQ's ratio to independent learners, and the CPU per agent-step of indep
+and CQ on warehouse_8, _16 and _32 with the maps' own settings, with its ratio of warehouse_32 to warehouse_8
+(1.0 for a step linear in the fleet); optionally the wall time of the whole reproduce grid on all cores.
 
-    python benchmarks/bench_engine.py [--episodes 3000] [--warehouse-episodes 30] [--grid] [--grid-episodes 10000]
+    python benchmarks/bench_engine.py [--episodes 3000] [--warehouse-episodes 30] [--repeats 3]
+                                      [--engine compiled|reference] [--grid] [--grid-episodes 10000]
 """
 
 from __future__ import annotations
@@ -12,42 +15,64 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import statistics
 import tempfile
 import time
 from pathlib import Path
 
-from cq_ros.engine import run
+from cq_ros import compiled
 from cq_ros.gridmap import load_map
 from cq_ros.learners import ALGORITHMS
 from cq_ros.settings import Settings, run_settings
 
 WAREHOUSES = ("warehouse_8", "warehouse_16", "warehouse_32")
+COMPARED = (("tunnel_to_goal", "indep"), ("tunnel_to_goal", "cq"), ("warehouse_16", "indep"), ("warehouse_16", "cq"))
 
 
-def steps_per_second(algo: str, map_name: str, episodes: int, seed: int = 0) -> tuple[float, int]:
+def steps_per_second(algo: str, map_name: str, episodes: int, engine: str, seed: int = 0) -> tuple[float, int]:
     gridmap = load_map(map_name)
     started = time.perf_counter()
-    table = run(algo, gridmap, Settings(eval_episodes=0), seed, 0, episodes).episodes
+    table = compiled.play(algo, gridmap, Settings(eval_episodes=0), seed, 0, episodes, engine=engine).episodes
     seconds = time.perf_counter() - started
     steps = int(table["steps"].sum())
     return steps / seconds, steps
 
 
-def cpu_per_agent_step(algo: str, map_name: str, episodes: int, seed: int = 0) -> tuple[float, int]:
-    """Microseconds of this process's CPU per agent-step (CPU time, not wall: other sessions' load on the
-    machine moves it less), and the joint steps played."""
+def cpu_per_agent_step(algo: str, map_name: str, episodes: int, engine: str, seed: int = 0):
+    """Nanoseconds of this process's CPU per agent-step (CPU time, not wall: other sessions' load on the
+    machine moves it less), the joint steps played, and the episodes' table."""
     gridmap = load_map(map_name)
     started = time.process_time()
-    table = run(algo, gridmap, run_settings(gridmap, {"eval_episodes": 0}), seed, 0, episodes).episodes
+    table = compiled.play(algo, gridmap, run_settings(gridmap, {"eval_episodes": 0}), seed, 0, episodes,
+                          engine=engine).episodes
     seconds = time.process_time() - started
     steps = int(table["steps"].sum())
-    return seconds / (steps * gridmap.n_agents) * 1e6, steps
+    return seconds / (steps * gridmap.n_agents) * 1e9, steps, table
+
+
+def compare(episodes: dict[str, int], repeats: int) -> None:
+    """Both engines on the same runs, interleaved, `repeats` times: medians, ratio, same episodes."""
+    for map_name, algo in COMPARED:
+        cost: dict[str, list[float]] = {"reference": [], "compiled": []}
+        tables = {}
+        for _ in range(repeats):
+            for engine in cost:
+                ns, steps, tables[engine] = cpu_per_agent_step(algo, map_name, episodes[map_name], engine)
+                cost[engine].append(ns)
+        ref, comp = statistics.median(cost["reference"]), statistics.median(cost["compiled"])
+        same = tables["reference"].tobytes() == tables["compiled"].tobytes()
+        print(f"{map_name:<17} {algo:<6} reference {ref:>8,.0f} ns, compiled {comp:>6,.1f} ns CPU per agent-step: "
+              f"{ref / comp:>5,.0f}x  ({steps:,} joint steps, {episodes[map_name]} episodes, same episodes: "
+              f"{'yes' if same else 'NO'})", flush=True)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=3000)
     parser.add_argument("--warehouse-episodes", type=int, default=30)
+    parser.add_argument("--repeats", type=int, default=3, help="interleaved repeats of the comparison (median)")
+    parser.add_argument("--engine", choices=compiled.ENGINES, default="compiled",
+                        help="the engine of the tables after the comparison")
     parser.add_argument("--grid", action="store_true", help="also time the full reproduce grid (minutes)")
     parser.add_argument("--grid-runs", type=int, default=10)
     parser.add_argument("--grid-episodes", type=int, default=10_000)
@@ -55,19 +80,26 @@ def main() -> None:
 
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
           f"load average {os.getloadavg()[0]:.2f}")
+    started = time.perf_counter()
+    if not compiled.prepare():
+        raise SystemExit("the compiled engine cannot load here: nothing to compare")
+    print(f"compiled engine loaded in {time.perf_counter() - started:.1f} s")
+    compare({"tunnel_to_goal": args.episodes, "warehouse_16": args.warehouse_episodes}, args.repeats)
+
+    print(f"engine: {args.engine}")
     for map_name in ("tunnel_to_goal", "tunnel_to_goal_3"):
         rates = {}
         for algo in ALGORITHMS:
-            rates[algo], steps = steps_per_second(algo, map_name, args.episodes)
-            print(f"{map_name:<17} {algo:<6} {rates[algo]:>10,.0f} joint steps/s  "
-                  f"({steps:,} steps, {args.episodes} episodes)")
+            rates[algo], steps = steps_per_second(algo, map_name, args.episodes, args.engine)
+            print(f"{map_name:<17} {algo:<6} {rates[algo]:>12,.0f} joint steps/s  "
+                  f"({steps:,} steps, {args.episodes} episodes, {compiled.engine_of(algo, args.engine)})")
         print(f"{map_name:<17} cq/indep speed ratio: {rates['cq'] / rates['indep']:.2f}")
 
     for algo in ("indep", "cq"):
         cost = {}
         for map_name in WAREHOUSES:
-            cost[map_name], steps = cpu_per_agent_step(algo, map_name, args.warehouse_episodes)
-            print(f"{map_name:<17} {algo:<6} {cost[map_name]:>10.2f} us CPU per agent-step  "
+            cost[map_name], steps, _ = cpu_per_agent_step(algo, map_name, args.warehouse_episodes, args.engine)
+            print(f"{map_name:<17} {algo:<6} {cost[map_name]:>10,.1f} ns CPU per agent-step  "
                   f"({steps:,} joint steps, {args.warehouse_episodes} episodes)", flush=True)
         print(f"warehouse_32 / warehouse_8 {algo:<6} cost per agent-step: "
               f"{cost['warehouse_32'] / cost['warehouse_8']:.2f}x")
@@ -79,9 +111,10 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as out:
             started = time.perf_counter()
             reproduce(Path(out) / "grid", args.grid_runs, args.grid_episodes, seed=0, settings=Settings(),
-                      sweep=False, figures=False)
+                      sweep=False, figures=False, engine=args.engine)
             print(f"reproduce grid ({args.grid_runs} runs x {args.grid_episodes} episodes, 4 maps x 5 algorithms, "
-                  f"no sweep, no figures): {time.perf_counter() - started:.0f} s wall on {os.cpu_count()} cores")
+                  f"no sweep, no figures, {args.engine} engine): {time.perf_counter() - started:.0f} s wall on "
+                  f"{os.cpu_count()} cores")
 
 
 if __name__ == "__main__":

@@ -49,7 +49,8 @@ class Kernel:
                             st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met, st.cq_waits_fresh,
                             st.cq_look_if_decisive], np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
-                      state_of(GridWorld(gridmap, settings, seed=world_seed(seed, run_index))._rng),  # as constructed
+                      # the world's generator as GridWorld's constructor leaves it
+                      state_of(GridWorld(gridmap, settings, seed=world_seed(seed, run_index))._rng)[None],
                       new_scratch(n, c))
         self.ag = np.zeros((n, 10), np.int64)
         self.ag[:, K.NKEYS] = 1  # keys = [None]
@@ -196,5 +197,5 @@ def team_of(kernel: Kernel) -> Team:
     for k, learner in enumerate(learners):
         _hand_over(kernel, learner, k)
     world = GridWorld(kernel.map, kernel.settings)
-    set_state(world._rng, kernel.world[3])
+    set_state(world._rng, kernel.world[3][0])
     return Team(world, learners)

@@ -7,6 +7,8 @@ Mersenne Twister. CQ's joint states of every agent live in one pool (`jsi`, `jsf
 creation order, the cell's list links; confidence and Q^j), each cell's list in marking order, so a cell's
 joint states, their order and `joint_states()`'s order are the reference's dicts' and lists'. Its waiting
 step is `wt[k]` (with `wtr`, `wtk`: reward, keys) and the keys it acts on `ck[k]`: -1 is Q_k, else a slot.
+Tables are indexed element by element, never sliced into rows: a view counts a reference (an atomic operation)
+each time, which cost more than the learning itself; a row acted on is copied into a 4-value buffer.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, IS_CQ, MARK_RANGE, MARK_COLLIDER
 FREE, SEQ = 0, 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _max(row):
     """Python's max(row): the first of the largest."""
     best = row[0]
@@ -45,42 +47,51 @@ def _max(row):
     return best
 
 
-@njit(cache=True)
-def greedy(row, mt):
-    """base.greedy: the largest value's index, ties broken by rng.choice."""
+@njit(cache=True, inline="always")
+def _qmax(q, k, s):
+    """max(Q_k[s]), as _max."""
+    best = q[k, s, 0]
+    for a in range(1, q.shape[2]):
+        if q[k, s, a] > best:
+            best = q[k, s, a]
+    return best
+
+
+@njit(cache=True, inline="always")
+def greedy(row, mt, g):
+    """base.greedy: the largest value's index, ties broken by rng.choice (generator g)."""
     best = _max(row)
     count = 0
     first = -1
-    for k in range(row.shape[0]):
-        if row[k] == best:
+    for a in range(row.shape[0]):
+        if row[a] == best:
             count += 1
             if first < 0:
-                first = k
+                first = a
     if count == 1:
         return first
-    pick = randbelow(mt, count)
-    for k in range(row.shape[0]):
-        if row[k] == best:
+    pick = randbelow(mt, g, count)
+    for a in range(row.shape[0]):
+        if row[a] == best:
             if pick == 0:
-                return k
+                return a
             pick -= 1
     return -1
 
 
-@njit(cache=True)
-def epsilon_greedy(row, epsilon, mt):
-    if random(mt) < epsilon:
-        return int(random(mt) * row.shape[0])
-    return greedy(row, mt)
+@njit(cache=True, inline="always")
+def epsilon_greedy(row, epsilon, mt, g):
+    if random(mt, g) < epsilon:
+        return int(random(mt, g) * row.shape[0])
+    return greedy(row, mt, g)
 
 
-@njit(cache=True)
-def _distance(geo, a, b):
-    rows, cols = geo[3], geo[4]
+@njit(cache=True, inline="always")
+def _distance(rows, cols, a, b):
     return abs(rows[a] - rows[b]) + abs(cols[a] - cols[b])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def end_episode(k, fp, ip, ag, eps):
     """Learner.end_episode: one more episode played; epsilon on its schedule."""
     ag[k, PLAYED] += 1
@@ -94,25 +105,26 @@ def end_episode(k, fp, ip, ag, eps):
 
 # -- CQ ------------------------------------------------------------------------------------------------
 
-@njit(cache=True)
-def _row(k, key, cell, q, jsf):
-    return q[k, cell] if key < 0 else jsf[key, 1:]
+@njit(cache=True, inline="always")
+def _get(q, jsf, k, key, cell, a):
+    """Q_k[cell][a] (key -1) or Q^j[a] of the joint state in slot `key`."""
+    return q[k, cell, a] if key < 0 else jsf[key, 1 + a]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _acted_row(k, ag, ck, q, jsf, out):
     """CQLearner._acted_row into `out`: one row, or the elementwise minimum of the rows met."""
     cell = ag[k, S]
-    out[:] = _row(k, ck[k, 0], cell, q, jsf)
-    for m in range(1, ag[k, NKEYS]):
-        row = _row(k, ck[k, m], cell, q, jsf)
-        for a in range(out.shape[0]):
-            if row[a] < out[a]:
-                out[a] = row[a]
+    for a in range(out.shape[0]):
+        out[a] = _get(q, jsf, k, ck[k, 0], cell, a)
+        for m in range(1, ag[k, NKEYS]):
+            v = _get(q, jsf, k, ck[k, m], cell, a)
+            if v < out[a]:
+                out[a] = v
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, next_row, has_next):
     """CQLearner._update of the step in wt[k] (`next_row` the row acted on at s', if `has_next`)."""
     cell, action = wt[k, W_CELL], wt[k, W_ACTION]
@@ -122,22 +134,29 @@ def _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, next_row, has_next):
     elif ip[BOOT_ACTED] and has_next:
         target = reward + fp[GAMMA] * _max(next_row)
     else:
-        target = reward + fp[GAMMA] * _max(q[k, wt[k, W_NEXT]])
+        target = reward + fp[GAMMA] * _qmax(q, k, wt[k, W_NEXT])
+    alpha = fp[ALPHA]
     for m in range(wt[k, W_NKEYS]):
         key = wtk[k, 2 * m]
-        if key >= 0 and jsi[key, JS_SEQ] != wtk[k, 2 * m + 1]:  # forgotten while the update waited
+        if key < 0:
+            q[k, cell, action] += alpha * (target - q[k, cell, action])
+        elif jsi[key, JS_SEQ] != wtk[k, 2 * m + 1]:  # forgotten while the update waited
             ag[k, DROPPED] += 1
-            continue
-        row = _row(k, key, cell, q, jsf)
-        row[action] += fp[ALPHA] * (target - row[action])
+        else:
+            jsf[key, 1 + action] += alpha * (target - jsf[key, 1 + action])
 
 
-@njit(cache=True)
-def _unique_best(row):
-    best = _max(row)
+@njit(cache=True, inline="always")
+def _unique_best(q, jsf, k, key, cell):
+    """unique_best of a row: its largest value's action if no other ties with it, else -1."""
+    best = _get(q, jsf, k, key, cell, 0)
+    for a in range(1, q.shape[2]):
+        v = _get(q, jsf, k, key, cell, a)
+        if v > best:
+            best = v
     first, count = -1, 0
-    for a in range(row.shape[0]):
-        if row[a] == best:
+    for a in range(q.shape[2]):
+        if _get(q, jsf, k, key, cell, a) == best:
             count += 1
             if first < 0:
                 first = a
@@ -145,27 +164,28 @@ def _unique_best(row):
 
 
 @njit(cache=True)
-def _decisive(k, cell, ag, eps, q, jsi, jsf, head, wt):
+def _decisive(k, cell, eps, q, jsi, jsf, head, wt):
     """CQLearner._decisive."""
     if eps[k] != 0:
         return False
     if wt[k, W_ON] and not wt[k, W_LEARNT] and wt[k, W_CELL] == cell:
         return False
-    a = _unique_best(q[k, cell])
+    a = _unique_best(q, jsf, k, -1, cell)
     if a < 0:
         return False
     slot = head[k, cell]
     while slot >= 0:
-        if _unique_best(jsf[slot, 1:]) != a:
+        if _unique_best(q, jsf, k, slot, cell) != a:
             return False
         slot = jsi[slot, JS_NEXT]
     return True
 
 
-@njit(cache=True)
-def _peers_named(k, cell, n, jsi, head, seen):
+@njit(cache=True, inline="always")
+def _peers_named(k, cell, jsi, head, seen):
     """len(watch[cell]): the peers the cell's joint states name."""
-    seen[:] = False
+    for j in range(seen.shape[0]):
+        seen[j] = False
     count = 0
     slot = head[k, cell]
     while slot >= 0:
@@ -177,7 +197,7 @@ def _peers_named(k, cell, n, jsi, head, seen):
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def observe_cq(k, cell, n, ip, ag, eps, q, jsi, jsf, head, wt, seen):
     """CQLearner.observe: how many peers the agent looks at (LOOK_N)."""
     ag[k, S] = cell
@@ -185,12 +205,12 @@ def observe_cq(k, cell, n, ip, ag, eps, q, jsi, jsf, head, wt, seen):
         ag[k, LOOKING] = 1
         ag[k, LOOK_N] = n - 1
         return
-    looking = head[k, cell] >= 0 and not (ip[LOOK_DECISIVE] and _decisive(k, cell, ag, eps, q, jsi, jsf, head, wt))
+    looking = head[k, cell] >= 0 and not (ip[LOOK_DECISIVE] and _decisive(k, cell, eps, q, jsi, jsf, head, wt))
     ag[k, LOOKING] = looking
-    ag[k, LOOK_N] = _peers_named(k, cell, n, jsi, head, seen) if looking else 0
+    ag[k, LOOK_N] = _peers_named(k, cell, jsi, head, seen) if looking else 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _forget(slot, jsi, head, tail, meta, free, n_js):
     k, s = jsi[slot, JS_AGENT], jsi[slot, JS_S]
     prev, nxt = jsi[slot, JS_PREV], jsi[slot, JS_NEXT]
@@ -209,23 +229,23 @@ def _forget(slot, jsi, head, tail, meta, free, n_js):
 
 
 @njit(cache=True)
-def _mark(k, s, geo, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, wt, made):
-    """CQLearner._mark of cell s for the step in wt[k]: the slots made new into `made`; how many."""
+def _mark(k, s, nbr, rows, cols, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, wt, made):
+    """CQLearner._mark of cell s for the step in wt[k]: the slots made new into `made`; how many. The pool has
+    a free slot for each peer (grow_pool)."""
     n = cells.shape[0]
-    nbr = geo[0]
     near = ip[MARK_RANGE]
     count = 0
     for j in range(n):
         if j == k:
             continue
         pc = cells[j]
-        if near and _distance(geo, s, pc) > near:
+        if near and _distance(rows, cols, s, pc) > near:
             continue
         if ip[MARK_COLLIDERS]:  # _could_collide
             if wt[k, W_NEXT] != wt[k, W_CELL]:
                 continue
             toward = nbr[wt[k, W_CELL], wt[k, W_ACTION]]
-            d1, d2 = _distance(geo, toward, pc), _distance(geo, wt[k, W_CELL], pc)
+            d1, d2 = _distance(rows, cols, toward, pc), _distance(rows, cols, wt[k, W_CELL], pc)
             if (d2 if d2 < d1 else d1) > 1:
                 continue
         slot = head[k, s]
@@ -237,13 +257,13 @@ def _mark(k, s, geo, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, w
             continue
         meta[FREE] -= 1
         slot = free[meta[FREE]]
-        row = jsf[slot, 1:]
-        row[:] = q[k, s]
+        for a in range(q.shape[2]):
+            jsf[slot, 1 + a] = q[k, s, a]
         if ip[WAITS_FRESH]:  # _new_row
-            floor = fp[R_WALL] + fp[GAMMA] * _max(row)
-            for a in range(row.shape[0]):
-                if nbr[s, a] == s and floor > row[a]:
-                    row[a] = floor
+            floor = fp[R_WALL] + fp[GAMMA] * _qmax(q, k, s)
+            for a in range(q.shape[2]):
+                if nbr[s, a] == s and floor > jsf[slot, 1 + a]:
+                    jsf[slot, 1 + a] = floor
         jsi[slot, JS_S], jsi[slot, JS_J], jsi[slot, JS_C], jsi[slot, JS_AGENT] = s, j, pc, k
         jsi[slot, JS_SEQ] = meta[SEQ]
         meta[SEQ] += 1
@@ -261,7 +281,7 @@ def _mark(k, s, geo, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, w
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _meet(k, s, fp, ip, ag, cells, jsi, jsf, head, tail, meta, free, n_js, met):
     """CQLearner._meet: the joint states of cell s met now into `met`, most confident first; how many."""
     learning = ip[LEARNING]
@@ -292,16 +312,16 @@ def _meet(k, s, fp, ip, ag, cells, jsi, jsf, head, tail, meta, free, n_js, met):
     return count
 
 
-@njit(cache=True)
-def act_cq(k, geo, fp, ip, ag, eps, q, mt, cells, js, cq, row):
+@njit(cache=True, inline="always")
+def act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, meta, head, tail, n_js, wt, wtr, wtk,
+           ck, made, row):
     """CQLearner.act."""
-    jsi, jsf, free, meta, head, tail, n_js = js
-    wt, wtr, wtk, ck, made, seen = cq
     ag[k, HEARD] += ag[k, LOOK_N]
     was_on = wt[k, W_ON]
     wt[k, W_ON] = 0
     if was_on and wt[k, W_CONFLICT]:
-        count = _mark(k, wt[k, W_CELL], geo, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, wt, made)
+        count = _mark(k, wt[k, W_CELL], nbr, rows, cols, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js,
+                      wt, made)
         if not wt[k, W_LEARNT]:
             for m in range(count):
                 at = wt[k, W_NKEYS]
@@ -317,31 +337,27 @@ def act_cq(k, geo, fp, ip, ag, eps, q, mt, cells, js, cq, row):
         ag[k, NKEYS] = 1
     else:
         keep = count if ip[ALL_MET] else 1
-        ck[k, :keep] = made[:keep]
+        for m in range(keep):
+            ck[k, m] = made[m]
         ag[k, NKEYS] = keep
     if was_on and not wt[k, W_LEARNT]:
         _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, _acted_row(k, ag, ck, q, jsf, row), True)
-    a = epsilon_greedy(_acted_row(k, ag, ck, q, jsf, row), eps[k], mt[k])
+    a = epsilon_greedy(_acted_row(k, ag, ck, q, jsf, row), eps[k], mt, k)
     ag[k, A] = a
     return a
 
 
-@njit(cache=True)
-def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, js, cq, win):
-    """CQLearner.learn; returns the windows' sample pool (it grows as it fills)."""
-    wi, wf, pool, used = win
+@njit(cache=True, inline="always")
+def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool, used, row):
+    """CQLearner.learn (the pool has a row free: windows.room)."""
     if not ip[LEARNING]:
-        return pool
-    jsi, jsf = js[0], js[1]
-    wt, wtr, wtk, ck = cq[0], cq[1], cq[2], cq[3]
+        return
     s, a = ag[k, S], ag[k, A]
     w = s * 4 + a
-    pool, full = W.add(wi[k, w], wf[k, w], pool, used, reward)
     conflict = False
-    if full:
-        buf = pool[wi[k, w, W.BUF]]
-        conflict = (W.drop_t(wi[k, w], wf[k, w], buf) < -fp[T_TWO]
-                    and not W.above_t(wi[k, w], wf[k, w], buf, reward) < -fp[T_ONE])
+    if W.add(wi, wf, k, w, pool, used, reward):
+        conflict = (W.drop_t(wi, wf, k, w, pool) < -fp[T_TWO]
+                    and not W.above_t(wi, wf, k, w, pool, reward) < -fp[T_ONE])
     wt[k, W_CELL], wt[k, W_ACTION], wt[k, W_NEXT] = s, a, next_cell
     wt[k, W_DONE] = done
     wt[k, W_CONFLICT] = conflict and not done
@@ -353,54 +369,33 @@ def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, js, cq, win):
         wtk[k, 2 * m + 1] = jsi[ck[k, m], JS_SEQ] if ck[k, m] >= 0 else -1
     wt[k, W_NKEYS] = nkeys
     if done or not ip[BOOT_ACTED]:
-        _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, q[k, s], False)
+        _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, row, False)
         wt[k, W_LEARNT] = 1
     wt[k, W_ON] = wt[k, W_CONFLICT] or not wt[k, W_LEARNT]
-    return pool
 
 
-@njit(cache=True)
-def end_cq(k, fp, ip, ag, eps, q, js, cq):
+@njit(cache=True, inline="always")
+def end_cq(k, fp, ip, ag, eps, q, jsi, jsf, wt, wtr, wtk, row):
     """CQLearner.end_episode."""
     end_episode(k, fp, ip, ag, eps)
-    wt, wtr, wtk = cq[0], cq[1], cq[2]
     if wt[k, W_ON] and not wt[k, W_LEARNT]:
-        wt[k, W_ON] = 0
-        _update(k, fp, ip, ag, q, js[0], js[1], wt, wtr, wtk, q[k, 0], False)
+        _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, row, False)
     wt[k, W_ON] = 0
 
 
 # -- indep ---------------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def learn_indep(k, reward, next_cell, done, fp, ip, ag, q):
     """IndependentQ.learn."""
     if not ip[LEARNING]:
         return
-    target = reward if done else reward + fp[GAMMA] * _max(q[k, next_cell])
-    row = q[k, ag[k, S]]
-    a = ag[k, A]
-    row[a] += fp[ALPHA] * (target - row[a])
+    target = reward if done else reward + fp[GAMMA] * _qmax(q, k, next_cell)
+    s, a = ag[k, S], ag[k, A]
+    q[k, s, a] += fp[ALPHA] * (target - q[k, s, a])
 
 
 # -- the episode ---------------------------------------------------------------------------------------
-
-@njit(cache=True)
-def _observe(k, cell, n, ip, ag, eps, q, js, cq):
-    if ip[IS_CQ]:
-        observe_cq(k, cell, n, ip, ag, eps, q, js[0], js[1], js[4], cq[0], cq[5])
-    else:
-        ag[k, S] = cell
-
-
-@njit(cache=True)
-def _end(k, fp, ip, ag, eps, q, js, cq):
-    ag[k, ACTIVE] = 0
-    if ip[IS_CQ]:
-        end_cq(k, fp, ip, ag, eps, q, js, cq)
-    else:
-        end_episode(k, fp, ip, ag, eps)
-
 
 @njit(cache=True)
 def grow_pool(jsi, jsf, free, meta):
@@ -422,9 +417,11 @@ def grow_pool(jsi, jsf, free, meta):
 def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
     """Team.episode: one episode; its record into `out` (cq_ros.episode's columns). Returns the pools,
     which grow as they fill: the joint states' (jsi, jsf, free) and the windows' samples."""
-    nbr, starts, goals = geo[0], geo[1], geo[2]
+    nbr, starts, goals, rows, cols = geo
     cells, done, hold, wmt, scratch = world
+    ai, rewards, ci, clock, pair, listed = scratch
     jsi, jsf, free, meta, head, tail, n_js = js
+    wt, wtr, wtk, ck, made, seen = cq
     wi, wf, pool, used = win
     n = starts.shape[0]
     is_cq = ip[IS_CQ]
@@ -436,41 +433,58 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
     heard0 = ag[:, HEARD].sum()
     t, collisions, ret = 0, 0, 0.0
     over = done.all() or ip[STEP_CAP] <= 0
-    for k in range(n):
+    for k in range(n):  # Team.start
         if over or done[k]:
-            _end(k, fp, ip, ag, eps, q, (jsi, jsf, free, meta, head, tail, n_js), cq)
+            ag[k, ACTIVE] = 0
+            if is_cq:
+                end_cq(k, fp, ip, ag, eps, q, jsi, jsf, wt, wtr, wtk, row)
+            else:
+                end_episode(k, fp, ip, ag, eps)
         else:
             ag[k, ACTIVE] = 1
-            _observe(k, cells[k], n, ip, ag, eps, q, (jsi, jsf, free, meta, head, tail, n_js), cq)
+            if is_cq:
+                observe_cq(k, cells[k], n, ip, ag, eps, q, jsi, jsf, head, wt, seen)
+            else:
+                ag[k, S] = cells[k]
     while not over:
-        for k in range(n):
+        for k in range(n):  # Team.choose
             actions[k] = -1
             if not ag[k, ACTIVE]:
                 continue
             if is_cq:
                 if meta[FREE] < n:
                     jsi, jsf, free = grow_pool(jsi, jsf, free, meta)
-                actions[k] = act_cq(k, geo, fp, ip, ag, eps, q, mt, cells,
-                                    (jsi, jsf, free, meta, head, tail, n_js), cq, row)
+                actions[k] = act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, meta, head,
+                                    tail, n_js, wt, wtr, wtk, ck, made, row)
             else:
-                actions[k] = epsilon_greedy(q[k, ag[k, S]], eps[k], mt[k])
+                s = ag[k, S]
+                for a in range(4):
+                    row[a] = q[k, s, a]
+                actions[k] = epsilon_greedy(row, eps[k], mt, k)
                 ag[k, A] = actions[k]
-        collisions += step(nbr, goals, cells, done, hold, wmt, actions, fp[SLIP], ip[START_HOLD], rw, scratch)
+        collisions += step(nbr, goals, cells, done, hold, wmt, actions, fp[SLIP], ip[START_HOLD], rw, ai, rewards,
+                           ci, clock, pair, listed)
         t += 1
         over = done.all() or t >= ip[STEP_CAP]
-        rewards = scratch[4]
-        js_now = (jsi, jsf, free, meta, head, tail, n_js)
-        for k in range(n):
+        for k in range(n):  # Team.learn
             if actions[k] < 0:
                 continue
             if is_cq:
-                pool = learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, js_now, cq, (wi, wf, pool, used))
+                pool = W.room(pool, used)
+                learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool,
+                         used, row)
             else:
                 learn_indep(k, rewards[k], cells[k], done[k], fp, ip, ag, q)
             if over or done[k]:
-                _end(k, fp, ip, ag, eps, q, js_now, cq)
+                ag[k, ACTIVE] = 0
+                if is_cq:
+                    end_cq(k, fp, ip, ag, eps, q, jsi, jsf, wt, wtr, wtk, row)
+                else:
+                    end_episode(k, fp, ip, ag, eps)
+            elif is_cq:
+                observe_cq(k, cells[k], n, ip, ag, eps, q, jsi, jsf, head, wt, seen)
             else:
-                _observe(k, cells[k], n, ip, ag, eps, q, js_now, cq)
+                ag[k, S] = cells[k]
         total = 0.0
         for k in range(n):
             total += rewards[k]

@@ -1,7 +1,8 @@
 """CPython's Mersenne Twister (random.Random) in compiled form: the same words, the same draws.
 
-A generator is an int64 array of 625 words, Random.getstate()'s tuple (624 words, then the index), so a
-learner's or the world's stream passes between Python and the kernel with getstate/setstate. `random`,
+A generator is a row of an int64 table of 625 words, Random.getstate()'s tuple (624 words, then the index), so a
+learner's or the world's stream passes between Python and the kernel with getstate/setstate; the functions take
+the table and the row (a row sliced out would be a view, which counts a reference at every draw). `random`,
 `randbelow` and `choice` draw exactly as CPython 3.11's random(), _randbelow_with_getrandbits and choice do.
 """
 
@@ -25,23 +26,23 @@ def set_state(rng: Random, words: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def _twist(mt):
+def _twist(mt, g):
     for kk in range(N):
-        y = (mt[kk] & 0x80000000) | (mt[(kk + 1) % N] & 0x7FFFFFFF)
-        v = mt[(kk + M) % N] ^ (y >> 1)
+        y = (mt[g, kk] & 0x80000000) | (mt[g, (kk + 1) % N] & 0x7FFFFFFF)
+        v = mt[g, (kk + M) % N] ^ (y >> 1)
         if y & 1:
             v ^= 0x9908B0DF
-        mt[kk] = v
+        mt[g, kk] = v
 
 
-@njit(cache=True)
-def genrand_uint32(mt):
-    """genrand_uint32 of _randommodule.c; mt[624] is the index."""
-    if mt[N] >= N:
-        _twist(mt)
-        mt[N] = 0
-    y = mt[mt[N]]
-    mt[N] += 1
+@njit(cache=True, inline="always")
+def genrand_uint32(mt, g):
+    """genrand_uint32 of _randommodule.c, generator g; mt[g, 624] is its index."""
+    if mt[g, N] >= N:
+        _twist(mt, g)
+        mt[g, N] = 0
+    y = mt[g, mt[g, N]]
+    mt[g, N] += 1
     y ^= y >> 11
     y ^= (y << 7) & 0x9D2C5680
     y ^= (y << 15) & 0xEFC60000
@@ -49,22 +50,22 @@ def genrand_uint32(mt):
     return y & _MASK
 
 
-@njit(cache=True)
-def random(mt):
-    a = genrand_uint32(mt) >> 5
-    b = genrand_uint32(mt) >> 6
+@njit(cache=True, inline="always")
+def random(mt, g):
+    a = genrand_uint32(mt, g) >> 5
+    b = genrand_uint32(mt, g) >> 6
     return (a * 67108864.0 + b) * (1.0 / 9007199254740992.0)
 
 
-@njit(cache=True)
-def randbelow(mt, n):
+@njit(cache=True, inline="always")
+def randbelow(mt, g, n):
     """An int in [0, n), n in [1, 2**32): getrandbits(n.bit_length()) until below n."""
     k = 0
     m = n
     while m:
         k += 1
         m >>= 1
-    r = genrand_uint32(mt) >> (32 - k)
+    r = genrand_uint32(mt, g) >> (32 - k)
     while r >= n:
-        r = genrand_uint32(mt) >> (32 - k)
+        r = genrand_uint32(mt, g) >> (32 - k)
     return r

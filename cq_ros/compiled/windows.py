@@ -21,12 +21,12 @@ SUM1, SQ1, SUM2, SQ2 = 0, 1, 2, 3
 
 
 @njit(cache=True)
-def fsum(values, n, square):
-    """math.fsum(values[:n]) (of their squares if `square`), for finite values."""
+def fsum(values, row, n, square):
+    """math.fsum(values[row, :n]) (of their squares if `square`), for finite values."""
     p = np.empty(n + 1)
     m = 0
     for k in range(n):
-        x = values[k] * values[k] if square else values[k]
+        x = values[row, k] * values[row, k] if square else values[row, k]
         i = 0
         for j in range(m):
             y = p[j]
@@ -74,8 +74,8 @@ def new_windows(shape: tuple[int, ...], size: int):
     return ints, np.zeros((*shape, 4)), np.zeros((16, size)), np.zeros(1, np.int64)
 
 
-@njit(cache=True)
-def _room(pool, used):
+@njit(cache=True, inline="always")
+def room(pool, used):
     """The pool with a row free at `used[0]`: the same array, or one twice its size."""
     if used[0] < pool.shape[0]:
         return pool
@@ -84,80 +84,72 @@ def _room(pool, used):
     return bigger
 
 
-@njit(cache=True)
-def add(wi, wf, pool, used, reward):
-    """RewardWindows.add: store a reward; (the pool, True once both windows are full)."""
+@njit(cache=True, inline="always")
+def add(wi, wf, k, w, pool, used, reward):
+    """RewardWindows.add to window w of agent k: store a reward; True once both windows are full. The pool has a
+    row free (`room`)."""
     size = pool.shape[1]
-    if wi[BUF] < 0:
-        pool = _room(pool, used)
-        wi[BUF] = used[0]
+    if wi[k, w, BUF] < 0:
+        wi[k, w, BUF] = used[0]
         used[0] += 1
-    buf = pool[wi[BUF]]
-    if wi[N1] < size:
-        buf[wi[N1]] = reward
-        wi[N1] += 1
-        wf[SUM1] += reward
-        wf[SQ1] += reward * reward
-        if wi[N1] == size:
-            wf[SUM1] = fsum(buf, size, False)
-            wf[SQ1] = fsum(buf, size, True)
-        return pool, False
-    if wi[N2] < size:
-        buf[wi[N2]] = reward
-        wi[N2] += 1
-        wf[SUM2] += reward
-        wf[SQ2] += reward * reward
-        if wi[N2] < size:
-            return pool, False
-        _resum(wi, wf, buf)
-        return pool, True
-    old = buf[wi[HEAD]]
-    buf[wi[HEAD]] = reward
-    wi[HEAD] += 1
-    if wi[HEAD] == size:
-        wi[HEAD] = 0
-        _resum(wi, wf, buf)
+    b = wi[k, w, BUF]
+    if wi[k, w, N1] < size:
+        pool[b, wi[k, w, N1]] = reward
+        wi[k, w, N1] += 1
+        wf[k, w, SUM1] += reward
+        wf[k, w, SQ1] += reward * reward
+        if wi[k, w, N1] == size:
+            wf[k, w, SUM1] = fsum(pool, b, size, False)
+            wf[k, w, SQ1] = fsum(pool, b, size, True)
+        return False
+    if wi[k, w, N2] < size:
+        pool[b, wi[k, w, N2]] = reward
+        wi[k, w, N2] += 1
+        wf[k, w, SUM2] += reward
+        wf[k, w, SQ2] += reward * reward
+        if wi[k, w, N2] < size:
+            return False
+        _resum(wi, wf, k, w, pool)
+        return True
+    head = wi[k, w, HEAD]
+    old = pool[b, head]
+    pool[b, head] = reward
+    wi[k, w, HEAD] += 1
+    if wi[k, w, HEAD] == size:
+        wi[k, w, HEAD] = 0
+        _resum(wi, wf, k, w, pool)
     elif reward != old:
-        wf[SUM2] += reward - old
-        wf[SQ2] += reward * reward - old * old
-        wi[EXACT2] = 0
-    return pool, True
+        wf[k, w, SUM2] += reward - old
+        wf[k, w, SQ2] += reward * reward - old * old
+        wi[k, w, EXACT2] = 0
+    return True
 
 
-@njit(cache=True)
-def fill_w1(wf, wi, values):
-    """W1 given whole (cq_w1_alone): as `add` leaves it once W1 is full."""
-    n = values.shape[0]
-    wf[SUM1] = fsum(values, n, False)
-    wf[SQ1] = fsum(values, n, True)
-    wi[N1] = n
+@njit(cache=True, inline="always")
+def _resum(wi, wf, k, w, pool):
+    n = pool.shape[1]
+    wf[k, w, SUM2] = fsum(pool, wi[k, w, BUF], n, False)
+    wf[k, w, SQ2] = fsum(pool, wi[k, w, BUF], n, True)
+    wi[k, w, EXACT2] = 1
 
 
-@njit(cache=True)
-def _resum(wi, wf, buf):
-    n = buf.shape[0]
-    wf[SUM2] = fsum(buf, n, False)
-    wf[SQ2] = fsum(buf, n, True)
-    wi[EXACT2] = 1
-
-
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _spread(total, squares, n):
     ss = squares - total * total / n
     return 0.0 if ss <= _ROUNDING * squares else ss
 
 
-@njit(cache=True)
-def _spread2(wi, wf, buf):
-    n = buf.shape[0]
-    ss = _spread(wf[SUM2], wf[SQ2], n)
-    if ss == 0.0 and not wi[EXACT2]:
-        _resum(wi, wf, buf)
-        ss = _spread(wf[SUM2], wf[SQ2], n)
+@njit(cache=True, inline="always")
+def _spread2(wi, wf, k, w, pool):
+    n = pool.shape[1]
+    ss = _spread(wf[k, w, SUM2], wf[k, w, SQ2], n)
+    if ss == 0.0 and not wi[k, w, EXACT2]:
+        _resum(wi, wf, k, w, pool)
+        ss = _spread(wf[k, w, SUM2], wf[k, w, SQ2], n)
     return ss
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _t_or_inf(a, b, se2):
     if se2 > 0.0:
         return (a - b) / math.sqrt(se2)
@@ -166,15 +158,15 @@ def _t_or_inf(a, b, se2):
     return math.copysign(math.inf, a - b)
 
 
-@njit(cache=True)
-def drop_t(wi, wf, buf):
-    n = buf.shape[0]
-    ss = _spread(wf[SUM1], wf[SQ1], n) + _spread2(wi, wf, buf)
-    return _t_or_inf(wf[SUM2] / n, wf[SUM1] / n, ss / (n - 1) / n)
+@njit(cache=True, inline="always")
+def drop_t(wi, wf, k, w, pool):
+    n = pool.shape[1]
+    ss = _spread(wf[k, w, SUM1], wf[k, w, SQ1], n) + _spread2(wi, wf, k, w, pool)
+    return _t_or_inf(wf[k, w, SUM2] / n, wf[k, w, SUM1] / n, ss / (n - 1) / n)
 
 
-@njit(cache=True)
-def above_t(wi, wf, buf, reward):
-    n = buf.shape[0]
-    ss = _spread2(wi, wf, buf)
-    return _t_or_inf(wf[SUM2] / n, reward, ss / (n - 1) / n)
+@njit(cache=True, inline="always")
+def above_t(wi, wf, k, w, pool, reward):
+    n = pool.shape[1]
+    ss = _spread2(wi, wf, k, w, pool)
+    return _t_or_inf(wf[k, w, SUM2] / n, reward, ss / (n - 1) / n)

@@ -3,7 +3,8 @@
 reference's order.
 
 The world is a few arrays: `cells`, `done`, `hold` (each agent's start hold left) and `mt` (the world's
-Mersenne Twister, cq_ros.compiled.mt). Scratch arrays of the step live in `scratch` so a step allocates nothing.
+Mersenne Twister, cq_ros.compiled.mt, as a table of one generator). Arrays are indexed, never sliced into views,
+in the step's loops: a view counts a reference, an atomic operation that cost more than the step itself.
 """
 
 from __future__ import annotations
@@ -14,12 +15,17 @@ from numba import njit
 from .mt import randbelow, random
 
 
+# rows of the step's per-agent scratch (`ai`) and per-cell scratch (`ci`)
+TARGET, FINAL, NEXT, BACK, FRESH, BUMPED, DELAYED, COLLIDED = range(8)
+STAMP, OWNER, CSTAMP, HEAD, TAIL = range(5)
+
+
 def new_scratch(n: int, n_cells: int):
-    """The step's scratch: per agent targets, bumped, delayed, collided, rewards; per cell a stamp and an agent;
-a clock; the pairs found; per agent where it ends."""
-    return (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.bool_), np.zeros(n, np.bool_),
-            np.zeros(n), np.zeros(n_cells, np.int64), np.zeros(n_cells, np.int64), np.zeros(1, np.int64),
-            np.zeros((n, n), np.bool_), np.zeros(n, np.int64))
+    """The step's scratch, so that a step allocates nothing and makes no array views (each would count a
+    reference): per agent its rows `ai` (TARGET...) and the rewards; per cell its rows `ci` (STAMP...); two
+    clocks; the pairs found, as a matrix and as the list that clears it."""
+    return (np.zeros((8, n), np.int64), np.zeros(n), np.zeros((5, n_cells), np.int64), np.zeros(2, np.int64),
+            np.zeros((n, n), np.bool_), np.zeros((2, n * (n - 1) // 2 + 1), np.int64))
 
 
 @njit(cache=True)
@@ -30,127 +36,152 @@ def reset(starts, goals, cells, done, hold, mt, start_hold):
         cells[i] = starts[i]
         done[i] = starts[i] == goals[i]
     for i in range(n):
-        hold[i] = randbelow(mt, start_hold + 1) if start_hold else 0
+        hold[i] = randbelow(mt, 0, start_hold + 1) if start_hold else 0
 
 
-@njit(cache=True)
-def _clashes(i, j, cell, goals):
-    return not (goals[i] == goals[j] and goals[j] == cell)
+@njit(cache=True, inline="always")
+def _chain(ai, ci, clock):
+    """Each cell's agents (by where they end now) as a chain in index order: ci[HEAD, cell] where stamped,
+    ai[NEXT, agent]."""
+    clock[1] += 1
+    epoch = clock[1]
+    for i in range(ai.shape[1]):
+        c = ai[FINAL, i]
+        ai[NEXT, i] = -1
+        if ci[CSTAMP, c] != epoch:
+            ci[CSTAMP, c] = epoch
+            ci[HEAD, c] = i
+        else:
+            ai[NEXT, ci[TAIL, c]] = i
+        ci[TAIL, c] = i
 
 
-@njit(cache=True)
-def _resolve(cells, final, goals, scratch):
-    """resolve_moves: `final` holds the targets and becomes where each agent ends; (colliding pairs found,
-    collided flags in scratch). The common step (all ends distinct, no swap) is found in linear time."""
+@njit(cache=True, inline="always")
+def _pair(a, b, ai, pair, listed, found):
+    """Record the colliding pair (a, b), a < b; how many distinct pairs are found now."""
+    ai[COLLIDED, a] = ai[COLLIDED, b] = 1
+    if not pair[a, b]:
+        pair[a, b] = True
+        listed[0, found], listed[1, found] = a, b
+        found += 1
+    return found
+
+
+@njit(cache=True, inline="always")
+def _resolve(cells, goals, ai, ci, clock, pair, listed):
+    """resolve_moves: ai[FINAL] holds the targets and becomes where each agent ends; the colliding pairs found
+    (ai[COLLIDED] flags them). The common step (all ends distinct, no swap) is found in linear time; otherwise
+    each cell's agents are chained, and after the first pass only the cells gone back to are looked at."""
     n = cells.shape[0]
-    collided, stamp, owner, clock, pair = scratch[3], scratch[5], scratch[6], scratch[7], scratch[8]
     clock[0] += 2
     tick = clock[0]
     easy = True
-    for i in range(n):  # movers by cell they leave, to find swaps
-        if cells[i] != final[i]:
-            stamp[cells[i]] = tick
-            owner[cells[i]] = i
+    for i in range(n):  # movers by the cell they leave, to find swaps
+        ai[COLLIDED, i] = 0
+        if cells[i] != ai[FINAL, i]:
+            ci[STAMP, cells[i]] = tick
+            ci[OWNER, cells[i]] = i
     for i in range(n):
-        collided[i] = False
-        if cells[i] != final[i]:
-            t = final[i]
-            if stamp[t] == tick and final[owner[t]] == cells[i]:
-                easy = False
+        t = ai[FINAL, i]
+        if cells[i] != t and ci[STAMP, t] == tick and ai[FINAL, ci[OWNER, t]] == cells[i]:
+            easy = False
     if easy:
         for i in range(n):
-            t = final[i]
-            if stamp[t] == tick + 1:
+            t = ai[FINAL, i]
+            if ci[STAMP, t] == tick + 1:
                 easy = False
                 break
-            stamp[t] = tick + 1
+            ci[STAMP, t] = tick + 1
     if easy:
         return 0
-    # The rare step: pairwise, as the reference finds them (same end, or a swap), then agents go back round by
-    # round and clash only in the cells gone back to.
-    pair[:, :] = False
     found = 0
+    _chain(ai, ci, clock)
+    for i in range(n):  # same end: the pairs of each cell's chain
+        j = ai[NEXT, i]
+        while j >= 0:
+            if not (goals[i] == goals[j] and goals[j] == ai[FINAL, i]):
+                found = _pair(i, j, ai, pair, listed, found)
+            j = ai[NEXT, j]
+    for i in range(n):  # swaps
+        t = ai[FINAL, i]
+        if cells[i] != t and ci[STAMP, t] >= tick:
+            k = ci[OWNER, t]
+            if cells[k] == t and ai[FINAL, k] != t and ai[FINAL, k] == cells[i]:
+                found = _pair(min(i, k), max(i, k), ai, pair, listed, found)
     for i in range(n):
-        for j in range(i + 1, n):
-            same = final[i] == final[j] and _clashes(i, j, final[i], goals)
-            swap = (cells[i] != final[i] and cells[j] != final[j] and cells[i] == final[j]
-                    and final[i] == cells[j])
-            if same or swap:
-                pair[i, j] = True
-                found += 1
-                collided[i] = collided[j] = True
-    back = np.zeros(n, np.bool_)
-    for i in range(n):
-        back[i] = collided[i] and final[i] != cells[i]
+        ai[BACK, i] = ai[COLLIDED, i] and ai[FINAL, i] != cells[i]
     while True:
         moved = False
         for i in range(n):
-            if back[i]:
-                final[i] = cells[i]
+            ai[FRESH, i] = 0
+            if ai[BACK, i]:
+                ai[FINAL, i] = cells[i]
                 moved = True
         if not moved:
-            return found
-        fresh = np.zeros(n, np.bool_)
+            break
+        _chain(ai, ci, clock)
         for r in range(n):
-            if not back[r]:
+            if not ai[BACK, r]:
                 continue
             c = cells[r]
-            for o in range(n):
-                if o != r and final[o] == c and _clashes(o, r, c, goals):
+            o = ci[HEAD, c] if ci[CSTAMP, c] == clock[1] else -1
+            while o >= 0:
+                if o != r and not (goals[o] == goals[r] and goals[r] == c):
                     a, b = (o, r) if o < r else (r, o)
-                    if not pair[a, b]:
-                        pair[a, b] = True
-                        found += 1
-                    collided[a] = collided[b] = True
-                    fresh[a] = fresh[b] = True
+                    found = _pair(a, b, ai, pair, listed, found)
+                    ai[FRESH, a] = ai[FRESH, b] = 1
+                o = ai[NEXT, o]
         for i in range(n):
-            back[i] = fresh[i] and final[i] != cells[i]
+            ai[BACK, i] = ai[FRESH, i] and ai[FINAL, i] != cells[i]
+    for m in range(found):
+        pair[listed[0, m], listed[1, m]] = False
+    return found
 
 
-@njit(cache=True)
-def step(nbr, goals, cells, done, hold, mt, actions, slip, start_hold, rw, scratch):
-    """GridWorld.step_joint for `actions` (-1: no action: at the goal); the rewards in scratch[4]; the colliding
-    pairs. `rw` is (step, wall, collision, goal)."""
+@njit(cache=True, inline="always")
+def step(nbr, goals, cells, done, hold, mt, actions, slip, start_hold, rw, ai, rewards, ci, clock, pair, listed):
+    """GridWorld.step_joint for `actions` (-1: no action: at the goal): the rewards into `rewards`; the colliding
+    pairs. `rw` is (step, wall, collision, goal); `ai` ... `listed` the scratch (new_scratch)."""
     n = cells.shape[0]
-    targets, bumped, delayed, collided, rewards = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
-    for i in range(n):
-        delayed[i] = False
     if slip or start_hold:
         for i in range(n):
+            ai[DELAYED, i] = 0
             if done[i]:
                 continue
             if hold[i]:
                 hold[i] -= 1
-                delayed[i] = True
+                ai[DELAYED, i] = 1
             elif slip:
-                delayed[i] = random(mt) < slip
+                ai[DELAYED, i] = random(mt, 0) < slip
     for i in range(n):
-        targets[i] = cells[i]
-        bumped[i] = False
-        if done[i] or actions[i] < 0 or delayed[i]:
+        ai[TARGET, i] = cells[i]
+        ai[BUMPED, i] = 0
+        if done[i] or actions[i] < 0 or ((slip or start_hold) and ai[DELAYED, i]):
             continue
         t = nbr[cells[i], actions[i]]
-        targets[i] = t
-        bumped[i] = t == cells[i]
-    final = scratch[9]
-    final[:] = targets
-    collisions = _resolve(cells, final, goals, scratch)
+        ai[TARGET, i] = t
+        ai[BUMPED, i] = t == cells[i]
+    for i in range(n):
+        ai[FINAL, i] = ai[TARGET, i]
+    collisions = _resolve(cells, goals, ai, ci, clock, pair, listed)
     for i in range(n):
         rewards[i] = 0.0
         if done[i]:
             continue
-        if collided[i]:
+        t = ai[TARGET, i]
+        if ai[COLLIDED, i]:
             rewards[i] = rw[2]
-        elif targets[i] == cells[i] and not bumped[i]:
+        elif t == cells[i] and not ai[BUMPED, i]:
             rewards[i] = rw[0]
         else:
-            if targets[i] == cells[i]:
+            if t == cells[i]:
                 rewards[i] = rw[1]
-            elif targets[i] == goals[i]:
+            elif t == goals[i]:
                 rewards[i] = rw[3]
             else:
                 rewards[i] = rw[0]
-            if targets[i] == goals[i]:
+            if t == goals[i]:
                 done[i] = True
-    cells[:] = final
+    for i in range(n):
+        cells[i] = ai[FINAL, i]
     return collisions
