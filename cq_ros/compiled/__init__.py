@@ -17,8 +17,9 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
+from .algorithms import KERNEL_ALGORITHMS
+
 ENGINES = ("compiled", "reference")
-KERNEL_ALGORITHMS = ("indep", "cq")  # the learners the kernel plays; the others play on the reference engine
 
 
 def _cache_dir() -> None:

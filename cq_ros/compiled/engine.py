@@ -20,8 +20,8 @@ from ..gridmap import GridMap
 from ..settings import Settings
 from ..stats import ConflictTest, _sums
 from ..world import GridWorld, rewards_alone
-from . import KERNEL_ALGORITHMS
 from . import learners as K
+from .algorithms import KERNEL_ALGORITHMS
 from . import windows as W
 from ..learners.base import Learner
 from .mt import set_state, state_of
