@@ -195,8 +195,9 @@ def test_long_runs_show_progress_on_stderr_from_every_worker(capsys, workers):
     from cq_ros.lab.experiment import Job, run_jobs
     from cq_ros.settings import Settings
 
-    # enough episodes (about half a second at ~8,000 a second) that the runs cannot end within one interval
-    jobs = [Job("grid_game_2", "cq", r, 1500, 0, Settings(eval_episodes=0)) for r in range(3)]
+    # enough episodes (about half a second at ~8,000 a second on the reference engine, which the compiled one
+    # plays within one interval) that the runs cannot end within one interval
+    jobs = [Job("grid_game_2", "cq", r, 1500, 0, Settings(eval_episodes=0), engine="reference") for r in range(3)]
     results, _ = run_jobs(jobs, workers=workers, label="test", progress_interval=0.02)
     assert len(results) == 3
     lines = capsys.readouterr().err.splitlines()

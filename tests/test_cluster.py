@@ -127,13 +127,13 @@ def test_a_failing_run_is_named_with_the_workers_traceback(cluster):
 def test_the_command_prints_a_failing_runs_traceback_then_names_it_and_exits_1(monkeypatch, tmp_path, capsys):
     import cq_ros.lab.experiment
 
-    def broken(algo, gridmap, settings, seed, run_index, episodes, on_episode):
+    def broken(algo, gridmap, settings, seed, run_index, episodes, on_episode, engine):
         if run_index == 1:
             raise ArithmeticError("broken on purpose")
-        return real(algo, gridmap, settings, seed, run_index, episodes, on_episode)
+        return real(algo, gridmap, settings, seed, run_index, episodes, on_episode, engine=engine)
 
-    real = cq_ros.lab.experiment.run
-    monkeypatch.setattr(cq_ros.lab.experiment, "run", broken)
+    real = cq_ros.lab.experiment.compiled.play
+    monkeypatch.setattr(cq_ros.lab.experiment.compiled, "play", broken)
     with pytest.raises(SystemExit) as stopped:
         main(["experiment", "--map", "grid_game_2", "--algo", "cq", "--runs", "3", "--episodes", "5",
               "--jobs", "1", "--no-figures", "--out", str(tmp_path / "r")])

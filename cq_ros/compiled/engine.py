@@ -95,8 +95,13 @@ class Kernel:
         while done < episodes:
             size = min(batch, episodes - done)
             started = time.perf_counter()
-            jsi, jsf, free, pool = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag, self.eps, self.q,
-                                               self.mt, self.js, self.cq, self.win, out[done:done + size])
+            try:
+                jsi, jsf, free, pool = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag, self.eps,
+                                                   self.q, self.mt, self.js, self.cq, self.win, out[done:done + size])
+            except SystemError as e:  # Ctrl-C while numba called back into Python: numba wraps it
+                if _interrupted(e):
+                    raise KeyboardInterrupt from e
+                raise
             self.js = (jsi, jsf, free, *self.js[3:])
             self.win = (*self.win[:2], pool, self.win[3])
             done += size
@@ -121,6 +126,14 @@ class Kernel:
         alive = alive[np.lexsort((jsi[alive, K.JS_SEQ], jsi[alive, K.JS_AGENT]))]
         return [(int(jsi[i, K.JS_AGENT]), int(jsi[i, K.JS_S]), int(jsi[i, K.JS_J]), int(jsi[i, K.JS_C]),
                  float(jsf[i, K.CONF])) for i in alive]
+
+
+def _interrupted(error: BaseException | None) -> bool:
+    while error is not None:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
 
 
 def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int,

@@ -470,7 +470,8 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
             if actions[k] < 0:
                 continue
             if is_cq:
-                pool = W.room(pool, used)
+                if used[0] == pool.shape[0]:  # only then: an array assigned counts references
+                    pool = W.room(pool, used)
                 learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool,
                          used, row)
             else:
