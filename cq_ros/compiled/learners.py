@@ -413,6 +413,20 @@ def grow_pool(jsi, jsf, free, meta):
     return jsi2, jsf2, free2
 
 
+@njit(cache=True, inline="always")
+def _step_outcome(k, cell, over, fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, seen, row):
+    """engine.step_outcome once the learner learnt: end its episode if it is `over` for it, else observe `cell`."""
+    ag[k, ACTIVE] = not over
+    if over and ip[IS_CQ]:
+        end_cq(k, fp, ip, ag, eps, q, jsi, jsf, wt, wtr, wtk, row)
+    elif over:
+        end_episode(k, fp, ip, ag, eps)
+    elif ip[IS_CQ]:
+        observe_cq(k, cell, ag.shape[0], ip, ag, eps, q, jsi, jsf, head, wt, seen)
+    else:
+        ag[k, S] = cell
+
+
 @njit(cache=True)
 def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
     """Team.episode: one episode; its record into `out` (cq_ros.episode's columns). Returns the pools,
@@ -434,18 +448,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
     t, collisions, ret = 0, 0, 0.0
     over = done.all() or ip[STEP_CAP] <= 0
     for k in range(n):  # Team.start
-        if over or done[k]:
-            ag[k, ACTIVE] = 0
-            if is_cq:
-                end_cq(k, fp, ip, ag, eps, q, jsi, jsf, wt, wtr, wtk, row)
-            else:
-                end_episode(k, fp, ip, ag, eps)
-        else:
-            ag[k, ACTIVE] = 1
-            if is_cq:
-                observe_cq(k, cells[k], n, ip, ag, eps, q, jsi, jsf, head, wt, seen)
-            else:
-                ag[k, S] = cells[k]
+        _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, seen, row)
     while not over:
         for k in range(n):  # Team.choose
             actions[k] = -1
@@ -476,16 +479,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
                          used, row)
             else:
                 learn_indep(k, rewards[k], cells[k], done[k], fp, ip, ag, q)
-            if over or done[k]:
-                ag[k, ACTIVE] = 0
-                if is_cq:
-                    end_cq(k, fp, ip, ag, eps, q, jsi, jsf, wt, wtr, wtk, row)
-                else:
-                    end_episode(k, fp, ip, ag, eps)
-            elif is_cq:
-                observe_cq(k, cells[k], n, ip, ag, eps, q, jsi, jsf, head, wt, seen)
-            else:
-                ag[k, S] = cells[k]
+            _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, seen, row)
         total = 0.0
         for k in range(n):
             total += rewards[k]
