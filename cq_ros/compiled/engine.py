@@ -64,7 +64,7 @@ class Kernel:
                    np.full(cells_kept, -1, np.int64), np.zeros(n, np.int64))
         ck = np.full((n, 2 * n), -1, np.int64)
         self.cq = (np.zeros((n, 8), np.int64), np.zeros(n), np.full((n, 4 * n), -1, np.int64), ck,
-                   np.zeros(n, np.int64), np.zeros(n, np.bool_))
+                   np.zeros(n, np.int64))
         self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window)
         if cq and st.cq_w1_alone:
             self._w1_alone()

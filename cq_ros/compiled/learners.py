@@ -182,23 +182,23 @@ def _decisive(k, cell, eps, q, jsi, jsf, head, wt):
 
 
 @njit(cache=True, inline="always")
-def _peers_named(k, cell, jsi, head, seen):
-    """len(watch[cell]): the peers the cell's joint states name."""
-    for j in range(seen.shape[0]):
-        seen[j] = False
+def _peers_named(k, cell, jsi, head):
+    """len(watch[cell]): the peers the cell's joint states name (a cell keeps few: each is checked against those
+    before it, where clearing a mark per peer would cost the fleet's size at every look)."""
     count = 0
     slot = head[k, cell]
     while slot >= 0:
         j = jsi[slot, JS_J]
-        if not seen[j]:
-            seen[j] = True
-            count += 1
+        earlier = head[k, cell]
+        while earlier != slot and jsi[earlier, JS_J] != j:
+            earlier = jsi[earlier, JS_NEXT]
+        count += earlier == slot
         slot = jsi[slot, JS_NEXT]
     return count
 
 
 @njit(cache=True, inline="always")
-def observe_cq(k, cell, n, ip, ag, eps, q, jsi, jsf, head, wt, seen):
+def observe_cq(k, cell, n, ip, ag, eps, q, jsi, jsf, head, wt):
     """CQLearner.observe: how many peers the agent looks at (LOOK_N)."""
     ag[k, S] = cell
     if wt[k, W_ON] and wt[k, W_CONFLICT]:
@@ -207,7 +207,7 @@ def observe_cq(k, cell, n, ip, ag, eps, q, jsi, jsf, head, wt, seen):
         return
     looking = head[k, cell] >= 0 and not (ip[LOOK_DECISIVE] and _decisive(k, cell, eps, q, jsi, jsf, head, wt))
     ag[k, LOOKING] = looking
-    ag[k, LOOK_N] = _peers_named(k, cell, jsi, head, seen) if looking else 0
+    ag[k, LOOK_N] = _peers_named(k, cell, jsi, head) if looking else 0
 
 
 @njit(cache=True, inline="always")
@@ -414,7 +414,7 @@ def grow_pool(jsi, jsf, free, meta):
 
 
 @njit(cache=True, inline="always")
-def _step_outcome(k, cell, over, fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, seen, row):
+def _step_outcome(k, cell, over, fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, row):
     """engine.step_outcome once the learner learnt: end its episode if it is `over` for it, else observe `cell`."""
     ag[k, ACTIVE] = not over
     if over and ip[IS_CQ]:
@@ -422,7 +422,7 @@ def _step_outcome(k, cell, over, fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wt
     elif over:
         end_episode(k, fp, ip, ag, eps)
     elif ip[IS_CQ]:
-        observe_cq(k, cell, ag.shape[0], ip, ag, eps, q, jsi, jsf, head, wt, seen)
+        observe_cq(k, cell, ag.shape[0], ip, ag, eps, q, jsi, jsf, head, wt)
     else:
         ag[k, S] = cell
 
@@ -435,7 +435,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
     cells, done, hold, wmt, scratch = world
     ai, rewards, ci, clock, pair, listed = scratch
     jsi, jsf, free, meta, head, tail, n_js = js
-    wt, wtr, wtk, ck, made, seen = cq
+    wt, wtr, wtk, ck, made = cq
     wi, wf, pool, used = win
     n = starts.shape[0]
     is_cq = ip[IS_CQ]
@@ -448,7 +448,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
     t, collisions, ret = 0, 0, 0.0
     over = done.all() or ip[STEP_CAP] <= 0
     for k in range(n):  # Team.start
-        _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, seen, row)
+        _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, row)
     while not over:
         for k in range(n):  # Team.choose
             actions[k] = -1
@@ -479,7 +479,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
                          used, row)
             else:
                 learn_indep(k, rewards[k], cells[k], done[k], fp, ip, ag, q)
-            _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, seen, row)
+            _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, row)
         total = 0.0
         for k in range(n):
             total += rewards[k]
