@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import random
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -88,8 +89,6 @@ class Kernel:
     def play(self, episodes: int, on_episode: Callable[[], None] | None = None) -> np.ndarray:
         """Play `episodes` episodes; their table (cq_ros.episode). Episodes go to the kernel in batches that
         grow while one takes under a tenth of a second, `on_episode` called after each batch for each episode."""
-        import time
-
         out = np.zeros((episodes, len(record.COLUMNS)))
         done, batch = 0, 1
         while done < episodes:
