@@ -144,7 +144,7 @@ class AgentNode(Node):
         watch_period = min(cfg.feedback_timeout / 10, 1.0)
         self.driver.link.patience = Patience(cfg.feedback_timeout, watch_period)
         self._watchdog = self.create_timer(watch_period, self._check_world)
-        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning, refuse=False)
+        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
         self._graph_topics = [HEARTBEAT_TOPIC] + [position_topic(k) for k in range(1, cfg.gridmap.n_agents + 1)] + [
             name(k) for k in agents for name in (feedback_topic, action_topic, agent_stats_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)

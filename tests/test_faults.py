@@ -1,7 +1,7 @@
 """Faults on the wire, driven for real on rclpy: a restart without a checkpoint, one dropped
 feedback, bursts of junk on every topic, a second writer of positions and actions without the run's key,
-stale positions, an agent waiting at its goal for longer than its timeout, a second system in the same
-namespace, and every bad parameter. A run finishes with exactly the offline engine's episodes wherever no
+stale positions, an agent waiting at its goal for longer than its timeout, and every bad parameter (a second
+system in the same namespace: tests/test_twin.py). A run finishes with exactly the offline engine's episodes wherever no
 real message was lost, and with the loss counted where one was.
 
 The systems run in one process, on one executor, as tests/test_nodes_inprocess.py runs them; the bad
@@ -33,7 +33,6 @@ from msgs_spec import (
 )
 from helpers import GRID, RUN_TIMEOUT_S, finish, launch_command, offline_rows, parameters, unique, wait_for_line, \
     wait_until
-from node_runtime.graph import REFUSE_WITHIN_S
 from world_node import WorldNode
 
 
@@ -172,8 +171,7 @@ def test_junk_bursts_of_100_messages_per_step_on_every_topic_change_nothing(syst
     pubs = [(kind, k, spec.msg_type, injector.create_publisher(spec.msg_type, topic(k), spec.qos))
             for kind, spec, topic in (("feedback", FEEDBACK, feedback_topic), ("position", POSITION, position_topic),
                                       ("action", ACTION, action_topic)) for k in (1, 2)]
-    # A heartbeat writer seen before the world's first step is a second world, which it refuses to run beside
-    # (test_a_second_world_beside...): this one joins once the run is under way.
+    # once the run is under way (a heartbeat writer before its start: tests/test_twin.py)
     assert spin_until(system.executor, lambda: world.core.episode >= 0, RUN_TIMEOUT_S)
     beat = injector.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
     done = set()
@@ -268,77 +266,6 @@ def test_an_agent_waiting_at_its_goal_longer_than_its_timeout_stays(system_in, s
     finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
     assert all(s.missed_actions == 0 for s in system.world_stats)
-
-
-def test_a_second_system_on_the_same_domain_and_namespace_is_refused(ros_domain_id, spin_until):
-    """Two worlds in one namespace: the one started second exits 2 with one line, the first goes on."""
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
-    contexts, nodes = [], []
-    executor = None
-    try:
-        for _ in range(2):
-            ctx = Context()
-            rclpy.init(context=ctx, domain_id=ros_domain_id)
-            contexts.append(ctx)
-        started = time.monotonic()
-        first = WorldNode(context=contexts[0], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
-        nodes.append(first)
-        executor = SingleThreadedExecutor(context=contexts[0])
-        executor.add_node(first)
-        # past its own start: a world that sees a twin within REFUSE_WITHIN_S of its start refuses itself
-        wait_until(lambda: time.monotonic() > started + REFUSE_WITHIN_S + 0.5, REFUSE_WITHIN_S + 10,
-                   "the first world's refusal window", between=lambda: executor.spin_once(timeout_sec=0.05))
-        second = WorldNode(context=contexts[1], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
-        nodes.append(second)
-        other = SingleThreadedExecutor(context=contexts[1])
-        other.add_node(second)
-        wait_until(second.done.done, 10.0, "the second world's exit",
-                   between=lambda: (executor.spin_once(timeout_sec=0.02), other.spin_once(timeout_sec=0.02)))
-        assert second.done.done() and second.done.result() == 2
-        assert not first.done.done()
-        other.shutdown()
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        for ctx in contexts:
-            rclpy.try_shutdown(context=ctx)
-
-
-def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything(system_in, ros_domain_id,
-                                                                                   spin_until):
-    """a second world in the namespace of a running system finds that system's agents connected at
-    once; it refuses (exit 2) before its first step, so none of its messages reaches them, and the system's
-    run is the engine's."""
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
-    algo, episodes = "cq", 20
-    system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], world_extra={"step_timeout": 10.0})
-    assert spin_until(system.executor, lambda: system.world.core.episode >= 1, RUN_TIMEOUT_S)
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=ros_domain_id)
-    second = other = None
-    try:
-        second = WorldNode(context=ctx, parameter_overrides=parameters(map=CASE[0], episodes=episodes, seed=CASE[1],
-                                                                       startup_timeout=RUN_TIMEOUT_S))
-        other = SingleThreadedExecutor(context=ctx)
-        other.add_node(second)
-        wait_until(second.done.done, RUN_TIMEOUT_S, "the second world's exit",
-                   between=lambda: (system.executor.spin_once(timeout_sec=0.01), other.spin_once(timeout_sec=0.01)))
-        assert second.done.done() and second.done.result() == 2
-        assert second.core.episode == -1  # it never began: no message of it went out
-    finally:
-        if other is not None:
-            other.shutdown()
-        if second is not None:
-            second.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-    finish(system)
-    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
 
 
 def test_a_restarted_nodes_ghost_is_no_second_writer():
@@ -824,8 +751,7 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
 
 
 def _inject_once_under_way(system, ros_context, spin_until, messages):
-    """Publish `messages` ((topic, spec, raw bytes) each) every 50 ms once the run is under way (a heartbeat
-    writer seen before the world's first step would be a second world)."""
+    """Publish `messages` ((topic, spec, raw bytes) each) every 50 ms once the run is under way."""
     assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
     injector = system.add(rclpy.create_node("injector", context=ros_context))
     pubs = {topic: injector.create_publisher(spec.msg_type, topic, spec.qos) for topic, spec, _ in messages}
