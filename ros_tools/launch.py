@@ -86,6 +86,7 @@ from typing import Any
 import yaml
 from tqdm import tqdm
 
+from agent_node.checkpoint import SUFFIX as CHECKPOINT_SUFFIX, load_checkpoint
 from agent_node.config import agent_config
 from cq_ros.engine import make_learner
 from cq_ros.lab.results import prepare_output
@@ -291,7 +292,8 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
     for name, ident in agents:
         nodes[name] = ("agent_node", {
-            **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
+            **ident, "algo": algo, **common,
+            "checkpoint": str(out.resolve() / "checkpoints" / (name + CHECKPOINT_SUFFIX)),
             "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **to_agents, **changed})
     return nodes
 
@@ -428,8 +430,9 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     key`) keys the run and is named there and kept; without it the launch makes a key of its own and removes
     it at the end. `view_port`: also serve the run to Foxglove there (ros_tools.view, the extra `view`).
 
-    `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
-    ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
+    `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.npz` (agv1.npz
+    ..., or jsa.npz): the agents start from those learners (as nodes restarted from them) instead of fresh ones;
+    each is loaded and checked here first, so a bad one is one line before any process starts.
     `restart_agents`: how many times in all an agent node that dies is started again (the module's "Restarts").
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write, a missing checkpoint)
@@ -439,7 +442,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     settings = run_settings(gridmap) if settings is None else settings
     make_learner(algo, gridmap, settings, seed, 0, 0)  # an unknown algorithm, or jsa on 8 agents, fails here
     executor_name = executor_kind(executor)
-    start_with = [] if start_from is None else _checkpoints(Path(start_from), gridmap, algo)
+    start_with = [] if start_from is None else _checkpoints(Path(start_from), gridmap, algo, settings)
     node_parameters = {"step_timeout": float(step_timeout),
                        **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
                        **({} if markers else {"markers": False}), **(node_parameters or {})}
@@ -476,7 +479,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             write_system(out / SYSTEM_FILE, nodes, launch_only)
             children = node_commands(nodes, namespace, out)
         for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
-            (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
+            (out / "checkpoints" / (name + CHECKPOINT_SUFFIX)).unlink(missing_ok=True)
         for given in start_with:
             shutil.copyfile(given, out / "checkpoints" / given.name)
         env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
@@ -628,12 +631,16 @@ def _remove(made: Path | None) -> None:
         shutil.rmtree(made, ignore_errors=True)
 
 
-def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
-    """The checkpoint of every agent node of this launch in `folder`; ValueError naming the first missing."""
-    paths = [folder / f"{name}.pkl" for name, _ in agent_nodes(gridmap, algo)]
-    for path in paths:
+def _checkpoints(folder: Path, gridmap: GridMap, algo: str, settings: Settings) -> list[Path]:
+    """The checkpoint of every agent node of this launch in `folder`, each loaded and checked as its node will
+    (agent_node.checkpoint); ValueError naming the first missing or bad one."""
+    paths = []
+    for name, ident in agent_nodes(gridmap, algo):
+        path = folder / (name + CHECKPOINT_SUFFIX)
         if not path.is_file():
-            raise ValueError(f"start_from {os.fspath(folder)!r}: no checkpoint {path.name} for node {path.stem}")
+            raise ValueError(f"start_from {os.fspath(folder)!r}: no checkpoint {path.name} for node {name}")
+        load_checkpoint(path, algo, gridmap, max(ident.get("agent_id", 0) - 1, 0), settings)
+        paths.append(path)
     return paths
 
 

@@ -383,9 +383,9 @@ def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics
 
 
 def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_path):
-    (tmp_path / "agv1.pkl.x1y2z3.tmp").write_bytes(b"a save killed mid-write")
+    (tmp_path / "agv1.npz.x1y2z3.tmp").write_bytes(b"a save killed mid-write")
     node = AgentNode(context=ros_context, parameter_overrides=parameters(
-        agent_id=1, checkpoint=str(tmp_path / "agv1.pkl")))
+        agent_id=1, checkpoint=str(tmp_path / "agv1.npz")))
     node.destroy_node()
     assert os.listdir(tmp_path) == []
 
@@ -394,8 +394,8 @@ def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_
     ("world_node", ["-p", "step_timout:=1.0"], "unknown parameter 'step_timout'; did you mean 'step_timeout'?"),
     ("world_node", ["-p", "startup_timeout:=nan"], "parameter startup_timeout must be a finite number, got nan"),
     ("agent_node", ["--params-file", "/no/such/params.yaml"], "--params-file /no/such/params.yaml: no such file"),
-    ("agent_node", ["-p", "agent_id:=1", "-p", "checkpoint:=/no/such/dir/x.pkl"],
-     "parameter checkpoint: '/no/such/dir/x.pkl': folder '/no/such/dir' does not exist"),
+    ("agent_node", ["-p", "agent_id:=1", "-p", "checkpoint:=/no/such/dir/x.npz"],
+     "parameter checkpoint: '/no/such/dir/x.npz': folder '/no/such/dir' does not exist"),
 ])
 @pytest.mark.ros
 def test_bad_parameters_on_the_command_line_are_one_line_and_exit_2(module, args, message):
@@ -663,7 +663,7 @@ def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoin
         pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
                              "no process list from the launcher", ended=lambda: launcher.poll() is not None,
                              detail=lambda: text_of(err)).group(1))
-        wait_until(lambda: (out / "checkpoints" / "agv1.pkl").exists(), LAUNCH_TIMEOUT_S, "no checkpoint of agv1",
+        wait_until(lambda: (out / "checkpoints" / "agv1.npz").exists(), LAUNCH_TIMEOUT_S, "no checkpoint of agv1",
                    ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
         os.kill(pid, signal.SIGKILL)
         code = launcher.wait(LAUNCH_TIMEOUT_S)
@@ -759,7 +759,7 @@ def test_a_checkpoint_folder_on_a_full_disk_is_refused_at_start(tmp_path):
     with tmpfs(tmp_path / "full", 64) as full:
         fill(full)
         done = subprocess.run([sys.executable, "-m", "agent_node", "--ros-args", "-p", "agent_id:=1", "-p",
-                               f"checkpoint:={full}/agv1.pkl"], capture_output=True, text=True, timeout=60)
+                               f"checkpoint:={full}/agv1.npz"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2, done.stderr
     assert done.stderr.count("\n") == 1 and "No space left on device" in done.stderr, done.stderr
 
@@ -771,7 +771,7 @@ def test_a_checkpoint_that_cannot_be_written_is_counted_and_learning_goes_on(sys
     algo, episodes = "cq", 20
     with tmpfs(tmp_path / "filling", 64) as folder:
         system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2],
-                           agent_extra={1: {"checkpoint": str(folder / "agv1.pkl"), "checkpoint_every": 5}})
+                           agent_extra={1: {"checkpoint": str(folder / "agv1.npz"), "checkpoint_every": 5}})
         fill(folder)
         finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)

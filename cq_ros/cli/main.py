@@ -205,6 +205,16 @@ def _add_ros_parsers(sub) -> None:
                    help="seconds to look for the system before giving up (default 60)")
     _add_domain_option(p)
 
+    p = sub.add_parser("checkpoint", help="agent checkpoints: convert one of the old pickled format (3) into the "
+                                          "current one (.npz, which loads without running code)")
+    actions = p.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    p = actions.add_parser("convert", help="write a pickled checkpoint (format 3) as an .npz checkpoint",
+                           description="Unpickle OLD and write it as the .npz checkpoint NEW. Unpickling runs "
+                                       "whatever code the file holds: run it only on a checkpoint you trust (one your "
+                                       "own cq-ros wrote).")
+    p.add_argument("old", type=Path, metavar="OLD", help="a pickled checkpoint (.pkl) you trust")
+    p.add_argument("new", type=Path, metavar="NEW", help="the .npz checkpoint to write (never overwritten)")
+
     p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
                                    "cq-ros launch --key FILE)")
     p.add_argument("--out", type=Path, required=True, metavar="FILE", help="the key file to make (mode 0600; "

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import pickle
 import sys
 from typing import Any, Callable
 
@@ -14,7 +15,7 @@ from ..gridmap import load_map
 from ..lab.output import check_parent
 from .offline import print_summary
 
-__all__ = ["hosts", "launch", "collect", "key", "view", "ros_tool"]
+__all__ = ["hosts", "launch", "collect", "checkpoint", "key", "view", "ros_tool"]
 
 
 def hosts(args) -> int:
@@ -78,6 +79,20 @@ def launch(args) -> int:
     if ended["how"] == "degraded":  # the last line: a summary that looks clean must not hide it
         print(f"cq-ros launch: {ended['reason']}; exit status {ended['exit_status']}", file=sys.stderr)
     return ended["exit_status"]
+
+
+def checkpoint(args) -> int:
+    """`cq-ros checkpoint convert OLD NEW`: an old pickled checkpoint, which the user trusts, as an .npz."""
+    from agent_node.checkpoint import convert_pickle
+
+    if args.new.exists():
+        raise FileExistsError(f"{args.new} exists; give a new file")
+    try:
+        algo, episode = convert_pickle(args.old, args.new)
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, KeyError) as e:
+        raise ValueError(f"{args.old}: not a pickled checkpoint: {type(e).__name__}: {e}") from None
+    print(f"{args.new}: the {algo} learner of {args.old}, episodes up to {episode} learnt")
+    return 0
 
 
 def _ended(command: str, run: Callable[[], Any]) -> tuple[Any, int]:
