@@ -130,12 +130,13 @@ def load_checkpoint(path: str | os.PathLike, algo: str, gridmap: GridMap, agent:
         if fmt != _CHECKPOINT_FORMAT:
             raise StateError("checkpoint_format", f"is {fmt}; this version reads format {_CHECKPOINT_FORMAT}")
         episode = scalar(arrays, "episode", "i", 0)
-        written_for = (scalar(arrays, "algo", "U"), scalar(arrays, "map", "U"), scalar(arrays, "agent", "i"))
-        wanted = (algo, gridmap.name, agent)
-        if written_for != wanted:
-            what = "algo {}, map {}, agent index {}"
-            raise SettingsError(f"{where} holds {what.format(*written_for)}; this node runs {what.format(*wanted)}")
+        saved_map = scalar(arrays, "map", "U")
+        if saved_map != gridmap.name:  # before the shapes, which would only say that less plainly
+            raise StateError("map", f"is {saved_map}; this node runs map {gridmap.name}")
         learner = from_arrays(arrays, gridmap, settings)
+        if (learner.name, learner.agent) != (algo, agent):
+            raise SettingsError(f"{where} holds algo {learner.name}, agent index {learner.agent}; this node runs "
+                                f"algo {algo}, agent index {agent}")
     except StateError as e:
         raise SettingsError(f"{where}: {e}") from None
     return learner, episode
