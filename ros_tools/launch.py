@@ -81,7 +81,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 from tqdm import tqdm
@@ -110,7 +110,8 @@ from .launch_results import (
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
 __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN",
-           "DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
+           "DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "ResultsGone", "LaunchResult", "Child",
+           "split_sets",
            "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener",
            "Progress", "write_heard"]
 
@@ -149,6 +150,17 @@ class Interrupted(LaunchError):
 class EndedEarly(LaunchError):
     """The launcher could not write a result file (a full or failing disk): every child was stopped, the rows
     written are kept, and the manifest says why."""
+
+
+class ResultsGone(LaunchError):
+    """The result folder was removed or moved mid-run (ros_tools.launch_results.EpisodeRows looks every
+    episode): every child was stopped, since whatever followed would be played into files nobody can read."""
+
+
+def _rows_failed(rows: EpisodeRows) -> None:
+    """Raise what a failure of episodes.csv ends the launch with, if there was one."""
+    if rows.failure:
+        raise (ResultsGone if rows.gone else EndedEarly)(rows.failure)
 
 
 # -- children ----------------------------------------------------------------------------------------------
@@ -497,6 +509,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
                     domain_id=domain_id, namespace=f"/{namespace}",
                     step_timeout_s=node_parameters["step_timeout"], **on_hosts,
+                    checkpoint_every=list(nodes.values())[1][1]["checkpoint_every"],
                     peer_linger_steps=node_parameters.get("peer_linger_steps",
                                                           AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
@@ -517,6 +530,27 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         kept = write_ended(f"the launcher {reason}", "disk", EndedEarly.exit_status)
         return EndedEarly(f"the launcher {reason}: the run ended early after {rows.written}/{episodes} "
                           f"episodes; those rows are in {rows.path}, and {kept}")
+
+    def restart_loss(child: Child) -> str:
+        """Record the learning `child`'s restart loses, the episodes its learner had learnt past the checkpoint
+        it goes back to, and say it; LaunchError with the reason if that checkpoint cannot be loaded (the node
+        would say it only in its log)."""
+        params = nodes[child.name][1]
+        resumed = -1  # no checkpoint yet: a fresh learner
+        if os.path.exists(params["checkpoint"]):
+            try:
+                resumed = load_checkpoint(params["checkpoint"], algo, gridmap, max(params.get("agent_id", 0) - 1, 0),
+                                          settings)[1]
+            except SettingsError as e:
+                raise LaunchError(f"{child.describe_exit()} after {len(listener.world)}/{listener.episodes} "
+                                  f"episodes and cannot restart: {e}") from None
+        ids = learners if child.name == "jsa" else [params["agent_id"]]
+        learnt = min(max((listener.newest[k].episode for k in ids if k in listener.newest), default=-1), episodes - 1)
+        lost = max(0, learnt - resumed)
+        listener.learning_lost.setdefault(child.name, []).append(
+            {"learnt_to": learnt, "resumed_from": resumed, "episodes": lost})
+        start = f"its checkpoint of episode {resumed}" if resumed >= 0 else "a fresh learner (no checkpoint yet)"
+        return f"it resumes from {start}: {lost} learning episode{'s'[:lost != 1]} lost"
 
     started = time.perf_counter()
 
@@ -545,20 +579,23 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 tqdm.write(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "  # above the bar
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
-            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose)
+            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose,
+                   restart_loss)
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
                 raise LaunchError(f"every node finished, but the launcher never got {'; '.join(listener.missing())}")
             rows.take(listener)
-            if rows.failure:
-                raise EndedEarly(rows.failure)
+            _rows_failed(rows)
         except LaunchError as e:
             stopping = [c.name for c in children if c.running]
             _stop(children)
             rows.close()
             if isinstance(e, EndedEarly):
                 raise ended_early(str(e)) from None
+            if isinstance(e, ResultsGone):  # nowhere left to write a manifest or read a log
+                raise ResultsGone(f"{e}: the run stopped after {rows.written}/{episodes} episodes; stopped "
+                                  f"{', '.join(stopping) or 'nothing'}") from None
             stopped = f"; stopped {', '.join(stopping)}" if stopping else ""
             # A node that refused (exit 2: a second system here) before any row of this run leaves nothing worth
             # keeping, and the line says why; a node that crashed or was stopped leaves its log to read, and the
@@ -603,17 +640,19 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     return result
 
 
-def _restart(child: Child, env: dict, listener: StatsListener, learners: list[int]) -> None:
-    """Start a dead agent node again (it resumes from its checkpoint), saying so; its learners are marked
-    restarted in the listener (the episodes they miss meanwhile are written without them)."""
+def _restart(child: Child, env: dict, listener: StatsListener, learners: list[int],
+             restart_loss: Callable[[Child], str]) -> None:
+    """Start a dead agent node again (it resumes from its checkpoint), saying so and what learning that loses
+    (`restart_loss`, which raises LaunchError instead for a checkpoint it cannot resume from); its learners are
+    marked restarted in the listener (the episodes they miss meanwhile are written without them)."""
     said = child.describe_exit()
+    loss = restart_loss(child)
     child.restarts += 1
     ids = learners if child.name == "jsa" else [int(child.name.removeprefix("agv"))]
     listener.restarted.update(ids)
     child.start(env)
     tqdm.write(f"cq-ros launch: {said} after {len(listener.world)}/{listener.episodes} episodes: restarted it "
-               f"(restart {child.restarts}, pid {child.process.pid}); it resumes from its checkpoint",
-               file=sys.stderr)
+               f"(restart {child.restarts}, pid {child.process.pid}); {loss}", file=sys.stderr)
 
 
 def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
@@ -646,7 +685,7 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str, settings: Settings) 
 
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
            learners: list[int], rows: EpisodeRows, restart_agents: int = 0, env: dict | None = None,
-           compose: bool = False) -> None:
+           compose: bool = False, restart_loss: Callable[[Child], str] | None = None) -> None:
     """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
     soon as one fails (an agent node restarted instead while `restart_agents` allows), EndedEarly as soon as a
     row cannot be written."""
@@ -657,8 +696,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
                               "episodes")
         executor.spin_once(timeout_sec=0.05)
         rows.take(listener)
-        if rows.failure:
-            raise EndedEarly(rows.failure)
+        _rows_failed(rows)
         if len(listener.world) != bar.shown:
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
@@ -666,7 +704,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
         failed = [c for c in children if c.exit_code not in (None, 0)]
         if failed and not compose and children[0].running and failed[0] is not children[0] and \
                 sum(c.restarts for c in children) < restart_agents:
-            _restart(failed[0], env, listener, learners)
+            _restart(failed[0], env, listener, learners, restart_loss)
             continue
         if failed:
             raise LaunchError(f"{failed[0].describe_exit()} after {len(listener.world)}/{listener.episodes} "

@@ -17,6 +17,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -644,17 +645,18 @@ def test_a_twin_agent_started_by_hand_with_the_key_ends_the_launch_naming_it(tmp
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoint(tmp_path):
-    """`--restart-agents 1`: agv1 killed (kill -9) once it has written a checkpoint; the launcher starts it
-    again, it resumes from the checkpoint, and the launch plays every episode: counted (the node's `restarts`,
-    the episodes it was away for), degraded (the world missed its actions meanwhile: exit status 3), and every
-    episode before that is the offline engine's."""
+    """`--restart-agents 1`: agv1 killed (kill -9) once it has written a checkpoint and learnt past it; the
+    launcher starts it again, it resumes from the checkpoint (every `--set checkpoint_every` episodes), and the
+    launch plays every episode: counted (the node's `restarts`, the episodes it was away for, the learning
+    episodes the restart lost, on stderr and in the manifest), degraded (the world missed its actions
+    meanwhile: exit status 3), and every episode before that is the offline engine's."""
     from cq_ros.engine import run
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
 
-    episodes = 400
+    episodes, every = 400, 20
     out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
-    sets = (*STALL_SETTINGS, "step_timeout=1.0")
+    sets = (*STALL_SETTINGS, "step_timeout=1.0", f"checkpoint_every={every}")
     with open(err, "wb") as stderr:
         launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
                                                    "--no-figures", "--restart-agents", "1"),
@@ -663,26 +665,99 @@ def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoin
         pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
                              "no process list from the launcher", ended=lambda: launcher.poll() is not None,
                              detail=lambda: text_of(err)).group(1))
-        wait_until(lambda: (out / "checkpoints" / "agv1.npz").exists(), LAUNCH_TIMEOUT_S, "no checkpoint of agv1",
-                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        # a checkpoint (of episode 19 at the earliest), and episodes learnt past it: rows are written once
+        # every learner's statistics of their episode are in
+        wait_until(lambda: (out / "checkpoints" / "agv1.npz").exists() and len(read_rows(out / "episodes.csv")) > 25,
+                   LAUNCH_TIMEOUT_S, "no checkpoint of agv1", ended=lambda: launcher.poll() is not None,
+                   detail=lambda: text_of(err))
         os.kill(pid, signal.SIGKILL)
         code = launcher.wait(LAUNCH_TIMEOUT_S)
     finally:
         stop_launcher(launcher)
     assert code == 3, text_of(err)
-    assert re.search(r"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/400 episodes: "
-                     r"restarted it \(restart 1, pid \d+\)", text_of(err)), text_of(err)
+    said = re.search(r"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/400 episodes: "
+                     r"restarted it \(restart 1, pid \d+\); it resumes from its checkpoint of episode (\d+): "
+                     r"(\d+) learning episodes? lost", text_of(err))
+    assert said, text_of(err)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["nodes"]["agv1"]["restarts"] == 1 and "restarts" not in manifest["nodes"]["agv2"]
     assert set(manifest["restarts"]["episodes_without"]) <= {"agv1"}  # none when it rejoined within an episode
+    [lost] = manifest["restarts"]["learning_lost"]["agv1"]
+    assert manifest["checkpoint_every"] == every and (lost["resumed_from"] + 1) % every == 0
+    assert (lost["resumed_from"], lost["episodes"]) == (int(said.group(1)), int(said.group(2)))
+    assert lost["learnt_to"] >= 25 and lost["episodes"] == lost["learnt_to"] - lost["resumed_from"] >= 0
     assert manifest["ended"]["how"] == "degraded" and manifest["departures"]["missed_actions"] >= 1
     assert "resum" in text_of(out / "logs" / "agv1.log") or "joining" in text_of(out / "logs" / "agv1.log")
     rows = read_rows(out / "episodes.csv")
     offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, episodes)
     first = manifest["departures"]["first_episode"]
-    assert len(rows) == episodes  # first: 50 or later, unless a loaded machine cost a step before the kill
+    assert len(rows) == episodes  # first: 25 or later, unless a loaded machine cost a step before the kill
     assert rows[:first] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"]))
                             for e in offline.episodes][:first]
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_restart_from_a_truncated_checkpoint_ends_the_launch_with_the_reason(tmp_path):
+    """agv1 killed, its checkpoint cut in half meanwhile: the launcher does not restart it into a node that
+    would only say why in its log; the launch ends (exit 1) with one line giving the reason."""
+    episodes = 400
+    out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
+    path = out / "checkpoints" / "agv1.npz"
+    sets = (*STALL_SETTINGS, "step_timeout=1.0", "checkpoint_every=5")
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
+                                                   "--no-figures", "--restart-agents", "1"),
+                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                             detail=lambda: text_of(err)).group(1))
+        wait_until(path.exists, LAUNCH_TIMEOUT_S, "no checkpoint of agv1", ended=lambda: launcher.poll() is not None,
+                   detail=lambda: text_of(err))
+        os.kill(pid, signal.SIGSTOP)  # no save while the file is cut, then killed
+        data = path.read_bytes()
+        path.write_bytes(data[:len(data) // 2])
+        os.kill(pid, signal.SIGKILL)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+    assert code == 1, text_of(err)
+    lines = [line for line in text_of(err).splitlines() if "error" in line]
+    assert len(lines) == 1 and "Traceback" not in text_of(err), text_of(err)
+    assert re.search(r"agv1 \(pid \d+\) exited with code -9 .* and cannot restart: parameter checkpoint: "
+                     r".*agv1.npz': cannot read it: BadZipFile", lines[0]), lines[0]
+    assert json.loads((out / "manifest.json").read_text())["ended"]["how"] == "node_failed"
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["removed", "moved"])
+def test_a_results_folder_removed_or_moved_mid_run_ends_the_launch_in_one_line(tmp_path, how):
+    """The result folder removed (rm -r) or moved mid-run: the launch stops at the next episode with one line
+    and exit 1, instead of playing every episode into files nobody can read."""
+    episodes = 2000
+    out, namespace, err = tmp_path / "result", unique("gone"), tmp_path / "stderr.txt"
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, STALL_SETTINGS,
+                                                   "--no-figures"), stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        csv_file = out / "episodes.csv"
+        wait_until(lambda: csv_file.exists() and len(read_rows(csv_file)) >= 3, LAUNCH_TIMEOUT_S, "no episodes written",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        if how == "removed":
+            shutil.rmtree(out)
+        else:
+            out.rename(tmp_path / "elsewhere")
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+    assert code == 1, text_of(err)
+    lines = [line for line in text_of(err).splitlines() if "error" in line]
+    assert len(lines) == 1 and "Traceback" not in text_of(err), text_of(err)
+    assert re.search(rf"results folder {re.escape(str(out))} was removed or moved \(episodes.csv is no longer "
+                     rf"there\): the run stopped after (\d+)/{episodes} episodes; stopped ", lines[0]), lines[0]
+    assert int(re.search(r"after (\d+)/", lines[0]).group(1)) < episodes
 
 
 # -- disks: read-only, full, filling -------------------------------------------------------------------------

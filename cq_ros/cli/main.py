@@ -158,7 +158,9 @@ def _add_ros_parsers(sub) -> None:
                         "(default: a key of the launch's own, in a file without a name)")
     p.add_argument("--restart-agents", type=_number(0, 1000, kind=int), default=0, metavar="N",
                    help="start an agent node that dies again, from its checkpoint, up to N times in all (default 0: "
-                        "a node that dies ends the launch); counted in the manifest (`restarts`)")
+                        "a node that dies ends the launch); its checkpoint is saved every --set checkpoint_every=E "
+                        "learning episodes (default 50), and the episodes it learnt past it are lost: counted per "
+                        "restart on stderr and in the manifest (`restarts.learning_lost`)")
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
                    help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
                         "0: any free port, printed at start)")
