@@ -15,25 +15,10 @@ from cq_ros.gridmap import load_map
 from cq_ros.learners.state import to_arrays
 from cq_ros.settings import Settings, SettingsError, run_settings
 from cq_ros.world import GridWorld
+from helpers import Payload, crafted_pickle
 
 MAP = "tunnel_to_goal"
 CONVERT = "cq-ros checkpoint convert"
-
-
-class _Payload:
-    """Unpickling it creates `marker`: what a crafted checkpoint would do."""
-
-    def __init__(self, marker):
-        self.marker = str(marker)
-
-    def __reduce__(self):
-        return open, (self.marker, "w")
-
-
-def crafted_pickle(path, marker):
-    """A checkpoint of the old pickled format whose learner, once unpickled, has run code (made `marker`)."""
-    path.write_bytes(pickle.dumps({"format": 3, "algo": "cq", "map": MAP, "agent": 0, "episode": 5,
-                                   "learner": _Payload(marker)}))
 
 
 def _trained(settings=Settings(window=10, step_cap=100)):
@@ -111,7 +96,7 @@ def test_a_damaged_file_is_one_line(tmp_path, damage):
         path.write_bytes(b"")
     elif damage == "object-array":  # a pickle inside the .npz: never unpickled
         buffer = io.BytesIO()
-        np.savez(buffer, **{**arrays, "q_local": np.array([_Payload(marker)], dtype=object)})
+        np.savez(buffer, **{**arrays, "q_local": np.array([Payload(marker)], dtype=object)})
         path.write_bytes(buffer.getvalue())
     else:
         path.write_text("episode: 5\n")

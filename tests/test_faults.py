@@ -698,9 +698,16 @@ def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoin
 
 @pytest.mark.ros
 @pytest.mark.slow
-def test_a_restart_from_a_truncated_checkpoint_ends_the_launch_with_the_reason(tmp_path):
-    """agv1 killed, its checkpoint cut in half meanwhile: the launcher does not restart it into a node that
-    would only say why in its log; the launch ends (exit 1) with one line giving the reason."""
+@pytest.mark.parametrize("damage, reason", [
+    ("truncated", "cannot read it: BadZipFile"),
+    ("pickle", r"is a pickle .* convert it with `cq-ros checkpoint convert .*agv1.npz NEW.npz`"),
+])
+def test_a_restart_from_a_bad_checkpoint_ends_the_launch_with_the_reason(tmp_path, damage, reason):
+    """agv1 killed, its checkpoint cut in half, or replaced by a crafted pickle, meanwhile: the launcher does
+    not restart it into a node that would only say why in its log; the launch ends (exit 1) with one line
+    giving the reason, and the pickle ran nothing."""
+    from helpers import crafted_pickle
+
     episodes = 400
     out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
     path = out / "checkpoints" / "agv1.npz"
@@ -716,8 +723,11 @@ def test_a_restart_from_a_truncated_checkpoint_ends_the_launch_with_the_reason(t
         wait_until(path.exists, LAUNCH_TIMEOUT_S, "no checkpoint of agv1", ended=lambda: launcher.poll() is not None,
                    detail=lambda: text_of(err))
         os.kill(pid, signal.SIGSTOP)  # no save while the file is cut, then killed
-        data = path.read_bytes()
-        path.write_bytes(data[:len(data) // 2])
+        if damage == "truncated":
+            data = path.read_bytes()
+            path.write_bytes(data[:len(data) // 2])
+        else:
+            crafted_pickle(path, tmp_path / "ran")
         os.kill(pid, signal.SIGKILL)
         code = launcher.wait(LAUNCH_TIMEOUT_S)
     finally:
@@ -726,7 +736,8 @@ def test_a_restart_from_a_truncated_checkpoint_ends_the_launch_with_the_reason(t
     lines = [line for line in text_of(err).splitlines() if "error" in line]
     assert len(lines) == 1 and "Traceback" not in text_of(err), text_of(err)
     assert re.search(r"agv1 \(pid \d+\) exited with code -9 .* and cannot restart: parameter checkpoint: "
-                     r".*agv1.npz': cannot read it: BadZipFile", lines[0]), lines[0]
+                     r".*agv1.npz'.? " + reason, lines[0]), lines[0]
+    assert not (tmp_path / "ran").exists()
     assert json.loads((out / "manifest.json").read_text())["ended"]["how"] == "node_failed"
 
 
