@@ -27,10 +27,12 @@ run, and no end of the launch, kill -9 of the launcher included, leaves the key 
 
 Restarts. With `restart_agents` N (off by default), an agent node that dies while the world runs is started
 again, up to N times in all, with the same command: it resumes from its checkpoint (agent_node.checkpoint,
-every CHECKPOINT_EVERY episodes) or, before the first, joins as a fresh learner. Each restart is a line and
-counted (manifest `restarts`); the episodes it was away for have no statistics of it, and their rows sum the
-other learners' (manifest `restarts.episodes_without`); the world missed its actions meanwhile, so such a run
-ends degraded (exit status 3).
+every CHECKPOINT_EVERY episodes unless `--set checkpoint_every`) or, before the first, joins as a fresh learner.
+The launcher loads that checkpoint first: one it cannot load ends the launch with the reason (which the node
+would only say in its log), and the episodes learnt past it are lost learning. Each restart is a line saying
+how many, and counted (manifest `restarts`, `restarts.learning_lost`); the episodes it was away for have no
+statistics of it, and their rows sum the other learners' (manifest `restarts.episodes_without`); the world
+missed its actions meanwhile, so such a run ends degraded (exit status 3).
 
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code (the world's 3: a twin of a node, `WORLD_TWIN`); Ctrl-C or SIGTERM to the launcher ends it with
@@ -52,7 +54,8 @@ every agv<k>/stats, counts once. The learning episodes' rows make episodes.csv, 
 (RunResult.greedy, as `cq_ros.engine.run` gives it), and the marked joint states of the last learning
 episode's AgentStats make observe.csv (the engine takes them before its greedy episodes too). episodes.csv
 is written row by row as the episodes are heard (ros_tools.launch_results: a disk that fills keeps every row
-it took, the launch ends early with one line naming the file and the OS's reason, and the manifest says so);
+it took, the launch ends early with one line naming the file and the OS's reason, and the manifest says so; a
+results folder removed or moved mid-run ends it at the next episode with one line, `ResultsGone`);
 a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason.
 The manifest adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
 messages; the world's missed actions and dropped-message counters).

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import pickle
 import sys
 from typing import Any, Callable
 
@@ -82,16 +81,9 @@ def launch(args) -> int:
 
 
 def checkpoint(args) -> int:
-    """`cq-ros checkpoint convert OLD NEW`: an old pickled checkpoint, which the user trusts, as an .npz."""
-    from agent_node.checkpoint import convert_pickle
+    from ros_tools.checkpoints import convert
 
-    if args.new.exists():
-        raise FileExistsError(f"{args.new} exists; give a new file")
-    try:
-        algo, episode = convert_pickle(args.old, args.new)
-    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, KeyError) as e:
-        raise ValueError(f"{args.old}: not a pickled checkpoint: {type(e).__name__}: {e}") from None
-    print(f"{args.new}: the {algo} learner of {args.old}, episodes up to {episode} learnt")
+    print(convert(args.old, args.new))
     return 0
 
 

@@ -111,11 +111,9 @@ def to_arrays(learner: Learner) -> dict[str, np.ndarray]:
 def _cq_arrays(learner: CQLearner) -> dict[str, np.ndarray]:
     size = learner.settings.window
     windows = learner.windows
-    w1 = np.zeros((len(windows), size))
-    w2 = np.zeros((len(windows), size))
-    for i, w in enumerate(windows):
-        w1[i, :len(w.w1)] = w.w1
-        w2[i, :len(w.w2)] = w.w2
+    pad = [0.0] * size
+    w1 = np.array([w.w1 + pad[len(w.w1):] for w in windows], dtype=np.float64).reshape(-1, size)
+    w2 = np.array([w.w2 + pad[len(w.w2):] for w in windows], dtype=np.float64).reshape(-1, size)
     out = {
         "confidence": np.array([learner.confidence[js] for js in learner.q_joint], dtype=np.float64),
         "dropped_updates": np.int64(learner.dropped_updates),
