@@ -642,6 +642,31 @@ def test_a_twin_agent_started_by_hand_with_the_key_ends_the_launch_naming_it(tmp
     assert rows[:5] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
 
 
+def restarting_launch(out, err, episodes: int, checkpoint_every: int):
+    """`cq-ros launch --restart-agents 1` of the stall case, checkpointing every `checkpoint_every` episodes, its
+    stderr in the file `err`."""
+    sets = (*STALL_SETTINGS, "step_timeout=1.0", f"checkpoint_every={checkpoint_every}")
+    with open(err, "wb") as stderr:
+        return subprocess.Popen(launch_command(out, unique("restart"), STALL_MAP, STALL_ALGO, episodes, sets,
+                                               "--no-figures", "--restart-agents", "1"),
+                                stdout=subprocess.DEVNULL, stderr=stderr)
+
+
+def failed_in_one_line(code: int, err) -> str:
+    """The one error line of a launch that failed (exit 1), its stderr in the file `err`, without a traceback."""
+    assert code == 1, text_of(err)
+    lines = [line for line in text_of(err).splitlines() if "error" in line]
+    assert len(lines) == 1 and "Traceback" not in text_of(err), text_of(err)
+    return lines[0]
+
+
+def agv1_pid(launcher, err) -> int:
+    """agv1's pid, once the launcher has listed its processes on stderr (the file `err`)."""
+    return int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                          "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                          detail=lambda: text_of(err)).group(1))
+
+
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoint(tmp_path):
@@ -655,16 +680,10 @@ def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoin
     from cq_ros.settings import Settings
 
     episodes, every = 400, 20
-    out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
-    sets = (*STALL_SETTINGS, "step_timeout=1.0", f"checkpoint_every={every}")
-    with open(err, "wb") as stderr:
-        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
-                                                   "--no-figures", "--restart-agents", "1"),
-                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    out, err = tmp_path / "result", tmp_path / "stderr.txt"
+    launcher = restarting_launch(out, err, episodes, every)
     try:
-        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
-                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
-                             detail=lambda: text_of(err)).group(1))
+        pid = agv1_pid(launcher, err)
         # a checkpoint (of episode 19 at the earliest), and episodes learnt past it: rows are written once
         # every learner's statistics of their episode are in
         wait_until(lambda: (out / "checkpoints" / "agv1.npz").exists() and len(read_rows(out / "episodes.csv")) > 25,
@@ -708,18 +727,11 @@ def test_a_restart_from_a_bad_checkpoint_ends_the_launch_with_the_reason(tmp_pat
     giving the reason, and the pickle ran nothing."""
     from helpers import crafted_pickle
 
-    episodes = 400
-    out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
+    out, err = tmp_path / "result", tmp_path / "stderr.txt"
     path = out / "checkpoints" / "agv1.npz"
-    sets = (*STALL_SETTINGS, "step_timeout=1.0", "checkpoint_every=5")
-    with open(err, "wb") as stderr:
-        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
-                                                   "--no-figures", "--restart-agents", "1"),
-                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    launcher = restarting_launch(out, err, 400, 5)
     try:
-        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
-                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
-                             detail=lambda: text_of(err)).group(1))
+        pid = agv1_pid(launcher, err)
         wait_until(path.exists, LAUNCH_TIMEOUT_S, "no checkpoint of agv1", ended=lambda: launcher.poll() is not None,
                    detail=lambda: text_of(err))
         os.kill(pid, signal.SIGSTOP)  # no save while the file is cut, then killed
@@ -732,11 +744,9 @@ def test_a_restart_from_a_bad_checkpoint_ends_the_launch_with_the_reason(tmp_pat
         code = launcher.wait(LAUNCH_TIMEOUT_S)
     finally:
         stop_launcher(launcher)
-    assert code == 1, text_of(err)
-    lines = [line for line in text_of(err).splitlines() if "error" in line]
-    assert len(lines) == 1 and "Traceback" not in text_of(err), text_of(err)
+    line = failed_in_one_line(code, err)
     assert re.search(r"agv1 \(pid \d+\) exited with code -9 .* and cannot restart: parameter checkpoint: "
-                     r".*agv1.npz'.? " + reason, lines[0]), lines[0]
+                     r".*agv1.npz'.? " + reason, line), line
     assert not (tmp_path / "ran").exists()
     assert json.loads((out / "manifest.json").read_text())["ended"]["how"] == "node_failed"
 
@@ -763,12 +773,10 @@ def test_a_results_folder_removed_or_moved_mid_run_ends_the_launch_in_one_line(t
         code = launcher.wait(LAUNCH_TIMEOUT_S)
     finally:
         stop_launcher(launcher)
-    assert code == 1, text_of(err)
-    lines = [line for line in text_of(err).splitlines() if "error" in line]
-    assert len(lines) == 1 and "Traceback" not in text_of(err), text_of(err)
+    line = failed_in_one_line(code, err)
     assert re.search(rf"results folder {re.escape(str(out))} was removed or moved \(episodes.csv is no longer "
-                     rf"there\): the run stopped after (\d+)/{episodes} episodes; stopped ", lines[0]), lines[0]
-    assert int(re.search(r"after (\d+)/", lines[0]).group(1)) < episodes
+                     rf"there\): the run stopped after (\d+)/{episodes} episodes; stopped ", line), line
+    assert int(re.search(r"after (\d+)/", line).group(1)) < episodes
 
 
 # -- disks: read-only, full, filling -------------------------------------------------------------------------
