@@ -7,7 +7,8 @@ an .npz that loads without pickle) and what a compiled twin of the learners can 
 State is taken between steps (after `learn`, before the next `observe`), where a learner keeps only its tables,
 counters, epsilon, its random.Random (as the integers of getstate) and, for CQ, JS and near, the step whose
 update waits; so a restored learner plays on exactly as the original would. `from_arrays` checks every field
-(type, shape against the map, range, the settings as the run's) before it builds anything.
+as it restores it (type, shape against the map, range, the settings as the run's) and returns a learner only
+when all pass.
 
 A table keyed by tuples is two arrays, `<table>.keys` (one row of integers per key, in the dict's order, which
 CQ's tie-breaking depends on) and `<table>.rows`. Keys whose peers vary (loc's Q^C, near's) are one slot per
