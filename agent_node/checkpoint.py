@@ -39,6 +39,9 @@ __all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "save_chec
 _CHECKPOINT_FORMAT = 4
 _PICKLE_FORMAT = 3  # the last pickled format, the one `convert_pickle` reads
 SUFFIX = ".npz"
+# A learner's state is megabytes (warehouse_32's CQ: 1.3 MB): a file whose members unpack to more than this is no
+# checkpoint of ours, and is refused before any of it is read into memory (a zip bomb).
+_MAX_BYTES = 4 << 30
 CONVERT = "cq-ros checkpoint convert"
 
 
@@ -112,6 +115,9 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
         if head != b"PK":
             raise SettingsError(f"{where} is not a checkpoint (an .npz file)")
         with np.load(path, allow_pickle=False) as npz:
+            size = sum(member.file_size for member in npz.zip.infolist())
+            if size > _MAX_BYTES:
+                raise SettingsError(f"{where} unpacks to {size:,} bytes, more than a checkpoint's {_MAX_BYTES:,}")
             return {name: npz[name] for name in npz.files}
     except SettingsError:
         raise

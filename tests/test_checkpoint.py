@@ -106,6 +106,15 @@ def test_a_damaged_file_is_one_line(tmp_path, damage):
     assert not marker.exists()
 
 
+def test_a_file_that_unpacks_to_too_much_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    import agent_node.checkpoint as checkpoint
+
+    gridmap, settings, path, _ = _good_arrays(tmp_path)
+    monkeypatch.setattr(checkpoint, "_MAX_BYTES", 1000)
+    with pytest.raises(SettingsError, match=r"agv1.npz' unpacks to [\d,]+ bytes, more than a checkpoint's 1,000$"):
+        load_checkpoint(path, "cq", gridmap, 0, settings)
+
+
 def test_a_good_checkpoint_loads_as_the_learner_it_was(tmp_path):
     gridmap, settings, learner = _trained()
     path = tmp_path / "agv1.npz"
