@@ -188,8 +188,8 @@ class AgentNode(Node):
         self.destroy_subscription(self._positions.pop(effect.peer))
 
     def _save_checkpoint(self, episode: int, learner: Any) -> None:
-        """Pickle the learner now (it goes on learning) and write it on the node's writer thread: the file's
-        fsync took longer than the pickling, on the path every other node of a composed process waits on.
+        """Take the learner's state now (it goes on learning) and write it on the node's writer thread: the
+        file's fsync took longer than taking the state, on the path every other node of a composed process waits on.
         A write that fails is logged and counted (`checkpoint_failed.<errno>`) once it is known: a full or
         read-only disk costs the checkpoint, never the learning, which goes on in memory (the next save
         tries again). Statistics wait for the writes in flight before them (`_settled`), so they count every

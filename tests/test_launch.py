@@ -119,7 +119,7 @@ def test_a_launch_started_from_an_offline_runs_checkpoints_goes_on_as_that_run(t
         team.episode()
     assert any(learner.joint_states() for learner in team.learners)  # it has learnt where to look
     save_checkpoints(tmp_path, [name for name, _ in agent_nodes(gridmap, "cq")], team.learners, 59)
-    with pytest.raises(ValueError, match="no checkpoint agv1.pkl"):
+    with pytest.raises(ValueError, match="no checkpoint agv1.npz"):
         launch("tunnel_to_goal", "cq", 15, SEED, tmp_path / "never", settings, start_from=tmp_path / "empty")
     result = launch("tunnel_to_goal", "cq", 15, SEED, tmp_path / "ros", settings, compose=True, figures=False,
                     progress=False, start_from=tmp_path)

@@ -158,7 +158,9 @@ def _add_ros_parsers(sub) -> None:
                         "(default: a key of the launch's own, in a file without a name)")
     p.add_argument("--restart-agents", type=_number(0, 1000, kind=int), default=0, metavar="N",
                    help="start an agent node that dies again, from its checkpoint, up to N times in all (default 0: "
-                        "a node that dies ends the launch); counted in the manifest (`restarts`)")
+                        "a node that dies ends the launch); its checkpoint is saved every --set checkpoint_every=E "
+                        "learning episodes (default 50), and the episodes it learnt past it are lost: counted per "
+                        "restart on stderr and in the manifest (`restarts.learning_lost`)")
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
                    help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
                         "0: any free port, printed at start)")
@@ -204,6 +206,16 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
                    help="seconds to look for the system before giving up (default 60)")
     _add_domain_option(p)
+
+    p = sub.add_parser("checkpoint", help="agent checkpoints: convert one of the old pickled format (3) into the "
+                                          "current one (.npz, which loads without running code)")
+    actions = p.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    p = actions.add_parser("convert", help="write a pickled checkpoint (format 3) as an .npz checkpoint",
+                           description="Unpickle OLD and write it as the .npz checkpoint NEW. Unpickling runs "
+                                       "whatever code the file holds: run it only on a checkpoint you trust (one your "
+                                       "own cq-ros wrote).")
+    p.add_argument("old", type=Path, metavar="OLD", help="a pickled checkpoint (.pkl) you trust")
+    p.add_argument("new", type=Path, metavar="NEW", help="the .npz checkpoint to write (never overwritten)")
 
     p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
                                    "cq-ros launch --key FILE)")
