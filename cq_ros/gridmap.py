@@ -112,7 +112,7 @@ class GridMap:
         for goal in self.goals:
             glyphs[self.cells[goal]] = "G"
         for agent, start in enumerate(self.starts):
-            glyphs[self.cells[start]] = _agent_glyph(agent)
+            glyphs[self.cells[start]] = agent_glyph(agent)
         for cell, mark in (marks or {}).items():
             if len(mark) != 1:
                 raise ValueError(f"mark for cell {cell} must be one character, got {mark!r}")
@@ -141,7 +141,8 @@ class GridMap:
         return self.neighbours[cell][action] != cell
 
 
-def _agent_glyph(agent: int) -> str:
+def agent_glyph(agent: int) -> str:
+    """How the drawings show agent `agent` (0-based): 1-9, then a-z, then '*' for every agent past the 35th."""
     return _AGENT_GLYPHS[agent] if agent < len(_AGENT_GLYPHS) else "*"
 
 
