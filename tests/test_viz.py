@@ -16,7 +16,7 @@ from PIL import Image
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.gridmap import lattice
-from cq_ros.lab.render import CELL_INCHES, DPI, cut_by_bag, engine_frames, frames_from
+from cq_ros.lab.render import CELL_INCHES, DPI, cut_by_bag, engine_frames, episode_to_draw, frames_from
 from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz
@@ -140,6 +140,9 @@ def test_a_recorded_bag_replays_the_run_and_renders_as_a_gif(system_in, tmp_path
     last = offline_frames("cq", EPISODES - 1)
     for episode in (0, EPISODES - 1):
         assert [f for f in frames if f.episode == episode] == offline_frames("cq", episode)
+    # reading one episode's looks only (render's way) draws that episode as reading them all does
+    _, _, its_looks = read_view_bag(bag, episode_of=lambda scenes: 1)
+    assert frames_from([s for s in scenes if s.episode == 1], its_looks) == offline_frames("cq", 1)
 
     done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", "--bag", str(bag), "--out", str(gif)],
                           capture_output=True, text=True, timeout=120)
@@ -162,6 +165,22 @@ def test_render_says_when_the_bag_cut_the_episode_it_draws():
     assert "ends at its step 1 with AGVs short of their goals" in cut_by_bag(whole[:2], 3)
     later = [*whole[:2], Scene(episode=4, step=0, cells=((0, 0), (2, 0)), goals=goals)]
     assert cut_by_bag(later, 3) is None  # ended short of the goals, but the next episode began: the step cap
+
+
+def test_a_bag_recorded_mid_run_draws_its_last_whole_episode_by_default():
+    from types import SimpleNamespace as Scene
+
+    goals = ((0, 2), (2, 2))
+
+    def episode(number, steps, home=True):
+        last = [Scene(episode=number, step=steps - 1, cells=goals if home else ((0, 0), (2, 0)), goals=goals)]
+        return [Scene(episode=number, step=t, cells=((0, t), (2, t)), goals=goals) for t in range(steps - 1)] + last
+
+    started_late = episode(7, 5)[2:]  # the recording began at its step 2
+    assert episode_to_draw([*started_late, *episode(8, 4), *episode(9, 3)[:2]]) == 8  # 9: stopped mid-episode
+    assert episode_to_draw([*started_late, *episode(8, 4), *episode(9, 3)]) == 9  # 9 ended home: whole
+    assert episode_to_draw([*episode(8, 4, home=False), *episode(9, 3)[:1]]) == 8  # ran to the step cap
+    assert episode_to_draw(started_late) == 7  # cut, but the only one
 
 
 @pytest.mark.slow

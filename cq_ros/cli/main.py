@@ -256,7 +256,8 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--episodes", type=_episodes, default=None, help="with --map: episodes to learn (default 100)")
     p.add_argument("--seed", type=_seed, default=None, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
-                   help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+                   help="the episode to draw, from 0 (default: with --map, the last learning episode; with --bag, the "
+                        "last episode the bag holds whole)")
     p.add_argument("--greedy", action="store_true",
                    help="with --map: draw the greedy policy's first episode after the learning ones, not a "
                         "learning episode")

@@ -23,8 +23,8 @@ from ..gridmap import GridMap
 from ..settings import Settings
 from ..world import GridWorld
 
-__all__ = ["Frame", "Picture", "engine_frames", "frames_from", "cut_by_bag", "check_output", "write_animation",
-           "FORMATS"]
+__all__ = ["Frame", "Picture", "engine_frames", "frames_from", "cut_by_bag", "episode_to_draw", "check_output",
+           "write_animation", "FORMATS"]
 
 FORMATS = {".gif": "pillow", ".mp4": "ffmpeg"}  # output suffix -> matplotlib animation writer
 CELL_INCHES = 0.6
@@ -100,6 +100,14 @@ def cut_by_bag(scenes: list[Any], episode: int) -> str | None:
         cuts.append(f"the bag ends at its step {mine[-1].step} with AGVs short of their goals (the recording "
                     "stopped first, or the episode ran to the step cap)")
     return "; ".join(cuts) or None
+
+
+def episode_to_draw(scenes: list[Any]) -> int:
+    """The episode `render --bag` draws by default: the bag's last episode that it holds whole (`cut_by_bag`),
+    or its last when it cuts every one. A recording stopped by hand almost always cuts its last episode, and one
+    started mid-run its first."""
+    episodes = list(dict.fromkeys(s.episode for s in scenes))
+    return next((e for e in reversed(episodes) if cut_by_bag(scenes, e) is None), episodes[-1])
 
 
 def check_output(path: Path) -> str:
