@@ -59,6 +59,10 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         (["experiment", "--map", "grid_game_2", "--set", "alpha=abc", "--out", "X"], "alpha takes a number"),
         (["experiment", "--map", "grid_game_2", "--set", "gamma=1.5", "--out", "X"], "gamma must be in [0, 1)"),
         (["experiment", "--map", "grid_game_2", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
+        (["experiment", "--map", "grid_game_2", "--set", "slip=1", "--out", "X"], "at 1 every move fails"),
+        (["experiment", "--map", "grid_game_2", "--set", "step_cap=50", "--set", "start_hold=60", "--out", "X"],
+         "start_hold must be below step_cap=50"),
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--set", "slip=1", "--out", "X"], "at 1 every move fails"),
         (["reproduce", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
         (["reproduce", "--seeds", "0,-1", "--out", "X"], "--seeds: every seed must be at least 0"),
         (["generate", "warehouse", "--agents", "8", "--seed", "-2", "--out", "X"], "--seed: must be at least 0"),
@@ -84,6 +88,33 @@ def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
     assert phrase in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
     assert "Traceback" not in result.stderr
+    assert not (tmp_path / "X").exists()
+
+
+@pytest.mark.parametrize("content, where", [
+    ("agent 1: start 0,0  goal 0,1\n+-+-+\n|. .|  caf\u00e9\n+-+-+\n".encode("latin-1"), ":3:11: not a UTF-8"),
+    (bytes(range(128, 256)), ":1:1: not a UTF-8"),  # not text at all
+    (b"hello world\n", ":1: drawing size inconsistent"),  # text, but no map
+])
+def test_a_map_file_that_is_not_a_map_gets_a_line_naming_it(tmp_path, content, where):
+    path = tmp_path / "mine.txt"
+    path.write_bytes(content)
+    result = run_cli("experiment", "--map", str(path), "--out", str(tmp_path / "X"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines() == [result.stderr.strip()]
+    assert f"{path}{where}" in result.stderr
+
+
+@pytest.mark.parametrize("content, says", [(bytes(range(200, 232)), "is not a key file: byte 0 is not text (0xc8)"),
+                                           (b"not hex at all\n", "must hold at least 16 bytes as hex")])
+def test_a_junk_key_file_gets_a_line_naming_it(tmp_path, content, says):
+    key = tmp_path / "junk.key"
+    key.write_bytes(content)
+    key.chmod(0o600)
+    result = run_cli("launch", "--map", "grid_game_2", "--algo", "cq", "--key", str(key), "--out", str(tmp_path / "X"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    line = result.stderr.strip()
+    assert "\n" not in line and line.startswith(f"cq-ros launch: error: parameter key_file: {str(key)!r} {says}")
     assert not (tmp_path / "X").exists()
 
 
