@@ -4,6 +4,7 @@ paper's reproduction and episode animations; each reads its parsed arguments (ma
 
 from __future__ import annotations
 
+import shlex
 import sys
 import textwrap
 import time
@@ -63,7 +64,7 @@ def reproduce(args) -> int:
     # The paper's maps carry no defaults of their own; a delay given by --set brings CQ's settings under delays.
     report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
                        run_settings(None, args.overrides), workers=args.jobs, force=args.force,
-                       sweep=args.sweep, cluster=args.cluster)
+                       sweep=args.sweep, cluster=args.cluster, command=shlex.join(["cq-ros", *args.argv]))
     print(f"report: {report}")
     return 0
 
