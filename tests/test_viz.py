@@ -16,7 +16,8 @@ from PIL import Image
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.gridmap import lattice
-from cq_ros.lab.render import CELL_INCHES, DPI, cut_by_bag, engine_frames, episode_to_draw, frames_from
+from cq_ros.lab.render import (CELL_INCHES, DPI, Picture, cut_by_bag, engine_frames, episode_to_draw, frames_from,
+                               write_animation)
 from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz
@@ -181,6 +182,25 @@ def test_a_bag_recorded_mid_run_draws_its_last_whole_episode_by_default():
     assert episode_to_draw([*started_late, *episode(8, 4), *episode(9, 3)]) == 9  # 9 ended home: whole
     assert episode_to_draw([*episode(8, 4, home=False), *episode(9, 3)[:1]]) == 8  # ran to the step cap
     assert episode_to_draw(started_late) == 7  # cut, but the only one
+
+
+def test_each_gif_frame_is_the_whole_picture_drawn_at_its_step(tmp_path):
+    """The GIF draws the moving parts over a background drawn once, in the first frame's palette: each frame
+    is still the picture a whole draw makes, up to antialiased edges."""
+    import numpy as np
+
+    gridmap = load_map("tunnel_to_goal")
+    frames = engine_frames(gridmap, "cq", Settings(step_cap=40), seed=1, episodes=3)
+    occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
+    gif = write_animation(tmp_path / "e.gif", occupancy, goals, frames, title="t", fps=5)
+    whole = Picture(occupancy, goals, title="t", blit=False)
+    with Image.open(gif) as image:
+        assert image.n_frames == len(frames) and image.info["duration"] == 200
+        for k in (0, len(frames) // 2, len(frames) - 1):
+            image.seek(k)
+            whole.show(frames[k])
+            off = np.abs(np.asarray(image.convert("RGB"), dtype=int) - whole.rgb()).sum(axis=2)
+            assert (off > 60).mean() < 0.01, k  # the same picture: only edges' shades differ
 
 
 @pytest.mark.slow

@@ -125,11 +125,14 @@ def check_output(path: Path) -> str:
 class Picture:
     """The drawing of one map's episodes, a frame at a time: the map, the goals, the AGVs and their looks,
     `dpi` pixels an inch (a cell is CELL_INCHES). `show(frame)` moves everything to `frame`; `rgb()` is the
-    picture as an (H, W, 3) uint8 array (PettingZoo's `render_mode="rgb_array"`); `figure` is what an
-    animation writer grabs."""
+    picture as an (H, W, 3) uint8 array (PettingZoo's `render_mode="rgb_array"`, and the GIF's frames).
+
+    With `blit` (the default) the map and the goals are drawn once and each `rgb()` draws only what moves over
+    them: the map's image was most of a frame's drawing. Without it, every draw of `figure` (an animation
+    writer's grab) draws the whole picture."""
 
     def __init__(self, occupancy: tuple[tuple[bool, ...], ...], goals: tuple[tuple[int, int], ...], *,
-                 title: str = "", dpi: float = DPI):
+                 title: str = "", dpi: float = DPI, blit: bool = True):
         from matplotlib import colormaps
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.collections import LineCollection
@@ -157,6 +160,10 @@ class Picture:
         self._labels = [ax.text(0, 0, str(k + 1), ha="center", va="center", fontsize=7, color="white", zorder=4,
                                 fontweight="bold") for k in range(len(goals))]
         self._heading = fig.suptitle("", fontsize=9)
+        self._moving = [self._lines, self._agvs, *self._labels, self._heading] if blit else []
+        for artist in self._moving:
+            artist.set_animated(True)  # left out of a whole draw: that draw is the background
+        self._background = None
 
     def show(self, frame: Frame) -> None:
         xy = [(col + 0.5, -(row + 0.5)) for row, col in frame.cells]
@@ -170,8 +177,17 @@ class Picture:
         self._heading.set_text(f"{self._title}  episode {frame.episode}, step {frame.step}".strip())
 
     def rgb(self) -> np.ndarray:
-        self._canvas.draw()
-        return np.asarray(self._canvas.buffer_rgba())[..., :3].copy()
+        canvas = self._canvas
+        if not self._moving:
+            canvas.draw()
+        else:
+            if self._background is None:
+                canvas.draw()
+                self._background = canvas.copy_from_bbox(self.figure.bbox)
+            canvas.restore_region(self._background)
+            for artist in self._moving:
+                self.figure.draw_artist(artist)
+        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], ...],
@@ -186,7 +202,9 @@ def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], 
     writer_name = check_output(path)
     if not frames:
         raise ValueError("no frames to draw: the episode is empty")
-    picture = Picture(occupancy, goals, title=title, dpi=dpi)
+    if writer_name == "pillow":
+        return _write_gif(path, Picture(occupancy, goals, title=title, dpi=dpi), frames, fps, progress)
+    picture = Picture(occupancy, goals, title=title, dpi=dpi, blit=False)
     writer = animation.writers[writer_name](fps=fps)
     with writer.saving(picture.figure, str(path), dpi=dpi):
         for i, frame in enumerate(frames):
@@ -194,4 +212,24 @@ def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], 
             writer.grab_frame()
             if progress is not None:
                 progress(i)
+    return path
+
+
+def _write_gif(path: Path, picture: Picture, frames: list[Frame], fps: float,
+               progress: Callable[[int], Any] | None) -> Path:
+    """The frames as a looping GIF, every frame in the first frame's palette. Left to Pillow, each frame got a
+    palette of its own (quantized anew for every frame: half of a render's time); the first frame already holds every
+    colour of the picture (the map, each AGV's colour, its goal's tint), so later ones only map onto it."""
+    from PIL import Image
+
+    images = []
+    for i, frame in enumerate(frames):
+        picture.show(frame)
+        image = Image.fromarray(picture.rgb())
+        # the octree keeps the picture's flat colours exact (a median cut turned its white into 252)
+        images.append(image.quantize(256, Image.Quantize.FASTOCTREE) if not images
+                      else image.quantize(palette=images[0], dither=Image.Dither.NONE))
+        if progress is not None:
+            progress(i)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
     return path
