@@ -185,8 +185,9 @@ def render(args) -> int:
         episode = chosen(scenes)
         if episode not in episodes:
             whole = [e for e in episodes if cut_by_bag(scenes, e) is None]
+            held = f"{whole[0]}..{whole[-1]}" if len(whole) > 1 else "".join(map(str, whole)) or "none"
             raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}"
-                             + (f", {whole[0]}..{whole[-1]} whole" if whole else ", none of them whole"))
+                             f", whole: {held}")
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
         occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
         cut = cut_by_bag(scenes, episode)
