@@ -6,8 +6,12 @@ Bad arguments print one line naming what is wrong and exit with code 2, as argpa
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
+import signal
 import sys
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..gridmap import MapError
@@ -268,7 +272,8 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--episodes", type=_episodes, default=None, help="with --map: episodes to learn (default 100)")
     p.add_argument("--seed", type=_seed, default=None, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
-                   help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+                   help="the episode to draw, from 0 (default: with --map, the last learning episode; with --bag, the "
+                        "last episode the bag holds whole)")
     p.add_argument("--greedy", action="store_true",
                    help="with --map: draw the greedy policy's first episode after the learning ones, not a "
                         "learning episode")
@@ -376,7 +381,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
-        return _dispatch(args)
+        with _sigterm_as_ctrl_c():
+            return _dispatch(args)
     except BrokenPipeError:  # the reader left (`cq-ros maps | head`): nothing to tell it; no traceback at exit
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
@@ -386,9 +392,43 @@ def main(argv: list[str] | None = None) -> int:
         parser.exit(1, f"{e.details}cq-ros {args.command}: error: {e}\n")
     except (ClusterError, OSError) as e:  # OSError: a disk that filled after the start's checks, one line
         parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
+    except Terminated:  # 130 as for Ctrl-C, as `launch` answers SIGTERM
+        print("interrupted by SIGTERM", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: a command unwinds as it does on Ctrl-C (an
+    experiment cut short removes the folder it made)."""
+
+
+@contextmanager
+def _sigterm_as_ctrl_c():
+    """SIGTERM raises Terminated in the main thread and stops this process's worker processes, as Ctrl-C at a
+    terminal reaches the whole process group; a ROS command's own StopSignals takes SIGTERM over while it runs."""
+    if threading.current_thread() is not threading.main_thread():  # only the main thread may set handlers
+        yield
+        return
+
+    owner = os.getpid()
+
+    def on_sigterm(signum, _frame):
+        if os.getpid() != owner:  # a forked worker inherits the handler: it dies of SIGTERM as it would have
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        for child in multiprocessing.active_children():
+            child.terminate()
+        raise Terminated
+
+    saved = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, saved)
 
 
 def _dispatch(args) -> int:
