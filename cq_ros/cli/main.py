@@ -14,6 +14,7 @@ from ..gridmap import MapError
 from ..lab.cluster import ClusterError, scheduler_address
 from ..lab.runner import RunFailed
 from ..learners import ALGORITHMS, LEARNERS
+from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
 from ..settings import SettingsError
 
@@ -42,6 +43,7 @@ MAX_EPISODES = 10_000_000
 MAX_RUNS = 10_000
 MAX_AGENTS = 256
 MAX_WAREHOUSE_SIDE = 256  # aisles, and cells along an aisle
+DEFAULT_PLAN_SECONDS = 300.0  # a 128-AGV generated warehouse plans in 30 s of CPU (docs/warehouses.md)
 
 
 def _at_most(high: int, why: str):
@@ -296,6 +298,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+    what = ("a warehouse on a plain cell grid in MovingAI's .map and .scen form, blocks of shelves between "
+            "two-cell corridors with docking floor left and right, 160 x 62 cells by default "
+            "(cq_ros.mapgen.shelves)")
+    p = kinds.add_parser("shelves", help=what, description=f"Write {what}. Starts (docking floor) and goals "
+                         "(distinct pick faces, the corridor cells below a shelf) are drawn from --seed; every "
+                         "agent can reach its goal with the others parked at theirs. `cq-ros import movingai "
+                         "STEM.map --scen STEM.scen --agents N` makes it a map of ours.")
+    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs: tasks in the scenario")
+    p.add_argument("--shelf-rows", type=_side, default=DEFAULT_SHELF_ROWS, metavar="R",
+                   help=f"rows of shelves, each 2 cells deep under a 2-cell corridor (default {DEFAULT_SHELF_ROWS})")
+    p.add_argument("--shelf-cols", type=_side, default=DEFAULT_SHELF_COLS, metavar="C",
+                   help=f"shelves in a row, each 10 cells long, 2-cell corridors between "
+                        f"(default {DEFAULT_SHELF_COLS})")
+    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--out", type=Path, required=True, metavar="STEM", help="write STEM.map and STEM.scen")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
 
     p = sub.add_parser("import", help="convert a map from another format into ours (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="FORMAT", parser_class=_Parser)
@@ -331,6 +349,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="priority orders prioritized planning tries (default 20)")
     p.add_argument("--rounds", type=_number(0, kind=int), default=300, metavar="N",
                    help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
+    p.add_argument("--time-limit", type=_number(0, kind=float, strict=True), default=DEFAULT_PLAN_SECONDS,
+                   metavar="S", help="seconds (wall clock) the search may take: conflict-based search stops at "
+                   "half of them, LNS rounds stop at the end keeping the plan improved so far, and with no plan "
+                   f"by then the command says so and exits 1 (default {DEFAULT_PLAN_SECONDS:g})")
     p.add_argument("--show", action="store_true",
                    help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
     p.add_argument("--slip", type=_number(0, 1), default=None, metavar="P",
