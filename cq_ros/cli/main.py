@@ -132,6 +132,12 @@ _domain_id = _number(0, 232, kind=int)
 _seconds = _number(0, strict=True)
 
 
+def _add_agents_and_seed(p: argparse.ArgumentParser) -> None:
+    """A map generator's agents and the seed that draws their starts and goals."""
+    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
+    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+
+
 def _add_domain_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID to use (default: the environment's)")
@@ -286,12 +292,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
                          "goal with the others parked at theirs. The map carries `set reward_step=-1`, "
                          "`set gamma=0.98` and `set epsilon_decay_episodes=1500`.")
-    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
+    _add_agents_and_seed(p)
     p.add_argument("--aisles", type=_side, default=None, metavar="A",
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
     p.add_argument("--aisle-length", type=_side, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
-    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
     p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
                    help="delays: the map's default `slip` (a move fails with probability P; default 0)")
     p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
@@ -305,13 +310,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "(distinct pick faces, the corridor cells below a shelf) are drawn from --seed; every "
                          "agent can reach its goal with the others parked at theirs. `cq-ros import movingai "
                          "STEM.map --scen STEM.scen --agents N` makes it a map of ours.")
-    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs: tasks in the scenario")
+    _add_agents_and_seed(p)
     p.add_argument("--shelf-rows", type=_side, default=DEFAULT_SHELF_ROWS, metavar="R",
                    help=f"rows of shelves, each 2 cells deep under a 2-cell corridor (default {DEFAULT_SHELF_ROWS})")
     p.add_argument("--shelf-cols", type=_side, default=DEFAULT_SHELF_COLS, metavar="C",
                    help=f"shelves in a row, each 10 cells long, 2-cell corridors between "
                         f"(default {DEFAULT_SHELF_COLS})")
-    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
     p.add_argument("--out", type=Path, required=True, metavar="STEM", help="write STEM.map and STEM.scen")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
 

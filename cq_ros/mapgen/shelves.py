@@ -16,10 +16,10 @@ defaults, 15 shelf rows of 11 shelves, give 160 x 62 (MovingAI's warehouse-10-20
 
 from __future__ import annotations
 
-import random
 from collections import deque
 
 from ..gridmap import parse_map
+from .draw import check_sizes, draw_starts_and_goals
 from .movingai import Task, grid_text
 
 __all__ = ["DEFAULT_SHELF_COLS", "DEFAULT_SHELF_ROWS", "shelves_command", "shelves_files", "shelves_layout"]
@@ -60,16 +60,10 @@ def shelves_files(agents: int, shelf_rows: int = DEFAULT_SHELF_ROWS, shelf_cols:
     """(the `.map` text, the `.scen` text) of a generated grid warehouse whose map file is called `name`.map;
     the scenario's tasks are the agents, in order, its last field each one's shortest path alone (four moves,
     our world's; MovingAI's own files give the eight-way length). ValueError names what does not fit."""
-    for what, value in (("agents", agents), ("shelf_rows", shelf_rows), ("shelf_cols", shelf_cols)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{what} must be a whole number of at least 1, got {value!r}")
+    check_sizes(agents=agents, shelf_rows=shelf_rows, shelf_cols=shelf_cols)
     height, width, passable, docks, faces = shelves_layout(shelf_rows, shelf_cols)
-    for what, places in (("pick faces", faces), ("dock cells", docks)):
-        if agents > len(places):
-            raise ValueError(f"{agents} agents do not fit: {shelf_rows} x {shelf_cols} shelves have {len(places)} "
-                             f"{what}; give more shelf rows or columns")
-    rng = random.Random(seed)
-    starts, goals = rng.sample(docks, agents), rng.sample(faces, agents)
+    starts, goals = draw_starts_and_goals(agents, seed, ("dock cells", docks), ("pick faces", faces),
+                                          f"{shelf_rows} x {shelf_cols} shelves", "give more shelf rows or columns")
     grid = ["".join("." if (row, col) in passable else "@" for col in range(width)) for row in range(height)]
     map_file = "\n".join(["type octile", f"height {height}", f"width {width}", "map", *grid]) + "\n"
     tasks = []

@@ -26,11 +26,11 @@ is learnt last is the timing of the greedy policy.
 from __future__ import annotations
 
 import math
-import random
 import textwrap
 
 from ..gridmap import GridMap, _render, _STEPS, parse_map
 from ..settings import Settings, SettingsError
+from .draw import check_sizes, draw_starts_and_goals
 
 __all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "DELAYED_COLLISION", "MAP_DEFAULTS", "default_aisles",
            "warehouse_command", "warehouse_map", "warehouse_text"]
@@ -124,9 +124,7 @@ def _sizes(agents: int, aisles: int | None, aisle_length: int | None) -> tuple[i
     """(aisles, aisle_length) with the defaults filled in; ValueError for a size below 1."""
     aisles = default_aisles(agents) if aisles is None else aisles
     aisle_length = DEFAULT_AISLE_LENGTH if aisle_length is None else aisle_length
-    for name, value in (("agents", agents), ("aisles", aisles), ("aisle_length", aisle_length)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}")
+    check_sizes(agents=agents, aisles=aisles, aisle_length=aisle_length)
     return aisles, aisle_length
 
 
@@ -142,13 +140,9 @@ def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | N
     except SettingsError as e:
         raise ValueError(str(e)) from None
     height, width, passages, docks, bays = _layout(aisles, aisle_length)
-    for what, places in (("pick stations (one per aisle row)", bays), ("dock cells on the cross-aisles", docks)):
-        if agents > len(places):
-            raise ValueError(f"{agents} agents do not fit: {aisles} aisles of length {aisle_length} have "
-                             f"{len(places)} {what}; give more aisles")
-    rng = random.Random(seed)
-    starts = rng.sample(docks, agents)
-    goals = rng.sample(bays, agents)
+    starts, goals = draw_starts_and_goals(agents, seed, ("dock cells on the cross-aisles", docks),
+                                          ("pick stations (one per aisle row)", bays),
+                                          f"{aisles} aisles of length {aisle_length}", "give more aisles")
 
     def is_open(row: int, col: int, action: int) -> bool:
         d_row, d_col = _STEPS[action]
