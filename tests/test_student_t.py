@@ -72,3 +72,20 @@ def test_playing_cq_loads_no_scipy():
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+def test_cq_plays_the_same_with_scipys_critical_values(monkeypatch):
+    """The decisions rest on t < -critical value: CQ's runs are the same, record for record, whether the critical
+    values are ours or scipy's (by hand, `cq-ros experiment` before and after wrote byte-identical files)."""
+    from cq_ros import stats
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+
+    settings = Settings(window=10, significance=0.01, eval_episodes=3)
+    ours = run("cq", load_map("tunnel_to_goal"), settings, 11, 0, 400)
+    monkeypatch.setattr(stats, "critical_t", lambda sig, df: float(-scipy.stats.t.ppf(sig, df)))
+    theirs = run("cq", load_map("tunnel_to_goal"), settings, 11, 0, 400)
+    assert ours.joint_states  # conflicts were found: the tests decided something
+    assert ours.joint_states == theirs.joint_states
+    assert np.array_equal(ours.episodes, theirs.episodes) and np.array_equal(ours.greedy, theirs.greedy)
