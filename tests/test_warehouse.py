@@ -228,3 +228,21 @@ def test_a_128_agv_warehouse_runs_offline_from_the_first_episode(tmp_path, capsy
     rows = (out / "episodes.csv").read_text().splitlines()
     assert len(rows) == 1 + 2 * 2
     assert json.loads((out / "manifest.json").read_text())["n_agents"] == 128
+
+
+def test_blocks_stack_bands_of_aisles_that_share_cross_aisles():
+    """128 AGVs in 4 blocks: 10 aisles by default (31 x 42 cells), docks on all five cross-aisles, goals in bays
+    of every block, the promise kept; one block is the warehouse of before, byte for byte."""
+    assert warehouse_text(16, seed=2, blocks=1) == warehouse_text(16, seed=2)
+    grid = parse_map(warehouse_text(128, seed=5, blocks=4))
+    length = warehouse.DEFAULT_AISLE_LENGTH
+    band = length + 4
+    assert (grid.height, grid.width) == (4 * band + 2, 3 * 10 + 1)
+    assert len(set(grid.starts)) == len(set(grid.goals)) == 128
+    assert all(grid.cells[s][0] % band in (0, 1) for s in grid.starts)
+    assert {grid.cells[g][0] // band for g in grid.goals} == {0, 1, 2, 3}
+    assert all(len(moves(grid, goal)) == 1 for goal in grid.goals)
+    assert grid.goal_blocked_by_parked() == []
+    small = warehouse_map(3, aisles=2, aisle_length=2, blocks=3)
+    assert small.reachable(0) == set(range(small.n_cells))  # every band joined to the next
+    assert "--blocks 3" in warehouse_text(3, aisles=2, aisle_length=2, blocks=3).splitlines()[3]

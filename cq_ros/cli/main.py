@@ -294,9 +294,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "`set gamma=0.98` and `set epsilon_decay_episodes=1500`.")
     _add_agents_and_seed(p)
     p.add_argument("--aisles", type=_side, default=None, metavar="A",
-                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
+                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32, 34 for 128)")
     p.add_argument("--aisle-length", type=_side, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
+    p.add_argument("--blocks", type=_side, default=1, metavar="B",
+                   help="bands of aisles one below the other, sharing their cross-aisles, for a large fleet "
+                        "(default 1; the default aisles become 2 + ceil(N/4B))")
     p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
                    help="delays: the map's default `slip` (a move fails with probability P; default 0)")
     p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",

@@ -91,8 +91,8 @@ def generate(args) -> int:
         for text, out in zip(texts, outs):
             _write_map(text, out, args.force)
         return 0
-    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold),
-               args.out, args.force)
+    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold,
+                              args.blocks), args.out, args.force)
     return 0
 
 

@@ -22,7 +22,7 @@ from ..gridmap import parse_map
 from .draw import check_sizes, draw_starts_and_goals
 from .movingai import Task, grid_text
 
-__all__ = ["DEFAULT_SHELF_COLS", "DEFAULT_SHELF_ROWS", "shelves_command", "shelves_files", "shelves_layout"]
+__all__ = ["DEFAULT_SHELF_COLS", "DEFAULT_SHELF_ROWS", "shelves_files", "shelves_layout"]
 
 SHELF_LENGTH = 10
 DOCK_WIDTH = 13
@@ -48,11 +48,6 @@ def shelves_layout(shelf_rows: int, shelf_cols: int) -> tuple[int, int, frozense
     passable = frozenset((row, col) for row in range(height) for col in range(width) if (row, col) not in shelf)
     docks = [(row, col) for row in range(height) for col in (*range(DOCK_WIDTH), *range(width - DOCK_WIDTH, width))]
     return height, width, passable, sorted(docks), sorted(faces)
-
-
-def shelves_command(agents: int, shelf_rows: int, shelf_cols: int, seed: int) -> str:
-    return (f"cq-ros generate shelves --agents {agents} --shelf-rows {shelf_rows} --shelf-cols {shelf_cols} "
-            f"--seed {seed}")
 
 
 def shelves_files(agents: int, shelf_rows: int = DEFAULT_SHELF_ROWS, shelf_cols: int = DEFAULT_SHELF_COLS,
