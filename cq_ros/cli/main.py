@@ -132,10 +132,12 @@ _domain_id = _number(0, 232, kind=int)
 _seconds = _number(0, strict=True)
 
 
-def _add_agents_and_seed(p: argparse.ArgumentParser) -> None:
-    """A map generator's agents and the seed that draws their starts and goals."""
+def _generator(kinds, name: str, what: str, description: str) -> argparse.ArgumentParser:
+    """The parser of `cq-ros generate NAME`, with the agents and the seed that draws their starts and goals."""
+    p = kinds.add_parser(name, help=what, description=description)
     p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
     p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    return p
 
 
 def _add_domain_option(p: argparse.ArgumentParser) -> None:
@@ -288,11 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
     what = ("a warehouse: two-lane cross-aisles (top and bottom), two-lane aisles behind one-lane entrances, "
             "pick stations in bays beside the aisles (cq_ros.mapgen.warehouse)")
-    p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
-                         "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
-                         "goal with the others parked at theirs. The map carries `set reward_step=-1`, "
-                         "`set gamma=0.98` and `set epsilon_decay_episodes=1500`.")
-    _add_agents_and_seed(p)
+    p = _generator(kinds, "warehouse", what, f"Print or write {what}. Starts (docks on the cross-aisles) and goals "
+                   "(distinct bays) are drawn from --seed; every agent can reach its goal with the others parked at "
+                   "theirs. The map carries `set reward_step=-1`, `set gamma=0.98` and "
+                   "`set epsilon_decay_episodes=1500`.")
     p.add_argument("--aisles", type=_side, default=None, metavar="A",
                    help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32, 34 for 128)")
     p.add_argument("--aisle-length", type=_side, default=DEFAULT_AISLE_LENGTH, metavar="L",
@@ -309,11 +310,10 @@ def build_parser() -> argparse.ArgumentParser:
     what = ("a warehouse on a plain cell grid in MovingAI's .map and .scen form, blocks of shelves between "
             "two-cell corridors with docking floor left and right, 160 x 62 cells by default "
             "(cq_ros.mapgen.shelves)")
-    p = kinds.add_parser("shelves", help=what, description=f"Write {what}. Starts (docking floor) and goals "
-                         "(distinct pick faces, the corridor cells below a shelf) are drawn from --seed; every "
-                         "agent can reach its goal with the others parked at theirs. `cq-ros import movingai "
-                         "STEM.map --scen STEM.scen --agents N` makes it a map of ours.")
-    _add_agents_and_seed(p)
+    p = _generator(kinds, "shelves", what, f"Write {what}. Starts (docking floor) and goals (distinct pick faces, "
+                   "the corridor cells below a shelf) are drawn from --seed; every agent can reach its goal with "
+                   "the others parked at theirs. `cq-ros import movingai STEM.map --scen STEM.scen --agents N` "
+                   "makes it a map of ours.")
     p.add_argument("--shelf-rows", type=_side, default=DEFAULT_SHELF_ROWS, metavar="R",
                    help=f"rows of shelves, each 2 cells deep under a 2-cell corridor (default {DEFAULT_SHELF_ROWS})")
     p.add_argument("--shelf-cols", type=_side, default=DEFAULT_SHELF_COLS, metavar="C",
