@@ -4,7 +4,8 @@ CQ-learning's t-tests without importing scipy (about a second of CPU in every pr
 P(T > t) = I_x(df/2, 1/2) / 2 with x = df / (df + t^2), the regularized incomplete beta function evaluated by
 its continued fraction (modified Lentz, as in Numerical Recipes' betacf and Cephes' incbet) on whichever side it
 converges, and inverted by Newton's method on log t, kept inside a bracket by bisection. Agrees with
-`-scipy.stats.t.ppf(p, df)` to about 1e-13 relative (tests/test_student_t.py).
+`-scipy.stats.t.ppf(p, df)` within 4e-13 relative for p in 1e-4..0.49 and df 1..1000; nearer p = 1/2, where
+scipy's ppf loses digits, it matches the closed forms of df 1 and 2 (tests/test_student_t.py).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def _solve(p: float, df: int) -> float:
     target = math.log(p if tail else 0.5 - p)
     beta = math.sqrt(math.pi) / _half_gamma_ratio(df)  # B(df/2, 1/2)
     lo, hi = -math.inf, math.inf  # the root's bracket in u
-    u = math.log(_first_guess(p, df))
+    u = math.log(_first_guess(p, df, beta))
     for _ in range(200):
         t = math.exp(u)
         upper, centre = _tails(t, df, beta)
@@ -116,10 +117,9 @@ def _half_gamma_ratio(df: int) -> float:
     return r
 
 
-def _first_guess(p: float, df: int) -> float:
+def _first_guess(p: float, df: int, beta: float) -> float:
     """A start for Newton: the normal quantile stretched by the first Cornish-Fisher term, or where that lies
     nearer the centre, the power law of the far tail (P(T > t) ~ c t^-df) or the density's slope at t = 0."""
-    beta = math.sqrt(math.pi) / _half_gamma_ratio(df)
     if p >= 0.25:
         return max((0.5 - p) * math.sqrt(df) * beta, _normal_guess(p, df))
     power = (p * df * beta / df ** (df / 2)) ** (-1.0 / df) if df < 50 else 0.0
