@@ -6,8 +6,12 @@ Bad arguments print one line naming what is wrong and exit with code 2, as argpa
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
+import signal
 import sys
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..compiled import ENGINES
@@ -15,6 +19,7 @@ from ..gridmap import MapError
 from ..lab.cluster import ClusterError, scheduler_address
 from ..lab.runner import RunFailed
 from ..learners import ALGORITHMS, LEARNERS
+from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
 from ..settings import SettingsError
 
@@ -43,6 +48,7 @@ MAX_EPISODES = 10_000_000
 MAX_RUNS = 10_000
 MAX_AGENTS = 256
 MAX_WAREHOUSE_SIDE = 256  # aisles, and cells along an aisle
+DEFAULT_PLAN_SECONDS = 300.0  # a 128-AGV generated warehouse plans in 30 s of CPU (docs/warehouses.md)
 
 
 def _at_most(high: int, why: str):
@@ -139,6 +145,14 @@ _domain_id = _number(0, 232, kind=int)
 _seconds = _number(0, strict=True)
 
 
+def _generator(kinds, name: str, what: str, description: str) -> argparse.ArgumentParser:
+    """The parser of `cq-ros generate NAME`, with the agents and the seed that draws their starts and goals."""
+    p = kinds.add_parser(name, help=what, description=description)
+    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
+    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    return p
+
+
 def _add_domain_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
                    help="ROS_DOMAIN_ID to use (default: the environment's)")
@@ -167,7 +181,9 @@ def _add_ros_parsers(sub) -> None:
                         "(default: a key of the launch's own, in a file without a name)")
     p.add_argument("--restart-agents", type=_number(0, 1000, kind=int), default=0, metavar="N",
                    help="start an agent node that dies again, from its checkpoint, up to N times in all (default 0: "
-                        "a node that dies ends the launch); counted in the manifest (`restarts`)")
+                        "a node that dies ends the launch); its checkpoint is saved every --set checkpoint_every=E "
+                        "learning episodes (default 50), and the episodes it learnt past it are lost: counted per "
+                        "restart on stderr and in the manifest (`restarts.learning_lost`)")
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
                    help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
                         "0: any free port, printed at start)")
@@ -213,6 +229,16 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
                    help="seconds to look for the system before giving up (default 60)")
     _add_domain_option(p)
+
+    p = sub.add_parser("checkpoint", help="agent checkpoints: convert one of the old pickled format (3) into the "
+                                          "current one (.npz, which loads without running code)")
+    actions = p.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    p = actions.add_parser("convert", help="write a pickled checkpoint (format 3) as an .npz checkpoint",
+                           description="Unpickle OLD and write it as the .npz checkpoint NEW. Unpickling runs "
+                                       "whatever code the file holds: run it only on a checkpoint you trust (one your "
+                                       "own cq-ros wrote).")
+    p.add_argument("old", type=Path, metavar="OLD", help="a pickled checkpoint (.pkl) you trust")
+    p.add_argument("new", type=Path, metavar="NEW", help="the .npz checkpoint to write (never overwritten)")
 
     p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
                                    "cq-ros launch --key FILE)")
@@ -265,7 +291,8 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--episodes", type=_episodes, default=None, help="with --map: episodes to learn (default 100)")
     p.add_argument("--seed", type=_seed, default=None, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
-                   help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+                   help="the episode to draw, from 0 (default: with --map, the last learning episode; with --bag, the "
+                        "last episode the bag holds whole)")
     p.add_argument("--greedy", action="store_true",
                    help="with --map: draw the greedy policy's first episode after the learning ones, not a "
                         "learning episode")
@@ -290,22 +317,37 @@ def build_parser() -> argparse.ArgumentParser:
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
     what = ("a warehouse: two-lane cross-aisles (top and bottom), two-lane aisles behind one-lane entrances, "
             "pick stations in bays beside the aisles (cq_ros.mapgen.warehouse)")
-    p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
-                         "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
-                         "goal with the others parked at theirs. The map carries `set reward_step=-1`, "
-                         "`set gamma=0.98` and `set epsilon_decay_episodes=1500`.")
-    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
+    p = _generator(kinds, "warehouse", what, f"Print or write {what}. Starts (docks on the cross-aisles) and goals "
+                   "(distinct bays) are drawn from --seed; every agent can reach its goal with the others parked at "
+                   "theirs. The map carries `set reward_step=-1`, `set gamma=0.98` and "
+                   "`set epsilon_decay_episodes=1500`.")
     p.add_argument("--aisles", type=_side, default=None, metavar="A",
-                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
+                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32, 34 for 128)")
     p.add_argument("--aisle-length", type=_side, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
-    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--blocks", type=_side, default=1, metavar="B",
+                   help="bands of aisles one below the other, sharing their cross-aisles, for a large fleet "
+                        "(default 1; the default aisles become 2 + ceil(N/4B))")
     p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
                    help="delays: the map's default `slip` (a move fails with probability P; default 0)")
     p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
                    help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+    what = ("a warehouse on a plain cell grid in MovingAI's .map and .scen form, blocks of shelves between "
+            "two-cell corridors with docking floor left and right, 160 x 62 cells by default "
+            "(cq_ros.mapgen.shelves)")
+    p = _generator(kinds, "shelves", what, f"Write {what}. Starts (docking floor) and goals (distinct pick faces, "
+                   "the corridor cells below a shelf) are drawn from --seed; every agent can reach its goal with "
+                   "the others parked at theirs. `cq-ros import movingai STEM.map --scen STEM.scen --agents N` "
+                   "makes it a map of ours.")
+    p.add_argument("--shelf-rows", type=_side, default=DEFAULT_SHELF_ROWS, metavar="R",
+                   help=f"rows of shelves, each 2 cells deep under a 2-cell corridor (default {DEFAULT_SHELF_ROWS})")
+    p.add_argument("--shelf-cols", type=_side, default=DEFAULT_SHELF_COLS, metavar="C",
+                   help=f"shelves in a row, each 10 cells long, 2-cell corridors between "
+                        f"(default {DEFAULT_SHELF_COLS})")
+    p.add_argument("--out", type=Path, required=True, metavar="STEM", help="write STEM.map and STEM.scen")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
 
     p = sub.add_parser("import", help="convert a map from another format into ours (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="FORMAT", parser_class=_Parser)
@@ -341,6 +383,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="priority orders prioritized planning tries (default 20)")
     p.add_argument("--rounds", type=_number(0, kind=int), default=300, metavar="N",
                    help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
+    p.add_argument("--time-limit", type=_number(0, kind=float, strict=True), default=DEFAULT_PLAN_SECONDS,
+                   metavar="S", help="seconds (wall clock) the search may take: conflict-based search stops at "
+                   "half of them, LNS rounds stop at the end keeping the plan improved so far, and with no plan "
+                   f"by then the command says so and exits 1 (default {DEFAULT_PLAN_SECONDS:g})")
     p.add_argument("--show", action="store_true",
                    help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
     p.add_argument("--slip", type=_number(0, 1), default=None, metavar="P",
@@ -374,7 +420,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
-        return _dispatch(args)
+        with _sigterm_as_ctrl_c():
+            return _dispatch(args)
     except BrokenPipeError:  # the reader left (`cq-ros maps | head`): nothing to tell it; no traceback at exit
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
@@ -384,9 +431,43 @@ def main(argv: list[str] | None = None) -> int:
         parser.exit(1, f"{e.details}cq-ros {args.command}: error: {e}\n")
     except (ClusterError, OSError) as e:  # OSError: a disk that filled after the start's checks, one line
         parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
+    except Terminated:  # 130 as for Ctrl-C, as `launch` answers SIGTERM
+        print("interrupted by SIGTERM", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: a command unwinds as it does on Ctrl-C (an
+    experiment cut short removes the folder it made)."""
+
+
+@contextmanager
+def _sigterm_as_ctrl_c():
+    """SIGTERM raises Terminated in the main thread and stops this process's worker processes, as Ctrl-C at a
+    terminal reaches the whole process group; a ROS command's own StopSignals takes SIGTERM over while it runs."""
+    if threading.current_thread() is not threading.main_thread():  # only the main thread may set handlers
+        yield
+        return
+
+    owner = os.getpid()
+
+    def on_sigterm(signum, _frame):
+        if os.getpid() != owner:  # a forked worker inherits the handler: it dies of SIGTERM as it would have
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        for child in multiprocessing.active_children():
+            child.terminate()
+        raise Terminated
+
+    saved = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, saved)
 
 
 def _dispatch(args) -> int:
