@@ -91,6 +91,9 @@ ALGOS = st.sampled_from(["indep", "cq"])
 @st.composite
 def drawn_settings(draw):
     flag = st.integers(0, 1)
+    step_cap = draw(st.sampled_from([1, 7, 60]))
+    hold = draw(st.sampled_from([0, 0, 2]))
+    hold = hold if hold < step_cap else 0  # a hold as long as an episode is refused
     return Settings(
         alpha=draw(st.sampled_from([0.1, 0.3, 1.0])), epsilon=draw(st.sampled_from([0.0, 0.1, 0.5])),
         epsilon_decay_episodes=draw(st.sampled_from([0, 10])), window=draw(st.integers(2, 8)),
@@ -99,9 +102,8 @@ def drawn_settings(draw):
         conf_drop=draw(st.sampled_from([0.0, 0.2])), conf_up=draw(st.sampled_from([0.0, 0.5])),
         cq_bootstrap_acted=draw(flag), cq_mark_range=draw(st.integers(0, 3)), cq_mark_colliders=draw(flag),
         cq_all_met=draw(flag), cq_w1_alone=draw(flag), cq_waits_fresh=draw(flag), cq_look_if_decisive=draw(flag),
-        step_cap=draw(st.sampled_from([1, 7, 60])), eval_episodes=draw(st.integers(0, 4)),
-        eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 1.0])),
-        start_hold=draw(st.sampled_from([0, 0, 2])))
+        step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
+        eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 0.9])), start_hold=hold)
 
 
 @given(random_maps(), drawn_settings(), ALGOS, st.integers(0, 2**32), st.integers(0, 3))

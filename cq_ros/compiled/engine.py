@@ -97,9 +97,10 @@ class Kernel:
             try:
                 jsi, jsf, free, pool = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag, self.eps,
                                                    self.q, self.mt, self.js, self.cq, self.win, out[done:done + size])
-            except SystemError as e:  # Ctrl-C while numba called back into Python: numba wraps it
-                if _interrupted(e):
-                    raise KeyboardInterrupt from e
+            except SystemError as e:  # Ctrl-C (or SIGTERM, as the CLI raises it) while numba called back into
+                interrupt = _interrupt(e)  # Python: numba wraps it; it goes on as what it was
+                if interrupt is not None:
+                    raise interrupt from e
                 raise
             self.js = (jsi, jsf, free, *self.js[3:])
             self.win = (*self.win[:2], pool, self.win[3])
@@ -127,12 +128,13 @@ class Kernel:
                  float(jsf[i, K.CONF])) for i in alive]
 
 
-def _interrupted(error: BaseException | None) -> bool:
+def _interrupt(error: BaseException | None) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (or subclass) among an error's causes, if any."""
     while error is not None:
         if isinstance(error, KeyboardInterrupt):
-            return True
+            return error
         error = error.__cause__ or error.__context__
-    return False
+    return None
 
 
 def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int, episodes: int,
