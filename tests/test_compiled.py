@@ -54,9 +54,9 @@ def test_mersenne_twister_draws_as_cpython(seed, n):
                 max_size=80))
 @settings(max_examples=200, deadline=None)
 def test_fsum_is_math_fsum(values):
-    array = np.array([values], dtype=float)
-    assert fsum(array, 0, len(values), False) == math.fsum(values)
-    assert fsum(array, 0, len(values), True) == math.fsum(v * v for v in values)
+    array, partials = np.array([values], dtype=float), np.empty(len(values) + 1)
+    assert fsum(array, 0, len(values), False, partials) == math.fsum(values)
+    assert fsum(array, 0, len(values), True, partials) == math.fsum(v * v for v in values)
 
 
 @pytest.mark.parametrize("algo", ["indep", "cq"])

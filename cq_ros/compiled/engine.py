@@ -103,7 +103,7 @@ class Kernel:
                     raise interrupt from e
                 raise
             self.js = (jsi, jsf, free, *self.js[3:])
-            self.win = (*self.win[:2], pool, self.win[3])
+            self.win = (*self.win[:2], pool, *self.win[3:])
             done += size
             if time.perf_counter() - started < 0.1:
                 batch *= 2

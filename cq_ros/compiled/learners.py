@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from . import windows as W
+from .jit import kernel
 from .mt import randbelow, random
 from .world import reset, step
 
@@ -163,7 +164,7 @@ def _unique_best(q, jsf, k, key, cell):
     return first if count == 1 else -1
 
 
-@njit(cache=True)
+@kernel
 def _decisive(k, cell, eps, q, jsi, jsf, head, wt):
     """CQLearner._decisive."""
     if eps[k] != 0:
@@ -228,7 +229,7 @@ def _forget(slot, jsi, head, tail, meta, free, n_js):
     n_js[k] -= 1
 
 
-@njit(cache=True)
+@kernel
 def _mark(k, s, nbr, rows, cols, fp, ip, cells, q, jsi, jsf, head, tail, meta, free, n_js, wt, made):
     """CQLearner._mark of cell s for the step in wt[k]: the slots made new into `made`; how many. The pool has
     a free slot for each peer (grow_pool)."""
@@ -348,16 +349,16 @@ def act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, me
 
 
 @njit(cache=True, inline="always")
-def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool, used, row):
+def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool, used, part, row):
     """CQLearner.learn (the pool has a row free: windows.room)."""
     if not ip[LEARNING]:
         return
     s, a = ag[k, S], ag[k, A]
     w = s * 4 + a
     conflict = False
-    if W.add(wi, wf, k, w, pool, used, reward):
-        conflict = (W.drop_t(wi, wf, k, w, pool) < -fp[T_TWO]
-                    and not W.above_t(wi, wf, k, w, pool, reward) < -fp[T_ONE])
+    if W.add(wi, wf, k, w, pool, used, part, reward):
+        conflict = (W.drop_t(wi, wf, k, w, pool, part) < -fp[T_TWO]
+                    and not W.above_t(wi, wf, k, w, pool, part, reward) < -fp[T_ONE])
     wt[k, W_CELL], wt[k, W_ACTION], wt[k, W_NEXT] = s, a, next_cell
     wt[k, W_DONE] = done
     wt[k, W_CONFLICT] = conflict and not done
@@ -398,16 +399,21 @@ def learn_indep(k, reward, next_cell, done, fp, ip, ag, q):
 # -- the episode ---------------------------------------------------------------------------------------
 
 @njit(cache=True)
-def grow_pool(jsi, jsf, free, meta):
-    """The joint-state pool twice as large, its new slots free."""
+def grow_pool(jsi, jsf, free, meta, slots):
+    """The joint-state pool with `slots` slots free: the same arrays, or ones doubled as often as that needs."""
     cap = jsi.shape[0]
-    jsi2 = np.full((2 * cap, jsi.shape[1]), -1, np.int64)
+    size = cap
+    while meta[FREE] + size - cap < slots:
+        size *= 2
+    if size == cap:
+        return jsi, jsf, free
+    jsi2 = np.full((size, jsi.shape[1]), -1, np.int64)
     jsi2[:cap] = jsi
-    jsf2 = np.zeros((2 * cap, jsf.shape[1]))
+    jsf2 = np.zeros((size, jsf.shape[1]))
     jsf2[:cap] = jsf
-    free2 = np.empty(2 * cap, np.int64)
+    free2 = np.empty(size, np.int64)
     free2[:meta[FREE]] = free[:meta[FREE]]
-    for slot in range(2 * cap - 1, cap - 1, -1):
+    for slot in range(size - 1, cap - 1, -1):
         free2[meta[FREE]] = slot
         meta[FREE] += 1
     return jsi2, jsf2, free2
@@ -427,36 +433,42 @@ def _step_outcome(k, cell, over, fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wt
         ag[k, S] = cell
 
 
-@njit(cache=True)
-def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
-    """Team.episode: one episode; its record into `out` (cq_ros.episode's columns). Returns the pools,
-    which grow as they fill: the joint states' (jsi, jsf, free) and the windows' samples."""
+# ep: the episode's state between the calls of `play` (a float table: exact for these counts)
+STARTED, T, COLLISIONS, RETURN, PLAYS0, HEARD0 = range(6)
+
+
+@kernel
+def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tmp, out):
+    """Team.episode: one episode; its record into `out` (cq_ros.episode's columns); True once it is over. It
+    stops between joint steps (False) where a CQ pool might fill in the next one: call it again once the pools
+    have grown (`play_many`); `tmp` holds its scratch and where it stopped."""
     nbr, starts, goals, rows, cols = geo
     cells, done, hold, wmt, scratch = world
     ai, rewards, ci, clock, pair, listed = scratch
     jsi, jsf, free, meta, head, tail, n_js = js
     wt, wtr, wtk, ck, made = cq
-    wi, wf, pool, used = win
+    wi, wf, pool, used, part = win
+    rw, row, actions, ep = tmp
     n = starts.shape[0]
     is_cq = ip[IS_CQ]
-    rw = np.array([fp[R_STEP], fp[R_WALL], fp[R_COLL], fp[R_GOAL]])
-    row = np.empty(4)
-    actions = np.full(n, -1, np.int64)
-    reset(starts, goals, cells, done, hold, wmt, ip[START_HOLD])
-    plays0 = ag[:, PLAYS].sum()
-    heard0 = ag[:, HEARD].sum()
-    t, collisions, ret = 0, 0, 0.0
-    over = done.all() or ip[STEP_CAP] <= 0
-    for k in range(n):  # Team.start
-        _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, row)
+    if not ep[STARTED]:
+        reset(starts, goals, cells, done, hold, wmt, ip[START_HOLD])
+        ep[STARTED], ep[T], ep[COLLISIONS], ep[RETURN] = 1, 0, 0, 0.0
+        ep[PLAYS0], ep[HEARD0] = ag[:, PLAYS].sum(), ag[:, HEARD].sum()
+        over = done.all() or ip[STEP_CAP] <= 0
+        for k in range(n):  # Team.start
+            _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, row)
+    t, collisions, ret = int(ep[T]), int(ep[COLLISIONS]), ep[RETURN]
+    over = done.all() or t >= ip[STEP_CAP]
     while not over:
+        if is_cq and (meta[FREE] < n * (n - 1) or used[0] + n > pool.shape[0]):  # each agent may mark n - 1
+            ep[T], ep[COLLISIONS], ep[RETURN] = t, collisions, ret                 # joint states, open a window
+            return False
         for k in range(n):  # Team.choose
             actions[k] = -1
             if not ag[k, ACTIVE]:
                 continue
             if is_cq:
-                if meta[FREE] < n:
-                    jsi, jsf, free = grow_pool(jsi, jsf, free, meta)
                 actions[k] = act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, meta, head,
                                     tail, n_js, wt, wtr, wtk, ck, made, row)
             else:
@@ -473,10 +485,8 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
             if actions[k] < 0:
                 continue
             if is_cq:
-                if used[0] == pool.shape[0]:  # only then: an array assigned counts references
-                    pool = W.room(pool, used)
                 learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool,
-                         used, row)
+                         used, part, row)
             else:
                 learn_indep(k, rewards[k], cells[k], done[k], fp, ip, ag, q)
             _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, row)
@@ -484,22 +494,28 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
         for k in range(n):
             total += rewards[k]
         ret += total
+    ep[STARTED] = 0
     out[0] = t
     out[1] = collisions
-    out[2] = ag[:, PLAYS].sum() - plays0
+    out[2] = ag[:, PLAYS].sum() - ep[PLAYS0]
     out[3] = n * ip[N_CELLS] + n_js.sum()
     out[4] = ret
     out[5] = t >= ip[STEP_CAP] and not done.all()
-    out[6] = ag[:, HEARD].sum() - heard0
-    return jsi, jsf, free, pool
+    out[6] = ag[:, HEARD].sum() - ep[HEARD0]
+    return True
 
 
 @njit(cache=True)
 def play_many(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, out):
-    """`play` for every row of `out`."""
+    """`play` for every row of `out`, the pools grown where it asks; the pools."""
     jsi, jsf, free, meta, head, tail, n_js = js
-    wi, wf, pool, used = win
+    wi, wf, pool, used, part = win
+    n = geo[1].shape[0]
+    tmp = (np.array([fp[R_STEP], fp[R_WALL], fp[R_COLL], fp[R_GOAL]]), np.empty(4), np.full(n, -1, np.int64),
+           np.zeros(6))
     for e in range(out.shape[0]):
-        jsi, jsf, free, pool = play(geo, fp, ip, world, ag, eps, q, mt, (jsi, jsf, free, meta, head, tail, n_js),
-                                    cq, (wi, wf, pool, used), out[e])
+        while not play(geo, fp, ip, world, ag, eps, q, mt, (jsi, jsf, free, meta, head, tail, n_js), cq,
+                       (wi, wf, pool, used, part), tmp, out[e]):
+            jsi, jsf, free = grow_pool(jsi, jsf, free, meta, n * (n - 1))
+            pool = W.room(pool, used, n)
     return jsi, jsf, free, pool

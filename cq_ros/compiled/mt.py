@@ -13,6 +13,8 @@ from random import Random
 import numpy as np
 from numba import njit
 
+from .jit import kernel
+
 N, M = 624, 397
 _MASK = 0xFFFFFFFF
 
@@ -25,7 +27,7 @@ def set_state(rng: Random, words: np.ndarray) -> None:
     rng.setstate((3, tuple(int(w) for w in words), None))
 
 
-@njit(cache=True)
+@kernel
 def _twist(mt, g):
     for kk in range(N):
         y = (mt[g, kk] & 0x80000000) | (mt[g, (kk + 1) % N] & 0x7FFFFFFF)

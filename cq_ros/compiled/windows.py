@@ -14,16 +14,17 @@ import numpy as np
 from numba import njit
 
 from ..stats import _ROUNDING
+from .jit import kernel
 
 # per window: columns of the int table and of the float table
 N1, N2, HEAD, EXACT2, BUF = 0, 1, 2, 3, 4
 SUM1, SQ1, SUM2, SQ2 = 0, 1, 2, 3
 
 
-@njit(cache=True)
-def fsum(values, row, n, square):
-    """math.fsum(values[row, :n]) (of their squares if `square`), for finite values."""
-    p = np.empty(n + 1)
+@kernel
+def fsum(values, row, n, square, p):
+    """math.fsum(values[row, :n]) (of their squares if `square`), for finite values; `p` holds the partials
+    (n + 1 values)."""
     m = 0
     for k in range(n):
         x = values[row, k] * values[row, k] if square else values[row, k]
@@ -67,25 +68,29 @@ def fsum(values, row, n, square):
 
 
 def new_windows(shape: tuple[int, ...], size: int):
-    """The windows of `shape` (agents, cells * actions), empty; and an empty sample pool of rows of `size`."""
+    """The windows of `shape` (agents, cells * actions), empty; an empty sample pool of rows of `size`, its rows
+    used, and fsum's partials."""
     ints = np.zeros((*shape, 5), np.int64)
     ints[..., EXACT2] = 1
     ints[..., BUF] = -1
-    return ints, np.zeros((*shape, 4)), np.zeros((16, size)), np.zeros(1, np.int64)
+    return ints, np.zeros((*shape, 4)), np.zeros((16, size)), np.zeros(1, np.int64), np.zeros(size + 1)
 
 
-@njit(cache=True, inline="always")
-def room(pool, used):
-    """The pool with a row free at `used[0]`: the same array, or one twice its size."""
-    if used[0] < pool.shape[0]:
+@njit(cache=True)
+def room(pool, used, rows):
+    """The pool with `rows` rows free from `used[0]`: the same array, or one doubled as often as that needs."""
+    size = pool.shape[0]
+    while used[0] + rows > size:
+        size *= 2
+    if size == pool.shape[0]:
         return pool
-    bigger = np.zeros((pool.shape[0] * 2, pool.shape[1]))
+    bigger = np.zeros((size, pool.shape[1]))
     bigger[:pool.shape[0]] = pool
     return bigger
 
 
 @njit(cache=True, inline="always")
-def add(wi, wf, k, w, pool, used, reward):
+def add(wi, wf, k, w, pool, used, part, reward):
     """RewardWindows.add to window w of agent k: store a reward; True once both windows are full. The pool has a
     row free (`room`)."""
     size = pool.shape[1]
@@ -99,8 +104,8 @@ def add(wi, wf, k, w, pool, used, reward):
         wf[k, w, SUM1] += reward
         wf[k, w, SQ1] += reward * reward
         if wi[k, w, N1] == size:
-            wf[k, w, SUM1] = fsum(pool, b, size, False)
-            wf[k, w, SQ1] = fsum(pool, b, size, True)
+            wf[k, w, SUM1] = fsum(pool, b, size, False, part)
+            wf[k, w, SQ1] = fsum(pool, b, size, True, part)
         return False
     if wi[k, w, N2] < size:
         pool[b, wi[k, w, N2]] = reward
@@ -109,7 +114,7 @@ def add(wi, wf, k, w, pool, used, reward):
         wf[k, w, SQ2] += reward * reward
         if wi[k, w, N2] < size:
             return False
-        _resum(wi, wf, k, w, pool)
+        _resum(wi, wf, k, w, pool, part)
         return True
     head = wi[k, w, HEAD]
     old = pool[b, head]
@@ -117,7 +122,7 @@ def add(wi, wf, k, w, pool, used, reward):
     wi[k, w, HEAD] += 1
     if wi[k, w, HEAD] == size:
         wi[k, w, HEAD] = 0
-        _resum(wi, wf, k, w, pool)
+        _resum(wi, wf, k, w, pool, part)
     elif reward != old:
         wf[k, w, SUM2] += reward - old
         wf[k, w, SQ2] += reward * reward - old * old
@@ -126,10 +131,10 @@ def add(wi, wf, k, w, pool, used, reward):
 
 
 @njit(cache=True, inline="always")
-def _resum(wi, wf, k, w, pool):
+def _resum(wi, wf, k, w, pool, part):
     n = pool.shape[1]
-    wf[k, w, SUM2] = fsum(pool, wi[k, w, BUF], n, False)
-    wf[k, w, SQ2] = fsum(pool, wi[k, w, BUF], n, True)
+    wf[k, w, SUM2] = fsum(pool, wi[k, w, BUF], n, False, part)
+    wf[k, w, SQ2] = fsum(pool, wi[k, w, BUF], n, True, part)
     wi[k, w, EXACT2] = 1
 
 
@@ -140,11 +145,11 @@ def _spread(total, squares, n):
 
 
 @njit(cache=True, inline="always")
-def _spread2(wi, wf, k, w, pool):
+def _spread2(wi, wf, k, w, pool, part):
     n = pool.shape[1]
     ss = _spread(wf[k, w, SUM2], wf[k, w, SQ2], n)
     if ss == 0.0 and not wi[k, w, EXACT2]:
-        _resum(wi, wf, k, w, pool)
+        _resum(wi, wf, k, w, pool, part)
         ss = _spread(wf[k, w, SUM2], wf[k, w, SQ2], n)
     return ss
 
@@ -159,14 +164,14 @@ def _t_or_inf(a, b, se2):
 
 
 @njit(cache=True, inline="always")
-def drop_t(wi, wf, k, w, pool):
+def drop_t(wi, wf, k, w, pool, part):
     n = pool.shape[1]
-    ss = _spread(wf[k, w, SUM1], wf[k, w, SQ1], n) + _spread2(wi, wf, k, w, pool)
+    ss = _spread(wf[k, w, SUM1], wf[k, w, SQ1], n) + _spread2(wi, wf, k, w, pool, part)
     return _t_or_inf(wf[k, w, SUM2] / n, wf[k, w, SUM1] / n, ss / (n - 1) / n)
 
 
 @njit(cache=True, inline="always")
-def above_t(wi, wf, k, w, pool, reward):
+def above_t(wi, wf, k, w, pool, part, reward):
     n = pool.shape[1]
-    ss = _spread2(wi, wf, k, w, pool)
+    ss = _spread2(wi, wf, k, w, pool, part)
     return _t_or_inf(wf[k, w, SUM2] / n, reward, ss / (n - 1) / n)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .jit import kernel
 from .mt import randbelow, random
 
 
@@ -28,7 +29,7 @@ def new_scratch(n: int, n_cells: int):
             np.zeros((n, n), np.bool_), np.zeros((2, n * (n - 1) // 2 + 1), np.int64))
 
 
-@njit(cache=True)
+@kernel
 def reset(starts, goals, cells, done, hold, mt, start_hold):
     """GridWorld.reset_joint: every agent at its start; the start holds drawn, in index order."""
     n = starts.shape[0]
