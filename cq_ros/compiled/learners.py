@@ -341,9 +341,12 @@ def act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, me
         for m in range(keep):
             ck[k, m] = made[m]
         ag[k, NKEYS] = keep
+    _acted_row(k, ag, ck, q, jsf, row)
     if was_on and not wt[k, W_LEARNT]:
-        _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, _acted_row(k, ag, ck, q, jsf, row), True)
-    a = epsilon_greedy(_acted_row(k, ag, ck, q, jsf, row), eps[k], mt, k)
+        _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, row, True)
+        if wt[k, W_CELL] == s:  # only then may the update have changed the row acted on (Q_k[s], or Q^j of s)
+            _acted_row(k, ag, ck, q, jsf, row)
+    a = epsilon_greedy(row, eps[k], mt, k)
     ag[k, A] = a
     return a
 
