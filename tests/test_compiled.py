@@ -47,6 +47,10 @@ def test_mersenne_twister_draws_as_cpython(seed, n):
     ours = [mt.random(words, 0) for _ in range(700)] + [mt.randbelow(words, 0, n) for _ in range(50)]
     theirs = [rng.random() for _ in range(700)] + [rng.randrange(n) for _ in range(50)]
     assert ours == theirs
+    # one word drawn between pairs: random() also meets a generator with a single word left before its twist
+    ours = [mt.random(words, 0) if k % 3 else mt.randbelow(words, 0, n) for k in range(2000)]
+    theirs = [rng.random() if k % 3 else rng.randrange(n) for k in range(2000)]
+    assert ours == theirs
     assert tuple(words[0]) == rng.getstate()[1]
 
 

@@ -38,13 +38,7 @@ def _twist(mt, g):
 
 
 @njit(cache=True, inline="always")
-def genrand_uint32(mt, g):
-    """genrand_uint32 of _randommodule.c, generator g; mt[g, 624] is its index."""
-    if mt[g, N] >= N:
-        _twist(mt, g)
-        mt[g, N] = 0
-    y = mt[g, mt[g, N]]
-    mt[g, N] += 1
+def _temper(y):
     y ^= y >> 11
     y ^= (y << 7) & 0x9D2C5680
     y ^= (y << 15) & 0xEFC60000
@@ -53,9 +47,26 @@ def genrand_uint32(mt, g):
 
 
 @njit(cache=True, inline="always")
+def genrand_uint32(mt, g):
+    """genrand_uint32 of _randommodule.c, generator g; mt[g, 624] is its index."""
+    if mt[g, N] >= N:
+        _twist(mt, g)
+        mt[g, N] = 0
+    y = mt[g, mt[g, N]]
+    mt[g, N] += 1
+    return _temper(y)
+
+
+@njit(cache=True, inline="always")
 def random(mt, g):
-    a = genrand_uint32(mt, g) >> 5
-    b = genrand_uint32(mt, g) >> 6
+    """random(): two words; where both are left before the next twist, with one look at the index."""
+    i = mt[g, N]
+    if i < N - 1:
+        mt[g, N] = i + 2
+        a, b = _temper(mt[g, i]) >> 5, _temper(mt[g, i + 1]) >> 6
+    else:
+        a = genrand_uint32(mt, g) >> 5
+        b = genrand_uint32(mt, g) >> 6
     return (a * 67108864.0 + b) * (1.0 / 9007199254740992.0)
 
 
