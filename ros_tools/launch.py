@@ -2,9 +2,10 @@
 written as the same result files as `cq-ros experiment` (episodes.csv, observe.csv, greedy.csv,
 manifest.json and the figures).
 
-One launch is one ROS 2 system of its own: a ROS_DOMAIN_ID (random in 100..200 unless given), discovery kept
-on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) and a namespace (/cq_<hex> unless given), so launches
-side by side never hear each other; `cq-ros echo /<namespace>/world/stats --domain-id N` watches one.
+One launch is one ROS 2 system of its own: a ROS_DOMAIN_ID (--domain-id, else the environment's as every ROS
+tool takes it, else drawn in 100..200: `run_domain`), discovery kept on this host
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) and a namespace (/cq_<hex> unless given), so launches side by side
+never hear each other's nodes; `cq-ros echo /<namespace>/world/stats --domain-id N` watches one.
 
 Start-up. The launcher's own node (the listener, `/<namespace>/launch`) subscribes to every agv<k>/stats, then
 every child starts at once: the world, and one agent process per AGV (`agv<k>`) or the one central JSA node
@@ -100,7 +101,7 @@ from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import TWIN_EXIT as WORLD_TWIN, world_config
 
-from .session import StopSignals, ToolError, environment, ros_session, spin_until
+from .session import StopSignals, ToolError, environment, environment_domain, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
     EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, departures, describe_departures, write_ended_early,
@@ -110,14 +111,14 @@ from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
 __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN",
            "DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
-           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener",
-           "Progress", "write_heard"]
+           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "run_domain", "launch",
+           "StatsListener", "Progress", "write_heard"]
 
 # The launch's exit status (`cq-ros launch`): every episode played as the offline engine plays it; a launch that
 # failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
 # feedback never heard: the summary says where); Ctrl-C or SIGTERM.
 EXIT_CLEAN, EXIT_FAILED, EXIT_DEGRADED, EXIT_INTERRUPTED = 0, 1, 3, 130
-DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
+DOMAIN_IDS = (100, 200)  # a launch given no domain (--domain-id, ROS_DOMAIN_ID) draws one from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
 CHECKPOINT_EVERY = 50
 AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world finished is stuck
@@ -408,6 +409,15 @@ def check_hosts(hosts: Hosts, gridmap: GridMap, algo: str, discovery: str) -> No
     hosts.discovery_env("world", discovery)  # a bad discovery fails here
 
 
+def run_domain(given: int | None) -> int:
+    """The launch's ROS_DOMAIN_ID: `given` (--domain-id), else the environment's, as every ROS tool takes it;
+    drawn from DOMAIN_IDS only when neither says one (so two launches side by side do not hear each other)."""
+    if given is not None:
+        return given
+    chosen = environment_domain()
+    return random.SystemRandom().randint(*DOMAIN_IDS) if chosen is None else chosen
+
+
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
            settings: Settings | None = None, *, domain_id: int | None = None, namespace: str | None = None,
            step_timeout: float = 2.0, peer_linger_steps: int | None = None, compose: bool = False,
@@ -456,8 +466,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             raise ValueError(f"the launcher must run on the world's host: ip netns exec {hosts.namespace('world')} ...")
     if key_file is not None:
         read_key_parameter(os.fspath(key_file))  # a missing or readable-by-others key fails before any work
-    if domain_id is None:
-        domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
+    domain_id = run_domain(domain_id)
     made = made_by(out)  # what this launch makes, removed if it ends before a row of its own is written
     with removed_if_failing(out):
         out = prepare_output(Path(out), force)
