@@ -145,6 +145,10 @@ def declare_node_parameters(node: Any, kind: str) -> dict[str, Any]:
     values = declare_parameters(node, own, unset=SETTING_NAMES)
     others = {name for other, table in PARAMETERS.items() if other != kind for name in table}
     check_names(undeclared_overrides(node), own, others)
+    if node.get_parameter("use_sim_time").value:  # every rclpy node declares it; docs/ros.md says why we refuse
+        raise SettingsError("parameter use_sim_time: true is refused: the lockstep has no simulated clock (its "
+                            "timeouts wait in wall time for actions, and the step is each message's episode and "
+                            "step); stamps are this host's clock")
     return values
 
 
