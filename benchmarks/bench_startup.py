@@ -3,10 +3,12 @@ is connected: stepping" in its log) and to the end, on this machine as it is (th
 busy machine is the case that matters).
 
     python benchmarks/bench_startup.py [--map warehouse_32] [--algo cq] [--episodes 1] [--domain-id N]
-        [--timeout 900]
+        [--timeout 900] [--out DIR]
 
-One launch, its output in a temporary folder; the launch's own progress lines pass through on stderr, and one line
-of figures goes to stdout. Every wait is bounded by --timeout (the launch is stopped then, with Ctrl-C's signal).
+One launch without greedy episodes (eval_episodes=0: the start is what is measured), its output in DIR (kept: the
+nodes' logs say why a start failed) or in a temporary folder; the launch's own progress lines pass through on
+stderr, and one line of figures goes to stdout. Every wait is bounded by --timeout (the launch is stopped then,
+with Ctrl-C's signal).
 """
 
 from __future__ import annotations
@@ -30,11 +32,12 @@ def main() -> int:
     ap.add_argument("--episodes", type=int, default=1)
     ap.add_argument("--domain-id", type=int, default=None, help="default: the environment's, else the launch draws")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds before the launch is stopped")
+    ap.add_argument("--out", type=Path, default=None, help="the result folder, kept (default: a temporary one)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_startup_") as tmp:
-        out = Path(tmp) / "result"
+        out = args.out if args.out is not None else Path(tmp) / "result"
         command = [sys.executable, "-m", "cq_ros.cli", "launch", "--map", args.map, "--algo", args.algo, "--episodes",
-                   str(args.episodes), "--out", str(out), "--no-figures",
+                   str(args.episodes), "--out", str(out), "--no-figures", "--force", "--set", "eval_episodes=0",
                    *(["--domain-id", str(args.domain_id)] if args.domain_id is not None else [])]
         load = os.getloadavg()[0]
         started = time.monotonic()

@@ -82,7 +82,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 from tqdm import tqdm
@@ -120,9 +120,13 @@ __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WO
 EXIT_CLEAN, EXIT_FAILED, EXIT_DEGRADED, EXIT_INTERRUPTED = 0, 1, 3, 130
 DOMAIN_IDS = (100, 200)  # a launch given no domain (--domain-id, ROS_DOMAIN_ID) draws one from this range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
+# ... or this many seconds per node where that is longer (`startup_wait`)
+STARTUP_PER_NODE_S = 4.0
+NODE_UP_S, STUCK_TRIES = 60.0, 2  # a node process that logs nothing this long after its start is started again
 CHECKPOINT_EVERY = 50
 AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world finished is stuck
 DRAIN_S = 5.0  # after the last child exits, how long to wait for statistics still in the listener's queue
+STATUS_S = 5.0  # between two episodes, how often the progress says where the run is
 STOP_GRACE_S = ((signal.SIGINT, 3.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0))
 NAMESPACE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 # Node parameters the launcher fixes itself (from its own options, or as its children need them).
@@ -174,13 +178,25 @@ class Child:
     process: subprocess.Popen | None = None
     env: dict[str, str] = field(default_factory=dict)  # its own, over the launch's
     restarts: int = 0  # times the launch started it again after it died (`restart_agents`)
+    stuck_starts: int = 0  # times the launch started it again because it never came up (`_unstick`)
+    started_at: float = 0.0  # time.monotonic() of its latest start
+    logged_at_start: int = 0  # its log's size then
 
     def start(self, env: dict[str, str]) -> None:
         # the child keeps its own copy of the descriptor; a restarted one's log goes on after its first life's
-        with open(self.log, "ab" if self.restarts else "wb") as log:
+        with open(self.log, "ab" if self.restarts or self.stuck_starts else "wb") as log:
+            self.logged_at_start = log.tell()
             self.process = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, stdout=log,
                                             stderr=subprocess.STDOUT, env={**env, **self.env},
                                             start_new_session=True, preexec_fn=_die_with_launcher)
+        self.started_at = time.monotonic()
+
+    def said_anything(self) -> bool:
+        """Whether its log has grown since its latest start: a node's first line comes once it is made."""
+        try:
+            return self.log.stat().st_size > self.logged_at_start
+        except OSError:
+            return False
 
     @property
     def exit_code(self) -> int | None:
@@ -265,6 +281,16 @@ def agent_nodes(gridmap: GridMap, algo: str) -> list[tuple[str, dict[str, int]]]
     return [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
 
 
+def startup_wait(nodes: int) -> float:
+    """The world's startup_timeout for a launch of `nodes` nodes, and the least feedback_timeout of its agents:
+    STARTUP_TIMEOUT_S, or STARTUP_PER_NODE_S per node where that is longer. Every node must be up and matched
+    before the first step, and on a busy 2-core machine a node process takes seconds of CPU to start (Python,
+    rclpy, numpy) and discovery grows with the graph: warehouse_32's 33 processes did not all match within 30 s
+    (benchmarks/bench_startup.py). An agent started early hears nothing of the world meanwhile, so its
+    patience grows alike."""
+    return max(STARTUP_TIMEOUT_S, STARTUP_PER_NODE_S * nodes)
+
+
 def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
                step_timeout: float, peer_linger_steps: int | None = None,
                node_parameters: dict[str, Any] | None = None,
@@ -285,15 +311,17 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     node_parameters = node_parameters or {}
     to_world = {k: v for k, v in node_parameters.items() if k in WORLD_PARAMETERS}
     to_agents = {k: v for k, v in node_parameters.items() if k in AGENT_PARAMETERS}
-    nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
-                                      "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1,
-                                      **to_world, **changed})}
     agents = agent_nodes(gridmap, algo)
+    wait = startup_wait(1 + len(agents))
+    nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout), "startup_timeout": wait,
+                                      "min_stats_subscribers": 1, **to_world, **changed})}
     linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
+    patience = {"feedback_timeout": wait} if wait > AGENT_PARAMETERS["feedback_timeout"][0] else {}
     for name, ident in agents:
         nodes[name] = ("agent_node", {
             **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
-            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **to_agents, **changed})
+            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **patience, **to_agents,
+            **changed})
     return nodes
 
 
@@ -371,7 +399,9 @@ def _stop(children: list[Child]) -> None:
 
 class Progress:
     """A tqdm bar on a terminal; otherwise a plain line every 5% of the episodes (and at the last). It counts
-    every episode; the label says "greedy" once the learning episodes (the first `learning`) are over."""
+    every episode; the label says "greedy" once the learning episodes (the first `learning`) are over. Between
+    them, every STATUS_S at most, where the run is (`within`): how many nodes are up, then the episode and step,
+    so a big map shows progress from its first step."""
 
     def __init__(self, label: str, episodes: int, learning: int, enabled: bool):
         self.label, self.episodes, self.learning, self.enabled = label, episodes, learning, enabled
@@ -379,8 +409,20 @@ class Progress:
         self.bar = tqdm(total=episodes, desc=label, unit="episode", disable=not self.tty)
         self.every = max(1, episodes // 20)
         self.shown = 0
+        self.said = time.monotonic()  # when a line (or the bar) last said something
+
+    def within(self, where: Callable[[], str]) -> None:
+        """Say where() ('starting: 12/33 nodes up', 'episode 0, step 1200') if nothing was said for STATUS_S."""
+        if not self.enabled or time.monotonic() - self.said < STATUS_S:
+            return
+        self.said = time.monotonic()
+        if self.tty:
+            self.bar.set_postfix_str(where())
+        else:
+            print(f"{self.label}: {where()}", file=sys.stderr, flush=True)
 
     def update(self, done: int, collisions: int, joint_states: int, peer_messages: int) -> None:
+        self.said = time.monotonic()
         label = f"{self.label} greedy" if done > self.learning else self.label
         if self.tty:
             self.bar.set_description(label, refresh=False)
@@ -509,7 +551,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     def node_info() -> dict:
         return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out)),
-                         **({"restarts": c.restarts} if c.restarts else {})} for c in children}
+                         **({"restarts": c.restarts} if c.restarts else {}),
+                         **({"stuck_starts": c.stuck_starts} if c.stuck_starts else {})} for c in children}
 
     learner_nodes = list(nodes)[1:]
 
@@ -551,7 +594,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 tqdm.write(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "  # above the bar
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
-            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose)
+            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose, list(nodes))
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
@@ -622,6 +665,27 @@ def _restart(child: Child, env: dict, listener: StatsListener, learners: list[in
                file=sys.stderr)
 
 
+def _unstick(children: list[Child], env: dict, listener: StatsListener) -> None:
+    """Before the run's first step, start again an agent node that has said nothing for NODE_UP_S since it started
+    (at most STUCK_TRIES times each), saying so. Seen with warehouse_32 as a process per node on 2 busy cores: one
+    to five of the 32 agent processes hung for good inside rclpy's create_publisher (Fast DDS blocked on a lock
+    while the other participants' discovery came in), while every other node logged within 35 s of the start;
+    a fresh process comes up. The world is not restarted: agents may have heard it already."""
+    if listener.world or (listener.at is not None and listener.at != (0, 0)):
+        return
+    now = time.monotonic()
+    for child in children[1:]:
+        if child.running and now - child.started_at > NODE_UP_S and child.stuck_starts < STUCK_TRIES and \
+                not child.said_anything():
+            pid = child.process.pid
+            child.signal_group(signal.SIGKILL)
+            child.process.wait(timeout=STOP_GRACE_S[-1][1])
+            child.stuck_starts += 1
+            child.start(env)
+            tqdm.write(f"cq-ros launch: {child.name} (pid {pid}) said nothing {NODE_UP_S:g} s after its start, a "
+                       f"start stuck in ROS: started it again (pid {child.process.pid})", file=sys.stderr)
+
+
 def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
     """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why)."""
     found = departures(listener, learners)
@@ -646,12 +710,22 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
     return paths
 
 
+def _where(listener: StatsListener, node_names: list[str]) -> str:
+    """Where a run is between two episodes: before its first step how many of its nodes are in the graph, then
+    the world's episode and step by its heartbeat."""
+    if listener.at is None or (listener.at == (0, 0) and not listener.world):
+        ns = listener.node.get_namespace()
+        up = {name for name, namespace in listener.node.get_node_names_and_namespaces() if namespace == ns}
+        return f"starting: {len(up & set(node_names))}/{len(node_names)} nodes up"
+    return f"episode {listener.at[0]}, step {listener.at[1]}"
+
+
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
            learners: list[int], rows: EpisodeRows, restart_agents: int = 0, env: dict | None = None,
-           compose: bool = False) -> None:
+           compose: bool = False, node_names: tuple[str, ...] | list[str] = ()) -> None:
     """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
     soon as one fails (an agent node restarted instead while `restart_agents` allows), EndedEarly as soon as a
-    row cannot be written."""
+    row cannot be written. Between episodes, `bar` says where the run is (`_where` of `node_names`)."""
     world_done_at = None
     while True:
         if stop:
@@ -665,6 +739,9 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
                        sum(s.peer_messages for s in latest))
+        bar.within(lambda: _where(listener, node_names))
+        if not compose:
+            _unstick(children, env, listener)
         failed = [c for c in children if c.exit_code not in (None, 0)]
         if failed and not compose and children[0].running and failed[0] is not children[0] and \
                 sum(c.restarts for c in children) < restart_agents:
