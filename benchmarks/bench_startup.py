@@ -40,13 +40,20 @@ def main() -> int:
                    str(args.episodes), "--out", str(out), "--no-figures", "--force", "--set", "eval_episodes=0",
                    *(["--domain-id", str(args.domain_id)] if args.domain_id is not None else [])]
         load = os.getloadavg()[0]
-        started = time.monotonic()
-        launch = subprocess.Popen(command)
+        started, started_wall = time.monotonic(), time.time()
+        launch = subprocess.Popen(command, stdout=subprocess.DEVNULL)  # its summary is not this script's figure
         stepping = None
+
+        def stepped() -> bool:  # in this launch's world log, not one an earlier launch left in DIR
+            log = out / "logs" / "world.log"
+            try:
+                return log.stat().st_mtime >= started_wall and STEPPING in log.read_text(errors="replace")
+            except OSError:
+                return False
+
         try:
             while launch.poll() is None and time.monotonic() - started < args.timeout:
-                log = out / "logs" / "world.log"
-                if stepping is None and log.exists() and STEPPING in log.read_text(errors="replace"):
+                if stepping is None and stepped():
                     stepping = time.monotonic() - started
                 time.sleep(0.2)
             if launch.poll() is None:
@@ -57,8 +64,7 @@ def main() -> int:
                 launch.kill()
                 launch.wait()
         ended = time.monotonic() - started
-        log = out / "logs" / "world.log"
-        if stepping is None and log.exists() and STEPPING in log.read_text(errors="replace"):
+        if stepping is None and stepped():
             stepping = ended  # seen only at the end (the last poll missed it)
     to_step = "never" if stepping is None else f"{stepping:.1f} s"
     print(f"{args.map} {args.algo}, {args.episodes} episode(s), a process per node, load {load:.1f} at start: "
