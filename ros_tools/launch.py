@@ -109,16 +109,17 @@ from .launch_results import (
 )
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
-__all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN",
-           "DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child", "split_sets",
-           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "run_domain", "launch",
-           "StatsListener", "Progress", "write_heard"]
+__all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN", "DOMAIN_IDS",
+           "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child",
+           "split_sets", "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "run_domain",
+           "launch", "StatsListener", "Progress", "write_heard"]
 
 # The launch's exit status (`cq-ros launch`): every episode played as the offline engine plays it; a launch that
 # failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
 # feedback never heard: the summary says where); Ctrl-C or SIGTERM.
 EXIT_CLEAN, EXIT_FAILED, EXIT_DEGRADED, EXIT_INTERRUPTED = 0, 1, 3, 130
 DOMAIN_IDS = (100, 200)  # a launch given no domain (--domain-id, ROS_DOMAIN_ID) draws one from this range
+BENCH_DOMAINS = (40, 99)  # ... and a ROS benchmark (benchmarks/) from this one, off the launches' range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
 # ... or this many seconds per node where that is longer (`startup_wait`)
 STARTUP_PER_NODE_S = 4.0
@@ -451,13 +452,14 @@ def check_hosts(hosts: Hosts, gridmap: GridMap, algo: str, discovery: str) -> No
     hosts.discovery_env("world", discovery)  # a bad discovery fails here
 
 
-def run_domain(given: int | None) -> int:
+def run_domain(given: int | None, drawn_from: tuple[int, int] = DOMAIN_IDS) -> int:
     """The launch's ROS_DOMAIN_ID: `given` (--domain-id), else the environment's, as every ROS tool takes it;
-    drawn from DOMAIN_IDS only when neither says one (so two launches side by side do not hear each other)."""
+    drawn from `drawn_from` only when neither says one (so two launches side by side do not hear each other;
+    the ROS benchmarks draw theirs from 40..99, off the launches' range)."""
     if given is not None:
         return given
     chosen = environment_domain()
-    return random.SystemRandom().randint(*DOMAIN_IDS) if chosen is None else chosen
+    return random.SystemRandom().randint(*drawn_from) if chosen is None else chosen
 
 
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
