@@ -1,31 +1,48 @@
-"""Agent checkpoints: a pickle of the learner and the last finished episode, written to a temporary file in
-the same directory and moved into place with os.replace, so a reader sees the old checkpoint or the new
-one, never half of one.
+"""Agent checkpoints: the learner's state as named arrays (cq_ros.learners.state) and the last finished
+episode, in a numpy .npz read with allow_pickle=False, so a checkpoint is data and loading one runs no code
+(docs/design.md#checkpoints). It is written to a temporary file in the same directory and moved into place
+with os.replace, so a reader sees the old checkpoint or the new one, never half of one; on loading, every
+field is checked against the node's algorithm, map, agent and settings, and a bad one is a bad parameter
+naming the file and the field.
 
 Only learning episodes are checkpointed, so the last checkpoint holds the trained learner, not its greedy
 copy. A node restarted from one decodes its first feedback without an expected (episode, step) and resumes
 at whatever step the world is at (switching to the greedy copy first if the world is past the learning
 episodes). Temporary files a save killed mid-write left behind are removed at start (`make_driver`); a
 checkpoint folder that is missing or not writable is a bad parameter (`agent_node.config`).
+
+Checkpoints up to format 3 were pickles, which can run any code when loaded: they are refused, naming
+`cq-ros checkpoint convert`, which unpickles one (only ever one you trust) into this format.
 """
 
 from __future__ import annotations
 
 import glob
+import io
 import os
 import pickle
 import tempfile
+import zipfile
+
+import numpy as np
 
 from cq_ros.gridmap import GridMap
 from cq_ros.learners import Learner
-from cq_ros.settings import SettingsError
+from cq_ros.learners.state import StateError, from_arrays, scalar, to_arrays
+from cq_ros.settings import Settings, SettingsError
 
 __all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "save_checkpoints", "load_checkpoint",
-           "remove_stale_temporaries"]
+           "read_checkpoint", "remove_stale_temporaries", "convert_pickle", "SUFFIX"]
 
-# 2: CQ learners keep `looking` (cq_look_if_decisive); 3: a learner's settings hold cq_mark_colliders. A learner
-# pickled before lacks them.
-_CHECKPOINT_FORMAT = 3
+# 1-3: pickles of the learner (2: CQ learners keep `looking`; 3: settings hold cq_mark_colliders); 4: an .npz of
+# the learner's state as arrays.
+_CHECKPOINT_FORMAT = 4
+_PICKLE_FORMAT = 3  # the last pickled format, the one `convert_pickle` reads
+SUFFIX = ".npz"
+# A learner's state is megabytes (warehouse_32's CQ: 1.3 MB): a file whose members unpack to more than this is no
+# checkpoint of ours, and is refused before any of it is read into memory (a zip bomb).
+_MAX_BYTES = 4 << 30
+CONVERT = "cq-ros checkpoint convert"
 
 
 def _temporary_prefix(path: str) -> tuple[str, str]:
@@ -39,11 +56,12 @@ def save_checkpoint(path: str | os.PathLike, learner: Learner, episode: int) -> 
 
 
 def checkpoint_bytes(learner: Learner, episode: int) -> bytes:
-    """The checkpoint of learner after `episode`, pickled: what `write_checkpoint` writes. Taken at once, as
+    """The checkpoint of learner after `episode`, as .npz bytes: what `write_checkpoint` writes. Taken at once, as
     the learner goes on learning; the writing may follow later (the agent node writes on a thread of its own)."""
-    state = {"format": _CHECKPOINT_FORMAT, "algo": learner.name, "map": learner.map.name,
-             "agent": learner.agent, "episode": episode, "learner": learner}
-    return pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+    buffer = io.BytesIO()
+    np.savez(buffer, checkpoint_format=np.int64(_CHECKPOINT_FORMAT), map=np.str_(learner.map.name),
+             episode=np.int64(episode), **to_arrays(learner))
+    return buffer.getvalue()
 
 
 def write_checkpoint(path: str | os.PathLike, data: bytes) -> None:
@@ -63,10 +81,10 @@ def write_checkpoint(path: str | os.PathLike, data: bytes) -> None:
 
 
 def save_checkpoints(folder: str | os.PathLike, names: list[str], learners: list[Learner], episode: int) -> None:
-    """A checkpoint per learner, `<name>.pkl` in `folder`: learners trained elsewhere (an offline run) for nodes
+    """A checkpoint per learner, `<name>.npz` in `folder`: learners trained elsewhere (an offline run) for nodes
     of these names to start from (`ros_tools.launch.launch(start_from=folder)`)."""
     for name, learner in zip(names, learners, strict=True):
-        save_checkpoint(os.path.join(folder, f"{name}.pkl"), learner, episode)
+        save_checkpoint(os.path.join(folder, name + SUFFIX), learner, episode)
 
 
 def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
@@ -83,19 +101,64 @@ def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
     return removed
 
 
-def load_checkpoint(path: str | os.PathLike, algo: str, gridmap: GridMap, agent: int) -> tuple[Learner, int]:
-    """(learner, last episode learnt) from a checkpoint written for this algorithm, map and agent (0-based);
-    SettingsError naming the checkpoint parameter otherwise."""
+def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The arrays of the checkpoint at `path`, read as data only; SettingsError naming the file otherwise (an old
+    pickle: with the command that converts it)."""
     where = f"parameter checkpoint: {os.fspath(path)!r}"
     try:
         with open(path, "rb") as f:
-            state = pickle.load(f)
-        learner, episode = state["learner"], state["episode"]
-        written_for = (state["format"], state["algo"], state["map"], state["agent"])
-    except Exception as e:  # an unreadable file of any kind is a bad parameter value, not a crash
-        raise SettingsError(f"{where}: cannot load it: {type(e).__name__}: {e}") from None
-    wanted = (_CHECKPOINT_FORMAT, algo, gridmap.name, agent)
-    if written_for != wanted:
-        what = "format {}, algo {}, map {}, agent index {}"
-        raise SettingsError(f"{where} holds {what.format(*written_for)}; this node runs {what.format(*wanted)}")
+            head = f.read(2)
+        if head[:1] == b"\x80":  # a pickle's protocol opcode: never loaded here
+            raise SettingsError(f"{where} is a pickle (checkpoint format {_PICKLE_FORMAT} or older), which could run "
+                                f"code if loaded: if you trust it, convert it with `{CONVERT} {os.fspath(path)} "
+                                f"NEW{SUFFIX}`")
+        if head != b"PK":
+            raise SettingsError(f"{where} is not a checkpoint (an .npz file)")
+        with np.load(path, allow_pickle=False) as npz:
+            size = sum(member.file_size for member in npz.zip.infolist())
+            if size > _MAX_BYTES:
+                raise SettingsError(f"{where} unpacks to {size:,} bytes, more than a checkpoint's {_MAX_BYTES:,}")
+            return {name: npz[name] for name in npz.files}
+    except SettingsError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:  # truncated, corrupt, object arrays
+        raise SettingsError(f"{where}: cannot read it: {type(e).__name__}: {e}") from None
+
+
+def load_checkpoint(path: str | os.PathLike, algo: str, gridmap: GridMap, agent: int,
+                    settings: Settings) -> tuple[Learner, int]:
+    """(learner, last episode learnt) from a checkpoint written for this algorithm, map, agent (0-based) and
+    settings; SettingsError naming the checkpoint parameter and the field otherwise."""
+    where = f"parameter checkpoint: {os.fspath(path)!r}"
+    arrays = read_checkpoint(path)
+    try:
+        fmt = scalar(arrays, "checkpoint_format", "i")
+        if fmt != _CHECKPOINT_FORMAT:
+            raise StateError("checkpoint_format", f"is {fmt}; this version reads format {_CHECKPOINT_FORMAT}")
+        episode = scalar(arrays, "episode", "i", 0)
+        saved_map = scalar(arrays, "map", "U")
+        if saved_map != gridmap.name:  # before the shapes, which would only say that less plainly
+            raise StateError("map", f"is {saved_map}; this node runs map {gridmap.name}")
+        learner = from_arrays(arrays, gridmap, settings)
+        if (learner.name, learner.agent) != (algo, agent):
+            raise SettingsError(f"{where} holds algo {learner.name}, agent index {learner.agent}; this node runs "
+                                f"algo {algo}, agent index {agent}")
+    except StateError as e:
+        raise SettingsError(f"{where}: {e}") from None
     return learner, episode
+
+
+def convert_pickle(old: str | os.PathLike, new: str | os.PathLike) -> tuple[str, int]:
+    """Write the pickled checkpoint `old` (format 3) as a checkpoint of this format at `new`: (algorithm,
+    episode). Unpickling runs whatever code the file holds: only for a file you trust."""
+    with open(old, "rb") as f:
+        state = pickle.load(f)  # noqa: S301 (the one place a pickle is read, on the user's word)
+    if not isinstance(state, dict) or state.get("format") != _PICKLE_FORMAT:
+        found = state.get("format") if isinstance(state, dict) else type(state).__name__
+        raise ValueError(f"{os.fspath(old)}: a pickled checkpoint of format {found}; only format {_PICKLE_FORMAT} "
+                         f"converts (an older one lacks settings this version needs)")
+    learner, episode = state["learner"], state["episode"]
+    if not isinstance(learner, Learner) or not isinstance(episode, int) or episode < 0:
+        raise ValueError(f"{os.fspath(old)}: holds no learner and episode")
+    save_checkpoint(new, learner, episode)
+    return learner.name, episode

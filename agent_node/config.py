@@ -94,7 +94,8 @@ def make_driver(cfg: AgentConfig, log: Callable[[str], Any] | None = None,
                 f"{', '.join(removed)}")
     resume = bool(cfg.checkpoint) and os.path.exists(cfg.checkpoint)
     if resume:
-        learner, episode = load_checkpoint(cfg.checkpoint, cfg.algo, cfg.gridmap, max(cfg.agent - 1, 0))
+        learner, episode = load_checkpoint(cfg.checkpoint, cfg.algo, cfg.gridmap, max(cfg.agent - 1, 0),
+                                          cfg.settings)
         if log:
             log(f"resuming from {cfg.checkpoint} (episodes up to {episode} learnt)")
     else:

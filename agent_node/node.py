@@ -147,7 +147,7 @@ class AgentNode(Node):
         watch_period = min(cfg.feedback_timeout / 10, 1.0)
         self.driver.link.patience = Patience(cfg.feedback_timeout, watch_period)
         self._watchdog = self.create_timer(watch_period, self._check_world)
-        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning, refuse=False)
+        self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
         self._graph_topics = [HEARTBEAT_TOPIC] + [position_topic(k) for k in range(1, cfg.gridmap.n_agents + 1)] + [
             name(k) for k in agents for name in (feedback_topic, action_topic, agent_stats_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
@@ -191,8 +191,8 @@ class AgentNode(Node):
         self.destroy_subscription(self._positions.pop(effect.peer))
 
     def _save_checkpoint(self, episode: int, learner: Any) -> None:
-        """Pickle the learner now (it goes on learning) and write it on the node's writer thread: the file's
-        fsync took longer than the pickling, on the path every other node of a composed process waits on.
+        """Take the learner's state now (it goes on learning) and write it on the node's writer thread: the
+        file's fsync took longer than taking the state, on the path every other node of a composed process waits on.
         A write that fails is logged and counted (`checkpoint_failed.<errno>`) once it is known: a full or
         read-only disk costs the checkpoint, never the learning, which goes on in memory (the next save
         tries again). Statistics wait for the writes in flight before them (`_settled`), so they count every

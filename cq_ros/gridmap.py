@@ -112,7 +112,7 @@ class GridMap:
         for goal in self.goals:
             glyphs[self.cells[goal]] = "G"
         for agent, start in enumerate(self.starts):
-            glyphs[self.cells[start]] = _agent_glyph(agent)
+            glyphs[self.cells[start]] = agent_glyph(agent)
         for cell, mark in (marks or {}).items():
             if len(mark) != 1:
                 raise ValueError(f"mark for cell {cell} must be one character, got {mark!r}")
@@ -141,7 +141,8 @@ class GridMap:
         return self.neighbours[cell][action] != cell
 
 
-def _agent_glyph(agent: int) -> str:
+def agent_glyph(agent: int) -> str:
+    """How the drawings show agent `agent` (0-based): 1-9, then a-z, then '*' for every agent past the 35th."""
     return _AGENT_GLYPHS[agent] if agent < len(_AGENT_GLYPHS) else "*"
 
 
@@ -440,9 +441,17 @@ def load_map(name_or_path: str | os.PathLike) -> GridMap:
     if isinstance(name_or_path, os.PathLike) or _looks_like_path(name_or_path):
         path = Path(name_or_path)
         try:
-            text = path.read_text(encoding="utf-8")
+            raw = path.read_bytes()
         except OSError as exc:
             raise _error(str(path), f"cannot read map file: {exc.strerror or exc}") from exc
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = raw.count(b"\n", 0, exc.start) + 1
+            col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+            raise _error(str(path), f"not a UTF-8 text file (byte 0x{raw[exc.start]:02x}): a map file is UTF-8 "
+                                    "text (re-save it as UTF-8; Latin-1 or a binary file is not one)",
+                         line, col) from None
         return parse_map(text, name=path.stem, source=str(path))
     text = map_text(name_or_path)
     return parse_map(text, name=name_or_path, source=str(_maps_dir() / f"{name_or_path}.txt"))

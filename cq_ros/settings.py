@@ -125,8 +125,11 @@ class Settings:
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
-        _check(0.0 <= self.slip <= 1.0, "slip", self.slip, "in [0, 1]")
+        _check(0.0 <= self.slip < 1.0, "slip", self.slip, "in [0, 1) (at 1 every move fails: no AGV ever moves)")
         _check(self.start_hold >= 0, "start_hold", self.start_hold, "at least 0")
+        _check(self.start_hold < self.step_cap, "start_hold", self.start_hold,
+               f"below step_cap={self.step_cap} (a hold that long can keep an AGV at its dock for the whole "
+               "episode)")
         _check(self.eval_episodes >= 0, "eval_episodes", self.eval_episodes, "at least 0")
         _check(self.eval_learning in (0, 1), "eval_learning", self.eval_learning, "0 or 1")
         for f in fields(self):

@@ -11,7 +11,7 @@ Array layouts (one dimension; its label lists the fields in order, so `ros2 topi
     Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated,applied"
     Position  std_msgs/Int32MultiArray    label "agent,episode,step,row,col"
     Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
-    Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step"
+    Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step,stepping,started,ticket"
 
 Keyed (msgs_spec.auth): with the run's key the label ends in ",run0,run1,inc,mac0,mac1,mac2,mac3" and the
 data holds, after the fields, the seal (the run nonce's high and low 32-bit words, the sender's incarnation)
@@ -253,11 +253,14 @@ ACTION_LAYOUT = ArrayLayout(
 )
 HEARTBEAT_LAYOUT = ArrayLayout(
     Heartbeat, Int32MultiArray,
-    ("beat", "episode", "step"),
-    ("int",) * 3,
+    ("beat", "episode", "step", "stepping", "started", "ticket"),
+    ("int",) * 6,
     ("heartbeat number, from 1, one more each heartbeat",
      "episode the world is playing (0 before its first step)",
-     "step whose actions the world is collecting (0 before its first step)"),
+     "step whose actions the world is collecting (0 before its first step)",
+     "1 once the world has begun stepping, 0 while it waits for its agents",
+     "the second the world started, Unix time (as builtin_interfaces/Time.sec)",
+     "a number the world drew at its start, 0..2**31-1: orders two worlds started in the same second"),
 )
 ARRAY_LAYOUTS: tuple[ArrayLayout, ...] = (FEEDBACK_LAYOUT, POSITION_LAYOUT, ACTION_LAYOUT, HEARTBEAT_LAYOUT)
 LAYOUT_BY_PAYLOAD = {lay.payload: lay for lay in ARRAY_LAYOUTS}
@@ -273,6 +276,10 @@ def _validate(payload: Any, bounds: Bounds | None, agent: int | None,
     if isinstance(payload, Heartbeat):
         if payload.beat < 1:
             raise WireError("out_of_range", f"beat = {payload.beat}, must be >= 1")
+        if payload.stepping not in (0, 1):
+            raise WireError("out_of_range", f"stepping = {payload.stepping}, must be 0 or 1")
+        check_nonneg("started", payload.started)
+        check_nonneg("ticket", payload.ticket)
         check_sequence(payload.episode, payload.step, episode, step)
         return
     check_agent(payload.agent, bounds, agent)

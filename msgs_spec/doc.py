@@ -28,7 +28,7 @@ EXAMPLES: dict[str, Any] = {
     "feedback": Feedback(agent=1, episode=3, step=7, row=2, col=4, reward=-1.0, done=False, truncated=False),
     "position": Position(agent=2, episode=3, step=7, row=2, col=5),
     "action": Action(agent=1, episode=3, step=7, action=1),
-    "heartbeat": Heartbeat(beat=42, episode=3, step=7),
+    "heartbeat": Heartbeat(beat=42, episode=3, step=7, stepping=1, started=1796400000, ticket=123456789),
     "agent_stats": AgentStats(agent=1, episode=3, algorithm="cq", joint_plays=2, heard=5, local_states=55,
                               joint_states=1, subscriptions_created=4, subscriptions_active=0,
                               peer_messages=9, marked=(MarkedJointState(2, 3, 2, 2, 4, 0.75),),

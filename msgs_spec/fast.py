@@ -42,14 +42,6 @@ def _builder(payload: type) -> Callable[..., Any]:
     (one setter call per field, no loop): a loop over the setters cost as much as the __init__ it replaces."""
     setters = [payload.__dict__[name].__set__ for name in payload.__slots__]
     new = object.__new__
-    if len(setters) == 3:
-        s0, s1, s2 = setters
-
-        def build3(a, b, c):
-            o = new(payload)
-            s0(o, a); s1(o, b); s2(o, c)  # noqa: E702
-            return o
-        return build3
     if len(setters) == 4:
         s0, s1, s2, s3 = setters
 
@@ -144,7 +136,7 @@ _POS, _POS_KEYED = _FORMS[Position]
 _ACT, _ACT_KEYED = _FORMS[Action]
 _HB, _HB_KEYED = _FORMS[Heartbeat]
 _NEW_FEEDBACK = _builder(Feedback)
-_NEW_POSITION, _NEW_ACTION, _NEW_HEARTBEAT = _builder(Position), _builder(Action), _builder(Heartbeat)
+_NEW_POSITION, _NEW_ACTION = _builder(Position), _builder(Action)
 # For the nodes' own payloads, built every step: the same objects as Feedback(...), Position(...), Action(...)
 # with every field given in order (no defaults), a third of the time. Their values are checked where they
 # matter, when they are serialized.
@@ -228,10 +220,9 @@ def serialize_heartbeat(payload: Any, key: Any = None) -> bytes:
         form = _key_form(key, _HB, _HB_KEYED)
         if form is not None:
             p = payload
-            b, e, s = p.beat, p.episode, p.step
-            if (type(b) is int and type(e) is int and type(s) is int
-                    and 0 < b <= _I32 and 0 <= e <= _I32 and 0 <= s <= _I32):
-                packed = form.values.pack(b, e, s)
+            v = (p.beat, p.episode, p.step, p.stepping, p.started, p.ticket)
+            if all(type(x) is int and 0 <= x <= _I32 for x in v) and v[0] > 0 and v[3] <= 1:
+                packed = form.values.pack(*v)
                 return form.head + packed if key is None else form.sealed(key, packed)
     return _reference_serialize(HEARTBEAT_LAYOUT, payload, key)
 
@@ -346,10 +337,8 @@ def action_of(msg: Any, *, bounds: Bounds | None = None, agent: int | None = Non
 def decode_heartbeat(msg: Any, *, after: int | None = None, key: Any = None) -> Heartbeat:
     """msgs_spec.arrays.decode_heartbeat, fast for the bytes a world node sends."""
     v = _sealed_values(msg, key, _HB, _HB_KEYED, WORLD)
-    if v is not None:
-        b, e, s = v
-        if b >= 1 and e >= 0 and s >= 0 and (after is None or b > after):
-            return _NEW_HEARTBEAT(b, e, s)
+    if v is not None and min(v) >= 0 and v[0] >= 1 and v[3] <= 1 and (after is None or v[0] > after):
+        return Heartbeat(*v)  # once a heartbeat period: built by its own __init__
     hb = decode_array(HEARTBEAT_LAYOUT, msg, None, None, None, None, key)
     if after is not None and hb.beat <= after:
         raise WireError("replayed", f"beat {hb.beat}, the last one heard was {after}")

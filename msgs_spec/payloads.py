@@ -78,13 +78,18 @@ class Action:
 
 @dataclass(frozen=True, slots=True)
 class Heartbeat:
-    """World -> agents, every heartbeat_period whether or not anyone acts: the world is alive, and collects the
-    actions of (episode, step) (0, 0 before its first step). `beat` counts up from 1, so a replayed or second
-    world's heartbeat shows (it does not count up from the last one heard)."""
+    """World -> agents and other worlds, every heartbeat_period whether or not anyone acts: the world is alive,
+    and collects the actions of (episode, step) (0, 0 before its first step). `beat` counts up from 1, so a
+    replayed or second world's heartbeat shows (it does not count up from the last one heard). `stepping`,
+    `started` and `ticket` say who the world is to a second world in its namespace (world_node.twin): whether it
+    has begun stepping, when it started, and a number drawn at its start that orders two started together."""
 
     beat: int
     episode: int
     step: int
+    stepping: int = 1  # 1 once the world has begun stepping, 0 while it waits for its agents
+    started: int = 0  # the second the world node started, Unix time (as builtin_interfaces/Time.sec)
+    ticket: int = 0  # drawn at the world's start, 0..2**31-1: orders two worlds started in the same second
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,54 +10,43 @@ counted apart (`same_name_writers`): a restarted node's ghost (its DDS entry sta
 about 20 s), a false alarm as a second writer, or a twin of it, which the run's key tells apart (the world
 ends the run on a twin agent: world_node.lockstep).
 
-A second system on the same ROS_DOMAIN_ID and namespace shows as a second world node in our namespace. A
-world that sees a twin within `REFUSE_WITHIN_S` of its start refuses to run (the node exits 2 with the
-line `check` returns); one that has run longer keeps running and logs it: the newcomer refuses. Discovery
-of a new process takes 0.05-2.8 s here (docs/design.md, field notes), hence the window. Agents only log a twin:
-a killed process stays in the graph until its DDS lease runs out (about 20 s), so an agent restarted
-after a crash would see its own ghost.
+A second system on the same ROS_DOMAIN_ID and namespace shows as a second node with our name in our
+namespace, which `check` logs once. What a world does about a twin is world_node.twin's rule; for an agent a
+twin is only logged: a killed process stays in the graph until its DDS lease runs out (about 20 s), so an
+agent restarted after a crash would see its own ghost. `writers` lists a topic's writers by node name.
 """
 
 from __future__ import annotations
 
-import time
 from typing import Any, Callable, Iterable, Mapping
 
-__all__ = ["REFUSE_WITHIN_S", "CHECK_PERIOD_S", "GraphWatch", "watch_graph", "Matched"]
+__all__ = ["CHECK_PERIOD_S", "UNKNOWN_NODE", "GraphWatch", "watch_graph", "writers", "Matched"]
 
-REFUSE_WITHIN_S = 5.0
 CHECK_PERIOD_S = 1.0  # how often a node looks at the graph
+# The name the graph gives a writer whose node it has not learnt yet (rmw_dds_common's graph cache: endpoints
+# and node names are discovered apart)
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"
 
 
 class GraphWatch:
-    """Feed it the graph now and then (`check`); it logs and counts, and says when to refuse."""
+    """Feed it the graph now and then (`check`); it logs and counts."""
 
-    def __init__(self, name: str, namespace: str, log: Callable[[str], Any] | None = None,
-                 clock: Callable[[], float] = time.monotonic, refuse_within_s: float = REFUSE_WITHIN_S,
-                 refuse: bool = True):
-        self.name, self.namespace, self.refuse = name, namespace, refuse
+    def __init__(self, name: str, namespace: str, log: Callable[[str], Any] | None = None):
+        self.name, self.namespace = name, namespace
         self._log = log or (lambda _msg: None)
-        self._clock = clock
-        self._refuse_until = clock() + refuse_within_s
         self._seen: dict[str, frozenset] = {}  # topic -> the set of writers last logged
         self.second_writers = 0  # times a topic was seen with a new set of more than one writer
         self.same_name_writers = 0  # the same, when every writer bears one node's name (a restart's ghost)
         self._twin_logged = False
 
-    def check(self, nodes: Iterable[tuple[str, str]], writers: Mapping[str, list[tuple[str, str, Any]]]) -> str | None:
+    def check(self, nodes: Iterable[tuple[str, str]], writers: Mapping[str, list[tuple[str, str, Any]]]) -> None:
         """`nodes`: (name, namespace) of every node in the graph; `writers`: topic -> (node name, namespace,
-        endpoint gid) of each of its publishers. Returns the line to refuse with, or None to go on."""
-        twins = sum(1 for n in nodes if tuple(n) == (self.name, self.namespace))
-        if twins > 1:
-            fq = f"{self.namespace.rstrip('/')}/{self.name}"
-            if self.refuse and self._clock() < self._refuse_until:
-                return (f"another node named {fq} is on this ROS_DOMAIN_ID: a second system in namespace "
-                        f"{self.namespace} (or one killed less than about 20 s ago)? refusing to start; give this "
-                        "one another namespace or domain id")
-            if not self._twin_logged:
-                self._twin_logged = True
-                self._log(f"a second node named {fq} is on this ROS_DOMAIN_ID (a second system in our namespace, "
-                          "or a restarted node's ghost)")
+        endpoint gid) of each of its publishers."""
+        twins = sum(1 for n in nodes if tuple(n) == (self.name, self.namespace)) > 1
+        if twins and not self._twin_logged:
+            self._twin_logged = True
+            self._log(f"a second node named {self.namespace.rstrip('/')}/{self.name} is on this ROS_DOMAIN_ID (a "
+                      "second system in our namespace, or a restarted node's ghost)")
         for topic, pubs in writers.items():
             if len(pubs) <= 1:
                 continue
@@ -75,22 +64,23 @@ class GraphWatch:
                 self._log(f"{len(pubs)} writers on {topic} ({', '.join(names)}): it has one rightful writer; "
                           "messages of the others are dropped only if they fail the checks (a key makes sure "
                           "they do)")
-        return None
 
     def counters(self) -> dict[str, int]:
         out = {"second_writers": self.second_writers, "same_name_writers": self.same_name_writers}
         return {k: v for k, v in out.items() if v}
 
 
-def watch_graph(node: Any, watch: Any, topics: list[str]) -> str | None:
-    """Hand the graph around `node` (its peers' names, every writer of `topics`) to a GraphWatch;
-    its answer: a line to refuse with, or None."""
+def writers(node: Any, topic: str) -> list[tuple[str, str, Any]]:
+    """(node name, namespace, endpoint gid) of each writer of `topic` (UNKNOWN_NODE for a node not learnt yet)."""
+    return [(p.node_name, p.node_namespace, p.endpoint_gid) for p in node.get_publishers_info_by_topic(topic)]
+
+
+def watch_graph(node: Any, watch: Any, topics: list[str]) -> None:
+    """Hand the graph around `node` (its peers' names, every writer of `topics`) to a GraphWatch."""
     # Only a topic with a second writer has anything to tell, and counting is cheap where listing each writer
     # is not (every node of a composed warehouse looks at dozens of topics each second).
-    writers = {node.resolve_topic_name(t): [(p.node_name, p.node_namespace, p.endpoint_gid)
-                                            for p in node.get_publishers_info_by_topic(t)]
-               for t in topics if node.count_publishers(t) > 1}
-    return watch.check(node.get_node_names_and_namespaces(), writers)
+    seen = {node.resolve_topic_name(t): writers(node, t) for t in topics if node.count_publishers(t) > 1}
+    watch.check(node.get_node_names_and_namespaces(), seen)
 
 
 class Matched:

@@ -39,6 +39,7 @@ STORAGES = ("mcap", "sqlite3")
 # Deep enough that a burst (an episode boundary, every topic of a step at once) never overwrites a message
 # the recorder has not taken yet.
 RECORD_DEPTH = 1000
+LOOKS_MARGIN_NS = 1_000_000_000  # read_view_bag: how far outside an episode's scenes its looks are read
 
 
 def compatible_qos(publishers: list[Any], fallback: QoSProfile, depth: int = 10) -> QoSProfile:
@@ -313,33 +314,55 @@ def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_
     return written
 
 
-def read_view_bag(bag: str | os.PathLike, *, err: TextIO = sys.stderr) -> tuple[Any, list[Any], list[Any]]:
+def read_view_bag(bag: str | os.PathLike, *, episode_of: Callable[[list[Any]], int] | None = None,
+                  err: TextIO = sys.stderr) -> tuple[Any, list[Any], list[Any]]:
     """What a viewer would have seen of a recorded run: (the map's Occupancy or None, every Scene and every
     Looks, in the bag's order), decoded through the contract from the bag's world/map, world/markers and
-    agv<k>/looks topics (under any namespace). A message that breaks the contract is skipped and counted on
-    `err`; ToolError if the bag cannot be read."""
+    agv<k>/looks topics (under any namespace). With `episode_of` (the scenes -> the episode to draw), only that
+    episode's looks are decoded: the looks are most of a bag's view messages and of the time to read it. A
+    message that breaks the contract is skipped and counted on `err`; ToolError if the bag cannot be read."""
     from rclpy.serialization import deserialize_message
     from rosbags.rosbag2 import Reader
 
-    occupancy, scenes, looks = None, [], []
+    occupancy, scenes, looks, stamps = None, [], [], []
     drops = DropCounter(lambda line: err.write(f"cq-ros render: {line}\n"))
     try:
         reader = Reader(Path(bag))
         reader.open()
     except Exception as e:  # rosbags raises its own errors for a missing or broken bag
         raise ToolError(f"cannot read the bag {bag}: {e}") from None
-    try:
-        wanted = [c for c in reader.connections if (_project_spec(c.topic) or (None,))[0] in (MAP, SCENE, LOOKS)]
-        for connection, _, raw in reader.messages(connections=wanted):
+
+    def read(specs: tuple[TopicSpec, ...], start: int | None = None, stop: int | None = None) -> None:
+        nonlocal occupancy
+        wanted = [c for c in reader.connections if (_project_spec(c.topic) or (None,))[0] in specs]
+        for connection, stamp, raw in reader.messages(connections=wanted, start=start, stop=stop):
             spec, agent = _project_spec(connection.topic)
-            msg = deserialize_message(raw, spec.msg_type)
-            payload = drops.guard(spec.decode, msg, agent=agent, source=connection.topic)
+            payload = drops.guard(spec.decode, deserialize_message(raw, spec.msg_type), agent=agent,
+                                  source=connection.topic)
             if payload is None:
                 continue
             if spec is MAP:
                 occupancy = payload
+            elif spec is SCENE:
+                scenes.append(payload)
+                stamps.append(stamp)
             else:
-                (scenes if spec is SCENE else looks).append(payload)
+                looks.append(payload)
+
+    try:
+        if episode_of is None:
+            read((MAP, SCENE, LOOKS))
+        else:
+            read((MAP, SCENE))
+            if scenes:
+                # from the episode's first scene to the next episode's, a second of the recorder's receive
+                # order either side: frames_from keeps only the looks stamped with one of its steps
+                episode = episode_of(scenes)
+                mine = [k for k, scene in enumerate(scenes) if scene.episode == episode]
+                if mine:
+                    after = mine[-1] + 1
+                    read((LOOKS,), stamps[mine[0]] - LOOKS_MARGIN_NS,
+                         stamps[after] + LOOKS_MARGIN_NS if after < len(stamps) else None)
     finally:
         reader.close()
     return occupancy, scenes, looks

@@ -28,10 +28,12 @@ run, and no end of the launch, kill -9 of the launcher included, leaves the key 
 
 Restarts. With `restart_agents` N (off by default), an agent node that dies while the world runs is started
 again, up to N times in all, with the same command: it resumes from its checkpoint (agent_node.checkpoint,
-every CHECKPOINT_EVERY episodes) or, before the first, joins as a fresh learner. Each restart is a line and
-counted (manifest `restarts`); the episodes it was away for have no statistics of it, and their rows sum the
-other learners' (manifest `restarts.episodes_without`); the world missed its actions meanwhile, so such a run
-ends degraded (exit status 3).
+every CHECKPOINT_EVERY episodes unless `--set checkpoint_every`) or, before the first, joins as a fresh learner.
+The launcher loads that checkpoint first: one it cannot load ends the launch with the reason (which the node
+would only say in its log), and the episodes learnt past it are lost learning. Each restart is a line saying
+how many, and counted (manifest `restarts`, `restarts.learning_lost`); the episodes it was away for have no
+statistics of it, and their rows sum the other learners' (manifest `restarts.episodes_without`); the world
+missed its actions meanwhile, so such a run ends degraded (exit status 3).
 
 Watching. A child that exits non-zero (or is killed) ends the launch with `LaunchError` naming it and its exit
 code (the world's 3: a twin of a node, `WORLD_TWIN`); Ctrl-C or SIGTERM to the launcher ends it with
@@ -53,7 +55,8 @@ every agv<k>/stats, counts once. The learning episodes' rows make episodes.csv, 
 (RunResult.greedy, as `cq_ros.engine.run` gives it), and the marked joint states of the last learning
 episode's AgentStats make observe.csv (the engine takes them before its greedy episodes too). episodes.csv
 is written row by row as the episodes are heard (ros_tools.launch_results: a disk that fills keeps every row
-it took, the launch ends early with one line naming the file and the OS's reason, and the manifest says so);
+it took, the launch ends early with one line naming the file and the OS's reason, and the manifest says so; a
+results folder removed or moved mid-run ends it at the next episode with one line, `ResultsGone`);
 a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason.
 The manifest adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
 messages; the world's missed actions and dropped-message counters).
@@ -87,6 +90,7 @@ from typing import Any, Callable
 import yaml
 from tqdm import tqdm
 
+from agent_node.checkpoint import SUFFIX as CHECKPOINT_SUFFIX, load_checkpoint
 from agent_node.config import agent_config
 from cq_ros.engine import make_learner
 from cq_ros.lab.results import prepare_output
@@ -110,9 +114,9 @@ from .launch_results import (
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
 __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN", "DOMAIN_IDS",
-           "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "LaunchResult", "Child",
-           "split_sets", "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "run_domain",
-           "launch", "StatsListener", "Progress", "write_heard"]
+           "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "ResultsGone", "LaunchResult",
+           "Child", "split_sets", "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts",
+           "run_domain", "launch", "StatsListener", "Progress", "write_heard"]
 
 # The launch's exit status (`cq-ros launch`): every episode played as the offline engine plays it; a launch that
 # failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
@@ -154,6 +158,17 @@ class Interrupted(LaunchError):
 class EndedEarly(LaunchError):
     """The launcher could not write a result file (a full or failing disk): every child was stopped, the rows
     written are kept, and the manifest says why."""
+
+
+class ResultsGone(LaunchError):
+    """The result folder was removed or moved mid-run (ros_tools.launch_results.EpisodeRows looks every
+    episode): every child was stopped, since whatever followed would be played into files nobody can read."""
+
+
+def _rows_failed(rows: EpisodeRows) -> None:
+    """Raise what a failure of episodes.csv ends the launch with, if there was one."""
+    if rows.failure:
+        raise (ResultsGone if rows.gone else EndedEarly)(rows.failure)
 
 
 # -- children ----------------------------------------------------------------------------------------------
@@ -320,7 +335,8 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     patience = {"feedback_timeout": wait} if wait > AGENT_PARAMETERS["feedback_timeout"][0] else {}
     for name, ident in agents:
         nodes[name] = ("agent_node", {
-            **ident, "algo": algo, **common, "checkpoint": str(out.resolve() / "checkpoints" / f"{name}.pkl"),
+            **ident, "algo": algo, **common,
+            "checkpoint": str(out.resolve() / "checkpoints" / (name + CHECKPOINT_SUFFIX)),
             "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **patience, **to_agents,
             **changed})
     return nodes
@@ -482,8 +498,9 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     key`) keys the run and is named there and kept; without it the launch makes a key of its own and removes
     it at the end. `view_port`: also serve the run to Foxglove there (ros_tools.view, the extra `view`).
 
-    `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.pkl` (agv1.pkl
-    ..., or jsa.pkl): the agents start from those learners (as nodes restarted from them) instead of fresh ones.
+    `start_from`: a folder holding a checkpoint (agent_node.checkpoint) per agent node, `<node>.npz` (agv1.npz
+    ..., or jsa.npz): the agents start from those learners (as nodes restarted from them) instead of fresh ones;
+    each is loaded and checked here first, so a bad one is one line before any process starts.
     `restart_agents`: how many times in all an agent node that dies is started again (the module's "Restarts").
 
     Bad input (map, algorithm, setting, namespace, an output that is not ours to write, a missing checkpoint)
@@ -493,7 +510,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     settings = run_settings(gridmap) if settings is None else settings
     make_learner(algo, gridmap, settings, seed, 0, 0)  # an unknown algorithm, or jsa on 8 agents, fails here
     executor_name = executor_kind(executor)
-    start_with = [] if start_from is None else _checkpoints(Path(start_from), gridmap, algo)
+    start_with = [] if start_from is None else _checkpoints(Path(start_from), gridmap, algo, settings)
     node_parameters = {"step_timeout": float(step_timeout),
                        **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
                        **({} if markers else {"markers": False}), **(node_parameters or {})}
@@ -529,7 +546,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             write_system(out / SYSTEM_FILE, nodes, launch_only)
             children = node_commands(nodes, namespace, out)
         for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
-            (out / "checkpoints" / f"{name}.pkl").unlink(missing_ok=True)
+            (out / "checkpoints" / (name + CHECKPOINT_SUFFIX)).unlink(missing_ok=True)
         for given in start_with:
             shutil.copyfile(given, out / "checkpoints" / given.name)
         env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
@@ -547,6 +564,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     run_info = dict(mode="ros", composed=compose, executor=executor_name, markers=node_parameters.get("markers", True),
                     domain_id=domain_id, namespace=f"/{namespace}",
                     step_timeout_s=node_parameters["step_timeout"], **on_hosts,
+                    checkpoint_every=list(nodes.values())[1][1]["checkpoint_every"],
                     peer_linger_steps=node_parameters.get("peer_linger_steps",
                                                           AGENT_PARAMETERS["peer_linger_steps"][0]),
                     node_parameters=node_parameters, authenticated=True)
@@ -568,6 +586,27 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         kept = write_ended(f"the launcher {reason}", "disk", EndedEarly.exit_status)
         return EndedEarly(f"the launcher {reason}: the run ended early after {rows.written}/{episodes} "
                           f"episodes; those rows are in {rows.path}, and {kept}")
+
+    def restart_loss(child: Child) -> str:
+        """Record the learning `child`'s restart loses, the episodes its learner had learnt past the checkpoint
+        it goes back to, and say it; LaunchError with the reason if that checkpoint cannot be loaded (the node
+        would say it only in its log)."""
+        params = nodes[child.name][1]
+        resumed = -1  # no checkpoint yet: a fresh learner
+        if os.path.exists(params["checkpoint"]):
+            try:
+                resumed = load_checkpoint(params["checkpoint"], algo, gridmap, max(params.get("agent_id", 0) - 1, 0),
+                                          settings)[1]
+            except SettingsError as e:
+                raise LaunchError(f"{child.describe_exit()} after {len(listener.world)}/{listener.episodes} "
+                                  f"episodes and cannot restart: {e}") from None
+        ids = learners if child.name == "jsa" else [params["agent_id"]]
+        learnt = min(max((listener.newest[k].episode for k in ids if k in listener.newest), default=-1), episodes - 1)
+        lost = max(0, learnt - resumed)
+        listener.learning_lost.setdefault(child.name, []).append(
+            {"learnt_to": learnt, "resumed_from": resumed, "episodes": lost})
+        start = f"its checkpoint of episode {resumed}" if resumed >= 0 else "a fresh learner (no checkpoint yet)"
+        return f"it resumes from {start}: {lost} learning episode{'s'[:lost != 1]} lost"
 
     started = time.perf_counter()
 
@@ -596,20 +635,23 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 tqdm.write(f"cq-ros launch: ROS_DOMAIN_ID={domain_id}, namespace /{namespace}, "  # above the bar
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
-            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose, list(nodes))
+            _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose,
+                   restart_loss, list(nodes))
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
                 raise LaunchError(f"every node finished, but the launcher never got {'; '.join(listener.missing())}")
             rows.take(listener)
-            if rows.failure:
-                raise EndedEarly(rows.failure)
+            _rows_failed(rows)
         except LaunchError as e:
             stopping = [c.name for c in children if c.running]
             _stop(children)
             rows.close()
             if isinstance(e, EndedEarly):
                 raise ended_early(str(e)) from None
+            if isinstance(e, ResultsGone):  # nowhere left to write a manifest or read a log
+                raise ResultsGone(f"{e}: the run stopped after {rows.written}/{episodes} episodes; stopped "
+                                  f"{', '.join(stopping) or 'nothing'}") from None
             stopped = f"; stopped {', '.join(stopping)}" if stopping else ""
             # A node that refused (exit 2: a second system here) before any row of this run leaves nothing worth
             # keeping, and the line says why; a node that crashed or was stopped leaves its log to read, and the
@@ -654,17 +696,19 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     return result
 
 
-def _restart(child: Child, env: dict, listener: StatsListener, learners: list[int]) -> None:
-    """Start a dead agent node again (it resumes from its checkpoint), saying so; its learners are marked
-    restarted in the listener (the episodes they miss meanwhile are written without them)."""
+def _restart(child: Child, env: dict, listener: StatsListener, learners: list[int],
+             restart_loss: Callable[[Child], str]) -> None:
+    """Start a dead agent node again (it resumes from its checkpoint), saying so and what learning that loses
+    (`restart_loss`, which raises LaunchError instead for a checkpoint it cannot resume from); its learners are
+    marked restarted in the listener (the episodes they miss meanwhile are written without them)."""
     said = child.describe_exit()
+    loss = restart_loss(child)
     child.restarts += 1
     ids = learners if child.name == "jsa" else [int(child.name.removeprefix("agv"))]
     listener.restarted.update(ids)
     child.start(env)
     tqdm.write(f"cq-ros launch: {said} after {len(listener.world)}/{listener.episodes} episodes: restarted it "
-               f"(restart {child.restarts}, pid {child.process.pid}); it resumes from its checkpoint",
-               file=sys.stderr)
+               f"(restart {child.restarts}, pid {child.process.pid}); {loss}", file=sys.stderr)
 
 
 def _unstick(children: list[Child], env: dict, listener: StatsListener) -> None:
@@ -703,12 +747,16 @@ def _remove(made: Path | None) -> None:
         shutil.rmtree(made, ignore_errors=True)
 
 
-def _checkpoints(folder: Path, gridmap: GridMap, algo: str) -> list[Path]:
-    """The checkpoint of every agent node of this launch in `folder`; ValueError naming the first missing."""
-    paths = [folder / f"{name}.pkl" for name, _ in agent_nodes(gridmap, algo)]
-    for path in paths:
+def _checkpoints(folder: Path, gridmap: GridMap, algo: str, settings: Settings) -> list[Path]:
+    """The checkpoint of every agent node of this launch in `folder`, each loaded and checked as its node will
+    (agent_node.checkpoint); ValueError naming the first missing or bad one."""
+    paths = []
+    for name, ident in agent_nodes(gridmap, algo):
+        path = folder / (name + CHECKPOINT_SUFFIX)
         if not path.is_file():
-            raise ValueError(f"start_from {os.fspath(folder)!r}: no checkpoint {path.name} for node {path.stem}")
+            raise ValueError(f"start_from {os.fspath(folder)!r}: no checkpoint {path.name} for node {name}")
+        load_checkpoint(path, algo, gridmap, max(ident.get("agent_id", 0) - 1, 0), settings)
+        paths.append(path)
     return paths
 
 
@@ -724,7 +772,8 @@ def _where(listener: StatsListener, node_names: list[str]) -> str:
 
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
            learners: list[int], rows: EpisodeRows, restart_agents: int = 0, env: dict | None = None,
-           compose: bool = False, node_names: tuple[str, ...] | list[str] = ()) -> None:
+           compose: bool = False, restart_loss: Callable[[Child], str] | None = None,
+           node_names: tuple[str, ...] | list[str] = ()) -> None:
     """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
     soon as one fails (an agent node restarted instead while `restart_agents` allows), EndedEarly as soon as a
     row cannot be written. Between episodes, `bar` says where the run is (`_where` of `node_names`)."""
@@ -735,8 +784,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
                               "episodes")
         executor.spin_once(timeout_sec=0.05)
         rows.take(listener)
-        if rows.failure:
-            raise EndedEarly(rows.failure)
+        _rows_failed(rows)
         if len(listener.world) != bar.shown:
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
@@ -747,7 +795,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
         failed = [c for c in children if c.exit_code not in (None, 0)]
         if failed and not compose and children[0].running and failed[0] is not children[0] and \
                 sum(c.restarts for c in children) < restart_agents:
-            _restart(failed[0], env, listener, learners)
+            _restart(failed[0], env, listener, learners, restart_loss)
             continue
         if failed:
             raise LaunchError(f"{failed[0].describe_exit()} after {len(listener.world)}/{listener.episodes} "

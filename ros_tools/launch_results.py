@@ -89,6 +89,9 @@ class StatsListener:
         # Learners whose node the launch restarted: an episode of theirs never heard before a later one is one
         # they were away for (a node sends its statistics in order, and resumes where the world is).
         self.restarted: set[int] = set()
+        # node -> per restart, the learning its learner lost: the episodes it had learnt past the checkpoint it
+        # went back to (ros_tools.launch records them; the manifest's `restarts.learning_lost`)
+        self.learning_lost: dict[str, list[dict[str, int]]] = {}
         self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
                                                      partial(self._on_agent, k), AGENT_STATS.qos)
                             for k in self.agents]
@@ -157,6 +160,14 @@ class StatsListener:
         """agent -> the episodes its restarted node was away for."""
         return {k: [e for e in range(self.episodes) if self.away(k, e)] for k in sorted(self.restarted)}
 
+    def restarts(self) -> dict[str, Any]:
+        """The manifest's `restarts` (empty without one): per restarted node the episodes it was away for and
+        the learning each restart lost."""
+        if not self.restarted:
+            return {}
+        return {"restarts": {"episodes_without": {f"agv{k}": _ranges(v) for k, v in self.without().items() if v},
+                             "learning_lost": self.learning_lost}}
+
     @property
     def complete(self) -> bool:
         return len(self.world) == self.episodes and all(
@@ -180,14 +191,17 @@ class EpisodeRows:
     """episodes.csv of a launch, a row per learning episode, in order, each written as soon as it is heard.
 
     `failure` is None until a write fails; then it names the file and the OS's reason, the file ends with the
-    last whole row, and the reserve is given back. OutputError at the start when the folder cannot take
-    the reserve and the header."""
+    last whole row, and the reserve is given back. Before each row the file is looked up by its path (one
+    stat an episode): if the folder, or the file, was removed or moved, `gone` is set with `failure`, as
+    nothing more can be kept there. OutputError at the start when the folder cannot take the reserve and
+    the header."""
 
     def __init__(self, out: Path, map_name: str, algo: str, learners: list[int], episodes: int):
         self.path, self.reserve = out / EPISODES, out / RESERVE_NAME
         self.map_name, self.algo, self.learners, self.episodes = map_name, algo, learners, episodes
         self.written = 0  # rows on disk
         self.failure: str | None = None
+        self.gone = False  # the file is no longer at its path: its folder (or it) was removed or moved
         self._fd = -1
         try:
             with open(self.reserve, "wb") as f:
@@ -207,6 +221,12 @@ class EpisodeRows:
             heard = listener.row(self.written, self.learners)
             if heard is None:
                 return
+            if not self._in_place():
+                self.gone = True
+                self.failure = f"results folder {self.path.parent} was removed or moved ({self.path.name} is no " \
+                               "longer there)"
+                self.close()
+                return
             try:
                 self._write(episode_row(self.map_name, self.algo, 0, self.written, record.table([heard])[0]))
             except OSError as e:
@@ -215,6 +235,14 @@ class EpisodeRows:
                 self.free()
                 return
             self.written += 1
+
+    def _in_place(self) -> bool:
+        """Whether the file written is still the one at its path."""
+        try:
+            here, written = os.stat(self.path), os.fstat(self._fd)
+        except FileNotFoundError:
+            return False
+        return (here.st_dev, here.st_ino) == (written.st_dev, written.st_ino)
 
     def _write(self, row) -> None:
         line = io.StringIO()
@@ -315,8 +343,7 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher={"dropped": listener.drops.as_counters()},
         departures=departures(listener, learners), **({"ended": ended} if ended is not None else {}),
-        **({"restarts": {"episodes_without": {f"agv{k}": _ranges(v) for k, v in listener.without().items() if v}}}
-           if listener.restarted else {}))
+        **listener.restarts())
     write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=episodes_written)
     return LaunchResult(out, table, greedy, manifest)
 
@@ -338,7 +365,7 @@ def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, see
                                           "peer_messages": listener.newest[k].peer_messages,
                                           "counters": dict(listener.newest[k].counters)}
                                    for name, k in zip(learner_nodes or [], learners) if k in listener.newest},
-                 "launcher": {"dropped": listener.drops.as_counters()}}
+                 "launcher": {"dropped": listener.drops.as_counters()}, **listener.restarts()}
     manifest = manifest_for(gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
                             ended_early={"reason": reason, "episodes_written": rows.written}, **heard,
                             **({"ended": ended} if ended is not None else {}))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import os
+import pickle
 import sys
 import time
 import uuid
@@ -209,3 +210,21 @@ def offline_rows(algo, map_name, seed, episodes, settings=()):
     """The engine's rows of every episode a ROS run plays: the learning ones, then the greedy ones."""
     result = offline(algo, map_name, seed, episodes, settings)
     return np.concatenate([result.episodes, result.greedy])
+
+
+# -- checkpoints ------------------------------------------------------------------------------------------
+
+class Payload:
+    """Unpickling it creates `marker`: what a crafted checkpoint would do."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return open, (self.marker, "w")
+
+
+def crafted_pickle(path, marker):
+    """A checkpoint of the old pickled format whose learner, once unpickled, has run code (made `marker`)."""
+    path.write_bytes(pickle.dumps({"format": 3, "algo": "cq", "map": "tunnel_to_goal", "agent": 0, "episode": 5,
+                                   "learner": Payload(marker)}))

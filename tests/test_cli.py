@@ -59,6 +59,10 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         (["experiment", "--map", "grid_game_2", "--set", "alpha=abc", "--out", "X"], "alpha takes a number"),
         (["experiment", "--map", "grid_game_2", "--set", "gamma=1.5", "--out", "X"], "gamma must be in [0, 1)"),
         (["experiment", "--map", "grid_game_2", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
+        (["experiment", "--map", "grid_game_2", "--set", "slip=1", "--out", "X"], "at 1 every move fails"),
+        (["experiment", "--map", "grid_game_2", "--set", "step_cap=50", "--set", "start_hold=60", "--out", "X"],
+         "start_hold must be below step_cap=50"),
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--set", "slip=1", "--out", "X"], "at 1 every move fails"),
         (["reproduce", "--seed", "-1", "--out", "X"], "--seed: must be at least 0"),
         (["reproduce", "--seeds", "0,-1", "--out", "X"], "--seeds: every seed must be at least 0"),
         (["generate", "warehouse", "--agents", "8", "--seed", "-2", "--out", "X"], "--seed: must be at least 0"),
@@ -84,6 +88,33 @@ def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):
     assert phrase in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
     assert "Traceback" not in result.stderr
+    assert not (tmp_path / "X").exists()
+
+
+@pytest.mark.parametrize("content, where", [
+    ("agent 1: start 0,0  goal 0,1\n+-+-+\n|. .|  caf\u00e9\n+-+-+\n".encode("latin-1"), ":3:11: not a UTF-8"),
+    (bytes(range(128, 256)), ":1:1: not a UTF-8"),  # not text at all
+    (b"hello world\n", ":1: drawing size inconsistent"),  # text, but no map
+])
+def test_a_map_file_that_is_not_a_map_gets_a_line_naming_it(tmp_path, content, where):
+    path = tmp_path / "mine.txt"
+    path.write_bytes(content)
+    result = run_cli("experiment", "--map", str(path), "--out", str(tmp_path / "X"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines() == [result.stderr.strip()]
+    assert f"{path}{where}" in result.stderr
+
+
+@pytest.mark.parametrize("content, says", [(bytes(range(200, 232)), "is not a key file: byte 0 is not text (0xc8)"),
+                                           (b"not hex at all\n", "must hold at least 16 bytes as hex")])
+def test_a_junk_key_file_gets_a_line_naming_it(tmp_path, content, says):
+    key = tmp_path / "junk.key"
+    key.write_bytes(content)
+    key.chmod(0o600)
+    result = run_cli("launch", "--map", "grid_game_2", "--algo", "cq", "--key", str(key), "--out", str(tmp_path / "X"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    line = result.stderr.strip()
+    assert "\n" not in line and line.startswith(f"cq-ros launch: error: parameter key_file: {str(key)!r} {says}")
     assert not (tmp_path / "X").exists()
 
 
@@ -219,15 +250,17 @@ def test_settings_lists_every_setting_with_its_default_and_description(capsys):
         assert " ".join(described.group(1).split()) == Settings.describe(name)
 
 
-def test_ctrl_c_on_an_experiment_before_its_results_leaves_no_folder(tmp_path):
+@pytest.mark.parametrize("sig, runs", [("SIGINT", 1), ("SIGTERM", 1), ("SIGTERM", 2)])
+def test_ctrl_c_or_sigterm_on_an_experiment_before_its_results_leaves_no_folder(tmp_path, sig, runs):
+    """SIGTERM unwinds as Ctrl-C does (cq_ros/cli/main.py), its worker processes (2 runs) stopped with it."""
     import signal
     import subprocess
     import sys
     import time
 
     out = tmp_path / "made" / "result"
-    cmd = [sys.executable, "-m", "cq_ros.cli", "experiment", "--map", "tunnel_to_goal", "--algo", "cq", "--runs", "1",
-           "--episodes", "10000000", "--seed", "0", "--out", str(out)]
+    cmd = [sys.executable, "-m", "cq_ros.cli", "experiment", "--map", "tunnel_to_goal", "--algo", "cq", "--runs",
+           str(runs), "--episodes", "10000000", "--seed", "0", "--out", str(out)]
     # Ctrl-C's default, as at a terminal: a suite started as a shell's background job runs with SIGINT ignored,
     # which a child inherits, and Python then leaves it ignored (the experiment ran on, 60 s, in such a run)
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
@@ -238,7 +271,7 @@ def test_ctrl_c_on_an_experiment_before_its_results_leaves_no_folder(tmp_path):
             assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.poll() else "late"
             time.sleep(0.05)
         time.sleep(1)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(getattr(signal, sig))
         _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
@@ -247,5 +280,5 @@ def test_ctrl_c_on_an_experiment_before_its_results_leaves_no_folder(tmp_path):
     # 130 is main()'s answer to Ctrl-C. Under `python -m`, 2 of 15 such runs here printed "interrupted", returned
     # 130 from main() and still ended killed by SIGINT (CPython's exit for an interrupted run): either is Ctrl-C's.
     assert proc.returncode in (130, -signal.SIGINT), err
-    assert "interrupted" in err, err
+    assert ("interrupted by SIGTERM" if sig == "SIGTERM" else "interrupted") in err, err
     assert "Traceback" not in err and not (tmp_path / "made").exists(), err

@@ -94,7 +94,7 @@ def test_the_reproduction_figure_is_the_reports_findings_and_whole_table():
 
 def test_the_readmes_python_examples_run_as_written():
     blocks = re.findall(r"^```python\n(.*?)^```$", README.read_text(), flags=re.S | re.M)
-    assert len(blocks) == 2  # cq_ros.engine and the PettingZoo env
+    assert len(blocks) == 3  # cq_ros.engine, the PettingZoo env, and a SuperSuit wrapper chain over it
     for block in blocks:
         printed = io.StringIO()
         with contextlib.redirect_stdout(printed):

@@ -1,7 +1,7 @@
 """Faults on the wire, driven for real on rclpy: a restart without a checkpoint, one dropped
 feedback, bursts of junk on every topic, a second writer of positions and actions without the run's key,
-stale positions, an agent waiting at its goal for longer than its timeout, a second system in the same
-namespace, and every bad parameter. A run finishes with exactly the offline engine's episodes wherever no
+stale positions, an agent waiting at its goal for longer than its timeout, and every bad parameter (a second
+system in the same namespace: tests/test_twin.py). A run finishes with exactly the offline engine's episodes wherever no
 real message was lost, and with the loss counted where one was.
 
 The systems run in one process, on one executor, as tests/test_nodes_inprocess.py runs them; the bad
@@ -17,6 +17,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -33,7 +34,6 @@ from msgs_spec import (
 )
 from helpers import GRID, RUN_TIMEOUT_S, finish, launch_command, offline_rows, parameters, unique, wait_for_line, \
     wait_until
-from node_runtime.graph import REFUSE_WITHIN_S
 from world_node import WorldNode
 
 
@@ -172,8 +172,7 @@ def test_junk_bursts_of_100_messages_per_step_on_every_topic_change_nothing(syst
     pubs = [(kind, k, spec.msg_type, injector.create_publisher(spec.msg_type, topic(k), spec.qos))
             for kind, spec, topic in (("feedback", FEEDBACK, feedback_topic), ("position", POSITION, position_topic),
                                       ("action", ACTION, action_topic)) for k in (1, 2)]
-    # A heartbeat writer seen before the world's first step is a second world, which it refuses to run beside
-    # (test_a_second_world_beside...): this one joins once the run is under way.
+    # once the run is under way (a heartbeat writer before its start: tests/test_twin.py)
     assert spin_until(system.executor, lambda: world.core.episode >= 0, RUN_TIMEOUT_S)
     beat = injector.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
     done = set()
@@ -270,77 +269,6 @@ def test_an_agent_waiting_at_its_goal_longer_than_its_timeout_stays(system_in, s
     assert all(s.missed_actions == 0 for s in system.world_stats)
 
 
-def test_a_second_system_on_the_same_domain_and_namespace_is_refused(ros_domain_id, spin_until):
-    """Two worlds in one namespace: the one started second exits 2 with one line, the first goes on."""
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
-    contexts, nodes = [], []
-    executor = None
-    try:
-        for _ in range(2):
-            ctx = Context()
-            rclpy.init(context=ctx, domain_id=ros_domain_id)
-            contexts.append(ctx)
-        started = time.monotonic()
-        first = WorldNode(context=contexts[0], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
-        nodes.append(first)
-        executor = SingleThreadedExecutor(context=contexts[0])
-        executor.add_node(first)
-        # past its own start: a world that sees a twin within REFUSE_WITHIN_S of its start refuses itself
-        wait_until(lambda: time.monotonic() > started + REFUSE_WITHIN_S + 0.5, REFUSE_WITHIN_S + 10,
-                   "the first world's refusal window", between=lambda: executor.spin_once(timeout_sec=0.05))
-        second = WorldNode(context=contexts[1], namespace="/twin", parameter_overrides=parameters(startup_timeout=60.0))
-        nodes.append(second)
-        other = SingleThreadedExecutor(context=contexts[1])
-        other.add_node(second)
-        wait_until(second.done.done, 10.0, "the second world's exit",
-                   between=lambda: (executor.spin_once(timeout_sec=0.02), other.spin_once(timeout_sec=0.02)))
-        assert second.done.done() and second.done.result() == 2
-        assert not first.done.done()
-        other.shutdown()
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        for ctx in contexts:
-            rclpy.try_shutdown(context=ctx)
-
-
-def test_a_second_world_beside_a_running_system_refuses_before_it_sends_anything(system_in, ros_domain_id,
-                                                                                   spin_until):
-    """a second world in the namespace of a running system finds that system's agents connected at
-    once; it refuses (exit 2) before its first step, so none of its messages reaches them, and the system's
-    run is the engine's."""
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-
-    algo, episodes = "cq", 20
-    system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], world_extra={"step_timeout": 10.0})
-    assert spin_until(system.executor, lambda: system.world.core.episode >= 1, RUN_TIMEOUT_S)
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=ros_domain_id)
-    second = other = None
-    try:
-        second = WorldNode(context=ctx, parameter_overrides=parameters(map=CASE[0], episodes=episodes, seed=CASE[1],
-                                                                       startup_timeout=RUN_TIMEOUT_S))
-        other = SingleThreadedExecutor(context=ctx)
-        other.add_node(second)
-        wait_until(second.done.done, RUN_TIMEOUT_S, "the second world's exit",
-                   between=lambda: (system.executor.spin_once(timeout_sec=0.01), other.spin_once(timeout_sec=0.01)))
-        assert second.done.done() and second.done.result() == 2
-        assert second.core.episode == -1  # it never began: no message of it went out
-    finally:
-        if other is not None:
-            other.shutdown()
-        if second is not None:
-            second.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-    finish(system)
-    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
-
-
 def test_a_restarted_nodes_ghost_is_no_second_writer():
     """A restarted agv1's dead DDS entry stays in the graph until its lease runs out: two writers on
     agv1/action, both named /run/agv1. That is counted as `same_name_writers`, not as a second writer, which
@@ -383,9 +311,9 @@ def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics
 
 
 def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_path):
-    (tmp_path / "agv1.pkl.x1y2z3.tmp").write_bytes(b"a save killed mid-write")
+    (tmp_path / "agv1.npz.x1y2z3.tmp").write_bytes(b"a save killed mid-write")
     node = AgentNode(context=ros_context, parameter_overrides=parameters(
-        agent_id=1, checkpoint=str(tmp_path / "agv1.pkl")))
+        agent_id=1, checkpoint=str(tmp_path / "agv1.npz")))
     node.destroy_node()
     assert os.listdir(tmp_path) == []
 
@@ -394,8 +322,8 @@ def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_
     ("world_node", ["-p", "step_timout:=1.0"], "unknown parameter 'step_timout'; did you mean 'step_timeout'?"),
     ("world_node", ["-p", "startup_timeout:=nan"], "parameter startup_timeout must be a finite number, got nan"),
     ("agent_node", ["--params-file", "/no/such/params.yaml"], "--params-file /no/such/params.yaml: no such file"),
-    ("agent_node", ["-p", "agent_id:=1", "-p", "checkpoint:=/no/such/dir/x.pkl"],
-     "parameter checkpoint: '/no/such/dir/x.pkl': folder '/no/such/dir' does not exist"),
+    ("agent_node", ["-p", "agent_id:=1", "-p", "checkpoint:=/no/such/dir/x.npz"],
+     "parameter checkpoint: '/no/such/dir/x.npz': folder '/no/such/dir' does not exist"),
 ])
 @pytest.mark.ros
 def test_bad_parameters_on_the_command_line_are_one_line_and_exit_2(module, args, message):
@@ -641,48 +569,141 @@ def test_a_twin_agent_started_by_hand_with_the_key_ends_the_launch_naming_it(tmp
     assert rows[:5] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"])) for e in offline.episodes]
 
 
+def restarting_launch(out, err, episodes: int, checkpoint_every: int):
+    """`cq-ros launch --restart-agents 1` of the stall case, checkpointing every `checkpoint_every` episodes, its
+    stderr in the file `err`."""
+    sets = (*STALL_SETTINGS, "step_timeout=1.0", f"checkpoint_every={checkpoint_every}")
+    with open(err, "wb") as stderr:
+        return subprocess.Popen(launch_command(out, unique("restart"), STALL_MAP, STALL_ALGO, episodes, sets,
+                                               "--no-figures", "--restart-agents", "1"),
+                                stdout=subprocess.DEVNULL, stderr=stderr)
+
+
+def failed_in_one_line(code: int, err) -> str:
+    """The one error line of a launch that failed (exit 1), its stderr in the file `err`, without a traceback."""
+    assert code == 1, text_of(err)
+    lines = [line for line in text_of(err).splitlines() if "error" in line]
+    assert len(lines) == 1 and "Traceback" not in text_of(err), text_of(err)
+    return lines[0]
+
+
+def agv1_pid(launcher, err) -> int:
+    """agv1's pid, once the launcher has listed its processes on stderr (the file `err`)."""
+    return int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
+                          "no process list from the launcher", ended=lambda: launcher.poll() is not None,
+                          detail=lambda: text_of(err)).group(1))
+
+
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoint(tmp_path):
-    """`--restart-agents 1`: agv1 killed (kill -9) once it has written a checkpoint; the launcher starts it
-    again, it resumes from the checkpoint, and the launch plays every episode: counted (the node's `restarts`,
-    the episodes it was away for), degraded (the world missed its actions meanwhile: exit status 3), and every
-    episode before that is the offline engine's."""
+    """`--restart-agents 1`: agv1 killed (kill -9) once it has written a checkpoint and learnt past it; the
+    launcher starts it again, it resumes from the checkpoint (every `--set checkpoint_every` episodes), and the
+    launch plays every episode: counted (the node's `restarts`, the episodes it was away for, the learning
+    episodes the restart lost, on stderr and in the manifest), degraded (the world missed its actions
+    meanwhile: exit status 3), and every episode before that is the offline engine's."""
     from cq_ros.engine import run
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
 
-    episodes = 400
-    out, namespace, err = tmp_path / "result", unique("restart"), tmp_path / "stderr.txt"
-    sets = (*STALL_SETTINGS, "step_timeout=1.0")
-    with open(err, "wb") as stderr:
-        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, sets,
-                                                   "--no-figures", "--restart-agents", "1"),
-                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    episodes, every = 400, 20
+    out, err = tmp_path / "result", tmp_path / "stderr.txt"
+    launcher = restarting_launch(out, err, episodes, every)
     try:
-        pid = int(wait_until(lambda: re.search(r"\bagv1 pid (\d+)", text_of(err)), LAUNCH_TIMEOUT_S,
-                             "no process list from the launcher", ended=lambda: launcher.poll() is not None,
-                             detail=lambda: text_of(err)).group(1))
-        wait_until(lambda: (out / "checkpoints" / "agv1.pkl").exists(), LAUNCH_TIMEOUT_S, "no checkpoint of agv1",
-                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        pid = agv1_pid(launcher, err)
+        # a checkpoint (of episode 19 at the earliest), and episodes learnt past it: rows are written once
+        # every learner's statistics of their episode are in
+        wait_until(lambda: (out / "checkpoints" / "agv1.npz").exists() and len(read_rows(out / "episodes.csv")) > 25,
+                   LAUNCH_TIMEOUT_S, "no checkpoint of agv1", ended=lambda: launcher.poll() is not None,
+                   detail=lambda: text_of(err))
         os.kill(pid, signal.SIGKILL)
         code = launcher.wait(LAUNCH_TIMEOUT_S)
     finally:
         stop_launcher(launcher)
     assert code == 3, text_of(err)
-    assert re.search(r"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/400 episodes: "
-                     r"restarted it \(restart 1, pid \d+\)", text_of(err)), text_of(err)
+    said = re.search(r"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/400 episodes: "
+                     r"restarted it \(restart 1, pid \d+\); it resumes from its checkpoint of episode (\d+): "
+                     r"(\d+) learning episodes? lost", text_of(err))
+    assert said, text_of(err)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["nodes"]["agv1"]["restarts"] == 1 and "restarts" not in manifest["nodes"]["agv2"]
     assert set(manifest["restarts"]["episodes_without"]) <= {"agv1"}  # none when it rejoined within an episode
+    [lost] = manifest["restarts"]["learning_lost"]["agv1"]
+    assert manifest["checkpoint_every"] == every and (lost["resumed_from"] + 1) % every == 0
+    assert (lost["resumed_from"], lost["episodes"]) == (int(said.group(1)), int(said.group(2)))
+    assert lost["learnt_to"] >= 25 and lost["episodes"] == lost["learnt_to"] - lost["resumed_from"] >= 0
     assert manifest["ended"]["how"] == "degraded" and manifest["departures"]["missed_actions"] >= 1
     assert "resum" in text_of(out / "logs" / "agv1.log") or "joining" in text_of(out / "logs" / "agv1.log")
     rows = read_rows(out / "episodes.csv")
     offline = run(STALL_ALGO, load_map(STALL_MAP), Settings().with_overrides(list(STALL_SETTINGS)), 1, 0, episodes)
     first = manifest["departures"]["first_episode"]
-    assert len(rows) == episodes  # first: 50 or later, unless a loaded machine cost a step before the kill
+    assert len(rows) == episodes  # first: 25 or later, unless a loaded machine cost a step before the kill
     assert rows[:first] == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"]))
                             for e in offline.episodes][:first]
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("damage, reason", [
+    ("truncated", "cannot read it: BadZipFile"),
+    ("pickle", r"is a pickle .* convert it with `cq-ros checkpoint convert .*agv1.npz NEW.npz`"),
+])
+def test_a_restart_from_a_bad_checkpoint_ends_the_launch_with_the_reason(tmp_path, damage, reason):
+    """agv1 killed, its checkpoint cut in half, or replaced by a crafted pickle, meanwhile: the launcher does
+    not restart it into a node that would only say why in its log; the launch ends (exit 1) with one line
+    giving the reason, and the pickle ran nothing."""
+    from helpers import crafted_pickle
+
+    out, err = tmp_path / "result", tmp_path / "stderr.txt"
+    path = out / "checkpoints" / "agv1.npz"
+    launcher = restarting_launch(out, err, 400, 5)
+    try:
+        pid = agv1_pid(launcher, err)
+        wait_until(path.exists, LAUNCH_TIMEOUT_S, "no checkpoint of agv1", ended=lambda: launcher.poll() is not None,
+                   detail=lambda: text_of(err))
+        os.kill(pid, signal.SIGSTOP)  # no save while the file is cut, then killed
+        if damage == "truncated":
+            data = path.read_bytes()
+            path.write_bytes(data[:len(data) // 2])
+        else:
+            crafted_pickle(path, tmp_path / "ran")
+        os.kill(pid, signal.SIGKILL)
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+    line = failed_in_one_line(code, err)
+    assert re.search(r"agv1 \(pid \d+\) exited with code -9 .* and cannot restart: parameter checkpoint: "
+                     r".*agv1.npz'.? " + reason, line), line
+    assert not (tmp_path / "ran").exists()
+    assert json.loads((out / "manifest.json").read_text())["ended"]["how"] == "node_failed"
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["removed", "moved"])
+def test_a_results_folder_removed_or_moved_mid_run_ends_the_launch_in_one_line(tmp_path, how):
+    """The result folder removed (rm -r) or moved mid-run: the launch stops at the next episode with one line
+    and exit 1, instead of playing every episode into files nobody can read."""
+    episodes = 2000
+    out, namespace, err = tmp_path / "result", unique("gone"), tmp_path / "stderr.txt"
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, STALL_MAP, STALL_ALGO, episodes, STALL_SETTINGS,
+                                                   "--no-figures"), stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        csv_file = out / "episodes.csv"
+        wait_until(lambda: csv_file.exists() and len(read_rows(csv_file)) >= 3, LAUNCH_TIMEOUT_S, "no episodes written",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        if how == "removed":
+            shutil.rmtree(out)
+        else:
+            out.rename(tmp_path / "elsewhere")
+        code = launcher.wait(LAUNCH_TIMEOUT_S)
+    finally:
+        stop_launcher(launcher)
+    line = failed_in_one_line(code, err)
+    assert re.search(rf"results folder {re.escape(str(out))} was removed or moved \(episodes.csv is no longer "
+                     rf"there\): the run stopped after (\d+)/{episodes} episodes; stopped ", line), line
+    assert int(re.search(r"after (\d+)/", line).group(1)) < episodes
 
 
 # -- disks: read-only, full, filling -------------------------------------------------------------------------
@@ -759,7 +780,7 @@ def test_a_checkpoint_folder_on_a_full_disk_is_refused_at_start(tmp_path):
     with tmpfs(tmp_path / "full", 64) as full:
         fill(full)
         done = subprocess.run([sys.executable, "-m", "agent_node", "--ros-args", "-p", "agent_id:=1", "-p",
-                               f"checkpoint:={full}/agv1.pkl"], capture_output=True, text=True, timeout=60)
+                               f"checkpoint:={full}/agv1.npz"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2, done.stderr
     assert done.stderr.count("\n") == 1 and "No space left on device" in done.stderr, done.stderr
 
@@ -771,7 +792,7 @@ def test_a_checkpoint_that_cannot_be_written_is_counted_and_learning_goes_on(sys
     algo, episodes = "cq", 20
     with tmpfs(tmp_path / "filling", 64) as folder:
         system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2],
-                           agent_extra={1: {"checkpoint": str(folder / "agv1.pkl"), "checkpoint_every": 5}})
+                           agent_extra={1: {"checkpoint": str(folder / "agv1.npz"), "checkpoint_every": 5}})
         fill(folder)
         finish(system)
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, CASE, episodes)
@@ -824,8 +845,7 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
 
 
 def _inject_once_under_way(system, ros_context, spin_until, messages):
-    """Publish `messages` ((topic, spec, raw bytes) each) every 50 ms once the run is under way (a heartbeat
-    writer seen before the world's first step would be a second world)."""
+    """Publish `messages` ((topic, spec, raw bytes) each) every 50 ms once the run is under way."""
     assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
     injector = system.add(rclpy.create_node("injector", context=ros_context))
     pubs = {topic: injector.create_publisher(spec.msg_type, topic, spec.qos) for topic, spec, _ in messages}

@@ -27,7 +27,7 @@ import pytest
 
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
-from cq_ros.settings import Settings
+from cq_ros.settings import Settings, run_settings
 from helpers import SEED, WaitTimeout, launch_command, read_episodes, unique, wait_until
 from ros_tools.hosts import HostsError, check_can_make_hosts, existing_prefixes, hosts_up, hosts_down
 
@@ -342,7 +342,8 @@ def test_a_host_cut_for_good_ends_the_run_as_a_lost_agent_does_and_keeps_what_wa
     assert manifest["ended"]["how"] == "node_failed" and manifest["ended_early"]["episodes_written"] == len(rows)
     gridmap = load_map("tunnel_to_goal")
     for k in (1, 2):  # each agent's last checkpoint, written before the cut, loads whole
-        learner, episode = load_checkpoint(out / "checkpoints" / f"agv{k}.pkl", "indep", gridmap, k - 1)
+        learner, episode = load_checkpoint(out / "checkpoints" / f"agv{k}.npz", "indep", gridmap, k - 1,
+                                          run_settings(gridmap, list(sets[:2])))
         assert episode >= 4 and learner.agent == k - 1
     assert not list((out / "checkpoints").glob("*.tmp"))
 

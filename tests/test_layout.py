@@ -1,13 +1,15 @@
 """The packages' layering, read from the source with `ast` (README, "Layout"), bottom-up:
 
-    cq_ros (the science) -> cq_ros.lab -> cq_ros.cli;  cq_ros -> msgs_spec -> node_runtime
+    cq_ros (the science) -> cq_ros.lab -> cq_ros.envs, cq_ros.cli;  cq_ros -> msgs_spec -> node_runtime
         -> world_node, agent_node -> ros_tools
 
 A module imports only packages below its own; world_node and agent_node never import each other; the science
-(cq_ros outside lab/ and cli/) imports no lab, CLI, ROS, plotting, argument parsing or cluster code; the lab
-imports no CLI; only the CLI's ROS commands reach `ros_tools`, inside their functions; `msgs_spec`, the wire
-contract, imports no other package of ours and from rclpy only its QoS. Imports inside functions count as much as
-those at the top, and no module imports itself back through others (no import cycle, lazy imports included).
+(cq_ros outside lab/, envs/ and cli/) imports no lab, envs, CLI, ROS, plotting, argument parsing or cluster code;
+the lab imports no CLI and no envs; the envs (the PettingZoo interface) import no CLI and draw their
+`rgb_array` frames with the lab's renderer, not with a plotting library of their own; only the CLI's ROS
+commands reach `ros_tools`, inside their functions; `msgs_spec`, the wire contract, imports no other package
+of ours and from rclpy only its QoS. Imports inside functions count as much as those at the top, and no module
+imports itself back through others (no import cycle, lazy imports included).
 """
 
 from __future__ import annotations
@@ -31,11 +33,11 @@ NOT_SCIENCE = {"matplotlib", "argparse", "dask", "distributed", "tqdm", "foxglov
 
 
 def layer(path: str) -> str | None:
-    """'science', 'lab' or 'cli' for a module of cq_ros, else None."""
+    """'science', 'lab', 'envs' or 'cli' for a module of cq_ros, else None."""
     parts = path.split("/")
     if parts[0] != "cq_ros":
         return None
-    return parts[1] if len(parts) > 2 and parts[1] in ("lab", "cli") else "science"
+    return parts[1] if len(parts) > 2 and parts[1] in ("lab", "envs", "cli") else "science"
 
 
 def module_name(path: str) -> str:
@@ -79,10 +81,12 @@ def violations(path: str, source: str) -> list[str]:
         root = name.split(".")[0]
         where = f"{path} imports {name}"
         into = layer(name.replace(".", "/") + "/x.py") if root == "cq_ros" else None
-        if layer(path) == "science" and (into in ("lab", "cli") or root in NOT_SCIENCE):
-            out.append(f"{where}: the science imports no lab, CLI, plotting, parsing or cluster code")
-        elif layer(path) == "lab" and into == "cli":
-            out.append(f"{where}: the lab imports no CLI")
+        if layer(path) == "science" and (into in ("lab", "envs", "cli") or root in NOT_SCIENCE):
+            out.append(f"{where}: the science imports no lab, envs, CLI, plotting, parsing or cluster code")
+        elif layer(path) == "lab" and into in ("envs", "cli"):
+            out.append(f"{where}: the lab imports no envs and no CLI")
+        elif layer(path) == "envs" and (into == "cli" or root in NOT_SCIENCE):
+            out.append(f"{where}: the envs import no CLI, and draw with the lab's renderer, not a plotting library")
         if root in RANK and root != package:
             if root == "ros_tools" and rank is not None and path not in CLI_MODULES:
                 out.append(f"{where}: only {' and '.join(sorted(CLI_MODULES))}, the tests and the benchmarks import "
@@ -195,7 +199,11 @@ def test_every_package_of_the_layering_exists_and_is_installed():
     ("cq_ros/engine.py", "def f():\n    from .lab.plots import write_figures", "the science imports no lab"),
     ("cq_ros/stats.py", "import matplotlib.pyplot as plt", "the science imports no lab"),
     ("cq_ros/learners/cq.py", "from ..cli.main import main", "the science imports no lab"),
-    ("cq_ros/lab/summary.py", "from ..cli.offline import print_summary", "the lab imports no CLI"),
+    ("cq_ros/lab/summary.py", "from ..cli.offline import print_summary", "the lab imports no envs and no CLI"),
+    ("cq_ros/lab/render.py", "from ..envs.pettingzoo_env import GridWorldEnv", "the lab imports no envs"),
+    ("cq_ros/world.py", "def f():\n    from .envs import pettingzoo_env", "the science imports no lab, envs"),
+    ("cq_ros/envs/pettingzoo_env.py", "def f():\n    import matplotlib", "draw with the lab's renderer"),
+    ("cq_ros/envs/pettingzoo_env.py", "from ..cli.main import main", "the envs import no CLI"),
 ])
 def test_the_check_catches_each_kind_of_break(path, source, broken):
     lines = violations(path, source)
@@ -210,6 +218,7 @@ def test_the_check_catches_each_kind_of_break(path, source, broken):
     ("tests/test_x.py", "from ros_tools.commands import echo"),
     ("cq_ros/lab/plots.py", "import matplotlib\nfrom ..gridmap import load_map"),
     ("cq_ros/cli/offline.py", "from ..lab.experiment import experiment\nfrom ..settings import Settings"),
+    ("cq_ros/envs/pettingzoo_env.py", "from ..world import GridWorld\ndef f():\n    from ..lab.render import Picture"),
     ("benchmarks/bench_x.py", "from ros_tools.launch import launch"),
 ])
 def test_what_the_layering_allows_passes(path, source):

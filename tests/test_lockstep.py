@@ -18,6 +18,7 @@ from msgs_spec import NO_ACTION, Action, Feedback, Heartbeat, Position, WorldSta
 from node_runtime.parameters import SETTING_NAMES
 from node_runtime.parameters import WORLD_PARAMETERS as PARAMETERS
 from world_node.lockstep import NO_PROGRESS_STEPS, Lockstep, world_config
+from world_node.twin import Identity
 
 
 class Clock:
@@ -387,13 +388,15 @@ def test_a_silent_world_waits_as_long_as_a_start_for_an_agent_to_rejoin():
     assert "startup_timeout=12 s at least" in core.no_progress
 
 
-def test_heartbeats_count_up_and_say_where_the_world_is():
+def test_heartbeats_count_up_and_say_where_the_world_is_and_who_it_is():
     core, _ = lockstep(CORRIDOR)
-    assert core.heartbeat() == Heartbeat(1, 0, 0)  # before the first step
+    core.identity = Identity(started=1_796_400_000, ticket=77)
+    assert core.heartbeat() == Heartbeat(1, 0, 0, stepping=0, started=1_796_400_000, ticket=77)  # waiting
     core.begin()
+    assert core.heartbeat() == Heartbeat(2, 0, 0, stepping=1, started=1_796_400_000, ticket=77)  # its first step
     core.on_action(1, act(1, 0, 0, EAST))
     core.on_action(2, act(2, 0, 0, EAST))
-    assert core.heartbeat() == Heartbeat(2, 0, 1)
+    assert core.heartbeat() == Heartbeat(3, 0, 1, stepping=1, started=1_796_400_000, ticket=77)
 
 
 def test_with_a_key_only_actions_carrying_its_mac_count():

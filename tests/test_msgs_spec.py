@@ -513,7 +513,9 @@ REJECTIONS = [
     ("act-retired-agent", lambda: _bound_then(ms.Action(3, 2, 3, 1), ms.Action(3, 2, 3, 1), 3, retire=True),
      "other_incarnation"),
     ("hb-replayed", lambda: ms.decode_heartbeat(ms.encode(ms.Heartbeat(5, 0, 0)), after=5), "replayed"),
-    ("hb-beat-zero", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [0, 0, 0])), "out_of_range"),
+    ("hb-beat-zero", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [0, 0, 0, 1, 0, 0])), "out_of_range"),
+    ("hb-stepping-two", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [1, 0, 0, 2, 0, 0])), "out_of_range"),
+    ("hb-ticket-negative", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [1, 0, 0, 1, 0, -1])), "out_of_range"),
 ]
 # Judged by the receiver (agent_node.peer_view.PeerView, agent_node.world_link.WorldLink; tests/test_driver.py),
 # not by a decoder.

@@ -21,7 +21,7 @@ from agent_node import AgentNode
 from agent_node.checkpoint import load_checkpoint
 from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
-from cq_ros.settings import Settings, SettingsError
+from cq_ros.settings import Settings, SettingsError, run_settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
@@ -235,7 +235,7 @@ def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(syst
     for _ in range(30):
         team.episode()
     learner = team.learners[0]
-    loaded, episode = load_checkpoint(path, "cq", gridmap, 0)
+    loaded, episode = load_checkpoint(path, "cq", gridmap, 0, settings)
     assert system.agents[0].driver.learner.epsilon == 0.0 and loaded.epsilon == settings.epsilon
     assert episode == 29 and loaded.q_local == learner.q_local and loaded.joint_states() == learner.joint_states()
     for cell, peer in itertools.product(range(gridmap.n_cells), repeat=2):  # and it acts identically
@@ -254,7 +254,8 @@ def test_a_killed_agent_resumes_from_its_checkpoint(system_in, ros_context, tmp_
     assert spin_until(system.executor, lambda: world.core.episode >= 12, RUN_TIMEOUT_S)
     system.executor.remove_node(agent2)  # killed, a moment after its checkpoint of episode 9
     agent2.destroy_node()
-    saved, saved_episode = load_checkpoint(path, "cq", load_map(GRID[0]), 1)
+    saved, saved_episode = load_checkpoint(path, "cq", load_map(GRID[0]), 1,
+                                          run_settings(load_map(GRID[0]), settings))
     assert saved_episode == 9
     assert spin_until(system.executor, lambda: world.core.missed_actions > 0, 5.0)  # it steps on without it
     restarted = AgentNode("agv2", context=ros_context, parameter_overrides=parameters(

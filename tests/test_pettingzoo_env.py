@@ -1,5 +1,5 @@
-"""The world passes PettingZoo's own API and seed tests, in parallel and through its AEC wrapper, and its
-dynamics are GridWorld's."""
+"""The world passes PettingZoo's own API and seed tests, in parallel and through its AEC wrapper, in each
+observation form and with agents leaving or staying at their goals; its dynamics are GridWorld's."""
 
 import warnings
 
@@ -8,8 +8,12 @@ import pytest
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from cq_ros.gridmap import load_map
+from gymnasium import spaces
+
 from cq_ros.envs.pettingzoo_env import GridWorldEnv
+from cq_ros.gridmap import agent_glyph, lattice, load_map
+from cq_ros.lab.render import Frame, Picture
+from cq_ros.mapgen.warehouse import warehouse_map
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 
@@ -20,16 +24,19 @@ def test_parallel_api(name, observation):
     parallel_api_test(GridWorldEnv(name, Settings(step_cap=200), observation=observation), num_cycles=300)
 
 
-# A paper map and a generated warehouse, each seen both ways.
-PETTINGZOO_CASES = [(name, observation) for name in ("tunnel_to_goal", "warehouse_8")
-                    for observation in ("local", "joint")]
+# A paper map and a generated warehouse, each seen both ways; the Box forms and agents staying on one of them.
+PETTINGZOO_CASES = [(name, observation, "index", False) for name in ("tunnel_to_goal", "warehouse_8")
+                    for observation in ("local", "joint")] + [
+    ("tunnel_to_goal", observation, encoding, stay) for observation in ("local", "joint")
+    for encoding, stay in (("onehot", False), ("coords", True), ("index", True))]
 
 
-@pytest.mark.parametrize("name, observation", PETTINGZOO_CASES)
-def test_pettingzoo_tests_pass(name, observation):
+@pytest.mark.parametrize("name, observation, encoding, agents_stay", PETTINGZOO_CASES)
+def test_pettingzoo_tests_pass(name, observation, encoding, agents_stay):
     """PettingZoo only warns when an observation is not a value of its space, so those warnings fail here."""
     def make():
-        return GridWorldEnv(name, Settings(step_cap=200), observation=observation, render_mode="ansi")
+        return GridWorldEnv(name, Settings(step_cap=200), observation=observation, render_mode="ansi",
+                            encoding=encoding, agents_stay=agents_stay)
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -43,9 +50,10 @@ def test_pettingzoo_tests_pass(name, observation):
     assert [str(w.message) for w in caught if not any(a in str(w.message) for a in allowed)] == []
 
 
+@pytest.mark.parametrize("encoding", ["index", "onehot", "coords"])
 @pytest.mark.parametrize("observation", ["local", "joint"])
-def test_observations_and_state_are_numpy_values_of_their_spaces(observation):
-    env = GridWorldEnv("warehouse_8", observation=observation)
+def test_observations_and_state_are_numpy_values_of_their_spaces(observation, encoding):
+    env = GridWorldEnv("warehouse_8", observation=observation, encoding=encoding)
     obs, _ = env.reset(seed=0)
     rng = np.random.default_rng(0)
     for _ in range(20):
@@ -57,8 +65,21 @@ def test_observations_and_state_are_numpy_values_of_their_spaces(observation):
         assert isinstance(state, np.ndarray) and env.state_space.contains(state)
         assert state.tolist() == env.world.cells
         obs = env.step({a: int(rng.integers(4)) for a in env.agents})[0]
-    if observation == "joint":
+    if observation == "joint" and encoding == "index":
         assert all(value.tolist() == env.world.cells for value in obs.values())
+
+
+def test_the_box_forms_say_where_each_agent_is():
+    m = load_map("warehouse_8")
+    onehot = GridWorldEnv(m, encoding="onehot", observation="joint")
+    coords = GridWorldEnv(m, encoding="coords")
+    seen, mine = onehot.reset(seed=0)[0]["agv2"], coords.reset(seed=0)[0]["agv2"]
+    assert isinstance(onehot.observation_space("agv1"), spaces.Box) and seen.shape == (m.n_agents, m.n_cells)
+    assert seen.argmax(axis=1).tolist() == list(m.starts) and seen.sum() == m.n_agents
+    row, col = m.cells[m.starts[1]]
+    assert mine.tolist() == pytest.approx([row / (m.height - 1), col / (m.width - 1)])
+    with pytest.raises(ValueError, match="encoding must be one of"):
+        GridWorldEnv(m, encoding="image")
 
 
 def test_actions_are_documented_and_move_as_named():
@@ -104,13 +125,86 @@ def test_agents_leave_at_their_goal_and_bad_actions_are_refused():
     assert env.agents == ["agv2"]
 
 
+def test_agents_stay_at_their_goal_with_a_no_op_until_the_episode_ends():
+    env = GridWorldEnv("grid_game_2", agents_stay=True)
+    env.reset()
+    for a1 in (1, 0, 0):  # agv1 home as above; agv2 bumps the east wall
+        obs, rewards, terms, truncs, infos = env.step({"agv1": a1, "agv2": 1})
+    assert infos["agv1"]["at_goal"] and not terms["agv1"] and env.agents == ["agv1", "agv2"]
+    goal = env.world.cells[0]
+    obs, rewards, terms, truncs, infos = env.step({"agv1": 2, "agv2": 1})  # agv1's SOUTH is ignored
+    assert env.world.cells[0] == goal and rewards["agv1"] == 0.0 and sorted(obs) == ["agv1", "agv2"]
+    assert not any(terms.values()) and not any(truncs.values())
+
+
+def test_agents_that_stay_all_end_together_terminated_or_truncated():
+    env = GridWorldEnv("grid_game_2", Settings(step_cap=5), agents_stay=True)
+    env.reset()
+    for a1 in (1, 0, 0, 1, 1):
+        _, _, terms, truncs, _ = env.step({"agv1": a1, "agv2": 1})
+    assert terms == {"agv1": True, "agv2": False} and truncs == {"agv1": False, "agv2": True}
+    assert env.agents == []
+
+
+@pytest.mark.parametrize("agents_stay", [False, True])
+def test_a_step_after_the_end_says_the_episode_ended(agents_stay):
+    env = GridWorldEnv("grid_game_2", Settings(step_cap=2), agents_stay=agents_stay)
+    with pytest.raises(RuntimeError, match=r"reset\(\) was never called"):
+        env.step({})
+    env.reset()
+    env.step({"agv1": 1, "agv2": 1})
+    env.step({"agv1": 1, "agv2": 1})
+    with pytest.raises(RuntimeError, match=r"after the episode ended \(truncated after step_cap=2 steps\): call reset"):
+        env.step({})
+    env.reset()
+    assert env.step({"agv1": 1, "agv2": 1})[0]
+
+
 def test_render_draws_each_agent_at_its_cell():
     env = GridWorldEnv("tunnel_to_goal", render_mode="ansi")
     env.reset()
+    env.step({a: 1 for a in env.agents})
     lines = env.render().splitlines()
     for i, cell in enumerate(env.world.cells):
         row, col = env.world.map.cells[cell]
         assert lines[2 * row + 1][2 * col + 1] == str(i + 1)
+    marked = [ch for line in lines[1::2] for ch in line[1::2] if ch.isdigit()]
+    assert sorted(marked) == [str(i + 1) for i in range(env.world.n)]  # where they started shows no mark
+
+
+@pytest.mark.parametrize("name", ["warehouse_16", "warehouse_32"])
+def test_ansi_draws_every_fleet_with_a_legend(name):
+    env = GridWorldEnv(name, render_mode="ansi")
+    env.reset(seed=0)
+    *drawing, legend = env.render().splitlines()
+    n = env.world.n
+    assert legend == f"agents: 1-9 agv1-agv9, a-{agent_glyph(n - 1)} agv10-agv{n}"
+    for i, cell in enumerate(env.world.cells):
+        row, col = env.world.map.cells[cell]
+        assert drawing[2 * row + 1][2 * col + 1] == agent_glyph(i)
+
+
+def test_ansi_names_each_agent_past_the_35th_by_its_cell():
+    m = warehouse_map(37)
+    env = GridWorldEnv(m, render_mode="ansi")
+    env.reset()
+    legend = env.render().splitlines()[-1]
+    assert legend.startswith("agents: 1-9 agv1-agv9, a-z agv10-agv35; * agv36 at ")
+    assert f"* agv37 at {m.cells[env.world.cells[36]]}" in legend
+
+
+def test_rgb_array_is_the_animations_picture():
+    env = GridWorldEnv("grid_game_2", render_mode="rgb_array")
+    env.reset(seed=0)
+    first = env.render()
+    assert first.dtype == np.uint8 and first.ndim == 3 and first.shape[2] == 3
+    env.step({"agv1": 1, "agv2": 1})
+    moved = env.render()
+    assert moved.shape == first.shape and (moved != first).any()
+    m = env.world.map
+    picture = Picture(lattice(m), tuple(m.cells[g] for g in m.goals), title=m.name)
+    picture.show(Frame(0, 1, tuple(m.cells[c] for c in env.world.cells)))
+    assert (picture.rgb() == moved).all()
 
 
 def test_without_settings_the_env_takes_the_maps_defaults():

@@ -3,6 +3,8 @@ known not to hold: claims 1 and 2 at both thresholds and over seeds (judged only
 on collisions, and where CQ keeps its joint states (claim 6)."""
 
 import csv
+import re
+from pathlib import Path
 
 import numpy as np
 
@@ -18,7 +20,11 @@ from cq_ros.lab.reproduce import (
     entrance_share,
     settled_at,
     sooner_than_cq,
+    as_command,
+    states_in_parts,
 )
+from cq_ros.cli.main import main
+from cq_ros.settings import Settings
 
 EPISODES = 1000
 
@@ -121,3 +127,33 @@ def test_claims_1_and_2_are_judged_over_three_seeds_and_not_on_one():
     assert "below 0.05: grid_game_2 episodes 296-496" in three
     assert "Claim 1 (CQ collision-free on all four maps) holds below 0.05" in three
     assert "claim 2 (CQ there before every baseline) does not hold (holds at 2 of 3 seeds) below 0.05" in three
+
+
+def test_the_state_space_sentence_adds_up():
+    assert states_in_parts(56.5, 55) == "57 states (55 local + 2 joint)"  # each part rounded alone: 56 = 55 + 2
+    assert states_in_parts(62.2, 55) == "62 states (55 local + 7 joint)"
+    for tenths in range(550, 700):
+        total, local, joint = map(int, re.findall(r"\d+", states_in_parts(tenths / 10, 55)))
+        assert total == local + joint and abs(total - tenths / 10) <= 0.5
+
+
+def test_the_report_names_the_command_as_run(monkeypatch, tmp_path):
+    """The CLI hands reproduce its own command line (REPORT.md's "Command:"), --no-sweep and --out as given."""
+    import cq_ros.lab.reproduce as lab
+
+    called = {}
+    monkeypatch.setattr(lab, "reproduce", lambda *a, **kw: called.update(kw) or tmp_path / "REPORT.md")
+    argv = ["reproduce", "--out", str(tmp_path / "my results"), "--runs", "2", "--episodes", "50", "--no-sweep",
+            "--set", "step_cap=300"]
+    assert main(argv) == 0
+    assert called["command"] == f"cq-ros reproduce --out '{tmp_path / 'my results'}' --runs 2 --episodes 50 " \
+                                "--no-sweep --set step_cap=300"
+    assert called["sweep"] is False
+
+
+def test_a_library_call_is_named_as_the_command_that_runs_it():
+    settings = Settings().with_overrides(["step_cap=300"])
+    assert as_command(Path("out/r"), 2, 50, (0, 1, 2), settings, False, 1, None) == \
+        "cq-ros reproduce --out out/r --runs 2 --episodes 50 --seeds 0,1,2 --no-sweep --jobs 1 --set step_cap=300"
+    assert as_command(Path("r"), 10, 10000, (0,), Settings(), True, None, None) == \
+        "cq-ros reproduce --out r --runs 10 --episodes 10000 --seed 0"

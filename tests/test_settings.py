@@ -101,6 +101,7 @@ def test_wrong_types_from_a_dict(value):
         "loc_range=0",
         "step_cap=0",
         "slip=1.5",
+        "slip=1",
         "slip=-0.1",
         "reward_goal=inf",
         "reward_step=nan",
@@ -135,9 +136,21 @@ def test_a_bad_pair_loses_nothing_and_changes_nothing():
 
 def test_boundary_values_are_accepted():
     s = Settings().with_overrides(
-        ["alpha=1", "epsilon=0", "window=2", "gamma=0", "slip=1", "loc_range=1", "step_cap=1", "epsilon=1"]
+        ["alpha=1", "epsilon=0", "window=2", "gamma=0", "slip=0.999", "loc_range=1", "step_cap=1", "epsilon=1"]
     )
-    assert (s.alpha, s.epsilon, s.window, s.gamma, s.slip, s.loc_range, s.step_cap) == (1.0, 1.0, 2, 0.0, 1.0, 1, 1)
+    assert (s.alpha, s.epsilon, s.window, s.gamma, s.slip, s.loc_range, s.step_cap) == (1.0, 1.0, 2, 0.0, 0.999, 1, 1)
+    assert Settings().with_overrides(["step_cap=10", "start_hold=9"]).start_hold == 9
+
+
+@pytest.mark.parametrize("pairs, reason", [
+    (["slip=1"], "setting slip must be in [0, 1) (at 1 every move fails: no AGV ever moves), got 1.0"),
+    (["step_cap=10", "start_hold=10"], "setting start_hold must be below step_cap=10 (a hold that long can keep an "
+                                       "AGV at its dock for the whole episode), got 10"),
+])
+def test_absurd_delays_are_refused_with_their_reason(pairs, reason):
+    with pytest.raises(SettingsError) as info:
+        Settings().with_overrides(pairs)
+    assert str(info.value) == reason
 
 
 def test_run_settings_puts_the_maps_defaults_under_the_users_overrides():

@@ -16,7 +16,8 @@ from PIL import Image
 from cq_ros.engine import run
 from cq_ros.gridmap import load_map
 from cq_ros.gridmap import lattice
-from cq_ros.lab.render import CELL_INCHES, DPI, cut_by_bag, engine_frames, frames_from
+from cq_ros.lab.render import (CELL_INCHES, DPI, Picture, cut_by_bag, engine_frames, episode_to_draw, frames_from,
+                               write_animation)
 from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz
@@ -140,6 +141,9 @@ def test_a_recorded_bag_replays_the_run_and_renders_as_a_gif(system_in, tmp_path
     last = offline_frames("cq", EPISODES - 1)
     for episode in (0, EPISODES - 1):
         assert [f for f in frames if f.episode == episode] == offline_frames("cq", episode)
+    # reading one episode's looks only (render's way) draws that episode as reading them all does
+    _, _, its_looks = read_view_bag(bag, episode_of=lambda scenes: 1)
+    assert frames_from([s for s in scenes if s.episode == 1], its_looks) == offline_frames("cq", 1)
 
     done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", "--bag", str(bag), "--out", str(gif)],
                           capture_output=True, text=True, timeout=120)
@@ -162,6 +166,87 @@ def test_render_says_when_the_bag_cut_the_episode_it_draws():
     assert "ends at its step 1 with AGVs short of their goals" in cut_by_bag(whole[:2], 3)
     later = [*whole[:2], Scene(episode=4, step=0, cells=((0, 0), (2, 0)), goals=goals)]
     assert cut_by_bag(later, 3) is None  # ended short of the goals, but the next episode began: the step cap
+
+
+def test_a_bag_recorded_mid_run_draws_its_last_whole_episode_by_default():
+    from types import SimpleNamespace as Scene
+
+    goals = ((0, 2), (2, 2))
+
+    def episode(number, steps, home=True):
+        last = [Scene(episode=number, step=steps - 1, cells=goals if home else ((0, 0), (2, 0)), goals=goals)]
+        return [Scene(episode=number, step=t, cells=((0, t), (2, t)), goals=goals) for t in range(steps - 1)] + last
+
+    started_late = episode(7, 5)[2:]  # the recording began at its step 2
+    assert episode_to_draw([*started_late, *episode(8, 4), *episode(9, 3)[:2]]) == 8  # 9: stopped mid-episode
+    assert episode_to_draw([*started_late, *episode(8, 4), *episode(9, 3)]) == 9  # 9 ended home: whole
+    assert episode_to_draw([*episode(8, 4, home=False), *episode(9, 3)[:1]]) == 8  # ran to the step cap
+    assert episode_to_draw(started_late) == 7  # cut, but the only one
+
+
+def write_bag(bag, gridmap, episodes: list[list]) -> None:
+    """A bag as `cq-ros record` writes one, under a namespace: the map, then each frame's scene and looks."""
+    from rclpy.serialization import serialize_message
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    goals = tuple(gridmap.cells[g] for g in gridmap.goals)
+    writer = Writer(bag, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    topics = {name: writer.add_connection(f"/cq_t/{name}", kind, typestore=typestore) for name, kind in (
+        (viz.MAP_TOPIC, "nav_msgs/msg/OccupancyGrid"), (viz.SCENE_TOPIC, "visualization_msgs/msg/MarkerArray"),
+        *((viz.looks_topic(k + 1), "visualization_msgs/msg/MarkerArray") for k in range(gridmap.n_agents)))}
+    stamp = 10**9
+    writer.write(topics[viz.MAP_TOPIC], stamp, serialize_message(viz.encode_occupancy(viz.Occupancy(lattice(gridmap)))))
+    for frames in episodes:
+        for f in frames:
+            stamp += 10**8
+            writer.write(topics[viz.SCENE_TOPIC], stamp,
+                         serialize_message(viz.encode_scene(viz.Scene(f.episode, f.step, f.cells, goals))))
+            for agent, peers in f.looks.items():
+                look = viz.Looks(agent, f.episode, f.step, *f.cells[agent - 1], peers)
+                writer.write(topics[viz.looks_topic(agent)], stamp + 10**7, serialize_message(viz.encode_looks(look)))
+    writer.close()
+
+
+def test_render_of_a_bag_recorded_mid_run_draws_its_whole_episode(tmp_path):
+    """The README's `cq-ros render --bag DIR --out X.gif` on a bag that began in episode 0's step 2 and stopped
+    in episode 2: it draws episode 1, every step; an --episode the bag does not hold names those it does."""
+    gridmap = load_map("tunnel_to_goal")
+    settings = Settings(step_cap=60)
+    played = [engine_frames(gridmap, "cq", settings, seed=3, episodes=3, episode=e) for e in range(3)]
+    bag = tmp_path / "bag"
+    write_bag(bag, gridmap, [played[0][2:], played[1], played[2][:2]])
+    done = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", "--bag", str(bag), "--out",
+                           str(tmp_path / "run.gif")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == f"{tmp_path / 'run.gif'}: episode 1, {len(played[1])} frames"
+    occupancy, scenes, looks = read_view_bag(bag, episode_of=episode_to_draw)
+    assert frames_from([s for s in scenes if s.episode == 1], looks) == played[1]
+    bad = subprocess.run([sys.executable, "-m", "cq_ros.cli", "render", "--bag", str(bag), "--episode", "12",
+                          "--out", str(tmp_path / "x.gif")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert bad.stderr.strip() == f"cq-ros render: error: episode 12 is not in {bag}: it holds episodes 0..2, whole: 1"
+
+
+def test_each_gif_frame_is_the_whole_picture_drawn_at_its_step(tmp_path):
+    """The GIF draws the moving parts over a background drawn once, in the first frame's palette: each frame
+    is still the picture a whole draw makes, up to antialiased edges."""
+    import numpy as np
+
+    gridmap = load_map("tunnel_to_goal")
+    frames = engine_frames(gridmap, "cq", Settings(step_cap=40), seed=1, episodes=3)
+    occupancy, goals = lattice(gridmap), tuple(gridmap.cells[g] for g in gridmap.goals)
+    gif = write_animation(tmp_path / "e.gif", occupancy, goals, frames, title="t", fps=5)
+    whole = Picture(occupancy, goals, title="t", blit=False)
+    with Image.open(gif) as image:
+        assert image.n_frames == len(frames) and image.info["duration"] == 200
+        for k in (0, len(frames) // 2, len(frames) - 1):
+            image.seek(k)
+            whole.show(frames[k])
+            off = np.abs(np.asarray(image.convert("RGB"), dtype=int) - whole.rgb()).sum(axis=2)
+            assert (off > 60).mean() < 0.01, k  # the same picture: only edges' shades differ
 
 
 @pytest.mark.slow

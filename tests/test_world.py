@@ -286,9 +286,9 @@ def test_reset_with_a_seed_reseeds_the_delays():
     assert traces[0] == traces[1]
 
 
-def test_slip_one_holds_every_agent_where_it_is_at_the_cost_of_a_step():
-    m = load_map("tunnel_to_goal")
-    w = GridWorld(m, Settings(slip=1.0), seed=0)
+def test_a_slip_near_one_holds_every_agent_where_it_is_at_the_cost_of_a_step():
+    m = load_map("tunnel_to_goal")  # slip 1 is refused (tests/test_settings.py); at seed 0 every draw here fails
+    w = GridWorld(m, Settings(slip=0.9999), seed=0)
     for _ in range(20):
         rewards = w.step_joint([EAST, WEST])
         assert w.cells == list(m.starts) and rewards == [R.step, R.step] and w.delayed == [True, True]

@@ -61,6 +61,8 @@ from msgs_spec.fast import action_of, new_feedback, new_position
 from node_runtime.parameters import run_key_parameters
 from node_runtime.patience import Patience
 
+from .twin import Identity
+
 __all__ = ["TWIN_EXIT", "NO_PROGRESS_STEPS", "WorldConfig", "world_config", "Lockstep"]
 
 TWIN_EXIT = 3  # the world's exit code when two live nodes act as one agent (`Lockstep.twin`)
@@ -114,8 +116,9 @@ class Lockstep:
 
     def __init__(self, world: GridWorld, episodes: int, step_timeout: float, *,
                  log: Callable[[str], Any] | None = None, clock: Callable[[], float] = time.monotonic,
-                 key: RunKey | bytes | None = None, rejoin_time: float = 0.0):
+                 key: RunKey | bytes | None = None, rejoin_time: float = 0.0, identity: Identity | None = None):
         self.world = world
+        self.identity = identity or Identity(0, 0)  # who this world is to a twin (world_node.twin)
         self.key = key  # the run's key: actions must carry its MAC (None: no authentication)
         self.beats = 0  # heartbeats sent
         self.bounds = Bounds(world.n, world.map.height, world.map.width)
@@ -203,9 +206,11 @@ class Lockstep:
         return self._advance()
 
     def heartbeat(self) -> Heartbeat:
-        """The next heartbeat: where the world is (episode 0, step 0 before the first step)."""
+        """The next heartbeat: where the world is (episode 0, step 0 before the first step), and who it is."""
         self.beats += 1
-        return Heartbeat(self.beats, max(self.episode, 0), self.step if self.episode >= 0 else 0)
+        me, stepping = self.identity, self.episode >= 0
+        return Heartbeat(self.beats, max(self.episode, 0), self.step if stepping else 0, int(stepping), me.started,
+                         me.ticket)
 
     def counters(self) -> dict[str, int]:
         """Monotonic counters for WorldStats: messages dropped by kind, actions ignored, and `extra` (the

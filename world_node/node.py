@@ -22,16 +22,17 @@ from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
-    Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic, serialize,
+    Position, WorldStats, action_topic, agent_namespace, decode_heartbeat, feedback_topic, position_topic, serialize,
 )
 # Each payload's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
 from msgs_spec.fast import serialize_feedback, serialize_heartbeat, serialize_position
-from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
+from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph, writers
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.run import when_acked
 
 from .lockstep import TWIN_EXIT, Lockstep, world_config
+from .twin import Identity, Twins
 from .viz import WorldView
 
 __all__ = ["WorldNode"]
@@ -78,9 +79,10 @@ def _raw(pub: Any) -> Any:
 
 class WorldNode(Node):
     """Parameters: node_runtime.parameters.WORLD_PARAMETERS. A bad value raises cq_ros.settings.SettingsError, or
-    rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter)."""
+    rclpy's ParameterException for a value of the wrong type (either: one line naming the parameter).
+    `identity`: who this world is to a twin (world_node.twin), drawn at start unless a test gives it."""
 
-    def __init__(self, node_name: str = "world", **kwargs: Any):
+    def __init__(self, node_name: str = "world", identity: Identity | None = None, **kwargs: Any):
         super().__init__(node_name, **kwargs)
         try:
             values = declare_node_parameters(self, "world")
@@ -89,8 +91,10 @@ class WorldNode(Node):
             self.destroy_node()
             raise
         world = GridWorld(cfg.gridmap, cfg.settings, seed=world_seed(cfg.seed, cfg.run))
+        identity = identity or Identity.draw()
         self.core = Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=self.get_logger().warning,
-                             key=cfg.key, rejoin_time=cfg.startup_timeout)
+                             key=cfg.key, rejoin_time=cfg.startup_timeout, identity=identity)
+        self.twins = Twins(identity, self.get_name(), self.get_namespace(), cfg.heartbeat_period)
         agents = range(1, world.n + 1)
         key = cfg.key
         self._positions = {k: _ListenedPosition(self, position_topic(k), key) for k in agents}
@@ -110,11 +114,15 @@ class WorldNode(Node):
                                                      ACTION.reader_qos, raw=True, event_callbacks=lost)
                          for k in agents}
         self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
+        # Every world's heartbeat, ours included: what a twin says of itself (world_node.twin)
+        self._heartbeats = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
+                                                    HEARTBEAT.reader_qos, raw=True)
         self._senders[Heartbeat] = lambda h: self._heartbeat.publish(serialize_heartbeat(h, key))
         self._senders[WorldStats] = lambda w: self._stats.publish(
             serialize(w, key=key, stamp=self.get_clock().now().to_msg()))
         self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
+        self._waits_logged = False
         self._graph_topics = [HEARTBEAT_TOPIC, WORLD_STATS_TOPIC] + [
             name(k) for k in agents for name in (position_topic, feedback_topic, action_topic)]
         self._graph_timer = self.create_timer(CHECK_PERIOD_S, self._check_graph)
@@ -139,18 +147,23 @@ class WorldNode(Node):
     def _wait_for_agents(self) -> None:
         missing = self._missing()
         if not missing:
-            # Another world's heartbeat here is a second system in our namespace, whose agents are the ones
-            # connected: refuse in one line before sending any of them a message.
-            if self.count_publishers(HEARTBEAT_TOPIC) > 1:
-                self.get_logger().error(f"another world publishes {self.resolve_topic_name(HEARTBEAT_TOPIC)} on "
-                                        "this ROS_DOMAIN_ID: a second system in this namespace? refusing to start; "
-                                        "give this one another namespace or domain id")
-                self._finish(2)
+            # The agents connected may be a second system's, in our namespace: the twin rule first, on the graph
+            # as it is now, before any message of ours reaches them.
+            seen = self._seen()
+            if self._refused(seen):
                 return
-            self._replace_timer(self.core.tick_period, self._tick)
-            self.get_logger().info("every agent is connected: stepping")
-            self._publish(self.core.begin())
-        elif time.monotonic() > self._deadline:
+            waits_for = self.twins.waits_for(*seen)
+            if waits_for is None:
+                self._replace_timer(self.core.tick_period, self._tick)
+                self.get_logger().info("every agent is connected: stepping")
+                self._send([self.core.heartbeat()])  # a twin hears at once that this world steps
+                self._publish(self.core.begin())
+                return
+            if not self._waits_logged:
+                self._waits_logged = True
+                self.get_logger().warning(f"every agent is connected; waiting for {waits_for}")
+            missing = [waits_for]
+        if time.monotonic() > self._deadline:
             self.get_logger().error(f"no start after startup_timeout={self.config.startup_timeout} s: still "
                                     f"waiting for {', '.join(missing)}")
             self._finish(1)
@@ -167,12 +180,31 @@ class WorldNode(Node):
             self.get_logger().error(f"{self.core.no_progress}: ending the run")
             self._finish(1)
 
-    def _check_graph(self) -> None:
-        refusal = watch_graph(self, self._graph, self._graph_topics)
-        self.core.extra_counters.update(self._graph.counters())
-        if refusal and not self.done.done():
+    def _on_heartbeat(self, msg: Any) -> None:
+        # read without the key: a twin of another launch has a key of its own (world_node.twin)
+        hb = self.core.drops.guard(decode_heartbeat, msg, source=HEARTBEAT_TOPIC)
+        if hb is not None:
+            self.twins.heard(hb)
+
+    def _seen(self) -> tuple[list, int]:
+        """What world_node.twin reads of the graph: the writers of world/heartbeat (when there is more than
+        ours), and how many nodes bear our name and namespace."""
+        beating = writers(self, HEARTBEAT_TOPIC) if self.count_publishers(HEARTBEAT_TOPIC) > 1 else []
+        me = (self.get_name(), self.get_namespace())
+        return beating, sum(1 for n in self.get_node_names_and_namespaces() if tuple(n) == me)
+
+    def _refused(self, seen: tuple[list, int]) -> bool:
+        """Whether the twin rule ends this world (exit 2), said in one line."""
+        refusal = self.twins.refusal(self.core.episode >= 0, *seen)
+        if refusal and not self._closing:
             self.get_logger().error(refusal)
             self._finish(2)
+        return bool(refusal)
+
+    def _check_graph(self) -> None:
+        watch_graph(self, self._graph, self._graph_topics)
+        self.core.extra_counters.update(self._graph.counters())
+        self._refused(self._seen())
 
     def _send(self, out: list) -> None:
         senders = self._senders

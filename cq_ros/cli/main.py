@@ -6,7 +6,12 @@ Bad arguments print one line naming what is wrong and exit with code 2, as argpa
 from __future__ import annotations
 
 import argparse
+import multiprocessing
+import os
+import signal
 import sys
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..gridmap import MapError
@@ -158,7 +163,9 @@ def _add_ros_parsers(sub) -> None:
                         "(default: a key of the launch's own, in a file without a name)")
     p.add_argument("--restart-agents", type=_number(0, 1000, kind=int), default=0, metavar="N",
                    help="start an agent node that dies again, from its checkpoint, up to N times in all (default 0: "
-                        "a node that dies ends the launch); counted in the manifest (`restarts`)")
+                        "a node that dies ends the launch); its checkpoint is saved every --set checkpoint_every=E "
+                        "learning episodes (default 50), and the episodes it learnt past it are lost: counted per "
+                        "restart on stderr and in the manifest (`restarts.learning_lost`)")
     p.add_argument("--view", type=_number(0, 65535, kind=int), default=None, metavar="PORT",
                    help="serve the run live to Foxglove on ws://127.0.0.1:PORT, as cq-ros view (the extra `view`; "
                         "0: any free port, printed at start)")
@@ -204,6 +211,16 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
                    help="seconds to look for the system before giving up (default 60)")
     _add_domain_option(p)
+
+    p = sub.add_parser("checkpoint", help="agent checkpoints: convert one of the old pickled format (3) into the "
+                                          "current one (.npz, which loads without running code)")
+    actions = p.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    p = actions.add_parser("convert", help="write a pickled checkpoint (format 3) as an .npz checkpoint",
+                           description="Unpickle OLD and write it as the .npz checkpoint NEW. Unpickling runs "
+                                       "whatever code the file holds: run it only on a checkpoint you trust (one your "
+                                       "own cq-ros wrote).")
+    p.add_argument("old", type=Path, metavar="OLD", help="a pickled checkpoint (.pkl) you trust")
+    p.add_argument("new", type=Path, metavar="NEW", help="the .npz checkpoint to write (never overwritten)")
 
     p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
                                    "cq-ros launch --key FILE)")
@@ -259,7 +276,8 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--episodes", type=_episodes, default=None, help="with --map: episodes to learn (default 100)")
     p.add_argument("--seed", type=_seed, default=None, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
-                   help="the episode to draw, from 0 (default: the last; with --map, of the learning episodes)")
+                   help="the episode to draw, from 0 (default: with --map, the last learning episode; with --bag, the "
+                        "last episode the bag holds whole)")
     p.add_argument("--greedy", action="store_true",
                    help="with --map: draw the greedy policy's first episode after the learning ones, not a "
                         "learning episode")
@@ -371,7 +389,8 @@ def _main(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
-        return _dispatch(args)
+        with _sigterm_as_ctrl_c():
+            return _dispatch(args)
     except BrokenPipeError:  # the reader left (`cq-ros maps | head`): main's to end quietly, not an OSError below
         raise
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
@@ -380,9 +399,43 @@ def _main(argv: list[str] | None) -> int:
         parser.exit(1, f"{e.details}cq-ros {args.command}: error: {e}\n")
     except (ClusterError, OSError) as e:  # OSError: a disk that filled after the start's checks, one line
         parser.exit(1, f"cq-ros {args.command}: error: {e}\n")
+    except Terminated:  # 130 as for Ctrl-C, as `launch` answers SIGTERM
+        print("interrupted by SIGTERM", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: a command unwinds as it does on Ctrl-C (an
+    experiment cut short removes the folder it made)."""
+
+
+@contextmanager
+def _sigterm_as_ctrl_c():
+    """SIGTERM raises Terminated in the main thread and stops this process's worker processes, as Ctrl-C at a
+    terminal reaches the whole process group; a ROS command's own StopSignals takes SIGTERM over while it runs."""
+    if threading.current_thread() is not threading.main_thread():  # only the main thread may set handlers
+        yield
+        return
+
+    owner = os.getpid()
+
+    def on_sigterm(signum, _frame):
+        if os.getpid() != owner:  # a forked worker inherits the handler: it dies of SIGTERM as it would have
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        for child in multiprocessing.active_children():
+            child.terminate()
+        raise Terminated
+
+    saved = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, saved)
 
 
 def _dispatch(args) -> int:

@@ -4,6 +4,7 @@ paper's reproduction and episode animations; each reads its parsed arguments (ma
 
 from __future__ import annotations
 
+import shlex
 import sys
 import textwrap
 import time
@@ -63,7 +64,7 @@ def reproduce(args) -> int:
     # The paper's maps carry no defaults of their own; a delay given by --set brings CQ's settings under delays.
     report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
                        run_settings(None, args.overrides), workers=args.jobs, force=args.force,
-                       sweep=args.sweep, cluster=args.cluster)
+                       sweep=args.sweep, cluster=args.cluster, command=shlex.join(["cq-ros", *args.argv]))
     print(f"report: {report}")
     return 0
 
@@ -133,6 +134,7 @@ def render(args) -> int:
         check_output,
         cut_by_bag,
         engine_frames,
+        episode_to_draw,
         frames_from,
         write_animation,
     )
@@ -167,8 +169,11 @@ def render(args) -> int:
 
         if engine_only:
             raise ValueError(f"{engine_only[0]} applies to --map (the offline engine), not to a bag")
+        def chosen(scenes: list) -> int:
+            return episode_to_draw(scenes) if args.episode is None else args.episode
+
         try:
-            occupancy, scenes, looks = tools.read_view_bag(args.bag)
+            occupancy, scenes, looks = tools.read_view_bag(args.bag, episode_of=chosen)
         except tools.ToolError as e:
             print(f"cq-ros render: error: {e}", file=sys.stderr)
             return 1
@@ -177,9 +182,12 @@ def render(args) -> int:
                   " message (record while the run starts, with markers on)", file=sys.stderr)
             return 1
         episodes = sorted({s.episode for s in scenes})
-        episode = episodes[-1] if args.episode is None else args.episode
+        episode = chosen(scenes)
         if episode not in episodes:
-            raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}")
+            whole = [e for e in episodes if cut_by_bag(scenes, e) is None]
+            held = f"{whole[0]}..{whole[-1]}" if len(whole) > 1 else "".join(map(str, whole)) or "none"
+            raise ValueError(f"episode {episode} is not in {args.bag}: it holds episodes {episodes[0]}..{episodes[-1]}"
+                             f", whole: {held}")
         frames = frames_from([s for s in scenes if s.episode == episode], looks)
         occupancy, goals, title = occupancy.lattice, scenes[0].goals, args.bag.name
         cut = cut_by_bag(scenes, episode)

@@ -14,7 +14,7 @@ from ..gridmap import load_map
 from ..lab.output import check_parent
 from .offline import print_summary
 
-__all__ = ["hosts", "launch", "collect", "key", "view", "ros_tool"]
+__all__ = ["hosts", "launch", "collect", "checkpoint", "key", "view", "ros_tool"]
 
 
 def hosts(args) -> int:
@@ -78,6 +78,13 @@ def launch(args) -> int:
     if ended["how"] == "degraded":  # the last line: a summary that looks clean must not hide it
         print(f"cq-ros launch: {ended['reason']}; exit status {ended['exit_status']}", file=sys.stderr)
     return ended["exit_status"]
+
+
+def checkpoint(args) -> int:
+    from ros_tools.checkpoints import convert
+
+    print(convert(args.old, args.new))
+    return 0
 
 
 def _ended(command: str, run: Callable[[], Any]) -> tuple[Any, int]:

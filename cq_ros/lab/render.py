@@ -16,12 +16,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+import numpy as np
+
 from ..engine import Team, greedy_team, make_learners, world_seed
 from ..gridmap import GridMap
 from ..settings import Settings
 from ..world import GridWorld
 
-__all__ = ["Frame", "engine_frames", "frames_from", "cut_by_bag", "check_output", "write_animation", "FORMATS"]
+__all__ = ["Frame", "Picture", "engine_frames", "frames_from", "cut_by_bag", "episode_to_draw", "check_output",
+           "write_animation", "FORMATS"]
 
 FORMATS = {".gif": "pillow", ".mp4": "ffmpeg"}  # output suffix -> matplotlib animation writer
 CELL_INCHES = 0.6
@@ -99,6 +102,14 @@ def cut_by_bag(scenes: list[Any], episode: int) -> str | None:
     return "; ".join(cuts) or None
 
 
+def episode_to_draw(scenes: list[Any]) -> int:
+    """The episode `render --bag` draws by default: the bag's last episode that it holds whole (`cut_by_bag`),
+    or its last when it cuts every one. A recording stopped by hand almost always cuts its last episode, and one
+    started mid-run its first."""
+    episodes = list(dict.fromkeys(s.episode for s in scenes))
+    return next((e for e in reversed(episodes) if cut_by_bag(scenes, e) is None), episodes[-1])
+
+
 def check_output(path: Path) -> str:
     """The matplotlib writer for `path`; ValueError (one line) for a suffix we cannot write here."""
     from matplotlib import animation
@@ -111,56 +122,114 @@ def check_output(path: Path) -> str:
     return writer_name
 
 
+class Picture:
+    """The drawing of one map's episodes, a frame at a time: the map, the goals, the AGVs and their looks,
+    `dpi` pixels an inch (a cell is CELL_INCHES). `show(frame)` moves everything to `frame`; `rgb()` is the
+    picture as an (H, W, 3) uint8 array (PettingZoo's `render_mode="rgb_array"`, and the GIF's frames).
+
+    With `blit` (the default) the map and the goals are drawn once and each `rgb()` draws only what moves over
+    them: the map's image was most of a frame's drawing. Without it, every draw of `figure` (an animation
+    writer's grab) draws the whole picture."""
+
+    def __init__(self, occupancy: tuple[tuple[bool, ...], ...], goals: tuple[tuple[int, int], ...], *,
+                 title: str = "", dpi: float = DPI, blit: bool = True):
+        from matplotlib import colormaps
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.collections import LineCollection
+        from matplotlib.figure import Figure
+        from matplotlib.patches import Rectangle
+
+        height, width = (len(occupancy) - 1) // 2, (len(occupancy[0]) - 1) // 2
+        colours = colormaps["tab10"].colors
+        self._colour = [colours[k % len(colours)] for k in range(len(goals))]
+        self._title = title
+        self.figure = fig = Figure(figsize=(max(3.0, width * CELL_INCHES), max(2.5, height * CELL_INCHES + 0.5)),
+                                   dpi=dpi)
+        self._canvas = FigureCanvasAgg(fig)
+        ax = fig.add_axes((0.02, 0.02, 0.96, 0.86))
+        ax.set_axis_off()
+        ax.imshow([[0.25 if v else 1.0 for v in row] for row in occupancy], cmap="gray", vmin=0, vmax=1,
+                  extent=(-0.25, width + 0.25, -(height + 0.25), 0.25), interpolation="nearest")
+        for k, (row, col) in enumerate(goals):
+            ax.add_patch(Rectangle((col + 0.05, -(row + 0.95)), 0.9, 0.9, color=self._colour[k], alpha=0.35, lw=0))
+        ax.set_xlim(-0.25, width + 0.25)
+        ax.set_ylim(-(height + 0.25), 0.25)
+        self._lines = ax.add_collection(LineCollection([], linewidths=2.0, zorder=2))
+        self._agvs = ax.scatter([0] * len(goals), [0] * len(goals), s=(72 * 0.6 * CELL_INCHES) ** 2, c=self._colour,
+                                zorder=3, edgecolors="black", linewidths=0.8)
+        self._labels = [ax.text(0, 0, str(k + 1), ha="center", va="center", fontsize=7, color="white", zorder=4,
+                                fontweight="bold") for k in range(len(goals))]
+        self._heading = fig.suptitle("", fontsize=9)
+        self._moving = [self._lines, self._agvs, *self._labels, self._heading] if blit else []
+        for artist in self._moving:
+            artist.set_animated(True)  # left out of a whole draw: that draw is the background
+        self._background = None
+
+    def show(self, frame: Frame) -> None:
+        xy = [(col + 0.5, -(row + 0.5)) for row, col in frame.cells]
+        self._agvs.set_offsets(xy)
+        for label, (x, y) in zip(self._labels, xy):
+            label.set_position((x, y))
+        looks = sorted(frame.looks.items())
+        self._lines.set_segments([(xy[k - 1], (col + 0.5, -(row + 0.5))) for k, peers in looks
+                                  for _, row, col in peers])
+        self._lines.set_color([self._colour[k - 1] for k, peers in looks for _ in peers])
+        self._heading.set_text(f"{self._title}  episode {frame.episode}, step {frame.step}".strip())
+
+    def rgb(self) -> np.ndarray:
+        canvas = self._canvas
+        if not self._moving:
+            canvas.draw()
+        else:
+            if self._background is None:
+                canvas.draw()
+                self._background = canvas.copy_from_bbox(self.figure.bbox)
+            canvas.restore_region(self._background)
+            for artist in self._moving:
+                self.figure.draw_artist(artist)
+        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
 def write_animation(path: str | os.PathLike, occupancy: tuple[tuple[bool, ...], ...],
                     goals: tuple[tuple[int, int], ...], frames: list[Frame], *, title: str = "",
                     fps: float = 4.0, dpi: float = DPI, progress: Callable[[int], Any] | None = None) -> Path:
-    """Write `frames` as an animation to `path` (.gif with Pillow, .mp4 with ffmpeg), `dpi` pixels an inch (a
-    cell is CELL_INCHES); ValueError for another suffix, an empty episode or a missing ffmpeg. `progress(i)` is
-    called after frame i is drawn."""
-    from matplotlib import animation, colormaps
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import LineCollection
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Rectangle
+    """Write `frames` as an animation to `path` (.gif with Pillow, .mp4 with ffmpeg), drawn by a `Picture`;
+    ValueError for another suffix, an empty episode or a missing ffmpeg. `progress(i)` is called after frame i
+    is drawn."""
+    from matplotlib import animation
 
     path = Path(path)
     writer_name = check_output(path)
     if not frames:
         raise ValueError("no frames to draw: the episode is empty")
-    height, width = (len(occupancy) - 1) // 2, (len(occupancy[0]) - 1) // 2
-    colours = colormaps["tab10"].colors
-    colour = [colours[k % len(colours)] for k in range(len(goals))]
-
-    fig = Figure(figsize=(max(3.0, width * CELL_INCHES), max(2.5, height * CELL_INCHES + 0.5)))
-    FigureCanvasAgg(fig)
-    ax = fig.add_axes((0.02, 0.02, 0.96, 0.86))
-    ax.set_axis_off()
-    ax.imshow([[0.25 if v else 1.0 for v in row] for row in occupancy], cmap="gray", vmin=0, vmax=1,
-              extent=(-0.25, width + 0.25, -(height + 0.25), 0.25), interpolation="nearest")
-    for k, (row, col) in enumerate(goals):
-        ax.add_patch(Rectangle((col + 0.05, -(row + 0.95)), 0.9, 0.9, color=colour[k], alpha=0.35, lw=0))
-    ax.set_xlim(-0.25, width + 0.25)
-    ax.set_ylim(-(height + 0.25), 0.25)
-    lines = ax.add_collection(LineCollection([], linewidths=2.0, zorder=2))
-    agvs = ax.scatter([0] * len(goals), [0] * len(goals), s=(72 * 0.6 * CELL_INCHES) ** 2, c=colour, zorder=3,
-                      edgecolors="black", linewidths=0.8)
-    labels = [ax.text(0, 0, str(k + 1), ha="center", va="center", fontsize=7, color="white", zorder=4,
-                      fontweight="bold") for k in range(len(goals))]
-    heading = fig.suptitle("", fontsize=9)
-
+    if writer_name == "pillow":
+        return _write_gif(path, Picture(occupancy, goals, title=title, dpi=dpi), frames, fps, progress)
+    picture = Picture(occupancy, goals, title=title, dpi=dpi, blit=False)
     writer = animation.writers[writer_name](fps=fps)
-    with writer.saving(fig, str(path), dpi=dpi):
+    with writer.saving(picture.figure, str(path), dpi=dpi):
         for i, frame in enumerate(frames):
-            xy = [(col + 0.5, -(row + 0.5)) for row, col in frame.cells]
-            agvs.set_offsets(xy)
-            for label, (x, y) in zip(labels, xy):
-                label.set_position((x, y))
-            segments = [(xy[k - 1], (col + 0.5, -(row + 0.5))) for k, peers in sorted(frame.looks.items())
-                        for _, row, col in peers]
-            lines.set_segments(segments)
-            lines.set_color([colour[k - 1] for k, peers in sorted(frame.looks.items()) for _ in peers])
-            heading.set_text(f"{title}  episode {frame.episode}, step {frame.step}".strip())
+            picture.show(frame)
             writer.grab_frame()
             if progress is not None:
                 progress(i)
+    return path
+
+
+def _write_gif(path: Path, picture: Picture, frames: list[Frame], fps: float,
+               progress: Callable[[int], Any] | None) -> Path:
+    """The frames as a looping GIF, every frame in the first frame's palette. Left to Pillow, each frame got a
+    palette of its own (quantized anew for every frame: half of a render's time); the first frame already holds every
+    colour of the picture (the map, each AGV's colour, its goal's tint), so later ones only map onto it."""
+    from PIL import Image
+
+    images = []
+    for i, frame in enumerate(frames):
+        picture.show(frame)
+        image = Image.fromarray(picture.rgb())
+        # the octree keeps the picture's flat colours exact (a median cut turned its white into 252)
+        images.append(image.quantize(256, Image.Quantize.FASTOCTREE) if not images
+                      else image.quantize(palette=images[0], dither=Image.Dither.NONE))
+        if progress is not None:
+            progress(i)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
     return path

@@ -12,6 +12,7 @@ seed by thousands of episodes, so the report quotes it only as a range over at l
 
 from __future__ import annotations
 
+import shlex
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -74,10 +75,11 @@ def seed_dir(out: Path, seeds: Sequence[int], seed: int) -> Path:
 
 def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Sequence[int] = 0,
               settings: Settings = Settings(), workers: int | None = None, force: bool = False, sweep: bool = True,
-              figures: bool = True, cluster: str | None = None) -> Path:
+              figures: bool = True, cluster: str | None = None, command: str | None = None) -> Path:
     """Run the grid, again with exploration that stops (in decay/), for each master seed in `seed` (one or
     several), and the sweep (first seed), on `workers` local processes or on the Dask scheduler at `cluster`;
-    write every map's results and figures (first seed) and REPORT.md; returns its path."""
+    write every map's results and figures (first seed) and REPORT.md; returns its path. REPORT.md names
+    `command` as the command that made it (the CLI gives its own; default: this call as a `cq-ros reproduce`)."""
     seeds = (seed,) if isinstance(seed, int) else tuple(dict.fromkeys(seed))
     out = prepare_output(out, force)
     started = time.perf_counter()
@@ -117,8 +119,9 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
             for m in PAPER_MAPS:
                 write_figures(out / where / m)
     report = out / "REPORT.md"
+    command = command or as_command(out, runs, episodes, seeds, settings, sweep, workers, cluster)
     report.write_text(render_report(out, runs, episodes, seeds, settings, variants, time.perf_counter() - started,
-                                    executed_on))
+                                    executed_on, command))
     return report
 
 
@@ -138,8 +141,22 @@ def _grid_data(where: Path):
     return data
 
 
+def as_command(out: Path, runs: int, episodes: int, seeds: Sequence[int], settings: Settings, sweep: bool,
+               workers: int | None, cluster: str | None) -> str:
+    """The `cq-ros reproduce` command line that runs what a call of `reproduce` with these arguments runs."""
+    seeding = f"--seed {seeds[0]}" if len(seeds) == 1 else "--seeds " + ",".join(map(str, seeds))
+    base = Settings().as_dict()
+    words = ["cq-ros", "reproduce", "--out", str(out), "--runs", str(runs), "--episodes", str(episodes),
+             *seeding.split(), *([] if sweep else ["--no-sweep"]),
+             *(["--jobs", str(workers)] if workers else []), *(["--cluster", cluster] if cluster else [])]
+    for k, v in settings.as_dict().items():
+        if base[k] != v:
+            words += ["--set", f"{k}={v}"]
+    return shlex.join(words)
+
+
 def render_report(out: Path, runs: int, episodes: int, seeds: Sequence[int], settings: Settings,
-                  variants: list[Variant], wall: float, executed_on: dict | None = None) -> str:
+                  variants: list[Variant], wall: float, executed_on: dict | None, command: str) -> str:
     seeds = tuple(seeds)
     data = _grid_data(out)
     decay = decaying(settings, episodes)
@@ -148,11 +165,10 @@ def render_report(out: Path, runs: int, episodes: int, seeds: Sequence[int], set
                for name, where in ((exploration(settings), "."), (exploration(decay), "decay"))}
     metrics = {(x.map, x.algo): x for x in compute_metrics(data)}
     v = versions()
-    seeding = f"--seed {seeds[0]}" if len(seeds) == 1 else "--seeds " + ",".join(map(str, seeds))
     lines = [
         "# CQ-learning: reproduction of the paper's experiments",
         "",
-        f"Command: `cq-ros reproduce --out {out.name} --runs {runs} --episodes {episodes} {seeding}`"
+        f"Command: `{command}`"
         + (f" with settings changed from the defaults: {_changes(settings)}" if _changes(settings) else ""),
         f"Wall time: {wall:.0f} s on {_where(executed_on, v)} ({v['machine']}, Python {v['python']}, "
         f"cq_ros {v['cq_ros']}). Every parameter and seed is in each map's `manifest.json`. The greedy episodes "
@@ -335,14 +351,22 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
 # --- "In short": the findings docs/choices.md quotes --------------------------------------------------
 
 
+def states_in_parts(states: float, n_cells: int) -> str:
+    """'57 states (55 local + 2 joint)' for a mean of 56.5 states an agent over a local space of 55: the joint
+    part rounded and the total its sum, so that the parts add up (each rounded alone read '56 (55 + 2)')."""
+    joint = round(states - n_cells)
+    return f"{n_cells + joint} states ({n_cells} local + {joint} joint)"
+
+
+
 def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: list[Variant]) -> list[str]:
     """The findings, each sentence computed from the results (docs/choices.md quotes them word for word)."""
     metrics = {(x.map, x.algo): x for x in compute_metrics(data)}
     n_cells = load_map("tunnel_to_goal_3").n_cells
-    cq_states = metrics[("tunnel_to_goal_3", "cq")].final_states / 2
     share, _ = entrance_share(out)
     lines = [f"- **CQ's state space.** On tunnel_to_goal_3 each CQ "
-             f"agent ends with {cq_states:.0f} states ({n_cells} local + {cq_states - n_cells:.0f} joint), against "
+             f"agent ends with {states_in_parts(metrics[('tunnel_to_goal_3', 'cq')].final_states / 2, n_cells)}, "
+             "against "
              f"{metrics[('tunnel_to_goal_3', 'js')].final_states / 2:,.0f} for each JS agent and "
              f"{metrics[('tunnel_to_goal_3', 'jsa')].final_states:,.0f} for JSA; {share:.0%} of the confidence of "
              "the joint states it keeps lies within two cells of the tunnel entrance (claims 5 and 6)."]
