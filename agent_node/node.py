@@ -51,8 +51,6 @@ UNANNOUNCED_CHECK_S = 0.05
 STATS_MATCH_TIMEOUT_S = 10.0
 
 
-def _serialize_any(payload: Any, key: Any) -> Any:
-    return serialize(payload, key=key)
 
 
 class _HeldPublisher:
@@ -64,6 +62,7 @@ class _HeldPublisher:
 
     def __init__(self, node: Node, spec: Any, topic: str, min_matched: int, latest_only: bool = False,
                  key: bytes | None = None):
+        self.clock = node.get_clock()
         self.min_matched, self.latest_only, self.key = min_matched, latest_only, key
         self.held: list = []  # payloads not sent yet
         self.matched = Matched(then=self.flush)
@@ -73,8 +72,12 @@ class _HeldPublisher:
         # bytes, without its per-call type check and handle lock (the node destroys its publishers only after
         # it has stopped spinning). Statistics are messages, published as such.
         self._raw = self.pub.handle.publish_raw
-        # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
-        self._serialize = serialize_action if spec is ACTION else _serialize_any
+        # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout);
+        # statistics stamped with the node's clock as they go out
+        self._serialize = serialize_action if spec is ACTION else self._stamped
+
+    def _stamped(self, payload: Any, key: Any) -> Any:
+        return serialize(payload, key=key, stamp=self.clock.now().to_msg())
 
     def publish(self, payload: Any) -> None:
         if not self.held and self.matched.count >= self.min_matched:  # matched, nothing held: straight out

@@ -17,6 +17,7 @@ import textwrap
 from dataclasses import fields
 from typing import Any, Iterable, Mapping
 
+from cq_ros.cli.pipe import reader_may_leave
 from cq_ros.gridmap import GridMap, MapError, load_map
 from cq_ros.learners import LEARNERS
 from cq_ros.settings import Settings, SettingsError, run_settings
@@ -144,6 +145,10 @@ def declare_node_parameters(node: Any, kind: str) -> dict[str, Any]:
     values = declare_parameters(node, own, unset=SETTING_NAMES)
     others = {name for other, table in PARAMETERS.items() if other != kind for name in table}
     check_names(undeclared_overrides(node), own, others)
+    if node.get_parameter("use_sim_time").value:  # every rclpy node declares it; docs/ros.md says why we refuse
+        raise SettingsError("parameter use_sim_time: true is refused: the lockstep has no simulated clock (its "
+                            "timeouts wait in wall time for actions, and the step is each message's episode and "
+                            "step); stamps are this host's clock")
     return values
 
 
@@ -224,10 +229,14 @@ def help_requested(argv: list[str]) -> bool:
     return False
 
 
-def print_help(usage: str, kinds: tuple[str, ...]) -> None:
+def print_help(usage: str, kinds: tuple[str, ...]) -> int:
     """The `--help` of a node program: its usage (the module docstring), then the parameters of each node
-    kind it runs; nothing is started."""
-    print(usage.strip())
-    for kind in kinds:
-        print(f"\nParameters of the {kind} node (-p NAME:=VALUE, or a --params-file):")
-        print(describe_parameters(kind))
+    kind it runs; nothing is started. Its exit status: 0, a reader that left early (`| head -1`) included."""
+    def write() -> int:
+        print(usage.strip())
+        for kind in kinds:
+            print(f"\nParameters of the {kind} node (-p NAME:=VALUE, or a --params-file):")
+            print(describe_parameters(kind))
+        return 0
+
+    return reader_may_leave(write)

@@ -26,7 +26,7 @@ from cq_ros.learners import LEARNERS
 from node_runtime.parameters import SETTING_NAMES
 from cq_ros.settings import run_settings
 
-from .session import FIND_S, WORLD, StopSignals, ToolError, find_system, ros_session, spin_until
+from .session import FIND_S, WORLD, StopSignals, ToolError, environment_domain, find_system, ros_session, spin_until
 from .launch import Interrupted, LaunchError, Progress, StatsListener, agent_nodes, write_heard
 
 __all__ = ["CollectError", "collect"]
@@ -145,7 +145,7 @@ def _listen(node: Any, executor: Any, stop: StopSignals, out: Path, force: bool,
         bar.close()
     out = prepare_output(out, force)
     nodes = {name: {"namespace": ns} for name in [WORLD, *agents]}
-    heard_on = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    heard_on = domain_id if domain_id is not None else environment_domain() or 0
     run_info = dict(mode="ros", collected=True, domain_id=heard_on, namespace=ns)
     write_heard(out, gridmap, algo, episodes, seed, settings, time.monotonic() - started, listener,
                 learners, agents, nodes, run_info)

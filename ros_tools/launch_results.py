@@ -35,8 +35,8 @@ from cq_ros.lab.results import EPISODE_COLUMNS, EPISODES, MANIFEST, episode_row,
 from cq_ros.lab.output import OutputError, os_reason
 from cq_ros.settings import Settings
 from msgs_spec import (
-    AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_stats_topic,
-    decode_agent_stats, decode_world_stats,
+    AGENT_STATS, HEARTBEAT, HEARTBEAT_TOPIC, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WireError,
+    WorldStats, agent_stats_topic, decode_agent_stats, decode_heartbeat, decode_world_stats,
 )
 
 __all__ = ["RESERVE_NAME", "RESERVE_BYTES", "DEPARTURES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
@@ -97,6 +97,11 @@ class StatsListener:
                             for k in self.agents]
         self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
                                                    WORLD_STATS.qos)
+        # Where the world is, by its heartbeat (every second): progress within an episode, which on a big map
+        # can take minutes. Only a display: a heartbeat that does not decode is not worth a line.
+        self.at: tuple[int, int] | None = None
+        self._heartbeat_sub = node.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
+                                                       HEARTBEAT.reader_qos)
 
     def _drop_line(self, line: str) -> None:
         if self.held is None:
@@ -117,6 +122,13 @@ class StatsListener:
         if stats is not None and stats.episode not in self.world:
             self.world[stats.episode] = stats
             self.collisions += stats.collisions
+
+    def _on_heartbeat(self, msg: Any) -> None:
+        try:
+            beat = decode_heartbeat(msg, key=self.key)
+        except WireError:
+            return
+        self.at = (beat.episode, beat.step)
 
     def _on_agent(self, agent: int, msg: Any) -> None:
         stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent, key=self.key,

@@ -5,12 +5,9 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import math
-import os
-import random
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -738,21 +735,6 @@ def test_bounds_validates():
 
 # --------------------------------------------------------------------------------------------------------
 # Over real DDS, in process: each topic's QoS delivers its payload; the position topic is latched
-
-
-@pytest.fixture
-def ros_context(tmp_path, monkeypatch):
-    rclpy = pytest.importorskip("rclpy")
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
-    domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    try:
-        yield ctx
-    finally:
-        rclpy.try_shutdown(context=ctx)
 
 
 def test_every_topic_delivers_over_dds_with_its_qos_and_position_is_latched(ros_context, spin_until):

@@ -22,6 +22,7 @@ from ..learners import ALGORITHMS, LEARNERS
 from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
 from ..settings import SettingsError
+from .pipe import reader_may_leave
 
 
 class _Parser(argparse.ArgumentParser):
@@ -190,7 +191,7 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--episodes", type=_episodes, default=None, help="episodes (default 500)")
     p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
-                   help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
+                   help="ROS_DOMAIN_ID of the run (default: the environment's ROS_DOMAIN_ID, else random in 100..200)")
     p.add_argument("--namespace", default=None,
                    help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
     p.add_argument("--step-timeout", type=_seconds, default=2.0, metavar="S",
@@ -277,6 +278,9 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--duration", type=_seconds, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--count", type=_positive, default=None, metavar="N", help="stop after N messages")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage plugin (default mcap)")
+    p.add_argument("--namespace", default=None,
+                   help="record one system's topics: those under this namespace, against which relative --topics "
+                        "resolve (default: every cq_ros topic, under any namespace)")
     _add_domain_option(p)
 
     p = sub.add_parser("render", help="draw one episode as an animated GIF (or MP4 where ffmpeg is installed): "
@@ -416,15 +420,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    return reader_may_leave(lambda: _main(argv))
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
         with _sigterm_as_ctrl_c():
             return _dispatch(args)
-    except BrokenPipeError:  # the reader left (`cq-ros maps | head`): nothing to tell it; no traceback at exit
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    except BrokenPipeError:  # the reader left (`cq-ros maps | head`): main's to end quietly, not an OSError below
+        raise
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
     except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run
