@@ -29,13 +29,15 @@ KINDS: Mapping[str, str] = {
     "unauthenticated": "the receiver holds the run's key and the message carries no MAC, or one that does not "
     "match (a writer without the key)",
     "other_run": "a sealed message of another run (its MAC matches the key, its run nonce is not the receiver's: "
-    "recorded in an earlier run with the same key file)",
+    "recorded in an earlier run with the same key file), or statistics sealed to no run where the receiver "
+    "knows its run",
     "other_incarnation": "a sealed message of this run from another life of its sender: a world other than the "
     "one the receiver is bound to (restarted, or a second one), or an agent's incarnation a newer one replaced",
     "far_ahead": "a feedback more than the agent's max_catch_up episodes past the one it expects, or past the "
     "run's last episode: never caught up to",
     "replayed": "a heartbeat whose beat is not above the last one heard (a replay, or a second world)",
-    "conflicting": "a position for a step already heard from that peer, with another cell (a second writer)",
+    "conflicting": "a position for a step already heard from that peer, with another cell (a second writer), or "
+    "statistics of an episode already heard that say otherwise (the launcher keeps the first)",
 }
 
 

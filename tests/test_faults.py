@@ -916,3 +916,76 @@ def test_a_feedback_from_far_ahead_is_refused_and_counted_without_a_loop(system_
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     agv1 = counters(system, 1)
     assert agv1["dropped.far_ahead"] >= len(sent) - 2 and "caught_up" not in agv1
+
+
+# -- statistics sealed to their run ----------------------------------------------------------------------------
+
+
+def _listener(system, ros_context, **kwargs):
+    """A launcher's StatsListener of `system`, on its executor."""
+    from cq_ros.gridmap import load_map
+    from ros_tools.launch_results import StatsListener
+
+    node = system.add(rclpy.create_node("launch", context=ros_context))
+    return StatsListener(node, load_map(system.world.config.gridmap.name), system.world.config.total_episodes,
+                         **kwargs)
+
+
+def test_an_earlier_runs_statistics_held_latched_are_refused_and_the_results_are_this_runs(system_in, ros_context,
+                                                                                           spin_until, key_file):
+    """Run A's world/stats and agv1/stats (sealed under the same key file with run A's nonce, every episode's, and
+    unlike this run's), latched on their topics before run B starts: B's launcher listener, told B's nonce,
+    refuses each as `other_run` and counts it; its results are B's own, the offline run's, without a conflict."""
+    from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, WorldStats, agent_stats_topic, \
+        read_key, serialize
+    from msgs_spec.auth import RunKey, new_run
+
+    algo, episodes = "cq", 6
+    run_a, run_b = new_run(), new_run()
+    system = system_in(algo, *CASE[:2], episodes, CASE[2],
+                       common_extra={"key_file": key_file, "run_nonce": run_b})
+    total = system.world.config.total_episodes
+    earlier = RunKey(read_key(key_file), run=run_a)
+    recorder = system.add(rclpy.create_node("earlier_run", context=ros_context))
+    world_pub = recorder.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+    agent_pub = recorder.create_publisher(AGENT_STATS.msg_type, agent_stats_topic(1), AGENT_STATS.qos)
+    for e in range(total):  # what run A said, held for every late reader (transient local)
+        world_pub.publish(serialize(WorldStats(e, 99, True, 7, 0, (-99.0, -99.0), 1.0), key=earlier))
+        agent_pub.publish(serialize(AgentStats(1, e, algo, joint_plays=42), key=earlier))
+    listener = _listener(system, ros_context, key=read_key(key_file), run=run_b)
+    finish(system)
+    assert spin_until(system.executor, lambda: listener.complete, 30.0), listener.missing()
+    rows = [listener.row(e, [1, 2]) for e in range(total)]
+    offline = offline_rows(algo, CASE[0], CASE[1], episodes, CASE[2])
+    assert [(r.steps, r.collisions, r.truncated, r.joint_plays) for r in rows] == \
+        [(int(o["steps"]), int(o["collisions"]), bool(o["truncated"]), int(o["joint_plays"])) for o in offline]
+    assert listener.drops["other_run"] == 2 * total  # every one of run A's, on both topics
+    assert listener.conflicts == {} and "conflicts" not in listener.launcher_counts()
+    assert listener.launcher_counts()["dropped"]["dropped.other_run"] == 2 * total
+
+
+def test_statistics_of_this_run_that_disagree_are_a_conflict_named_never_a_replacement(system_in, ros_context,
+                                                                                       spin_until, key_file):
+    """A key holder of this very run sends world/stats for episode 0 unlike the world's, before the world's own:
+    the listener keeps the first heard, and the world's, which says otherwise, is a conflict counted and named by
+    topic and episode; a resend of the same statistic is nothing."""
+    from msgs_spec import WORLD_STATS, WORLD_STATS_TOPIC, WorldStats, read_key, serialize
+    from msgs_spec.auth import RunKey, new_run
+
+    algo, episodes, run = "cq", 4, new_run()
+    system = system_in(algo, *CASE[:2], episodes, CASE[2], common_extra={"key_file": key_file, "run_nonce": run})
+    holder = RunKey(read_key(key_file), run=run)
+    pub = system.add(rclpy.create_node("holder", context=ros_context)).create_publisher(
+        WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+    forged = WorldStats(0, 99, True, 7, 0, (-99.0, -99.0), 1.0)
+    for _ in range(2):
+        pub.publish(serialize(forged, key=holder))
+    listener = _listener(system, ros_context, key=holder.secret, run=run)
+    assert spin_until(system.executor, lambda: 0 in listener.world, RUN_TIMEOUT_S)
+    assert listener.world[0] == forged  # heard first: the world had not played episode 0 yet
+    finish(system)
+    assert spin_until(system.executor, lambda: listener.complete, 30.0), listener.missing()
+    assert listener.world[0] == forged and listener.conflicts == {"world/stats": [0]}
+    assert listener.drops["conflicting"] == 1 and listener.launcher_counts()["conflicts"] == {"world/stats": "0"}
+    real = [s for s in system.world_stats if s != forged]  # the probe, holding no run, heard both
+    assert real[0] != forged and [listener.world[e] for e in range(1, len(real))] == real[1:]

@@ -296,6 +296,37 @@ def test_keyed_statistics_are_checked_by_a_receiver_with_the_key_and_read_by_one
     assert e.value.kind == "unauthenticated"
 
 
+@pytest.mark.parametrize("example", ["world_stats", "agent_stats"])
+def test_statistics_sealed_to_a_run_are_refused_by_a_receiver_of_another(example):
+    """A node seals its statistics with its RunKey (`run`, `inc` before the `mac`, which covers them): a receiver
+    told the run refuses another run's, or unsealed ones, as `other_run`; the seal cannot be changed after the
+    MAC; the tools read the sealed form."""
+    from msgs_spec.auth import RunKey
+
+    key = bytes(range(32))
+    s = doc.EXAMPLES[example]
+    decode = ms.decode_world_stats if example == "world_stats" else ms.decode_agent_stats
+    sealed = _wire(ms.encode(s, key=RunKey(key, run=0xABC, incarnation=7)))
+    assert [kv.key for kv in sealed.status[0].values][-3:] == ["run", "inc", "mac"]
+    assert sealed.status[0].values[-3].value == "0000000000000abc" and sealed.status[0].values[-2].value == "00000007"
+    assert decode(sealed) == decode(sealed, key=key) == decode(sealed, key=RunKey(key, run=0xABC)) == s
+    for bad, receiver in ((sealed, dict(key=RunKey(key, run=0xABD))), (sealed, dict(key=key, run=0xABD)),
+                          (sealed, dict(run=0xABD)), (_wire(ms.encode(s, key=key)), dict(key=key, run=0xABC)),
+                          (_wire(ms.encode(s)), dict(run=0xABC))):
+        with pytest.raises(ms.WireError) as e:
+            decode(bad, **receiver)
+        assert e.value.kind == "other_run", receiver
+    moved = _wire(ms.encode(s, key=RunKey(key, run=0xABC)))
+    moved.status[0].values[-3].value = "0000000000000abd"  # resealed to another run without the key
+    with pytest.raises(ms.WireError) as e:
+        decode(moved, key=key, run=0xABD)
+    assert e.value.kind == "unauthenticated"
+    moved.status[0].values[-3].value = "abd"
+    with pytest.raises(ms.WireError) as e:
+        decode(moved)
+    assert e.value.kind == "malformed"
+
+
 def test_stats_stamp_and_summary():
     from builtin_interfaces.msg import Time
     msg = ms.encode_world_stats(doc.EXAMPLES["world_stats"], stamp=Time(sec=12, nanosec=5))
