@@ -225,8 +225,13 @@ def parse_map(text: str, name: str = "<text>", source: str = "<text>") -> GridMa
     starts = tuple(index[agent.start] for agent in agents)
     goals = tuple(index[agent.goal] for agent in agents)
     gridmap = GridMap(name, source, drawing.height, drawing.width, cells, neighbours, starts, goals, defaults)
+    regions: list[set[int]] = []  # an edge is open both ways, so agents starting in one region share its search
     for agent, start, goal in zip(agents, starts, goals):
-        if goal not in gridmap.reachable(start):
+        region = next((r for r in regions if start in r), None)
+        if region is None:
+            region = gridmap.reachable(start)
+            regions.append(region)
+        if goal not in region:
             raise _error(
                 source,
                 f"agent {agent.number}'s goal {_at(agent.goal)} is unreachable from its start {_at(agent.start)}",

@@ -3,7 +3,7 @@ Student t-tests the paper runs on them every step, with O(1) work per step.
 
 W1 keeps the first N rewards for ever; W2 slides over the last N after those (the paper's Figure 1).
 Both keep running sums, so a test costs a few float operations; the critical values of the fixed
-degrees of freedom are looked up once with scipy (imported at the first lookup) and cached. Decisions agree with
+degrees of freedom are computed once (cq_ros.student_t, no scipy) and cached. Decisions agree with
 `scipy.stats.ttest_ind(w2, w1, equal_var=True, alternative="less")` and
 `scipy.stats.ttest_1samp(w2, r, alternative="less")` (see tests/test_stats.py).
 """
@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+
+from .student_t import upper_quantile
 
 # Running sums carry rounding noise: a sum of squared deviations this small relative to the sum of
 # squares is no spread, and at zero spread two means this close relative to their size are equal (W1 of
@@ -27,9 +29,7 @@ def critical_t(significance: float, df: int) -> float:
         raise ValueError(f"significance must lie in (0, 1), got {significance}")
     if df < 1:
         raise ValueError(f"degrees of freedom must be at least 1, got {df}")
-    from scipy import stats  # here, not at import: a command that runs no test (`cq-ros --help`) need not load it
-
-    return float(-stats.t.ppf(significance, df))
+    return upper_quantile(significance, df)
 
 
 def _spread(total: float, squares: float, n: int) -> float:

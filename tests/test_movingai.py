@@ -110,3 +110,33 @@ def test_agents_need_a_scenario(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
         main(["import", "movingai", str(write_map(tmp_path / "grid.map")), "--agents", "2"])
     assert stop.value.code == 2 and "--scen and --agents go together" in capsys.readouterr().err
+
+
+def test_generated_shelves_are_a_movingai_warehouse_of_the_benchmarks_size(tmp_path, capsys):
+    """`cq-ros generate shelves` writes a .map and .scen pair of 160 x 62 cells (MovingAI's warehouse-10-20-10-2-1
+    is 161 x 63) that `cq-ros import movingai` reads: starts on the docking floor, goals on pick faces, all
+    distinct, every goal reachable with the others parked."""
+    assert main(["generate", "shelves", "--agents", "64", "--seed", "3", "--out", str(tmp_path / "shelves")]) == 0
+    assert (tmp_path / "shelves.scen").read_text().splitlines()[1].startswith("0\tshelves.map\t160\t62\t")
+    out = tmp_path / "shelves.txt"
+    assert main(["import", "movingai", str(tmp_path / "shelves.map"), "--scen", str(tmp_path / "shelves.scen"),
+                 "--agents", "64", "--out", str(out)]) == 0
+    m = load_map(out)
+    assert (m.height, m.width, m.n_agents) == (62, 160, 64)
+    assert len(set(m.starts)) == len(set(m.goals)) == 64
+    assert all(m.cells[s][1] < 13 or m.cells[s][1] >= 160 - 13 for s in m.starts)
+    for goal in m.goals:  # a pick face: a shelf ('@', outside the world) just above it
+        row, col = m.cells[goal]
+        assert (row - 1, col) not in m.cells and 13 < col < 160 - 13
+    assert m.goal_blocked_by_parked() == []
+    lengths = [int(line.split("\t")[8]) for line in (tmp_path / "shelves.scen").read_text().splitlines()[1:]]
+    assert lengths == [int(distances_to(m, g)[s]) for s, g in zip(m.starts, m.goals)]
+
+
+def test_generate_shelves_says_what_does_not_fit(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["generate", "shelves", "--agents", "200", "--shelf-rows", "1", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and len(err.strip().splitlines()) == 1
+    assert "200 agents do not fit: 1 x 11 shelves have 110 pick faces" in err
+    assert not (tmp_path / "s.map").exists()

@@ -11,8 +11,9 @@ from cq_ros.cli.main import main
 from cq_ros.cli.plan import PlanProgress
 from cq_ros.gridmap import available_maps, load_map, parse_map
 from cq_ros.mapf.planner import (
-    NoPlan, Plan, PlanError, conflict_based_search, distances_to, plan, prioritized, validate,
+    NoPlan, Plan, PlanError, conflict_based_search, distances_to, improve, plan, prioritized, validate,
 )
+from cq_ros.mapgen.warehouse import warehouse_map
 from cq_ros.world import N_ACTIONS, GridWorld
 
 PRIORITIZED = {"cbs_nodes": 0}  # plan() options that skip conflict-based search
@@ -303,3 +304,20 @@ def test_plan_progress_off_a_terminal_is_a_plain_line_at_most_every_30_s(capsys)
     progress.last_line -= 30
     progress("rounds", 10, 300)
     assert capsys.readouterr().err == "cq-ros plan: rounds 10/300\n"
+
+
+def test_the_time_limit_ends_the_search_with_one_line(tmp_path, capsys):
+    path = tmp_path / "bay.txt"
+    path.write_text(BAY)
+    assert main(["plan", "--map", str(path), "--time-limit", "1e-9"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["cq-ros plan: no plan found for bay within the time limit of 1e-09 s (prioritized planning was "
+                   "at priority order 1 of 20) (--time-limit gives it longer)"]
+
+
+def test_improvement_past_its_deadline_keeps_the_plan_it_has():
+    m = warehouse_map(6, seed=2)
+    dists = [distances_to(m, goal) for goal in m.goals]
+    paths, _ = prioritized(m, dists, list(range(m.n_agents)))
+    assert improve(m, dists, paths, 50, random.Random(0), deadline=0.0) == (paths, 0)
+    assert improve(m, dists, paths, 5, random.Random(0))[1] == 5

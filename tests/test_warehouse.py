@@ -202,3 +202,47 @@ def test_generate_writes_the_delays_as_map_defaults_with_their_reasons(tmp_path)
     plain = load_map(tmp_path / "plain.txt")
     assert (gm.starts, gm.goals, gm.neighbours) == (plain.starts, plain.goals, plain.neighbours)
     assert not {"slip", "start_hold", "reward_collision"} & set(plain.defaults)
+
+
+@pytest.mark.parametrize("agents, aisles", [(64, 18), (128, 34)])
+def test_large_fleets_get_a_layout_that_fits_them(agents, aisles):
+    """64 and 128 AGVs: default_aisles gives two to three AGVs an aisle (55 x 12 and 103 x 12 cells), every start
+    and goal distinct, every goal a bay reachable with all the others parked (walled_in, pairwise, is left to
+    the small maps: 128^2 searches)."""
+    assert default_aisles(agents) == aisles
+    grid = parse_map(warehouse_text(agents, seed=5))
+    assert (grid.height, grid.width, grid.n_agents) == (warehouse.DEFAULT_AISLE_LENGTH + 6, 3 * aisles + 1, agents)
+    assert len(set(grid.starts)) == len(set(grid.goals)) == agents
+    assert all(len(moves(grid, goal)) == 1 for goal in grid.goals)
+    assert grid.goal_blocked_by_parked() == []
+
+
+def test_a_128_agv_warehouse_runs_offline_from_the_first_episode(tmp_path, capsys):
+    path = tmp_path / "w128.txt"
+    assert main(["generate", "warehouse", "--agents", "128", "--seed", "1", "--out", str(path)]) == 0
+    out = tmp_path / "run"
+    assert main(["experiment", "--map", str(path), "--algo", "indep,cq", "--runs", "1", "--episodes", "2",
+                 "--jobs", "1", "--out", str(out), "--no-figures", "--set", "step_cap=30",
+                 "--set", "eval_episodes=0"]) == 0
+    assert "w128: runs 0/2, episodes 0/4" in capsys.readouterr().err  # the first line, before any episode
+    rows = (out / "episodes.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 * 2
+    assert json.loads((out / "manifest.json").read_text())["n_agents"] == 128
+
+
+def test_blocks_stack_bands_of_aisles_that_share_cross_aisles():
+    """128 AGVs in 4 blocks: 10 aisles by default (31 x 42 cells), docks on all five cross-aisles, goals in bays
+    of every block, the promise kept; one block is the warehouse of before, byte for byte."""
+    assert warehouse_text(16, seed=2, blocks=1) == warehouse_text(16, seed=2)
+    grid = parse_map(warehouse_text(128, seed=5, blocks=4))
+    length = warehouse.DEFAULT_AISLE_LENGTH
+    band = length + 4
+    assert (grid.height, grid.width) == (4 * band + 2, 3 * 10 + 1)
+    assert len(set(grid.starts)) == len(set(grid.goals)) == 128
+    assert all(grid.cells[s][0] % band in (0, 1) for s in grid.starts)
+    assert {grid.cells[g][0] // band for g in grid.goals} == {0, 1, 2, 3}
+    assert all(len(moves(grid, goal)) == 1 for goal in grid.goals)
+    assert grid.goal_blocked_by_parked() == []
+    small = warehouse_map(3, aisles=2, aisle_length=2, blocks=3)
+    assert small.reachable(0) == set(range(small.n_cells))  # every band joined to the next
+    assert "--blocks 3" in warehouse_text(3, aisles=2, aisle_length=2, blocks=3).splitlines()[3]

@@ -18,6 +18,7 @@ from ..gridmap import MapError
 from ..lab.cluster import ClusterError, scheduler_address
 from ..lab.runner import RunFailed
 from ..learners import ALGORITHMS, LEARNERS
+from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
 from ..settings import SettingsError
 
@@ -46,6 +47,7 @@ MAX_EPISODES = 10_000_000
 MAX_RUNS = 10_000
 MAX_AGENTS = 256
 MAX_WAREHOUSE_SIDE = 256  # aisles, and cells along an aisle
+DEFAULT_PLAN_SECONDS = 300.0  # a 128-AGV generated warehouse plans in 30 s of CPU (docs/warehouses.md)
 
 
 def _at_most(high: int, why: str):
@@ -132,6 +134,14 @@ _seed = _number(0, kind=int)  # numpy's SeedSequence takes no negative seed
 # ROS_DOMAIN_ID: Fast DDS derives its ports from it; 0..232 is the range that works on Linux.
 _domain_id = _number(0, 232, kind=int)
 _seconds = _number(0, strict=True)
+
+
+def _generator(kinds, name: str, what: str, description: str) -> argparse.ArgumentParser:
+    """The parser of `cq-ros generate NAME`, with the agents and the seed that draws their starts and goals."""
+    p = kinds.add_parser(name, help=what, description=description)
+    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
+    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    return p
 
 
 def _add_domain_option(p: argparse.ArgumentParser) -> None:
@@ -297,22 +307,37 @@ def build_parser() -> argparse.ArgumentParser:
     kinds = p.add_subparsers(dest="kind", required=True, metavar="KIND", parser_class=_Parser)
     what = ("a warehouse: two-lane cross-aisles (top and bottom), two-lane aisles behind one-lane entrances, "
             "pick stations in bays beside the aisles (cq_ros.mapgen.warehouse)")
-    p = kinds.add_parser("warehouse", help=what, description=f"Print or write {what}. Starts (docks on the "
-                         "cross-aisles) and goals (distinct bays) are drawn from --seed; every agent can reach its "
-                         "goal with the others parked at theirs. The map carries `set reward_step=-1`, "
-                         "`set gamma=0.98` and `set epsilon_decay_episodes=1500`.")
-    p.add_argument("--agents", type=_agents, required=True, metavar="N", help="AGVs, each with its own goal")
+    p = _generator(kinds, "warehouse", what, f"Print or write {what}. Starts (docks on the cross-aisles) and goals "
+                   "(distinct bays) are drawn from --seed; every agent can reach its goal with the others parked at "
+                   "theirs. The map carries `set reward_step=-1`, `set gamma=0.98` and "
+                   "`set epsilon_decay_episodes=1500`.")
     p.add_argument("--aisles", type=_side, default=None, metavar="A",
-                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32)")
+                   help="aisles (default: 2 + ceil(N/4): 4 for 8 AGVs, 6 for 16, 10 for 32, 34 for 128)")
     p.add_argument("--aisle-length", type=_side, default=DEFAULT_AISLE_LENGTH, metavar="L",
                    help=f"cells along each aisle, one pick station per row (default {DEFAULT_AISLE_LENGTH})")
-    p.add_argument("--seed", type=_seed, default=0, help="draws the starts and goals (default 0)")
+    p.add_argument("--blocks", type=_side, default=1, metavar="B",
+                   help="bands of aisles one below the other, sharing their cross-aisles, for a large fleet "
+                        "(default 1; the default aisles become 2 + ceil(N/4B))")
     p.add_argument("--slip", type=_number(0.0, 1.0), default=0.0, metavar="P",
                    help="delays: the map's default `slip` (a move fails with probability P; default 0)")
     p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
                    help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
+    what = ("a warehouse on a plain cell grid in MovingAI's .map and .scen form, blocks of shelves between "
+            "two-cell corridors with docking floor left and right, 160 x 62 cells by default "
+            "(cq_ros.mapgen.shelves)")
+    p = _generator(kinds, "shelves", what, f"Write {what}. Starts (docking floor) and goals (distinct pick faces, "
+                   "the corridor cells below a shelf) are drawn from --seed; every agent can reach its goal with "
+                   "the others parked at theirs. `cq-ros import movingai STEM.map --scen STEM.scen --agents N` "
+                   "makes it a map of ours.")
+    p.add_argument("--shelf-rows", type=_side, default=DEFAULT_SHELF_ROWS, metavar="R",
+                   help=f"rows of shelves, each 2 cells deep under a 2-cell corridor (default {DEFAULT_SHELF_ROWS})")
+    p.add_argument("--shelf-cols", type=_side, default=DEFAULT_SHELF_COLS, metavar="C",
+                   help=f"shelves in a row, each 10 cells long, 2-cell corridors between "
+                        f"(default {DEFAULT_SHELF_COLS})")
+    p.add_argument("--out", type=Path, required=True, metavar="STEM", help="write STEM.map and STEM.scen")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
 
     p = sub.add_parser("import", help="convert a map from another format into ours (print it, or write it with --out)")
     kinds = p.add_subparsers(dest="kind", required=True, metavar="FORMAT", parser_class=_Parser)
@@ -348,6 +373,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="priority orders prioritized planning tries (default 20)")
     p.add_argument("--rounds", type=_number(0, kind=int), default=300, metavar="N",
                    help="rounds of large neighbourhood search improving a prioritized plan (default 300)")
+    p.add_argument("--time-limit", type=_number(0, kind=float, strict=True), default=DEFAULT_PLAN_SECONDS,
+                   metavar="S", help="seconds (wall clock) the search may take: conflict-based search stops at "
+                   "half of them, LNS rounds stop at the end keeping the plan improved so far, and with no plan "
+                   f"by then the command says so and exits 1 (default {DEFAULT_PLAN_SECONDS:g})")
     p.add_argument("--show", action="store_true",
                    help="print every agent's moves (N E S W; lower case: a bump into a wall, i.e. a wait)")
     p.add_argument("--slip", type=_number(0, 1), default=None, metavar="P",

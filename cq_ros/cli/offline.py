@@ -81,8 +81,19 @@ def print_summary(out: Path) -> None:
 
 
 def generate(args) -> int:
-    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold),
-               args.out, args.force)
+    if args.kind == "shelves":
+        from ..mapgen.shelves import shelves_files
+
+        stem = args.out.with_suffix("") if args.out.suffix in (".map", ".scen") else args.out
+        outs = [stem.with_name(f"{stem.name}.map"), stem.with_name(f"{stem.name}.scen")]
+        for out in outs:
+            _check_writable(out, args.force)  # both, before either is written
+        texts = shelves_files(args.agents, args.shelf_rows, args.shelf_cols, args.seed, stem.name)
+        for text, out in zip(texts, outs):
+            _write_map(text, out, args.force)
+        return 0
+    _write_map(warehouse_text(args.agents, args.aisles, args.aisle_length, args.seed, args.slip, args.start_hold,
+                              args.blocks), args.out, args.force)
     return 0
 
 

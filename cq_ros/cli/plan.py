@@ -16,7 +16,7 @@ from ..mapf.execute import (
     spread,
     stall_risk,
 )
-from ..mapf.planner import NoPlan, PlanError, distances_to, plan, validate
+from ..mapf.planner import NoPlan, OutOfTime, PlanError, distances_to, plan, validate
 from ..settings import Settings, run_settings
 
 
@@ -29,7 +29,10 @@ def run(args) -> int:
     started = time.perf_counter()
     progress = PlanProgress()
     try:
-        result = plan(gridmap, args.seed, args.cbs_nodes, args.orders, args.rounds, progress)
+        result = plan(gridmap, args.seed, args.cbs_nodes, args.orders, args.rounds, progress, args.time_limit)
+    except OutOfTime as e:
+        print(f"cq-ros plan: {e} (--time-limit gives it longer)", file=sys.stderr)
+        return 1
     except NoPlan as e:
         print(f"cq-ros plan: {e} (--cbs-nodes and --orders search longer)", file=sys.stderr)
         return 1

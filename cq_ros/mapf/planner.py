@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import heapq
 import random
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -39,6 +40,15 @@ _NEVER = float("inf")
 
 class NoPlan(Exception):
     """No plan was found within the search budget (the instance may still be solvable)."""
+
+
+class OutOfTime(NoPlan):
+    """The time limit passed before a plan was found."""
+
+
+def _check(deadline: float) -> None:
+    if time.monotonic() > deadline:
+        raise OutOfTime
 
 
 class PlanError(ValueError):
@@ -210,9 +220,10 @@ def conflicts(paths: list[tuple[int, ...]], goals: tuple[int, ...]):
 
 
 def conflict_based_search(gridmap: GridMap, dists: list[list[float]], max_nodes: int,
-                          progress: Callable[[int], None] | None = None) -> tuple[list | None, int]:
+                          progress: Callable[[int], None] | None = None,
+                          deadline: float = _NEVER) -> tuple[list | None, int]:
     """(paths with the least sum of costs, that sum), or (None, a lower bound on it) if none was found within
-    `max_nodes` search nodes.
+    `max_nodes` search nodes or by `deadline` (time.monotonic()).
 
     Among nodes of equal cost the one with the fewest conflicts goes first, a replanned agent takes, among
     its earliest paths, one through the fewest cells the others occupy, and a node adopts a child as cheap as
@@ -226,7 +237,7 @@ def conflict_based_search(gridmap: GridMap, dists: list[list[float]], max_nodes:
     rank = _rank(paths, goals)
     open_nodes = [(rank, next(tie), constraints, paths)]
     for expanded in range(max_nodes):
-        if not open_nodes:
+        if not open_nodes or time.monotonic() > deadline:
             break
         if progress and expanded % 100 == 0:
             progress(expanded)
@@ -274,12 +285,14 @@ def _split(conflict: tuple) -> list[tuple[int, tuple]]:
 
 
 def prioritized(gridmap: GridMap, dists: list[list[float]], order: list[int],
-                paths: list | None = None) -> tuple[list | None, int | None]:
+                paths: list | None = None, deadline: float = _NEVER) -> tuple[list | None, int | None]:
     """Plan the agents in `order` one by one, each avoiding every agent that has a path by then (those of
-    `paths` not in `order` keep theirs): (paths, None), or (None, the agent that found no path)."""
+    `paths` not in `order` keep theirs): (paths, None), or (None, the agent that found no path); OutOfTime
+    once `deadline` (time.monotonic()) has passed."""
     paths = [None if i in order else path for i, path in enumerate(paths or [None] * gridmap.n_agents)]
     goals = gridmap.goals
     for agent in order:
+        _check(deadline)
         others = [j for j, path in enumerate(paths) if path is not None]
         rules = Rules.avoiding([paths[j] for j in others], [goals[j] for j in others], goals[agent])
         paths[agent] = find_path(gridmap, gridmap.starts[agent], goals[agent], dists[agent], rules)
@@ -289,18 +302,23 @@ def prioritized(gridmap: GridMap, dists: list[list[float]], order: list[int],
 
 
 def improve(gridmap: GridMap, dists: list[list[float]], paths: list, rounds: int, rng: random.Random,
-            progress: Callable[[int], None] | None = None, group: int = 8) -> list:
+            progress: Callable[[int], None] | None = None, group: int = 8,
+            deadline: float = _NEVER) -> tuple[list, int]:
     """Large neighbourhood search (MAPF-LNS, Li et al. 2021): each round takes a few agents drawn by `rng`,
     replans them in a random order around the others' paths, and keeps the result if the sum of costs does
-    not grow. Conflicts are symmetric, so paths that avoid every kept path leave the plan conflict-free."""
+    not grow. Conflicts are symmetric, so paths that avoid every kept path leave the plan conflict-free.
+    (the improved paths, the rounds done: fewer than `rounds` where `deadline` came first)."""
     n = len(paths)
     for done in range(rounds):
         if progress and done % 10 == 0:
             progress(done)
-        new, _ = prioritized(gridmap, dists, rng.sample(range(n), min(group, n)), paths)
+        try:
+            new, _ = prioritized(gridmap, dists, rng.sample(range(n), min(group, n)), paths, deadline)
+        except OutOfTime:
+            return paths, done
         if new is not None and _cost(new) <= _cost(paths):
             paths = new
-    return paths
+    return paths, rounds
 
 
 def priority_orders(gridmap: GridMap, dists: list[list[float]], rng: random.Random):
@@ -325,16 +343,24 @@ def priority_orders(gridmap: GridMap, dists: list[list[float]], rng: random.Rand
 
 
 def plan(gridmap: GridMap, seed: int = 0, cbs_nodes: int = 1000, orders: int = 20, rounds: int = 300,
-         progress: Callable[[str, int, int], None] | None = None) -> Plan:
+         progress: Callable[[str, int, int], None] | None = None, time_limit: float | None = None) -> Plan:
     """A collision-free plan: conflict-based search (optimal) within `cbs_nodes` search nodes; else prioritized
     planning over up to `orders` priority orders, improved by `rounds` rounds of `improve`. NoPlan if neither
     search finds one. Every random choice comes from `seed`.
 
+    `time_limit` (seconds, wall clock) bounds the whole search: conflict-based search stops at half of it,
+    prioritized planning raises OutOfTime at the end of it, and the rounds of improvement stop there, the
+    plan kept as improved so far (the method says how many rounds were done); a search that ends before half
+    the limit is the one made without a limit.
+
     `progress(phase, done, total)` is called as the search goes: "cbs" nodes, priority "orders", "rounds"."""
+    started = time.monotonic()
+    deadline = _NEVER if time_limit is None else started + time_limit
     dists = [distances_to(gridmap, goal) for goal in gridmap.goals]
     bound = sum(int(dist[start]) for dist, start in zip(dists, gridmap.starts))
     if cbs_nodes:
-        paths, searched = conflict_based_search(gridmap, dists, cbs_nodes, _phase(progress, "cbs", cbs_nodes))
+        paths, searched = conflict_based_search(gridmap, dists, cbs_nodes, _phase(progress, "cbs", cbs_nodes),
+                                                (started + deadline) / 2)
         bound = max(bound, searched)
         if paths is not None:
             return _with_actions(gridmap, paths, "conflict-based search", bound)
@@ -344,11 +370,18 @@ def plan(gridmap: GridMap, seed: int = 0, cbs_nodes: int = 1000, orders: int = 2
     for k in range(1, orders + 1):
         if progress:
             progress("orders", k - 1, orders)
-        paths, failed = prioritized(gridmap, dists, order)
+        try:
+            paths, failed = prioritized(gridmap, dists, order, deadline=deadline)
+        except OutOfTime:
+            raise OutOfTime(f"no plan found for {gridmap.name} within the time limit of {time_limit:g} s "
+                            f"(prioritized planning was at priority order {k} of {orders})") from None
         if paths is not None:
-            paths = improve(gridmap, dists, paths, rounds, rng, _phase(progress, "rounds", rounds))
-            method = f"prioritized planning (priority order {k} of {orders} tried), then {rounds} rounds of LNS"
-            return _with_actions(gridmap, paths, method, bound)
+            paths, done = improve(gridmap, dists, paths, rounds, rng, _phase(progress, "rounds", rounds),
+                                  deadline=deadline)
+            lns = f"{rounds} rounds of LNS" if done == rounds else (
+                f"{done} of {rounds} rounds of LNS (stopped at the time limit of {time_limit:g} s)")
+            return _with_actions(gridmap, paths, f"prioritized planning (priority order {k} of {orders} tried), "
+                                                 f"then {lns}", bound)
         order = chooser.send(failed)
     raise NoPlan(f"no plan found for {gridmap.name}: conflict-based search ran out of its {cbs_nodes} nodes and "
                  f"prioritized planning failed with {orders} priority orders; the instance may have no plan at all")

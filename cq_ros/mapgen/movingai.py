@@ -18,7 +18,7 @@ from pathlib import Path
 
 from ..gridmap import draw_cells
 
-__all__ = ["MAX_CELLS", "MovingAIError", "MovingAIMap", "Task", "read_map", "read_scenario", "map_text"]
+__all__ = ["MAX_CELLS", "MovingAIError", "MovingAIMap", "Task", "grid_text", "map_text", "read_map", "read_scenario"]
 
 PASSABLE = frozenset(".G")
 BLOCKED = frozenset("@OT")
@@ -183,9 +183,15 @@ def map_text(gridmap: MovingAIMap, tasks: list[Task], command: str, scenario: Pa
     """Our map text for `gridmap` with an agent per task (agent k: the k-th task), headed by where it came from
     and the `command` that made it."""
     source = f"{gridmap.path.name}" + (f", the first {len(tasks)} tasks of {scenario.name}" if scenario else "")
-    lines = [f"# Imported from MovingAI {source} (x the column, y the row, 0-based from the top left).",
-             f"# Made by: {command}"]
-    lines += [f"agent {k}: start {t.start[0]},{t.start[1]}  goal {t.goal[0]},{t.goal[1]}"
-              for k, t in enumerate(tasks, start=1)]
-    lines += ["", *draw_cells(gridmap.height, gridmap.width, gridmap.passable)]
+    return grid_text(gridmap.height, gridmap.width, gridmap.passable, tasks,
+                     [f"# Imported from MovingAI {source} (x the column, y the row, 0-based from the top left).",
+                      f"# Made by: {command}"])
+
+
+def grid_text(height: int, width: int, passable: frozenset[tuple[int, int]], tasks: list[Task],
+              header: list[str]) -> str:
+    """Our map text of a cell grid (`passable` cells, four-way moves between neighbours), an agent per task."""
+    lines = [*header, *(f"agent {k}: start {t.start[0]},{t.start[1]}  goal {t.goal[0]},{t.goal[1]}"
+                        for k, t in enumerate(tasks, start=1))]
+    lines += ["", *draw_cells(height, width, passable)]
     return "\n".join(lines) + "\n"

@@ -11,6 +11,9 @@ Laid out as real ones are (rows from the top)::
              right lane and out at the bottom is right-hand traffic
     2 rows   bottom cross-aisle, as the top one
 
+With ``blocks`` above 1, that band of aisles repeats below itself, each band's bottom cross-aisle the next
+one's top: a warehouse for a large fleet grows down as well as across.
+
 Each aisle has one bay per row, on its left rack in odd rows and its right rack in even ones (counted from
 the aisle's first row), so the rack between two aisles serves both without a bay open to both.
 Starts (distinct cross-aisle cells) and goals (distinct bays) are drawn by ``random.Random(seed)``, and the
@@ -26,11 +29,11 @@ is learnt last is the timing of the greedy policy.
 from __future__ import annotations
 
 import math
-import random
 import textwrap
 
 from ..gridmap import GridMap, _render, _STEPS, parse_map
 from ..settings import Settings, SettingsError
+from .draw import check_sizes, draw_starts_and_goals
 
 __all__ = ["DEFAULT_AISLE_LENGTH", "DELAY_DEFAULTS", "DELAYED_COLLISION", "MAP_DEFAULTS", "default_aisles",
            "warehouse_command", "warehouse_map", "warehouse_text"]
@@ -56,43 +59,48 @@ MAP_DEFAULTS = {
 Cell = tuple[int, int]
 
 
-def default_aisles(agents: int) -> int:
-    """Aisles when none are asked for: 2 + ceil(agents / 4), two to three AGVs per aisle (4 for 8 AGVs,
-    6 for 16, 10 for 32), so that conflicts stay at entrances and the map stays small for tabular learners."""
-    return 2 + math.ceil(agents / 4)
+def default_aisles(agents: int, blocks: int = 1) -> int:
+    """Aisles when none are asked for: 2 + ceil(agents / (4 blocks)), two to three AGVs per aisle (4 for 8
+    AGVs, 6 for 16, 10 for 32, 18 for 64, 34 for 128; 10 for 128 in 4 blocks), so that conflicts stay at
+    entrances and the map stays small for tabular learners."""
+    return 2 + math.ceil(agents / (4 * blocks))
 
 
-def _layout(aisles: int, aisle_length: int) -> tuple[int, int, set[frozenset[Cell]], list[Cell], list[Cell]]:
+def _layout(aisles: int, aisle_length: int,
+            blocks: int = 1) -> tuple[int, int, set[frozenset[Cell]], list[Cell], list[Cell]]:
     """Height, width, the open passages (pairs of cells), the docks (cross-aisle cells) and the bays."""
-    height, width = aisle_length + 6, 3 * aisles + 1
-    first, last = 3, 3 + aisle_length - 1  # the aisles' rows
-    docks = [(row, col) for row in (0, 1, height - 2, height - 1) for col in range(width)]
+    band = aisle_length + 4  # from one cross-aisle's first row to the next one's
+    height, width = blocks * band + 2, 3 * aisles + 1
+    tops = [k * band for k in range(blocks + 1)]  # each cross-aisle's first row
+    docks = [(row, col) for top in tops for row in (top, top + 1) for col in range(width)]
     passages: set[frozenset[Cell]] = set()
 
     def join(a: Cell, b: Cell) -> None:
         passages.add(frozenset((a, b)))
 
-    for top in (0, height - 2):  # each cross-aisle: two full rows, open everywhere between them
+    for top in tops:  # each cross-aisle: two full rows, open everywhere between them
         for col in range(width):
             join((top, col), (top + 1, col))
             if col + 1 < width:
                 join((top, col), (top, col + 1))
                 join((top + 1, col), (top + 1, col + 1))
     bays = []
-    for aisle in range(aisles):
-        left, right = 3 * aisle + 1, 3 * aisle + 2
-        join((1, left), (2, left))  # the top entrance
-        join((2, left), (first, left))
-        join((last, right), (last + 1, right))  # the bottom entrance
-        join((last + 1, right), (height - 2, right))
-        for row in range(first, last + 1):
-            join((row, left), (row, right))
-            if row < last:
-                join((row, left), (row + 1, left))
-                join((row, right), (row + 1, right))
-            lane, rack = (left, left - 1) if (row - first) % 2 else (right, right + 1)
-            join((row, lane), (row, rack))
-            bays.append((row, rack))
+    for top in tops[:-1]:
+        first, last = top + 3, top + 3 + aisle_length - 1  # the aisles' rows
+        for aisle in range(aisles):
+            left, right = 3 * aisle + 1, 3 * aisle + 2
+            join((top + 1, left), (top + 2, left))  # the top entrance
+            join((top + 2, left), (first, left))
+            join((last, right), (last + 1, right))  # the bottom entrance
+            join((last + 1, right), (top + band, right))
+            for row in range(first, last + 1):
+                join((row, left), (row, right))
+                if row < last:
+                    join((row, left), (row + 1, left))
+                    join((row, right), (row + 1, right))
+                lane, rack = (left, left - 1) if (row - first) % 2 else (right, right + 1)
+                join((row, lane), (row, rack))
+                bays.append((row, rack))
     return height, width, passages, docks, sorted(bays)
 
 
@@ -113,42 +121,38 @@ DELAY_DEFAULTS = {
 
 
 def warehouse_command(agents: int, aisles: int, aisle_length: int, seed: int, slip: float = 0.0,
-                      start_hold: int = 0) -> str:
+                      start_hold: int = 0, blocks: int = 1) -> str:
     """The `cq-ros generate` command line that makes this warehouse (written in the map's header)."""
     delays = (f" --slip {slip:g}" if slip else "") + (f" --start-hold {start_hold}" if start_hold else "")
     return (f"cq-ros generate warehouse --agents {agents} --aisles {aisles} --aisle-length {aisle_length} "
-            f"--seed {seed}{delays}")
+            f"{f'--blocks {blocks} ' if blocks != 1 else ''}--seed {seed}{delays}")
 
 
-def _sizes(agents: int, aisles: int | None, aisle_length: int | None) -> tuple[int, int]:
+def _sizes(agents: int, aisles: int | None, aisle_length: int | None, blocks: int = 1) -> tuple[int, int]:
     """(aisles, aisle_length) with the defaults filled in; ValueError for a size below 1."""
-    aisles = default_aisles(agents) if aisles is None else aisles
+    check_sizes(blocks=blocks)
+    aisles = default_aisles(agents, blocks) if aisles is None else aisles
     aisle_length = DEFAULT_AISLE_LENGTH if aisle_length is None else aisle_length
-    for name, value in (("agents", agents), ("aisles", aisles), ("aisle_length", aisle_length)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a whole number of at least 1, got {value!r}")
+    check_sizes(agents=agents, aisles=aisles, aisle_length=aisle_length)
     return aisles, aisle_length
 
 
 def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | None = None, seed: int = 0,
-                   slip: float = 0.0, start_hold: int = 0) -> str:
-    """A generated warehouse as map text. ``aisles`` defaults to ``default_aisles(agents)``, ``aisle_length``
-    to DEFAULT_AISLE_LENGTH; ``slip`` and ``start_hold``, when not 0, become map defaults (DELAY_DEFAULTS).
-    ValueError names what does not fit (too few bays or docks for the agents, a delay out of range)."""
-    aisles, aisle_length = _sizes(agents, aisles, aisle_length)
+                   slip: float = 0.0, start_hold: int = 0, blocks: int = 1) -> str:
+    """A generated warehouse as map text. ``aisles`` defaults to ``default_aisles(agents, blocks)``,
+    ``aisle_length`` to DEFAULT_AISLE_LENGTH; ``blocks`` bands of aisles stand one below the other; ``slip`` and
+    ``start_hold``, when not 0, become map defaults (DELAY_DEFAULTS). ValueError names what does not fit (too
+    few bays or docks for the agents, a delay out of range)."""
+    aisles, aisle_length = _sizes(agents, aisles, aisle_length, blocks)
     delays = {"slip": slip, "start_hold": start_hold}
     try:
         Settings().with_overrides(delays)
     except SettingsError as e:
         raise ValueError(str(e)) from None
-    height, width, passages, docks, bays = _layout(aisles, aisle_length)
-    for what, places in (("pick stations (one per aisle row)", bays), ("dock cells on the cross-aisles", docks)):
-        if agents > len(places):
-            raise ValueError(f"{agents} agents do not fit: {aisles} aisles of length {aisle_length} have "
-                             f"{len(places)} {what}; give more aisles")
-    rng = random.Random(seed)
-    starts = rng.sample(docks, agents)
-    goals = rng.sample(bays, agents)
+    height, width, passages, docks, bays = _layout(aisles, aisle_length, blocks)
+    band = f"{aisles} aisles of length {aisle_length}" + (f" in {blocks} blocks" if blocks != 1 else "")
+    starts, goals = draw_starts_and_goals(agents, seed, ("dock cells on the cross-aisles", docks),
+                                          ("pick stations (one per aisle row)", bays), band, "give more aisles")
 
     def is_open(row: int, col: int, action: int) -> bool:
         d_row, d_col = _STEPS[action]
@@ -158,7 +162,9 @@ def warehouse_text(agents: int, aisles: int | None = None, aisle_length: int | N
     header = [
         f"# Generated warehouse, {agents} AGVs: {aisles} two-lane aisles of {aisle_length} cells between shelf racks",
         "# ('#'), each joined to the two-lane cross-aisles (top and bottom) by one-lane entrances.",
-        f"# Generated by: {warehouse_command(agents, aisles, aisle_length, seed, slip, start_hold)}",
+        *([f"# {blocks} such blocks stand one below the other, each sharing its cross-aisles with its neighbours."]
+          if blocks != 1 else []),
+        f"# Generated by: {warehouse_command(agents, aisles, aisle_length, seed, slip, start_hold, blocks)}",
         "# Starts on the cross-aisles (docks); each goal is a bay cut into a rack (a pick station), open only to",
         "# its aisle, where a parked AGV blocks nobody.",
     ]
@@ -187,9 +193,9 @@ def _check_parked(gridmap: GridMap, seed: int) -> None:
 
 
 def warehouse_map(agents: int, aisles: int | None = None, aisle_length: int | None = None, seed: int = 0,
-                  name: str | None = None, slip: float = 0.0, start_hold: int = 0) -> GridMap:
+                  name: str | None = None, slip: float = 0.0, start_hold: int = 0, blocks: int = 1) -> GridMap:
     """The generated warehouse, parsed (named ``warehouse_<agents>`` unless ``name`` is given)."""
-    aisles, aisle_length = _sizes(agents, aisles, aisle_length)
-    return parse_map(warehouse_text(agents, aisles, aisle_length, seed, slip, start_hold),
+    aisles, aisle_length = _sizes(agents, aisles, aisle_length, blocks)
+    return parse_map(warehouse_text(agents, aisles, aisle_length, seed, slip, start_hold, blocks),
                      name=name or f"warehouse_{agents}",
-                     source=f"<{warehouse_command(agents, aisles, aisle_length, seed, slip, start_hold)}>")
+                     source=f"<{warehouse_command(agents, aisles, aisle_length, seed, slip, start_hold, blocks)}>")
