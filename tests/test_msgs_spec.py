@@ -917,3 +917,28 @@ def test_the_fast_codec_agrees_with_the_reference(payload, sender, state, expect
         assert (keys[0].run, keys[0].held, keys[0].retired) == (keys[1].run, keys[1].held, keys[1].retired)
         if type(payload) is ms.Action:
             assert (keys[2].run, keys[2].held, keys[2].retired) == (keys[1].run, keys[1].held, keys[1].retired)
+
+
+@pytest.mark.parametrize("ros_type, label, n, dims", [
+    (Int32MultiArray, ACT.keyed_label, 20_000, 1), (Float64MultiArray, FB.label, 20_000, 1),
+    (Int32MultiArray, "x" * 10_000, 4, 1), (Int32MultiArray, ACT.label, 20_000, 2),
+    (Int32MultiArray, "x,y", 4, 1)], ids=["20000-values", "20000-floats", "10KB-label", "2-dims", "small"])
+def test_bytes_longer_than_the_keyed_form_are_refused_from_their_header_unread(monkeypatch, ros_type, label, n, dims):
+    """A flood's message too large for its layout is refused before it is deserialized (its header read in
+    place), with the kind the message object would get; one of the layout's size is still read whole."""
+    from msgs_spec import arrays
+
+    msg = ros_type()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=n, stride=n)] * dims
+    msg.data = [1] * n if ros_type is Int32MultiArray else [1.0] * n
+    decode = dfb if ros_type is Float64MultiArray else dact
+    with pytest.raises(ms.WireError) as as_object:
+        decode(msg)
+    raw = serialize_message(msg)
+    oversized = len(raw) > (FB if ros_type is Float64MultiArray else ACT)._longest
+    read = []
+    monkeypatch.setattr(arrays, "_deserialized", lambda layout, b: read.append(b) or deserialize_message(b, ros_type))
+    with pytest.raises(ms.WireError) as as_bytes:
+        decode(raw)
+    assert as_bytes.value.kind == as_object.value.kind and read == ([] if oversized else [raw])
+    assert oversized == (n > 4 or len(label) > 100)
