@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import time
 from typing import Any, Callable, Mapping, TypeVar
 
-__all__ = ["KINDS", "WireError", "DropCounter"]
+__all__ = ["KINDS", "FLOOD_WINDOW_S", "WireError", "DropCounter"]
+
+FLOOD_WINDOW_S = 1.0  # a source refusing DropCounter.every messages within this long is flooded
 
 # Every reason a message can be refused, with what it means. A `WireError.kind` is always one of these keys,
 # so nodes can use it as a counter name ("dropped.<kind>" in their statistics).
@@ -59,7 +62,7 @@ T = TypeVar("T")
 
 
 class DropCounter:
-    """Count refused messages by kind; log the first of each kind and then every `every`-th.
+    """Count refused messages by kind; log the first of each kind and then every `every`-th, and a flood once.
 
     A node keeps one per process (or per topic) and routes every decode through it::
 
@@ -72,22 +75,43 @@ class DropCounter:
                 return          # logged (maybe), counted, dropped
             ...
 
+    A source that refuses `every` messages within FLOOD_WINDOW_S is flooded: one line says so, with its rate,
+    and no further line comes for it (its drops are still counted), so a flood of thousands a second costs no
+    log line each, nor one every `every`-th (`floods`: source -> the rate it was reported at).
+
     Not thread-safe by itself: use it from one executor thread (the project uses SingleThreadedExecutor).
     """
 
-    def __init__(self, log: Callable[[str], Any] | None = None, every: int = 100) -> None:
+    def __init__(self, log: Callable[[str], Any] | None = None, every: int = 100,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         if int(every) < 1:
             raise ValueError("every must be >= 1")
         self._log = log
         self.every = int(every)
+        self._clock = clock
         self._counts: dict[str, int] = {}
+        self._windows: dict[str, list] = {}  # source -> [its window's start, drops in it]
+        self.floods: dict[str, float] = {}  # source -> drops a second when it was reported a flood
 
     def record(self, error: WireError, source: str = "") -> int:
-        """Count `error`; log it if it is the first of its kind or an every-th one. Returns the kind's count."""
+        """Count `error`; log it if it is the first of its kind or an every-th one, unless its source is
+        flooded (said once). Returns the kind's count."""
         n = self._counts.get(error.kind, 0) + 1
         self._counts[error.kind] = n
-        if self._log is not None and (n == 1 or n % self.every == 0):
-            where = f" on {source}" if source else ""
+        if self._log is None or source in self.floods:
+            return n
+        now = self._clock()
+        window = self._windows.get(source)
+        if window is None or now - window[0] > FLOOD_WINDOW_S:
+            window = self._windows[source] = [now, 0]
+        window[1] += 1
+        where = f" on {source}" if source else ""
+        if window[1] >= self.every:
+            rate = self.floods[source] = window[1] / max(now - window[0], 1e-3)
+            self._log(f"a flood of refused messages{where}: {window[1]} in {now - window[0]:.2f} s (about "
+                      f"{rate:.0f} a second; this one {error.kind}); every one is counted, no further line comes "
+                      f"for it{where}")
+        elif n == 1 or n % self.every == 0:
             seen = "first of this kind" if n == 1 else f"{n} of this kind so far"
             self._log(f"dropped message{where}: {error.kind}: {error.detail} "
                       f"({seen}; logging the first and every {self.every}-th)")

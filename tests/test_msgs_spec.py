@@ -730,7 +730,8 @@ def test_fuzz_stats_only_raise_wire_error(pairs, name, hw, n_status):
 
 def test_drop_counter_logs_first_and_every_nth_and_counts():
     logged = []
-    drops = ms.DropCounter(logged.append, every=3)
+    ticks = iter(range(0, 1000, 2))  # a drop every 2 s: never a flood
+    drops = ms.DropCounter(logged.append, every=3, clock=lambda: next(ticks))
     bad = _act(action=9)
     for _ in range(7):
         assert drops.guard(dact, bad, source="agv3/action", **ACTX) is None
@@ -746,6 +747,23 @@ def test_drop_counter_logs_first_and_every_nth_and_counts():
     # counters feed the statistics as is
     s = ms.AgentStats(agent=3, episode=0, algorithm="cq", counters=drops.as_counters())
     assert ms.decode(_wire(ms.encode(s))).counters == drops.as_counters()
+
+
+def test_a_flood_is_reported_once_with_its_rate_and_source_and_every_drop_counted():
+    """5,000 refused messages on one topic in 0.5 s (and a few elsewhere): one line says the flood, its source
+    and its rate; the rest are counted without a line; another source still logs its own."""
+    logged, now = [], [0.0]
+    drops = ms.DropCounter(logged.append, every=100, clock=lambda: now[0])
+    for i in range(5000):
+        now[0] = i * 1e-4
+        drops.record(ms.WireError("malformed", "junk"), "agv1/action")
+        if i % 1000 == 0:
+            drops.record(ms.WireError("stale_step", "old"), "agv2/action")
+    floods = [line for line in logged if "flood" in line]
+    assert len(floods) == 1 and "on agv1/action" in floods[0] and "100 in 0.01 s" in floods[0], floods
+    assert list(drops.floods) == ["agv1/action"] and 9000 < drops.floods["agv1/action"] < 11000
+    assert len(logged) == 3 and sum("agv2/action" in line for line in logged) == 1  # and agv1's first line
+    assert drops.counts == {"malformed": 5000, "stale_step": 5}
 
 
 def test_drop_counter_without_logger_and_bugs_propagate():
