@@ -246,9 +246,17 @@ class AgentNode(Node):
             why = (f"; {other} messages came from another world incarnation or run (other_incarnation, "
                    "other_run): the world restarted (or another run's messages were replayed), and this run "
                    "cannot go on with it") if other else ""
-            self.gave_up = (f"no valid message from the world (feedback or heartbeat) for "
-                            f"{link.patience.waited:.1f} s awake, {link.silent_for():.1f} s of wall time "
-                            f"(feedback_timeout={self.config.feedback_timeout}){why}: giving up")
+            if link.behind is not None and not other:  # the world beats on, and steps without us
+                (world_e, world_s), (e, s) = link.behind
+                self.gave_up = (f"no feedback taken for {link.patience.waited:.1f} s awake, {link.silent_for():.1f} s "
+                                f"of wall time (feedback_timeout={self.config.feedback_timeout}), while the world's "
+                                f"heartbeats say it is at episode {world_e} step {world_s} and this agent waits for "
+                                f"episode {e} step {s}: it takes no feedback (its reader or executor stopped): "
+                                "giving up")
+            else:
+                self.gave_up = (f"no valid message from the world (feedback or heartbeat) for "
+                                f"{link.patience.waited:.1f} s awake, {link.silent_for():.1f} s of wall time "
+                                f"(feedback_timeout={self.config.feedback_timeout}){why}: giving up")
             self.get_logger().error(self.gave_up)
             self._finish(1)
 

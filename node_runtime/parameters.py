@@ -27,10 +27,12 @@ from msgs_spec.auth import RunKey, new_run
 __all__ = ["SETTING_NAMES", "check_names", "check_numbers", "map_and_settings", "WORLD_PARAMETERS",
            "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters", "undeclared_overrides",
            "read_key_parameter", "run_key_parameters", "ros_type", "describe_parameters", "help_requested",
-           "print_help"]
+           "print_help", "MIN_HEARTBEAT_PERIOD"]
 
 
 SETTING_NAMES = frozenset(f.name for f in fields(Settings))
+# The fastest a world beats: what bounds how far a heartbeat's beat may jump at an agent (agent_node.world_link).
+MIN_HEARTBEAT_PERIOD = 0.01
 
 
 def check_names(given: Iterable[str], known: Iterable[str], elsewhere: Iterable[str] = (),
@@ -91,7 +93,7 @@ WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings(
     "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
                                  "subscriptions (a recorder that must not miss an episode sets 1)"),
     "heartbeat_period": (1.0, "seconds between two world/heartbeat messages (sent from the start, whether or "
-                              "not anyone acts); keep it well below the agents' feedback_timeout"),
+                              "not anyone acts), at least 0.01; keep it well below the agents' feedback_timeout"),
     "key_file": ("", "file holding the run's key (hex, readable by its owner only; cq-ros launch writes one): "
                      "key every message that steers the run and drop actions without a matching MAC; empty: "
                      "no authentication"),

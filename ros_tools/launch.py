@@ -613,7 +613,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     with StopSignals() as stop, environment(**listener_env), ros_session(
             "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
             hidden=False) as (node, executor):
-        listener = StatsListener(node, gridmap, episodes + settings.eval_episodes, key=run_key)
+        listener = StatsListener(node, gridmap, episodes + settings.eval_episodes, key=run_key,
+                                 run=nodes["world"][1]["run_nonce"])
         server = None
         if view_port is not None:  # a live view in Foxglove (ros_tools.view), relayed by the listener's node
             from .view import serve
@@ -733,10 +734,16 @@ def _unstick(children: list[Child], env: dict, listener: StatsListener) -> None:
 
 
 def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
-    """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why)."""
+    """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why: a departure
+    from the offline engine, or statistics that conflicted with the first heard of their episode)."""
     found = departures(listener, learners)
-    if found:
-        return {"how": "degraded", "reason": describe_departures(found), "exit_status": EXIT_DEGRADED}
+    why = [describe_departures(found)] if found else []
+    if listener.conflicts:
+        named = listener.named_conflicts().items()
+        why.append("conflicting statistics (the first heard of each episode kept): " + "; ".join(
+            f"{topic} episode{'s' if ',' in e or '-' in e else ''} {e}" for topic, e in named))
+    if why:
+        return {"how": "degraded", "reason": "; ".join(why), "exit_status": EXIT_DEGRADED}
     return {"how": "finished", "reason": "every episode played as the offline engine plays it",
             "exit_status": EXIT_CLEAN}
 
