@@ -282,3 +282,27 @@ def test_ctrl_c_or_sigterm_on_an_experiment_before_its_results_leaves_no_folder(
     assert proc.returncode in (130, -signal.SIGINT), err
     assert ("interrupted by SIGTERM" if sig == "SIGTERM" else "interrupted") in err, err
     assert "Traceback" not in err and not (tmp_path / "made").exists(), err
+
+
+def test_experiment_with_a_preset_says_it_on_stderr_and_in_the_manifest(tmp_path, capsys):
+    """The paper's CQ by name on a delayed map: its settings in the manifest's `presets` and on stderr, and no
+    `under_delays` (the paper's preset sets every setting that one would)."""
+    out = tmp_path / "paper"
+    assert main(["experiment", "--map", "warehouse_8_delayed", "--algo", "cq", "--runs", "1", "--episodes", "2",
+                 "--set", "eval_episodes=1", "--set", "cq_mark_range=3", "--preset", "paper", "--out", str(out),
+                 "--no-figures"]) == 0
+    stderr = capsys.readouterr().err
+    paper = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_colliders": 0, "cq_w1_alone": 0,
+             "cq_waits_fresh": 0, "cq_look_if_decisive": 0}  # cq_mark_range: the user's
+    assert "preset paper: " + " ".join(f"{k}={v}" for k, v in paper.items()) in stderr.splitlines()
+    assert "under_delays" not in stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["presets"] == {"paper": paper}
+    assert manifest["settings"]["cq_mark_range"] == 3 and manifest["settings"]["cq_w1_alone"] == 0
+    out = tmp_path / "ours"
+    assert main(["experiment", "--map", "warehouse_8_delayed", "--algo", "cq", "--runs", "1", "--episodes", "2",
+                 "--set", "eval_episodes=1", "--out", str(out), "--no-figures"]) == 0
+    assert ("preset under_delays: cq_w1_alone=1 cq_waits_fresh=1 cq_mark_range=1 cq_look_if_decisive=1"
+            in capsys.readouterr().err.splitlines())
+    assert json.loads((out / "manifest.json").read_text())["presets"] == {
+        "under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1, "cq_look_if_decisive": 1}}

@@ -20,7 +20,7 @@ from ..lab.runner import RunFailed
 from ..learners import ALGORITHMS, LEARNERS
 from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
-from ..settings import SettingsError
+from ..settings import PRESETS, SettingsError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -359,6 +359,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five)")
     p.add_argument("--out", type=Path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
+    p.add_argument("--preset", choices=list(PRESETS), default=None,
+                   help="a named configuration over the map's settings, under --set: paper, CQ as Algorithm 2 "
+                        "reads (every cq_* choice at the paper's value, also under delays). The presets that "
+                        "set anything are printed on stderr and listed in the manifest (`presets`)")
     _add_run_options(p, runs=10, episodes=10_000)
 
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "

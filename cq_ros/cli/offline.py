@@ -13,7 +13,7 @@ from pathlib import Path
 from ..gridmap import available_maps, load_map, parse_map
 from ..lab.output import check_parent, removed_if_failing
 from ..mapgen.warehouse import warehouse_text
-from ..settings import Settings, run_settings
+from ..settings import Settings, run_settings, run_settings_and_presets
 
 
 def maps(args) -> int:
@@ -49,10 +49,13 @@ def experiment(args) -> int:
     from ..lab.experiment import experiment
 
     # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
-    settings = run_settings(load_map(args.map), args.overrides)
+    settings, presets = run_settings_and_presets(load_map(args.map), args.overrides, args.preset)
+    for name, changed in presets.items():
+        print(f"preset {name}: " + " ".join(f"{k}={v}" for k, v in changed.items()), file=sys.stderr)
     with removed_if_failing(args.out):  # results are written at the end: a run cut short leaves no folder
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster)
+                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster,
+                         presets=presets)
     print_summary(out)
     print(f"results: {out}")
     return 0

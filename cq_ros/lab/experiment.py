@@ -15,7 +15,7 @@ from ..engine import RunResult, run
 from ..gridmap import GridMap, load_map
 from .results import manifest_for, prepare_output, write_results
 from .runner import run_all
-from ..settings import Settings, run_settings
+from ..settings import Settings, run_settings_and_presets
 
 
 @dataclass(frozen=True)
@@ -44,19 +44,22 @@ def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs", p
 
 def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: int, out: Path,
                settings: Settings | None = None, workers: int | None = None, force: bool = False,
-               figures: bool = True, cluster: str | None = None) -> Path:
+               figures: bool = True, cluster: str | None = None, presets: dict | None = None) -> Path:
     """Run every algorithm on one map and write the result directory; returns it. Without `settings`, the
     run's are the map's (`cq_ros.settings.run_settings`). The runs go to `workers` local processes, or to the
-    Dask scheduler at `cluster`."""
+    Dask scheduler at `cluster`. The manifest's `presets`: the settings each preset set (`presets`, or without
+    `settings` those of the map's own delays)."""
     gridmap = load_map(map_name)
-    settings = run_settings(gridmap) if settings is None else settings
+    if settings is None:
+        settings, presets = run_settings_and_presets(gridmap)
     out = prepare_output(out, force)
     started = time.perf_counter()
     jobs = [Job(str(map_name), a, r, episodes, seed, settings) for a in algos for r in range(runs)]
     results, executed_on = run_jobs(jobs, workers, label=gridmap.name, cluster=cluster)
     wall = time.perf_counter() - started
     write_results(out, gridmap, list(results.values()),
-                  manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, executed_on))
+                  manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, executed_on,
+                               presets=presets or {}))
     if figures:
         from .plots import write_figures  # matplotlib only where figures are wanted
 
