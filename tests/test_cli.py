@@ -306,3 +306,16 @@ def test_experiment_with_a_preset_says_it_on_stderr_and_in_the_manifest(tmp_path
             in capsys.readouterr().err.splitlines())
     assert json.loads((out / "manifest.json").read_text())["presets"] == {
         "under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1, "cq_look_if_decisive": 1}}
+
+
+def test_reproduce_reports_the_papers_cq_beside_ours(tmp_path):
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "10", "--no-sweep",
+                 "--set", "step_cap=50", "--set", "cq_mark_range=3"]) == 0
+    report = (tmp_path / "r" / "REPORT.md").read_text()
+    section = report.split("## The paper's CQ beside ours (seed 0, epsilon 0.1 fixed (the paper's))\n")[1]
+    for m in ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr"):
+        manifest = json.loads((tmp_path / "r" / "paper_cq" / m / "manifest.json").read_text())
+        assert manifest["algos"] == ["cq"] and manifest["settings"]["step_cap"] == 50
+        assert manifest["settings"]["cq_mark_range"] == 0 and manifest["settings"]["cq_bootstrap_acted"] == 0
+        assert manifest["presets"]["paper"]["cq_all_met"] == 0
+        assert f"\n| {m} | " in section
