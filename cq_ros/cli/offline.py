@@ -232,5 +232,19 @@ def _note(line: str) -> None:
     print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
 
 
+def study(args) -> int:
+    from ..lab.held_out import parse_configs, study
+
+    for agents in args.agents:  # a bad setting fails before any work starts
+        run_settings(parse_map(warehouse_text(agents, slip=args.slip)), args.overrides)
+    with removed_if_failing(args.out):
+        print(study(args.out, args.agents, args.maps, args.runs, args.episodes, args.greedy_episodes,
+                    parse_configs(args.algos, args.paper), args.seed, args.slip,
+                    args.overrides, args.jobs, args.cluster, args.learning_copy, args.force,
+                    shlex.join(["cq-ros", *args.argv])), end="")
+    print(f"results: {args.out}", file=sys.stderr)
+    return 0
+
+
 COMMANDS = {"maps": maps, "show": show, "settings": settings, "generate": generate, "import": import_,
-            "experiment": experiment, "reproduce": reproduce, "render": render}
+            "experiment": experiment, "reproduce": reproduce, "render": render, "study": study}
