@@ -75,7 +75,7 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     started = time.perf_counter()
     copies = COPIES if learning_copy else COPIES[:1]
     units = [(agents, HELD_OUT_SEEDS[i], r) for agents in sizes for i in range(maps) for r in range(runs)]
-    paths = {(a, g): generated(out, a, g, slip) for a, g, _ in {(a, g, 0) for a, g, _ in units}}
+    paths = {(a, g): generated(out, a, g, slip) for a, g in dict.fromkeys((a, g) for a, g, _ in units)}
     jobs: dict[tuple, Job] = {}
     presets: dict[tuple, dict] = {}
     for (agents, g), path in paths.items():
