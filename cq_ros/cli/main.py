@@ -21,7 +21,7 @@ from ..lab.runner import RunFailed
 from ..learners import ALGORITHMS, LEARNERS
 from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
-from ..settings import SettingsError
+from ..settings import PRESETS, SettingsError
 from .pipe import reader_may_leave
 
 
@@ -75,6 +75,11 @@ def _algos(text: str) -> list[str]:
         what = ", ".join(unknown) if unknown else repr(text)
         raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(LEARNERS)}")
     return algos
+
+
+def _sizes(text: str) -> list[int]:
+    """Comma-separated fleet sizes, each once."""
+    return list(dict.fromkeys(_agents(part) for part in text.split(",")))
 
 
 def _seeds(text: str) -> list[int]:
@@ -373,6 +378,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five)")
     p.add_argument("--out", type=Path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
+    p.add_argument("--preset", choices=list(PRESETS), default=None,
+                   help="a named configuration over the map's settings, under --set: paper, CQ as Algorithm 2 "
+                        "reads (every cq_* choice at the paper's value, also under delays). The presets that "
+                        "set anything are printed on stderr and listed in the manifest (`presets`)")
     _add_run_options(p, runs=10, episodes=10_000)
 
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
@@ -415,6 +424,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="master seeds, instead of --seed: the grid runs once per seed (the first's in OUT, the "
                         "others' in OUT/seed_S), and when the collision averages settle (claims 1 and 2) is quoted "
                         "as a range over them, which takes at least 3 (e.g. 0,1,2)")
+    p = sub.add_parser("study", help="learners on held-out delayed warehouses, frozen greedy policies against the "
+                                     "planner: intervals over units, paired differences, ratios (OUT/study.md)",
+                       description="Per fleet size, MAPS warehouses generated from held-out generator seeds x RUNS "
+                       "runs; every configuration learns EPISODES episodes, then plays its greedy policy frozen "
+                       "(and, unless --no-learning-copy, learning, in a second run of the same seeds). "
+                       "cq_ros.lab.held_out says what it prints.")
+    p.add_argument("--agents", type=_sizes, required=True, metavar="N,N,...", help="fleet sizes, e.g. 8,12")
+    p.add_argument("--maps", type=_positive, default=10, help="generated maps per size (default 10)")
+    p.add_argument("--greedy-episodes", type=_number(1, kind=int), default=100, metavar="G",
+                   help="greedy episodes per unit and copy (default 100)")
+    p.add_argument("--algos", type=_algos, default=["cq", "indep", "near"],
+                   help="comma-separated, the first the reference of differences and ratios (default cq,indep,near)")
+    p.add_argument("--paper", action="store_true", help="add the paper's CQ (algo cq, preset paper) as cq_paper")
+    p.add_argument("--slip", type=_number(0, 1), default=0.1, metavar="P", help="the maps' slip (default 0.1)")
+    p.add_argument("--no-learning-copy", dest="learning_copy", action="store_false",
+                   help="play the frozen greedy policy only (half the learning)")
+    p.add_argument("--out", type=Path, required=True, help="result directory (study.md, units.csv, maps/)")
+    _add_run_options(p, runs=10, episodes=2000)
     _add_ros_parsers(sub)
     return parser
 
