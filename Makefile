@@ -19,11 +19,13 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	@echo "installing cq-ros and its dependencies (ROS 2 included) into $(VENV): about a minute" >&2
-	$(BIN)/python -m pip install --progress-bar on -e '.[test,cluster,view]'
+	$(BIN)/python -m pip install --progress-bar on -e '.[test,cluster,view,colcon]'
 	touch $(STAMP)
 
+# the demo's ROS domain: `make demo DOMAIN=N`, else the environment's ROS_DOMAIN_ID, else one drawn in 100..200
 demo: $(STAMP)
-	$(BIN)/cq-ros launch --map tunnel_to_goal --algo cq --episodes 300 --seed 1 --out results/demo --force
+	$(BIN)/cq-ros launch --map tunnel_to_goal --algo cq --episodes 300 --seed 1 --out results/demo --force \
+	  $(if $(DOMAIN),--domain-id $(DOMAIN))
 
 lint: $(STAMP)
 	$(BIN)/ruff check $(RUFF_PATHS)

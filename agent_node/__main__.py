@@ -20,8 +20,7 @@ from .node import AgentNode
 
 def main() -> int:
     if help_requested(sys.argv):
-        print_help(__doc__, ("agent",))
-        return 0
+        return print_help(__doc__, ("agent",))
     return run_node(AgentNode, "agent_node", (SettingsError,))
 
 

@@ -103,7 +103,7 @@ class AgentDriver:
 
     def on_heartbeat(self, msg: Any) -> Effects:
         """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
-        held = self.link.vouched() if self.link.on_heartbeat(msg) else None
+        held = self.link.vouched() if self.link.on_heartbeat(msg, self.expect) else None
         return self._catch_up(*held[1:]) if held else []
 
     def on_position(self, peer: int, msg: Any) -> Effects:
@@ -349,7 +349,8 @@ class CentralDriver:
 
     def on_heartbeat(self, msg: Any) -> Effects:
         """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
-        held = self.link.vouched() if self.link.on_heartbeat(msg) else None
+        expected = None if self._resync is not None or None in self.expect.values() else min(self.expect.values())
+        held = self.link.vouched() if self.link.on_heartbeat(msg, expected) else None
         return self._catch_up(held[0], held[1]) if held else []
 
     @property

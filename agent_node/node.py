@@ -51,8 +51,6 @@ UNANNOUNCED_CHECK_S = 0.05
 STATS_MATCH_TIMEOUT_S = 10.0
 
 
-def _serialize_any(payload: Any, key: Any) -> Any:
-    return serialize(payload, key=key)
 
 
 class _HeldPublisher:
@@ -64,6 +62,7 @@ class _HeldPublisher:
 
     def __init__(self, node: Node, spec: Any, topic: str, min_matched: int, latest_only: bool = False,
                  key: bytes | None = None):
+        self.clock = node.get_clock()
         self.min_matched, self.latest_only, self.key = min_matched, latest_only, key
         self.held: list = []  # payloads not sent yet
         self.matched = Matched(then=self.flush)
@@ -73,8 +72,12 @@ class _HeldPublisher:
         # bytes, without its per-call type check and handle lock (the node destroys its publishers only after
         # it has stopped spinning). Statistics are messages, published as such.
         self._raw = self.pub.handle.publish_raw
-        # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
-        self._serialize = serialize_action if spec is ACTION else _serialize_any
+        # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout);
+        # statistics stamped with the node's clock as they go out
+        self._serialize = serialize_action if spec is ACTION else self._stamped
+
+    def _stamped(self, payload: Any, key: Any) -> Any:
+        return serialize(payload, key=key, stamp=self.clock.now().to_msg())
 
     def publish(self, payload: Any) -> None:
         if not self.held and self.matched.count >= self.min_matched:  # matched, nothing held: straight out
@@ -243,9 +246,17 @@ class AgentNode(Node):
             why = (f"; {other} messages came from another world incarnation or run (other_incarnation, "
                    "other_run): the world restarted (or another run's messages were replayed), and this run "
                    "cannot go on with it") if other else ""
-            self.gave_up = (f"no valid message from the world (feedback or heartbeat) for "
-                            f"{link.patience.waited:.1f} s awake, {link.silent_for():.1f} s of wall time "
-                            f"(feedback_timeout={self.config.feedback_timeout}){why}: giving up")
+            if link.behind is not None and not other:  # the world beats on, and steps without us
+                (world_e, world_s), (e, s) = link.behind
+                self.gave_up = (f"no feedback taken for {link.patience.waited:.1f} s awake, {link.silent_for():.1f} s "
+                                f"of wall time (feedback_timeout={self.config.feedback_timeout}), while the world's "
+                                f"heartbeats say it is at episode {world_e} step {world_s} and this agent waits for "
+                                f"episode {e} step {s}: it takes no feedback (its reader or executor stopped): "
+                                "giving up")
+            else:
+                self.gave_up = (f"no valid message from the world (feedback or heartbeat) for "
+                                f"{link.patience.waited:.1f} s awake, {link.silent_for():.1f} s of wall time "
+                                f"(feedback_timeout={self.config.feedback_timeout}){why}: giving up")
             self.get_logger().error(self.gave_up)
             self._finish(1)
 

@@ -17,11 +17,20 @@ corrupt stamp far ahead (episode 2**31-1, keyed by a key holder's bug, or vouche
 where there is no key) would otherwise loop for ever. A node that has played nothing yet (a fresh learner, a
 restart without a checkpoint, a twin) has no episode to end on the way: it joins the world wherever it is.
 
-Liveness. Only valid messages from the world count as signs of life: feedback the driver plays or adopts,
-and heartbeats whose beat is new (`WorldLink.silent_for`); junk, replays and stale messages do not. The node
-judges the silence with a `node_runtime.patience.Patience` it hands the link (`patience`, restarted by every
-sign of life), so the time the agent itself was stopped does not count against the world, and the
-heartbeats waiting in its queue when it resumes are heard before it gives up.
+Progress, not arrival. Only valid messages from the world that leave the agent with something to do count
+as signs of progress: feedback the driver plays or adopts, and heartbeats whose beat is new and that show the
+world not past the feedback the agent expects (`WorldLink.silent_for`); junk, replays and stale messages do
+not, nor does a heartbeat of a world that stepped past us: an agent that takes no feedback (a reader or a
+callback that stopped) while the world's heartbeats still come is `behind`, and gives up after its
+feedback_timeout saying so, as one that hears nothing does. The node judges the silence with a
+`node_runtime.patience.Patience` it hands the link (`patience`, restarted by every sign of progress), so the
+time the agent itself was stopped does not count against the world, and the heartbeats waiting in its queue
+when it resumes are heard before it gives up.
+
+Heartbeat beats are bounded as feedback's catch-up is: after the first, a beat may be at most
+`beat_bound(seconds)` past the last one heard (the world beats at most 1/MIN_HEARTBEAT_PERIOD times a second),
+so a forged or corrupt far-ahead beat (2**31-1, by a key holder) is refused and counted (`far_ahead`) instead
+of making every later real one a replay.
 """
 
 from __future__ import annotations
@@ -29,11 +38,21 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from msgs_spec import HEARTBEAT_TOPIC, DropCounter, WireError, decode_heartbeat, feedback_topic
+from node_runtime.parameters import MIN_HEARTBEAT_PERIOD
 from node_runtime.patience import Patience
 
 from .reading import record_sequence
 
-__all__ = ["WorldLink"]
+__all__ = ["BEAT_SLACK", "beat_bound", "WorldLink"]
+
+BEAT_SLACK = 100  # beats a heartbeat may be ahead of the last one beside those its elapsed time allows
+
+
+def beat_bound(seconds: float) -> int:
+    """How far past the last beat heard `seconds` ago a real world's beat can be: its timer's beats in that time
+    at the fastest period a world takes, and BEAT_SLACK for delivery jitter (a world sends one more beat when it
+    begins stepping)."""
+    return BEAT_SLACK + int(seconds / MIN_HEARTBEAT_PERIOD)
 
 
 class WorldLink:
@@ -48,7 +67,11 @@ class WorldLink:
         self.last_heard = clock()
         self.patience: Patience | None = None  # the node's judge of the silence: restarted by every sign of life
         self.beat = 0  # the last heartbeat's number
+        self.beat_at = clock()  # when it was heard
         self.at = (0, 0)  # the world's (episode, step) by its last heartbeat
+        # (the world's stamp, the one expected) while the last heartbeat showed the world past the feedback this
+        # agent expects: no progress, however alive the world
+        self.behind: tuple[tuple[int, int], tuple[int, int]] | None = None
         self.caught_up = 0  # times a later stamp was adopted
         self.missed_feedback = 0  # feedback never heard, as far as the stamps tell
         self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
@@ -57,6 +80,7 @@ class WorldLink:
         self.joined = False  # a feedback played or adopted: later ones are caught up to episode by episode
 
     def heard(self) -> None:
+        self.behind = None
         self.last_heard = self._clock()
         if self.patience is not None:
             self.patience.restart()
@@ -65,13 +89,24 @@ class WorldLink:
         """Seconds since the last valid message from the world (or since the start)."""
         return self._clock() - self.last_heard
 
-    def on_heartbeat(self, msg: Any) -> bool:
-        """A message from world/heartbeat; True if it was valid and new."""
+    def on_heartbeat(self, msg: Any, expected: tuple[int, int] | None = None) -> bool:
+        """A message from world/heartbeat; True if it was valid and new. `expected`: the feedback the agent waits
+        for (None: any); a heartbeat of a world past it is no sign of progress."""
         hb = self.drops.guard(decode_heartbeat, msg, after=self.beat, key=self.key, source=HEARTBEAT_TOPIC)
         if hb is None:
             return False
-        self.beat, self.at = hb.beat, (hb.episode, hb.step)
-        self.heard()
+        now = self._clock()
+        if self.beat and hb.beat - self.beat > beat_bound(now - self.beat_at):
+            self.drops.record(WireError("far_ahead", f"heartbeat beat {hb.beat}, {hb.beat - self.beat} past beat "
+                                                     f"{self.beat} heard {now - self.beat_at:.1f} s ago (at most "
+                                                     f"{beat_bound(now - self.beat_at)})"), HEARTBEAT_TOPIC)
+            return False
+        self.beat, self.beat_at, self.at = hb.beat, now, (hb.episode, hb.step)
+        if expected is not None and self.at > expected:
+            self.behind = (self.at, expected)
+        else:
+            self.behind = None
+            self.heard()
         return True
 
     def judge(self, agent: int, fb: Any, cell: int, expected: tuple[int, int] | None) -> str:

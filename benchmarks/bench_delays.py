@@ -44,14 +44,12 @@ import platform
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from statistics import mean, stdev
-
-from scipy.stats import t as student_t
 from tqdm import tqdm
 
 from cq_ros.engine import Team, greedy_team, make_learners, world_seed
 from cq_ros.mapf.execute import execute
 from cq_ros.gridmap import GridMap, load_map
+from cq_ros.lab.study import mean_interval
 from cq_ros.mapgen.warehouse import warehouse_map
 from cq_ros.mapf.planner import plan
 from cq_ros.settings import SettingsError, run_settings
@@ -123,11 +121,8 @@ HELD_OUT = (("greedy collisions", "g_collisions", 3), ("greedy all home", "g_hom
 
 
 def interval(values: list[float], digits: int) -> str:
-    """The mean and the half-width of its 95% t interval (none for a single value)."""
-    if len(values) < 2:
-        return f"{mean(values):.{digits}f}"
-    half = student_t.ppf(0.975, len(values) - 1) * stdev(values) / len(values) ** 0.5
-    return f"{mean(values):.{digits}f} ± {half:.{digits}f}"
+    """The mean and the half-width of its 95% t interval (none for a single value): cq_ros.lab.study's."""
+    return mean_interval(values).show(digits)
 
 
 def parse_generate(specs: list[str]) -> list[tuple[int, list[int]]]:

@@ -13,8 +13,8 @@ the same message on `.../pong`, ping waits for it (bounded) before sending the n
 Other benchmarks call `measure_roundtrip(n=2000) -> dict` (it runs in its own rclpy Context, so it
 does not disturb an rclpy already initialised in the caller).
 
-Isolation: a random ROS_DOMAIN_ID in 40..99 (or --domain), ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST,
-ROS_LOG_DIR in a temporary directory; every wait is bounded.
+Isolation: --domain, else the environment's ROS_DOMAIN_ID, else a random one in 40..99,
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, ROS_LOG_DIR in a temporary directory; every wait is bounded.
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ import argparse
 import json
 import os
 import platform
-import random
 import subprocess
 import sys
 import tempfile
@@ -31,6 +30,8 @@ import threading
 import time
 from pathlib import Path
 from typing import Any
+
+from ros_tools.launch import BENCH_DOMAINS, run_domain
 
 QOS_NAMES = ("reliable", "best_effort")
 TYPE_NAMES = ("position", "point_stamped")
@@ -170,7 +171,7 @@ def measure_roundtrip(n: int = 2000, types: tuple[str, ...] = ("position",),
         if q not in QOS_NAMES:
             raise ValueError(f"qos {q!r}: choose from {QOS_NAMES}")
     if domain_id is None:
-        domain_id = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
+        domain_id = run_domain(None, BENCH_DOMAINS)
     pairs = [(t, q) for t in types for q in qos]
     # the echo lives at most as long as a slow run could take, even if we die without closing its stdin
     lifetime = discovery_timeout_s + len(pairs) * (n + warmup) * 0.05 + 30.0
@@ -302,7 +303,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warmup", type=int, default=200)
     ap.add_argument("--types", default="position", help=f"comma list of {', '.join(TYPE_NAMES)}")
     ap.add_argument("--qos", default=",".join(QOS_NAMES), help=f"comma list of {', '.join(QOS_NAMES)}")
-    ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: random 40..99)")
+    ap.add_argument("--domain", type=int, default=None,
+                    help="ROS_DOMAIN_ID (default: the environment's, else random in 40..99)")
     ap.add_argument("--stack", choices=STACKS, default="message",
                     help="message: SingleThreadedExecutor, message objects (default); nodes: as the cq_ros nodes "
                          "talk (EventsExecutor, serialized bytes, raw subscriptions; position only)")

@@ -25,20 +25,21 @@ the payloads.
 
     python benchmarks/ceiling.py [--agents 16] [--steps 3000] [--peers none|all] [--contract | --mac-only]
 
-Isolation: a random ROS_DOMAIN_ID in 40..99, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, its own rclpy Context;
-every wait is bounded (discovery, and each step).
+Isolation: the environment's ROS_DOMAIN_ID, else a random one in 40..99, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST,
+its own rclpy Context; every wait is bounded (discovery, and each step).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import random
 import secrets
 import struct
 import sys
 import time
 from functools import partial
+
+from ros_tools.launch import BENCH_DOMAINS, run_domain
 
 PEERS = ("none", "all")
 
@@ -164,7 +165,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     def on_match(k: int) -> None:
         if matched[k].count and k in held:
             send_position[k](position_at(k, held.pop(k)))
-    domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
+    domain = run_domain(None, BENCH_DOMAINS)
     namespace = f"/ceiling_{secrets.token_hex(4)}"
     env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", FASTDDS_PROFILE_ENV: os.environ.get(
         FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))}

@@ -14,17 +14,18 @@ between the two is never announced (docs/ros.md, "Composed mode"). A waitset exe
     python benchmarks/latched_race.py                      # 20000 subscriptions, both executors
     python benchmarks/latched_race.py -n 5000 --executors events
 
-Isolation: its own rclpy Context on a random ROS_DOMAIN_ID in 40..99 (or --domain), discovery on this host;
-progress on stderr every 10 s.
+Isolation: its own rclpy Context on --domain, else the environment's ROS_DOMAIN_ID, else a random one in 40..99,
+discovery on this host; progress on stderr every 10 s.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import random
 import sys
 import time
+
+from ros_tools.launch import BENCH_DOMAINS, run_domain
 
 EXECUTORS = ("events", "single")
 PROGRESS_S = 10.0
@@ -94,13 +95,14 @@ def main() -> int:
     ap.add_argument("-n", type=int, default=20000, help="new subscriptions per executor (default 20000)")
     ap.add_argument("--wait", type=float, default=0.5, help="seconds to wait for a sample (default 0.5)")
     ap.add_argument("--executors", default=",".join(EXECUTORS), help="comma-separated: events, single")
-    ap.add_argument("--domain", type=int, default=None, help="ROS_DOMAIN_ID (default: random in 40..99)")
+    ap.add_argument("--domain", type=int, default=None,
+                    help="ROS_DOMAIN_ID (default: the environment's, else random in 40..99)")
     args = ap.parse_args()
     kinds = args.executors.split(",")
     if args.n < 1 or args.wait <= 0 or not set(kinds) <= set(EXECUTORS):
         ap.error(f"-n >= 1, --wait > 0, executors from {', '.join(EXECUTORS)}")
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    domain = args.domain if args.domain is not None else random.SystemRandom().randint(40, 99)
+    domain = run_domain(args.domain, BENCH_DOMAINS)
     print("executor  subscriptions  lost  of which in the reader  over 100 ms")
     for kind in kinds:
         r = measure(kind, args.n, args.wait, domain)

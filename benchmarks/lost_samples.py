@@ -13,7 +13,8 @@ all a flood loses on one host, so the nodes count the real messages lost by thei
 
     python benchmarks/lost_samples.py [-n 5000] [--depth 5] [--work 0.001]
 
-Isolation: a random ROS_DOMAIN_ID in 40..99, discovery on this host; every wait is bounded.
+Isolation: ROS_DOMAIN_ID from the environment, else a random one in 40..99, discovery on this host; every wait is
+bounded.
 """
 
 from __future__ import annotations
@@ -21,10 +22,11 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import random
 import subprocess
 import sys
 import time
+
+from ros_tools.launch import BENCH_DOMAINS, run_domain
 
 TOPIC = "flood"
 DISCOVERY_TIMEOUT_S = 20.0
@@ -107,7 +109,7 @@ def main() -> int:
         write(args.write, args.n, args.size, args.depth)
         return 0
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    domain = random.SystemRandom().randint(40, 99)
+    domain = run_domain(None, BENCH_DOMAINS)
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}")
     print(f"flood of {args.n} messages, KEEP_LAST {args.depth}, reader busy {args.work * 1e3:g} ms a message")
     print("reliability   delivered  not delivered  message-lost event total")

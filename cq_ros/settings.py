@@ -3,8 +3,9 @@ them, our choices where it does not (docs/choices.md), each written into every r
 
 `Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
 parameters reach it, so a bad key or value is reported the same way everywhere. `run_settings` is the one
-place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- the user's,
-and where the world is then delayed, CQ's settings for delays (UNDER_DELAYS) that neither of them set.
+place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- a preset the
+user names (PRESETS: `paper`, Algorithm 2 as the paper reads) <- the user's, and where the world is then delayed,
+CQ's settings for delays (UNDER_DELAYS, the preset `under_delays`) that none of them set.
 """
 
 from __future__ import annotations
@@ -166,18 +167,42 @@ _FIELDS = {f.name: f for f in fields(Settings)}
 # joint state is a peer asked about at each visit of its cell (docs/choices.md). Without delays, the paper's.
 UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1, "cq_look_if_decisive": 1}
 
+# Algorithm 2 as the paper reads: every choice of CQ's at the paper's value (docs/choices.md); where the paper
+# is silent (several joint states met at once), the reading closest to its one Q^j per step. It sets every key
+# of UNDER_DELAYS, so a delayed world keeps the paper's CQ too.
+PAPER_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
+            "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0}
 
-def run_settings(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
+# The presets a user names (`--preset NAME`), and the one a delayed world applies by itself.
+PRESETS = {"paper": PAPER_CQ}
+DELAYED = "under_delays"
+
+
+def run_settings(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = (),
+                 preset: str | None = None) -> Settings:
+    """The settings of a run on `gridmap` (run_settings_and_presets says how they are made)."""
+    return run_settings_and_presets(gridmap, overrides, preset)[0]
+
+
+def run_settings_and_presets(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = (),
+                             preset: str | None = None) -> tuple[Settings, dict[str, dict[str, Any]]]:
     """The settings of a run on `gridmap` (None: maps without defaults of their own, as the paper's grid): the
-    defaults, then the map's (its `set` lines), then `overrides` (`key=value` strings, or a dict such as a
-    node's parameters that were given); where the result has a delay, UNDER_DELAYS for those of them neither
-    the map nor `overrides` sets."""
+    defaults, then the map's (its `set` lines), then the preset named `preset` (PRESETS), then `overrides`
+    (`key=value` strings, or a dict such as a node's parameters that were given); where the result has a delay,
+    UNDER_DELAYS for those of them none of these sets. Beside them, {preset name: the settings it set}, for each
+    preset that set any (the user's, and `under_delays`): what a run's manifest and `cq-ros experiment` report."""
     given = dict(overrides) if isinstance(overrides, Mapping) else dict(split_pair(p) for p in overrides)
-    chosen = {**(gridmap.defaults if gridmap is not None else {}), **given}
+    if preset is not None and preset not in PRESETS:
+        raise SettingsError(f"unknown preset {preset!r}; presets are: {', '.join(PRESETS)}")
+    named = {k: v for k, v in PRESETS.get(preset, {}).items() if k not in given}
+    chosen = {**(gridmap.defaults if gridmap is not None else {}), **named, **given}
     settings = Settings().with_overrides(chosen)
+    applied = {preset: named} if named else {}
     if settings.slip > 0 or settings.start_hold > 0:
-        settings = settings.with_overrides({k: v for k, v in UNDER_DELAYS.items() if k not in chosen})
-    return settings
+        delayed = {k: v for k, v in UNDER_DELAYS.items() if k not in chosen}
+        settings = settings.with_overrides(delayed)
+        applied.update({DELAYED: delayed} if delayed else {})
+    return settings, applied
 
 
 def split_pair(pair: str) -> tuple[str, str]:

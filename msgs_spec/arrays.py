@@ -3,8 +3,9 @@ MultiArray types, encode and serialize with the run's MAC, decode with every che
 
 Every decoder validates and raises only `WireError` for any input (whatever the message holds), with the
 first failing check in this order: type, layout, length, numbers (finite, integer, int32 range), agent id,
-action / cell range, episode, step. Encoders refuse what no decoder would accept (bad values, not context),
-so a sender's bug shows at the sender.
+action / cell range, episode, step. Serialized bytes longer than any message of the layout are judged from
+their header alone (`_oversized`), never deserialized: a flood's large junk costs what a small one does.
+Encoders refuse what no decoder would accept (bad values, not context), so a sender's bug shows at the sender.
 
 Array layouts (one dimension; its label lists the fields in order, so `ros2 topic echo` is self-describing):
 
@@ -180,6 +181,12 @@ class ArrayLayout:
     def pack(self, values) -> bytes:
         """The field values as the MAC reads them (little-endian int32 or float64)."""
         return self._struct.pack(*values)
+
+    @cached_property
+    def _longest(self) -> int:
+        """The length of the layout's longer serialized form, the keyed one: no message of it is longer."""
+        head, _, pad, values = self.frame(True)
+        return len(head) + pad + values.size
 
     def frame(self, keyed: bool) -> tuple[bytes, tuple[int, int], int, struct.Struct]:
         """The serialized form of this layout's messages (keyed or not): (the bytes before the values up to the
@@ -379,6 +386,10 @@ def decode_array(layout: ArrayLayout, msg: Any, bounds: Bounds | None, agent: in
         payload = layout.payload(*values) if layout._code == "i" else (layout.from_floats(values)
                                                                         or _typed(layout, values))
     else:
+        if type(msg) is bytes and len(msg) > layout._longest:  # no message of the layout: refused unread
+            refusal = _oversized(layout, msg)
+            if refusal is not None:
+                raise refusal
         keyed, data = _message_data(layout, _deserialized(layout, msg) if type(msg) is bytes else msg)
         if key is not None:
             if not keyed:
@@ -430,6 +441,35 @@ def _framed(layout: ArrayLayout, raw: bytes) -> tuple[bool, int] | None:
         head, (a, b), pad, values = layout.frame(keyed)
         if len(raw) == len(head) + pad + values.size and raw[:a] == head[:a] and raw[b:len(head)] == head[b:]:
             return keyed, len(head) + pad
+    return None
+
+
+def _oversized(layout: ArrayLayout, raw: bytes) -> WireError | None:
+    """The refusal of serialized bytes longer than the layout's keyed form, which no message of the layout is
+    (a flood's 20,000 values, a 10 KB label), read from the CDR header alone, as _message_data would word it
+    for the message: dims, label, size, stride, data_offset, the data's length; its values are never read.
+    None for bytes whose header is the layout's own (then only what follows can be wrong: deserialized)."""
+    try:
+        dims, n = struct.unpack_from("<2I", raw, 4)
+        if dims != 1:
+            return WireError("wrong_layout", f"{dims} dims, expected 1 labelled {layout.label!r}")
+        if not 1 <= n <= len(raw) - 12 or raw[12 + n - 1] != 0:  # a CDR string: its length counts the NUL
+            raise ValueError(f"a label of {n} bytes")
+        if n - 1 not in (len(layout.label), len(layout.keyed_label)):  # not read: it may be 10 KB
+            return WireError("wrong_layout", f"a label of {n - 1} bytes, expected {layout.label!r}")
+        label = raw[12:12 + n - 1].decode()
+        keyed = label == layout.keyed_label
+        if not keyed and label != layout.label:
+            return WireError("wrong_layout", f"label {label!r}, expected {layout.label!r}")
+        at = 12 + n + (4 - (12 + n)) % 4
+        size_, stride, offset, length = struct.unpack_from("<4I", raw, at)
+    except (struct.error, ValueError) as e:  # UnicodeDecodeError is a ValueError
+        return WireError("malformed", f"not a serialized {layout.ros_type.__name__} ({len(raw)} bytes): {e}")
+    _, size = layout.dimension(keyed)
+    if size_ != size or stride != size or offset != 0:
+        return WireError("wrong_layout", f"size {size_} stride {stride} data_offset {offset}, expected {size} {size} 0")
+    if length != size:
+        return WireError("wrong_length", f"{length} values, expected {size} ({label})")
     return None
 
 

@@ -190,5 +190,5 @@ class RunKey:
 
 
 def secret_of(key: "bytes | RunKey | None") -> bytes | None:
-    """The secret of a key given either way (statistics carry no seal, only the MAC)."""
+    """The secret of a key given either way (a bare key, or a RunKey)."""
     return key.secret if type(key) is RunKey else key

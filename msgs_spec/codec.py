@@ -57,13 +57,14 @@ def encode(payload: Any, *, key: bytes | None = None, stamp: Time | None = None)
     return enc(payload, stamp=stamp, key=key)
 
 
-def serialize(payload: Any, *, key: bytes | None = None) -> Any:
+def serialize(payload: Any, *, key: bytes | None = None, stamp: Time | None = None) -> Any:
     """What a node publishes for `payload` (rclpy's Publisher.publish takes either): for an array payload the
     bytes rclpy would serialize `encode(payload, key=key)` to (alignment bytes zero), built without a message
-    object; for statistics the message. Either way the same message goes on the wire."""
+    object; for statistics the message, its header stamped `stamp` (an array has no header). Either way the
+    same message goes on the wire."""
     layout = LAYOUT_BY_PAYLOAD.get(type(payload))
     if layout is None:
-        return encode(payload, key=key)
+        return encode(payload, key=key, stamp=stamp)
     return serialize_array(layout, payload, key)
 
 

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import time
 from typing import Any, Callable, Mapping, TypeVar
 
-__all__ = ["KINDS", "WireError", "DropCounter"]
+__all__ = ["KINDS", "FLOOD_WINDOW_S", "WireError", "DropCounter"]
+
+FLOOD_WINDOW_S = 1.0  # a source refusing DropCounter.every messages within this long is flooded
 
 # Every reason a message can be refused, with what it means. A `WireError.kind` is always one of these keys,
 # so nodes can use it as a counter name ("dropped.<kind>" in their statistics).
@@ -29,13 +32,15 @@ KINDS: Mapping[str, str] = {
     "unauthenticated": "the receiver holds the run's key and the message carries no MAC, or one that does not "
     "match (a writer without the key)",
     "other_run": "a sealed message of another run (its MAC matches the key, its run nonce is not the receiver's: "
-    "recorded in an earlier run with the same key file)",
+    "recorded in an earlier run with the same key file), or statistics sealed to no run where the receiver "
+    "knows its run",
     "other_incarnation": "a sealed message of this run from another life of its sender: a world other than the "
     "one the receiver is bound to (restarted, or a second one), or an agent's incarnation a newer one replaced",
     "far_ahead": "a feedback more than the agent's max_catch_up episodes past the one it expects, or past the "
     "run's last episode: never caught up to",
     "replayed": "a heartbeat whose beat is not above the last one heard (a replay, or a second world)",
-    "conflicting": "a position for a step already heard from that peer, with another cell (a second writer)",
+    "conflicting": "a position for a step already heard from that peer, with another cell (a second writer), or "
+    "statistics of an episode already heard that say otherwise (the launcher keeps the first)",
 }
 
 
@@ -57,7 +62,7 @@ T = TypeVar("T")
 
 
 class DropCounter:
-    """Count refused messages by kind; log the first of each kind and then every `every`-th.
+    """Count refused messages by kind; log the first of each kind and then every `every`-th, and a flood once.
 
     A node keeps one per process (or per topic) and routes every decode through it::
 
@@ -70,22 +75,43 @@ class DropCounter:
                 return          # logged (maybe), counted, dropped
             ...
 
+    A source that refuses `every` messages within FLOOD_WINDOW_S is flooded: one line says so, with its rate,
+    and no further line comes for it (its drops are still counted), so a flood of thousands a second costs no
+    log line each, nor one every `every`-th (`floods`: source -> the rate it was reported at).
+
     Not thread-safe by itself: use it from one executor thread (the project uses SingleThreadedExecutor).
     """
 
-    def __init__(self, log: Callable[[str], Any] | None = None, every: int = 100) -> None:
+    def __init__(self, log: Callable[[str], Any] | None = None, every: int = 100,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         if int(every) < 1:
             raise ValueError("every must be >= 1")
         self._log = log
         self.every = int(every)
+        self._clock = clock
         self._counts: dict[str, int] = {}
+        self._windows: dict[str, list] = {}  # source -> [its window's start, drops in it]
+        self.floods: dict[str, float] = {}  # source -> drops a second when it was reported a flood
 
     def record(self, error: WireError, source: str = "") -> int:
-        """Count `error`; log it if it is the first of its kind or an every-th one. Returns the kind's count."""
+        """Count `error`; log it if it is the first of its kind or an every-th one, unless its source is
+        flooded (said once). Returns the kind's count."""
         n = self._counts.get(error.kind, 0) + 1
         self._counts[error.kind] = n
-        if self._log is not None and (n == 1 or n % self.every == 0):
-            where = f" on {source}" if source else ""
+        if self._log is None or source in self.floods:
+            return n
+        now = self._clock()
+        window = self._windows.get(source)
+        if window is None or now - window[0] > FLOOD_WINDOW_S:
+            window = self._windows[source] = [now, 0]
+        window[1] += 1
+        where = f" on {source}" if source else ""
+        if window[1] >= self.every:
+            rate = self.floods[source] = window[1] / max(now - window[0], 1e-3)
+            self._log(f"a flood of refused messages{where}: {window[1]} in {now - window[0]:.2f} s (about "
+                      f"{rate:.0f} a second; this one {error.kind}); every one is counted, no further line comes "
+                      f"for it{where}")
+        elif n == 1 or n % self.every == 0:
             seen = "first of this kind" if n == 1 else f"{n} of this kind so far"
             self._log(f"dropped message{where}: {error.kind}: {error.detail} "
                       f"({seen}; logging the first and every {self.every}-th)")

@@ -5,7 +5,12 @@ AGENT_STATS_KEYS); decoders check every key and value and raise only `WireError`
 With the run's key the pairs end with `mac`: the run's HMAC (msgs_spec.auth) over the status name, the
 hardware id and every other pair, in order, as hex. A receiver holding the key drops statistics without a
 matching one (`unauthenticated`), so a launcher never counts a second system's episodes as its own; one
-without the key (`cq-ros collect`, `ros2 topic echo`) reads both forms, as it does the arrays."""
+without the key (`cq-ros collect`, `ros2 topic echo`) reads both forms, as it does the arrays.
+
+Sealed as the arrays are: a sender holding a RunKey puts its run nonce (`run`, 16 hex digits) and its
+incarnation (`inc`, 8) before the `mac`, which covers them, so a recording of an earlier run under the same key
+file is no statistic of this one. A receiver told the run (`run=`, or a RunKey's) refuses a statistic sealed
+with another, or with none, as `other_run`."""
 
 from __future__ import annotations
 
@@ -18,7 +23,7 @@ from typing import Any, Mapping
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from .auth import mac_words, secret_of
+from .auth import RunKey, mac_words, secret_of
 from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_nonneg, check_sequence
 from .errors import WireError
 from .payloads import AgentStats, Bounds, MarkedJointState, WorldStats
@@ -33,6 +38,16 @@ def agent_stats_name(agent: int) -> str:
     return f"agv{agent}/stats"
 
 
+_MAC_KEY = "mac"
+_RUN_KEY, _INC_KEY = "run", "inc"
+_RUN_RE, _INC_RE = re.compile(r"[0-9a-f]{16}"), re.compile(r"[0-9a-f]{8}")
+# The keyed form's pairs, last in every status: the seal (with a RunKey), then the MAC over everything before it.
+SEAL_KEYS: Mapping[str, tuple[str, str]] = {
+    _RUN_KEY: ("str", "keyed with a run: the run nonce, 16 hex digits (msgs_spec.auth)"),
+    _INC_KEY: ("str", "keyed with a run: the sender's incarnation, 8 hex digits"),
+    _MAC_KEY: ("str", "keyed: the run's HMAC over the name, hardware id and every pair before it, 32 hex digits"),
+}
+
 # key -> (kind, meaning). Per-agent and open-ended keys are described by pattern.
 WORLD_STATS_KEYS: Mapping[str, tuple[str, str]] = {
     "episode": ("int", "episode index, from 0"),
@@ -43,6 +58,7 @@ WORLD_STATS_KEYS: Mapping[str, tuple[str, str]] = {
     "duration_s": ("float", "wall-clock length of the episode, seconds"),
     "return.agv<k>": ("float", "undiscounted return of agent k, one key per agent 1..N"),
     "count.<name>": ("int", "further monotonic counters, e.g. count.dropped.stale_step"),
+    **SEAL_KEYS,
 }
 AGENT_STATS_KEYS: Mapping[str, tuple[str, str]] = {
     "agent": ("int", "agent id, 1..N"),
@@ -58,6 +74,7 @@ AGENT_STATS_KEYS: Mapping[str, tuple[str, str]] = {
     "marked.<i>": ("str", "marked joint state i (0..M-1): "
                           "'cell=R,C peer=agvJ peer_cell=R,C confidence=X'"),
     "count.<name>": ("int", "further monotonic counters, e.g. count.dropped.stale_step"),
+    **SEAL_KEYS,
 }
 
 _INT_RE = re.compile(r"-?[0-9]+")
@@ -116,7 +133,6 @@ def _counter_pairs(counters: Mapping[str, int]) -> list[tuple[str, str]]:
     return out
 
 
-_MAC_KEY = "mac"
 
 
 def _mac_hex(key: bytes, name: str, hardware_id: str, pairs: list[tuple[str, str]]) -> str:
@@ -128,9 +144,11 @@ def _mac_hex(key: bytes, name: str, hardware_id: str, pairs: list[tuple[str, str
 
 def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str, str]],
                stamp: Time | None, key: Any) -> DiagnosticArray:
-    key = secret_of(key)  # statistics carry the MAC only: the launcher, which checks them, holds no run
-    if key is not None:
-        pairs = [*pairs, (_MAC_KEY, _mac_hex(key, name, hardware_id, pairs))]
+    secret = secret_of(key)
+    if secret is not None:
+        if type(key) is RunKey and key.run is not None:
+            pairs = [*pairs, (_RUN_KEY, f"{key.run:016x}"), (_INC_KEY, f"{key.incarnation:08x}")]
+        pairs = [*pairs, (_MAC_KEY, _mac_hex(secret, name, hardware_id, pairs))]
     status = DiagnosticStatus(level=DiagnosticStatus.OK, name=name, message=summary, hardware_id=hardware_id,
                               values=[KeyValue(key=k, value=v) for k, v in pairs])
     arr = DiagnosticArray(status=[status])
@@ -139,9 +157,12 @@ def _stats_msg(name: str, hardware_id: str, summary: str, pairs: list[tuple[str,
     return arr
 
 
-def _stats_values(msg: Any, key: Any) -> tuple[str, str, dict[str, str]]:
-    """(status name, hardware_id, key -> value but the MAC) of a one-status DiagnosticArray; rejects repeated
-    keys, and with `key` a status whose MAC is missing or does not match."""
+def _stats_values(msg: Any, key: Any, run: int | None = None) -> tuple[str, str, dict[str, str]]:
+    """(status name, hardware_id, key -> value but the MAC and the seal) of a one-status DiagnosticArray;
+    rejects repeated keys, with `key` a status whose MAC is missing or does not match, and given a run (`run`,
+    else a RunKey's) a status sealed with another run or with none (`other_run`)."""
+    if run is None and type(key) is RunKey:
+        run = key.run
     key = secret_of(key)
     if type(msg) is not DiagnosticArray:
         raise WireError("wrong_type", f"expected DiagnosticArray, got {type(msg).__name__}")
@@ -162,9 +183,25 @@ def _stats_values(msg: Any, key: Any) -> tuple[str, str, dict[str, str]]:
             pairs = [(kv.key, kv.value) for kv in st.values if kv.key != _MAC_KEY]
             if not hmac.compare_digest(mac, _mac_hex(key, st.name, st.hardware_id, pairs)):
                 raise WireError("unauthenticated", "the statistics' MAC does not match the run's key")
+        _check_seal(values.pop(_RUN_KEY, None), values.pop(_INC_KEY, None), run)
         return st.name, st.hardware_id, values
     except (AttributeError, TypeError) as e:
         raise WireError("malformed", f"unreadable message: {e}") from None
+
+
+def _check_seal(sealed_run: str | None, incarnation: str | None, run: int | None) -> None:
+    """A status's seal (its `run` and `inc` values, both or neither) well formed, and of `run` when one is
+    expected (None: any)."""
+    if (sealed_run is None) != (incarnation is None):
+        raise WireError("malformed", "a seal has both run and inc, or neither")
+    if sealed_run is not None and not (_RUN_RE.fullmatch(sealed_run) and _INC_RE.fullmatch(incarnation)):
+        raise WireError("malformed", f"seal run = {sealed_run!r} inc = {incarnation!r}, expected 16 and 8 hex digits")
+    if run is None:
+        return
+    if sealed_run is None:
+        raise WireError("other_run", f"statistics sealed to no run, this receiver's run is {run:016x}")
+    if int(sealed_run, 16) != run:
+        raise WireError("other_run", f"run {sealed_run}, this receiver's run is {run:016x}")
 
 
 def _take(values: dict[str, str], key: str) -> str:
@@ -217,8 +254,9 @@ def encode_world_stats(s: WorldStats, *, stamp: Time | None = None, key: bytes |
 
 
 def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
-                       episode: int | None = None, key: bytes | None = None) -> WorldStats:
-    name, hw, values = _stats_values(msg, key)
+                       episode: int | None = None, key: Any = None, run: int | None = None) -> WorldStats:
+    """`key`: the run's (bytes, or a RunKey); `run`: the run nonce it must be sealed with (None: a RunKey's)."""
+    name, hw, values = _stats_values(msg, key, run)
     if name != WORLD_STATS_NAME or hw != "world":
         raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "
                                         f"expected {WORLD_STATS_NAME!r} 'world'")
@@ -298,8 +336,9 @@ def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None, key: bytes |
 
 
 def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, agent: int | None = None,
-                       episode: int | None = None, key: bytes | None = None) -> AgentStats:
-    name, hw, values = _stats_values(msg, key)
+                       episode: int | None = None, key: Any = None, run: int | None = None) -> AgentStats:
+    """As decode_world_stats."""
+    name, hw, values = _stats_values(msg, key, run)
     m = re.fullmatch(r"agv([0-9]+)/stats", name)
     if not m or hw != f"agv{m.group(1)}":
         raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "

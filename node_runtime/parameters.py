@@ -17,6 +17,7 @@ import textwrap
 from dataclasses import fields
 from typing import Any, Iterable, Mapping
 
+from cq_ros.cli.pipe import reader_may_leave
 from cq_ros.gridmap import GridMap, MapError, load_map
 from cq_ros.learners import LEARNERS
 from cq_ros.settings import Settings, SettingsError, run_settings
@@ -26,10 +27,12 @@ from msgs_spec.auth import RunKey, new_run
 __all__ = ["SETTING_NAMES", "check_names", "check_numbers", "map_and_settings", "WORLD_PARAMETERS",
            "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters", "undeclared_overrides",
            "read_key_parameter", "run_key_parameters", "ros_type", "describe_parameters", "help_requested",
-           "print_help"]
+           "print_help", "MIN_HEARTBEAT_PERIOD"]
 
 
 SETTING_NAMES = frozenset(f.name for f in fields(Settings))
+# The fastest a world beats: what bounds how far a heartbeat's beat may jump at an agent (agent_node.world_link).
+MIN_HEARTBEAT_PERIOD = 0.01
 
 
 def check_names(given: Iterable[str], known: Iterable[str], elsewhere: Iterable[str] = (),
@@ -90,7 +93,7 @@ WORLD_PARAMETERS: dict[str, tuple[Any, str]] = _with_settings(
     "min_stats_subscribers": (0, "before the first step also wait for this many matched world/stats "
                                  "subscriptions (a recorder that must not miss an episode sets 1)"),
     "heartbeat_period": (1.0, "seconds between two world/heartbeat messages (sent from the start, whether or "
-                              "not anyone acts); keep it well below the agents' feedback_timeout"),
+                              "not anyone acts), at least 0.01; keep it well below the agents' feedback_timeout"),
     "key_file": ("", "file holding the run's key (hex, readable by its owner only; cq-ros launch writes one): "
                      "key every message that steers the run and drop actions without a matching MAC; empty: "
                      "no authentication"),
@@ -144,6 +147,10 @@ def declare_node_parameters(node: Any, kind: str) -> dict[str, Any]:
     values = declare_parameters(node, own, unset=SETTING_NAMES)
     others = {name for other, table in PARAMETERS.items() if other != kind for name in table}
     check_names(undeclared_overrides(node), own, others)
+    if node.get_parameter("use_sim_time").value:  # every rclpy node declares it; docs/ros.md says why we refuse
+        raise SettingsError("parameter use_sim_time: true is refused: the lockstep has no simulated clock (its "
+                            "timeouts wait in wall time for actions, and the step is each message's episode and "
+                            "step); stamps are this host's clock")
     return values
 
 
@@ -224,10 +231,14 @@ def help_requested(argv: list[str]) -> bool:
     return False
 
 
-def print_help(usage: str, kinds: tuple[str, ...]) -> None:
+def print_help(usage: str, kinds: tuple[str, ...]) -> int:
     """The `--help` of a node program: its usage (the module docstring), then the parameters of each node
-    kind it runs; nothing is started."""
-    print(usage.strip())
-    for kind in kinds:
-        print(f"\nParameters of the {kind} node (-p NAME:=VALUE, or a --params-file):")
-        print(describe_parameters(kind))
+    kind it runs; nothing is started. Its exit status: 0, a reader that left early (`| head -1`) included."""
+    def write() -> int:
+        print(usage.strip())
+        for kind in kinds:
+            print(f"\nParameters of the {kind} node (-p NAME:=VALUE, or a --params-file):")
+            print(describe_parameters(kind))
+        return 0
+
+    return reader_may_leave(write)

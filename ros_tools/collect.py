@@ -4,7 +4,9 @@ ros_tools.compose), written as a launch writes them (episodes.csv, greedy.csv, o
 It finds the system on the domain (the namespace of its one `world` node, unless given), asks the world and an
 agent node for their parameters over ROS's parameter services (map, episodes, seed, the settings given, the
 algorithm), then listens to world/stats and every agv<k>/stats with the launcher's own StatsListener until
-every episode is in, and writes through the launcher's writer (ros_tools.launch.write_heard). A statistics
+every episode is in (the world's `run_nonce`, when it was given one, is the only run whose statistics count:
+a recording of an earlier run is `dropped.other_run`; conflicting ones are named, as a launch names them),
+and writes through the launcher's writer (ros_tools.launch.write_heard). A statistics
 writer keeps its last 1000 for a reader that comes late; to be sure of every episode, start collect before
 the run's first step, e.g. with -p min_stats_subscribers:=1 on the nodes, which then wait for it (the world
 before its first step, an agent before it sends its statistics).
@@ -26,7 +28,7 @@ from cq_ros.learners import LEARNERS
 from node_runtime.parameters import SETTING_NAMES
 from cq_ros.settings import run_settings
 
-from .session import FIND_S, WORLD, StopSignals, ToolError, find_system, ros_session, spin_until
+from .session import FIND_S, WORLD, StopSignals, ToolError, environment_domain, find_system, ros_session, spin_until
 from .launch import Interrupted, LaunchError, Progress, StatsListener, agent_nodes, write_heard
 
 __all__ = ["CollectError", "collect"]
@@ -82,7 +84,7 @@ def collect(out: str | Path, *, domain_id: int | None = None, namespace: str | N
         except ToolError as e:
             raise CollectError(str(e)) from None
         world = node_parameters(node, executor, f"{ns.rstrip('/')}/{WORLD}",
-                                ["map", "episodes", "seed", *sorted(SETTING_NAMES)], stop)
+                                ["map", "episodes", "seed", "run_nonce", *sorted(SETTING_NAMES)], stop)
         agent = node_parameters(node, executor, f"{ns.rstrip('/')}/{agents[0]}", ["algo"], stop)
         gridmap = load_map(world["map"])
         settings = run_settings(gridmap, {k: v for k, v in world.items() if k in SETTING_NAMES})
@@ -96,7 +98,7 @@ def collect(out: str | Path, *, domain_id: int | None = None, namespace: str | N
         executor.add_node(here)
         try:
             return _listen(here, executor, stop, out, force, progress, episodes_timeout, ns, agents, gridmap, algo,
-                           episodes, world["seed"], settings, domain_id)
+                           episodes, world["seed"], settings, domain_id, world.get("run_nonce") or None)
         finally:
             executor.remove_node(here)
             here.destroy_node()
@@ -104,11 +106,12 @@ def collect(out: str | Path, *, domain_id: int | None = None, namespace: str | N
 
 def _listen(node: Any, executor: Any, stop: StopSignals, out: Path, force: bool, progress: bool,
             episodes_timeout: float | None, ns: str, agents: list[str], gridmap: Any, algo: str, episodes: int,
-            seed: int, settings: Any, domain_id: int | None) -> Path:
-    """Every episode's statistics of the system in `ns` heard through `node`, then the result files."""
+            seed: int, settings: Any, domain_id: int | None, run: int | None) -> Path:
+    """Every episode's statistics of the system in `ns` heard through `node`, then the result files; given the
+    world's `run` nonce, only statistics sealed to that run count."""
     total = episodes + settings.eval_episodes
     learners = [1] if LEARNERS[algo].central else list(range(1, gridmap.n_agents + 1))
-    listener = StatsListener(node, gridmap, total)
+    listener = StatsListener(node, gridmap, total, run=run)
     label = f"{gridmap.name} {algo}"
     if progress:
         print(f"cq-ros collect: {label} in {ns}, {len(agents)} agent node(s), {total} episodes", file=sys.stderr,
@@ -145,7 +148,7 @@ def _listen(node: Any, executor: Any, stop: StopSignals, out: Path, force: bool,
         bar.close()
     out = prepare_output(out, force)
     nodes = {name: {"namespace": ns} for name in [WORLD, *agents]}
-    heard_on = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "0"))
+    heard_on = domain_id if domain_id is not None else environment_domain() or 0
     run_info = dict(mode="ros", collected=True, domain_id=heard_on, namespace=ns)
     write_heard(out, gridmap, algo, episodes, seed, settings, time.monotonic() - started, listener,
                 learners, agents, nodes, run_info)

@@ -26,7 +26,7 @@ from msgs_spec import DropCounter, TopicSpec, WireError, parse_topic
 from msgs_spec.doc import to_yaml
 from msgs_spec.viz import LOOKS, MAP, SCENE, parse_view_topic
 
-from .session import StopSignals, ToolError, ros_session, spin_until
+from .session import StopSignals, ToolError, environment_domain, ros_session, spin_until
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "compatible_qos", "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
@@ -78,6 +78,32 @@ def _project_spec(name: str) -> tuple[TopicSpec, int | None] | None:
     return None
 
 
+def _resolve(node: Any, topic: str) -> str:
+    """`topic` as a full name (a relative one under the node's namespace); ValueError, one line naming it, when it
+    is no topic name (rcl's reason, without its source location)."""
+    from rclpy._rclpy_pybind11 import RCLError
+
+    try:
+        return node.resolve_topic_name(topic)
+    except RCLError as e:
+        reason = str(e).removeprefix("failed to resolve name: ").split(", at ")[0]
+        raise ValueError(f"{topic!r} is not a topic name: {reason}") from None
+
+
+def _namespace(given: str) -> str:
+    """'/name' for `given` ('name' or '/name'); ValueError, one line, when it is no ROS namespace."""
+    from rclpy.exceptions import InvalidNamespaceException
+    from rclpy.validate_namespace import validate_namespace
+
+    namespace = "/" + given.strip("/")
+    try:
+        validate_namespace(namespace)
+    except InvalidNamespaceException as e:
+        reason = str(e).splitlines()[0].removeprefix("Invalid namespace: ")
+        raise ValueError(f"namespace {given!r} is not a ROS namespace: {reason}") from None
+    return namespace
+
+
 def _graph_types(node: Any, name: str) -> list[str]:
     return dict(node.get_topic_names_and_types()).get(name, [])
 
@@ -99,7 +125,7 @@ def echo(topic: str, *, count: int | None = None, timeout_s: float | None = None
     after `count` messages, at `timeout_s` (ToolError if nothing came) or on Ctrl-C/SIGTERM."""
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     with StopSignals() as stop, ros_session("cq_ros_echo", domain_id=domain_id) as (node, executor):
-        name = node.resolve_topic_name(topic)
+        name = _resolve(node, topic)
         project = _project_spec(name)
         wait = DISCOVERY_S if timeout_s is None else timeout_s
         spin_until(executor, lambda: bool(_graph_types(node, name)), wait, stop)
@@ -199,14 +225,15 @@ def _bag_qos(profile: QoSProfile) -> Any:
 
 def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_s: float | None = None,
            count: int | None = None, storage: str = "mcap", domain_id: int | None = None,
-           out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+           namespace: str | None = None, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
     """Record to a new rosbag2 directory `bag`; return the number of messages written.
 
-    `topics` None: every project topic (`parse_topic`), found as they appear; else these names (relative
-    names resolve against '/'). Messages are written as they came off the wire (raw CDR, never decoded),
-    stamped with their receive time, with each topic's type, definition, type hash and the publishers'
-    offered QoS, so `ros2 bag play` replays it. Ends after `duration_s`, after `count` messages, or on
-    Ctrl-C/SIGTERM (with neither limit, only then); the bag is closed properly in every case."""
+    `topics` None: every project topic (`parse_topic`) under `namespace` (None: under any), found as they
+    appear; else these names (relative names resolve against `namespace`, else '/'). Messages are written as
+    they came off the wire (raw CDR, never decoded), stamped with their receive time, with each topic's type,
+    definition, type hash and the publishers' offered QoS, so `ros2 bag play` replays it. Ends after
+    `duration_s`, after `count` messages, or on Ctrl-C/SIGTERM (with neither limit, only then); the bag is
+    closed properly in every case."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -222,12 +249,16 @@ def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_
     skipped: set[str] = set()
     subscriptions = []
 
-    with StopSignals() as stop, ros_session("cq_ros_record", domain_id=domain_id) as (node, executor):
-        wanted = None if topics is None else {node.resolve_topic_name(t) for t in topics}
+    namespace = None if namespace is None else _namespace(namespace)
+    with StopSignals() as stop, ros_session("cq_ros_record", domain_id=domain_id, namespace=namespace) as (
+            node, executor):
+        wanted = None if topics is None else {_resolve(node, t) for t in topics}
         connections: dict[str, Any] = {}
 
         def selected(name: str) -> bool:
-            return name in wanted if wanted is not None else _project_spec(name) is not None
+            if wanted is not None:
+                return name in wanted
+            return _project_spec(name) is not None and (namespace is None or name.startswith(f"{namespace}/"))
 
         def write(connection: Any, data: bytes) -> None:
             nonlocal written
@@ -273,7 +304,7 @@ def record(bag: str | os.PathLike, *, topics: list[str] | None = None, duration_
     missing = sorted(wanted - connections.keys() - skipped) if wanted is not None else []
     if not written:  # an empty bag would only be blamed later (`render --bag` finds no map in it)
         shutil.rmtree(bag, ignore_errors=True)
-        domain = domain_id if domain_id is not None else os.environ.get("ROS_DOMAIN_ID", "0")
+        domain = domain_id if domain_id is not None else environment_domain() or 0
         on = f" on {', '.join(missing)}" if missing else ""
         raise ToolError(f"heard no message{on} on ROS_DOMAIN_ID {domain}, so no bag was written: is a system "
                         f"running there? (`cq-ros topics --domain-id {domain}` lists what is)")

@@ -65,8 +65,7 @@ def make_nodes(names: list[str], **kwargs) -> list[Node]:
 
 def main() -> int:
     if help_requested(sys.argv):
-        print_help(__doc__, ("world", "agent"))
-        return 0
+        return print_help(__doc__, ("world", "agent"))
     names = remove_ros_args(sys.argv)[1:]
     try:
         check_names(names)

@@ -2,9 +2,10 @@
 written as the same result files as `cq-ros experiment` (episodes.csv, observe.csv, greedy.csv,
 manifest.json and the figures).
 
-One launch is one ROS 2 system of its own: a ROS_DOMAIN_ID (random in 100..200 unless given), discovery kept
-on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) and a namespace (/cq_<hex> unless given), so launches
-side by side never hear each other; `cq-ros echo /<namespace>/world/stats --domain-id N` watches one.
+One launch is one ROS 2 system of its own: a ROS_DOMAIN_ID (--domain-id, else the environment's as every ROS
+tool takes it, else drawn in 100..200: `run_domain`), discovery kept on this host
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) and a namespace (/cq_<hex> unless given), so launches side by side
+never hear each other's nodes; `cq-ros echo /<namespace>/world/stats --domain-id N` watches one.
 
 Start-up. The launcher's own node (the listener, `/<namespace>/launch`) subscribes to every agv<k>/stats, then
 every child starts at once: the world, and one agent process per AGV (`agv<k>`) or the one central JSA node
@@ -104,7 +105,7 @@ from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import TWIN_EXIT as WORLD_TWIN, world_config
 
-from .session import StopSignals, ToolError, environment, ros_session, spin_until
+from .session import StopSignals, ToolError, environment, environment_domain, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
     EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, departures, describe_departures, write_ended_early,
@@ -112,21 +113,25 @@ from .launch_results import (
 )
 from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
-__all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN",
-           "DOMAIN_IDS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "ResultsGone", "LaunchResult", "Child",
-           "split_sets",
-           "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts", "launch", "StatsListener",
-           "Progress", "write_heard"]
+__all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN", "DOMAIN_IDS",
+           "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "ResultsGone", "LaunchResult",
+           "Child", "split_sets", "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts",
+           "run_domain", "launch", "StatsListener", "Progress", "write_heard"]
 
 # The launch's exit status (`cq-ros launch`): every episode played as the offline engine plays it; a launch that
 # failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
 # feedback never heard: the summary says where); Ctrl-C or SIGTERM.
 EXIT_CLEAN, EXIT_FAILED, EXIT_DEGRADED, EXIT_INTERRUPTED = 0, 1, 3, 130
-DOMAIN_IDS = (100, 200)  # a launch without --domain-id picks one at random from this range
+DOMAIN_IDS = (100, 200)  # a launch given no domain (--domain-id, ROS_DOMAIN_ID) draws one from this range
+BENCH_DOMAINS = (40, 99)  # ... and a ROS benchmark (benchmarks/) from this one, off the launches' range
 STARTUP_TIMEOUT_S = 30.0  # the world's startup_timeout: every child discovered by then, or the world exits 1
+# ... or this many seconds per node where that is longer (`startup_wait`)
+STARTUP_PER_NODE_S = 4.0
+NODE_UP_S, STUCK_TRIES = 60.0, 2  # a node process that logs nothing this long after its start is started again
 CHECKPOINT_EVERY = 50
 AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world finished is stuck
 DRAIN_S = 5.0  # after the last child exits, how long to wait for statistics still in the listener's queue
+STATUS_S = 5.0  # between two episodes, how often the progress says where the run is
 STOP_GRACE_S = ((signal.SIGINT, 3.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0))
 NAMESPACE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 # Node parameters the launcher fixes itself (from its own options, or as its children need them).
@@ -189,13 +194,25 @@ class Child:
     process: subprocess.Popen | None = None
     env: dict[str, str] = field(default_factory=dict)  # its own, over the launch's
     restarts: int = 0  # times the launch started it again after it died (`restart_agents`)
+    stuck_starts: int = 0  # times the launch started it again because it never came up (`_unstick`)
+    started_at: float = 0.0  # time.monotonic() of its latest start
+    logged_at_start: int = 0  # its log's size then
 
     def start(self, env: dict[str, str]) -> None:
         # the child keeps its own copy of the descriptor; a restarted one's log goes on after its first life's
-        with open(self.log, "ab" if self.restarts else "wb") as log:
+        with open(self.log, "ab" if self.restarts or self.stuck_starts else "wb") as log:
+            self.logged_at_start = log.tell()
             self.process = subprocess.Popen(self.command, stdin=subprocess.DEVNULL, stdout=log,
                                             stderr=subprocess.STDOUT, env={**env, **self.env},
                                             start_new_session=True, preexec_fn=_die_with_launcher)
+        self.started_at = time.monotonic()
+
+    def said_anything(self) -> bool:
+        """Whether its log has grown since its latest start: a node's first line comes once it is made."""
+        try:
+            return self.log.stat().st_size > self.logged_at_start
+        except OSError:
+            return False
 
     @property
     def exit_code(self) -> int | None:
@@ -280,6 +297,16 @@ def agent_nodes(gridmap: GridMap, algo: str) -> list[tuple[str, dict[str, int]]]
     return [(agent_namespace(k), {"agent_id": k}) for k in range(1, gridmap.n_agents + 1)]
 
 
+def startup_wait(nodes: int) -> float:
+    """The world's startup_timeout for a launch of `nodes` nodes, and the least feedback_timeout of its agents:
+    STARTUP_TIMEOUT_S, or STARTUP_PER_NODE_S per node where that is longer. Every node must be up and matched
+    before the first step, and on a busy 2-core machine a node process takes seconds of CPU to start (Python,
+    rclpy, numpy) and discovery grows with the graph: warehouse_32's 33 processes did not all match within 30 s
+    (benchmarks/bench_startup.py). An agent started early hears nothing of the world meanwhile, so its
+    patience grows alike."""
+    return max(STARTUP_TIMEOUT_S, STARTUP_PER_NODE_S * nodes)
+
+
 def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Settings, out: Path,
                step_timeout: float, peer_linger_steps: int | None = None,
                node_parameters: dict[str, Any] | None = None,
@@ -300,16 +327,18 @@ def node_specs(map_name: str, algo: str, episodes: int, seed: int, settings: Set
     node_parameters = node_parameters or {}
     to_world = {k: v for k, v in node_parameters.items() if k in WORLD_PARAMETERS}
     to_agents = {k: v for k, v in node_parameters.items() if k in AGENT_PARAMETERS}
-    nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout),
-                                      "startup_timeout": STARTUP_TIMEOUT_S, "min_stats_subscribers": 1,
-                                      **to_world, **changed})}
     agents = agent_nodes(gridmap, algo)
+    wait = startup_wait(1 + len(agents))
+    nodes = {"world": ("world_node", {**common, "step_timeout": float(step_timeout), "startup_timeout": wait,
+                                      "min_stats_subscribers": 1, **to_world, **changed})}
     linger = {} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}
+    patience = {"feedback_timeout": wait} if wait > AGENT_PARAMETERS["feedback_timeout"][0] else {}
     for name, ident in agents:
         nodes[name] = ("agent_node", {
             **ident, "algo": algo, **common,
             "checkpoint": str(out.resolve() / "checkpoints" / (name + CHECKPOINT_SUFFIX)),
-            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **to_agents, **changed})
+            "checkpoint_every": CHECKPOINT_EVERY, "min_stats_subscribers": 1, **linger, **patience, **to_agents,
+            **changed})
     return nodes
 
 
@@ -387,7 +416,9 @@ def _stop(children: list[Child]) -> None:
 
 class Progress:
     """A tqdm bar on a terminal; otherwise a plain line every 5% of the episodes (and at the last). It counts
-    every episode; the label says "greedy" once the learning episodes (the first `learning`) are over."""
+    every episode; the label says "greedy" once the learning episodes (the first `learning`) are over. Between
+    them, every STATUS_S at most, where the run is (`within`): how many nodes are up, then the episode and step,
+    so a big map shows progress from its first step."""
 
     def __init__(self, label: str, episodes: int, learning: int, enabled: bool):
         self.label, self.episodes, self.learning, self.enabled = label, episodes, learning, enabled
@@ -395,8 +426,20 @@ class Progress:
         self.bar = tqdm(total=episodes, desc=label, unit="episode", disable=not self.tty)
         self.every = max(1, episodes // 20)
         self.shown = 0
+        self.said = time.monotonic()  # when a line (or the bar) last said something
+
+    def within(self, where: Callable[[], str]) -> None:
+        """Say where() ('starting: 12/33 nodes up', 'episode 0, step 1200') if nothing was said for STATUS_S."""
+        if not self.enabled or time.monotonic() - self.said < STATUS_S:
+            return
+        self.said = time.monotonic()
+        if self.tty:
+            self.bar.set_postfix_str(where())
+        else:
+            print(f"{self.label}: {where()}", file=sys.stderr, flush=True)
 
     def update(self, done: int, collisions: int, joint_states: int, peer_messages: int) -> None:
+        self.said = time.monotonic()
         label = f"{self.label} greedy" if done > self.learning else self.label
         if self.tty:
             self.bar.set_description(label, refresh=False)
@@ -423,6 +466,16 @@ def check_hosts(hosts: Hosts, gridmap: GridMap, algo: str, discovery: str) -> No
         raise ValueError(f"hosts {hosts.prefix} have {hosts.agents} AGV hosts, map {gridmap.name} has "
                          f"{gridmap.n_agents} agents")
     hosts.discovery_env("world", discovery)  # a bad discovery fails here
+
+
+def run_domain(given: int | None, drawn_from: tuple[int, int] = DOMAIN_IDS) -> int:
+    """The launch's ROS_DOMAIN_ID: `given` (--domain-id), else the environment's, as every ROS tool takes it;
+    drawn from `drawn_from` only when neither says one (so two launches side by side do not hear each other;
+    the ROS benchmarks draw theirs from 40..99, off the launches' range)."""
+    if given is not None:
+        return given
+    chosen = environment_domain()
+    return random.SystemRandom().randint(*drawn_from) if chosen is None else chosen
 
 
 def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.PathLike,
@@ -474,8 +527,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             raise ValueError(f"the launcher must run on the world's host: ip netns exec {hosts.namespace('world')} ...")
     if key_file is not None:
         read_key_parameter(os.fspath(key_file))  # a missing or readable-by-others key fails before any work
-    if domain_id is None:
-        domain_id = random.SystemRandom().randint(*DOMAIN_IDS)
+    domain_id = run_domain(domain_id)
     made = made_by(out)  # what this launch makes, removed if it ends before a row of its own is written
     with removed_if_failing(out):
         out = prepare_output(Path(out), force)
@@ -519,7 +571,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     def node_info() -> dict:
         return {c.name: {"command": c.command, "exit_code": c.exit_code, "log": str(c.log.relative_to(out)),
-                         **({"restarts": c.restarts} if c.restarts else {})} for c in children}
+                         **({"restarts": c.restarts} if c.restarts else {}),
+                         **({"stuck_starts": c.stuck_starts} if c.stuck_starts else {})} for c in children}
 
     learner_nodes = list(nodes)[1:]
 
@@ -560,7 +613,8 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     with StopSignals() as stop, environment(**listener_env), ros_session(
             "launch", domain_id=domain_id, namespace=f"/{namespace}", localhost_only=hosts is None,
             hidden=False) as (node, executor):
-        listener = StatsListener(node, gridmap, episodes + settings.eval_episodes, key=run_key)
+        listener = StatsListener(node, gridmap, episodes + settings.eval_episodes, key=run_key,
+                                 run=nodes["world"][1]["run_nonce"])
         server = None
         if view_port is not None:  # a live view in Foxglove (ros_tools.view), relayed by the listener's node
             from .view import serve
@@ -583,7 +637,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
             _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose,
-                   restart_loss)
+                   restart_loss, list(nodes))
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
@@ -658,11 +712,38 @@ def _restart(child: Child, env: dict, listener: StatsListener, learners: list[in
                f"(restart {child.restarts}, pid {child.process.pid}); {loss}", file=sys.stderr)
 
 
+def _unstick(children: list[Child], env: dict, listener: StatsListener) -> None:
+    """Before the run's first step, start again an agent node that has said nothing for NODE_UP_S since it started
+    (at most STUCK_TRIES times each), saying so. Seen with warehouse_32 as a process per node on 2 busy cores: one
+    to five of the 32 agent processes hung for good inside rclpy's create_publisher (Fast DDS blocked on a lock
+    while the other participants' discovery came in), while every other node logged within 35 s of the start;
+    a fresh process comes up. The world is not restarted: agents may have heard it already."""
+    if listener.world or (listener.at is not None and listener.at != (0, 0)):
+        return
+    now = time.monotonic()
+    for child in children[1:]:
+        if child.running and now - child.started_at > NODE_UP_S and child.stuck_starts < STUCK_TRIES and \
+                not child.said_anything():
+            pid = child.process.pid
+            child.signal_group(signal.SIGKILL)
+            child.process.wait(timeout=STOP_GRACE_S[-1][1])
+            child.stuck_starts += 1
+            child.start(env)
+            tqdm.write(f"cq-ros launch: {child.name} (pid {pid}) said nothing {NODE_UP_S:g} s after its start, a "
+                       f"start stuck in ROS: started it again (pid {child.process.pid})", file=sys.stderr)
+
+
 def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
-    """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why)."""
+    """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why: a departure
+    from the offline engine, or statistics that conflicted with the first heard of their episode)."""
     found = departures(listener, learners)
-    if found:
-        return {"how": "degraded", "reason": describe_departures(found), "exit_status": EXIT_DEGRADED}
+    why = [describe_departures(found)] if found else []
+    if listener.conflicts:
+        named = listener.named_conflicts().items()
+        why.append("conflicting statistics (the first heard of each episode kept): " + "; ".join(
+            f"{topic} episode{'s' if ',' in e or '-' in e else ''} {e}" for topic, e in named))
+    if why:
+        return {"how": "degraded", "reason": "; ".join(why), "exit_status": EXIT_DEGRADED}
     return {"how": "finished", "reason": "every episode played as the offline engine plays it",
             "exit_status": EXIT_CLEAN}
 
@@ -686,12 +767,23 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str, settings: Settings) 
     return paths
 
 
+def _where(listener: StatsListener, node_names: list[str]) -> str:
+    """Where a run is between two episodes: before its first step how many of its nodes are in the graph, then
+    the world's episode and step by its heartbeat."""
+    if listener.at is None or (listener.at == (0, 0) and not listener.world):
+        ns = listener.node.get_namespace()
+        up = {name for name, namespace in listener.node.get_node_names_and_namespaces() if namespace == ns}
+        return f"starting: {len(up & set(node_names))}/{len(node_names)} nodes up"
+    return f"episode {listener.at[0]}, step {listener.at[1]}"
+
+
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
            learners: list[int], rows: EpisodeRows, restart_agents: int = 0, env: dict | None = None,
-           compose: bool = False, restart_loss: Callable[[Child], str] | None = None) -> None:
+           compose: bool = False, restart_loss: Callable[[Child], str] | None = None,
+           node_names: tuple[str, ...] | list[str] = ()) -> None:
     """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
     soon as one fails (an agent node restarted instead while `restart_agents` allows), EndedEarly as soon as a
-    row cannot be written."""
+    row cannot be written. Between episodes, `bar` says where the run is (`_where` of `node_names`)."""
     world_done_at = None
     while True:
         if stop:
@@ -704,6 +796,9 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
                        sum(s.peer_messages for s in latest))
+        bar.within(lambda: _where(listener, node_names))
+        if not compose:
+            _unstick(children, env, listener)
         failed = [c for c in children if c.exit_code not in (None, 0)]
         if failed and not compose and children[0].running and failed[0] is not children[0] and \
                 sum(c.restarts for c in children) < restart_agents:

@@ -35,8 +35,8 @@ from cq_ros.lab.results import EPISODE_COLUMNS, EPISODES, MANIFEST, episode_row,
 from cq_ros.lab.output import OutputError, os_reason
 from cq_ros.settings import Settings
 from msgs_spec import (
-    AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WorldStats, agent_stats_topic,
-    decode_agent_stats, decode_world_stats,
+    AGENT_STATS, HEARTBEAT, HEARTBEAT_TOPIC, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WireError,
+    WorldStats, agent_stats_topic, decode_agent_stats, decode_heartbeat, decode_world_stats,
 )
 
 __all__ = ["RESERVE_NAME", "RESERVE_BYTES", "DEPARTURES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
@@ -71,10 +71,15 @@ def _ranges(numbers: list[int]) -> str:
 class StatsListener:
     """The launcher's subscriptions: every WorldStats and AgentStats of the run (`episodes` of each: learning
     and greedy episodes alike), decoded through the contract (a bad message is logged, counted and dropped,
-    never raised)."""
+    never raised).
 
-    def __init__(self, node: Any, gridmap: GridMap, episodes: int, key: bytes | None = None):
-        self.node, self.key = node, key  # with the run's key, only this system's statistics count
+    With the run's `key` only this system's statistics count; given the `run` nonce, only this run's (one sealed
+    with another, a recording of an earlier run under the same key file, is `dropped.other_run`). The first
+    statistic heard for an episode is kept: a later one that says otherwise is a conflict, never a replacement,
+    logged and counted (`dropped.conflicting`) and named by topic and episode (`conflicts`)."""
+
+    def __init__(self, node: Any, gridmap: GridMap, episodes: int, key: bytes | None = None, run: int | None = None):
+        self.node, self.key, self.run = node, key, run
         self.episodes = episodes
         self.bounds = Bounds(gridmap.n_agents, gridmap.height, gridmap.width)
         # Until this run's first episode is heard, a dropped message is more likely a second system in the
@@ -86,6 +91,7 @@ class StatsListener:
         self.collisions = 0  # over the episodes heard so far, for the progress display
         self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
         self.newest: dict[int, AgentStats] = {}  # each agent's statistics of its latest episode so far
+        self.conflicts: dict[str, list[int]] = {}  # topic -> episodes of which a statistic disagreed with the first
         # Learners whose node the launch restarted: an episode of theirs never heard before a later one is one
         # they were away for (a node sends its statistics in order, and resumes where the world is).
         self.restarted: set[int] = set()
@@ -97,6 +103,11 @@ class StatsListener:
                             for k in self.agents]
         self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
                                                    WORLD_STATS.qos)
+        # Where the world is, by its heartbeat (every second): progress within an episode, which on a big map
+        # can take minutes. Only a display: a heartbeat that does not decode is not worth a line.
+        self.at: tuple[int, int] | None = None
+        self._heartbeat_sub = node.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
+                                                       HEARTBEAT.reader_qos)
 
     def _drop_line(self, line: str) -> None:
         if self.held is None:
@@ -111,20 +122,47 @@ class StatsListener:
             self.node.get_logger().warning(line)
 
     def _on_world(self, msg: Any) -> None:
-        stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, key=self.key, source=WORLD_STATS_TOPIC)
+        stats = self.drops.guard(decode_world_stats, msg, bounds=self.bounds, key=self.key, run=self.run,
+                                 source=WORLD_STATS_TOPIC)
         if stats is not None and self.held is not None:
             self.show_held()
-        if stats is not None and stats.episode not in self.world:
-            self.world[stats.episode] = stats
+        if stats is not None and self._first(self.world, stats, WORLD_STATS_TOPIC):
             self.collisions += stats.collisions
+
+    def _on_heartbeat(self, msg: Any) -> None:
+        try:
+            beat = decode_heartbeat(msg, key=self.key)
+        except WireError:
+            return
+        self.at = (beat.episode, beat.step)
 
     def _on_agent(self, agent: int, msg: Any) -> None:
         stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent, key=self.key,
-                                 source=agent_stats_topic(agent))
-        if stats is not None:
-            self.agents[agent][stats.episode] = stats
+                                 run=self.run, source=agent_stats_topic(agent))
+        if stats is not None and self._first(self.agents[agent], stats, agent_stats_topic(agent)):
             if agent not in self.newest or stats.episode > self.newest[agent].episode:
                 self.newest[agent] = stats
+
+    def _first(self, heard: dict[int, Any], stats: Any, topic: str) -> bool:
+        """Keep `stats` if it is the first heard of its episode; one that differs from the first is a conflict
+        (the same one again, a resend, is nothing)."""
+        kept = heard.setdefault(stats.episode, stats)
+        if kept is stats:
+            return True
+        if kept != stats:
+            self.drops.record(WireError("conflicting", f"episode {stats.episode} statistics unlike the first heard "
+                                                       "of it (kept)"), topic)
+            self.conflicts.setdefault(topic, []).append(stats.episode)
+        return False
+
+    def named_conflicts(self) -> dict[str, str]:
+        """topic -> the episodes of which it carried conflicting statistics, as ranges ('3, 5-7')."""
+        return {topic: _ranges(sorted(set(episodes))) for topic, episodes in self.conflicts.items()}
+
+    def launcher_counts(self) -> dict[str, Any]:
+        """The manifest's `launcher`: what the listener dropped, by kind, and the conflicts by topic."""
+        return {"dropped": self.drops.as_counters(),
+                **({"conflicts": self.named_conflicts()} if self.conflicts else {})}
 
     def row(self, episode: int, learners: list[int]) -> Episode | None:
         """Episode `episode`'s record, as the engine's, once the world's statistics and every learner's of it
@@ -329,7 +367,7 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
                        for name, s in zip(learner_nodes, final)},
         world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
-        launcher={"dropped": listener.drops.as_counters()},
+        launcher=listener.launcher_counts(),
         departures=departures(listener, learners), **({"ended": ended} if ended is not None else {}),
         **listener.restarts())
     write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=episodes_written)
@@ -353,7 +391,7 @@ def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, see
                                           "peer_messages": listener.newest[k].peer_messages,
                                           "counters": dict(listener.newest[k].counters)}
                                    for name, k in zip(learner_nodes or [], learners) if k in listener.newest},
-                 "launcher": {"dropped": listener.drops.as_counters()}, **listener.restarts()}
+                 "launcher": listener.launcher_counts(), **listener.restarts()}
     manifest = manifest_for(gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
                             ended_early={"reason": reason, "episodes_written": rows.written}, **heard,
                             **({"ended": ended} if ended is not None else {}))

@@ -19,7 +19,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-__all__ = ["ToolError", "StopSignals", "environment", "ros_session", "spin_until", "find_system", "WORLD", "FIND_S"]
+__all__ = ["ToolError", "StopSignals", "environment", "environment_domain", "ros_session", "spin_until", "find_system",
+           "WORLD", "FIND_S"]
 
 # How long to look for the system's nodes by default: a node process takes seconds to start on 2 busy cores.
 FIND_S = 60.0
@@ -72,19 +73,31 @@ def environment(**values: str) -> Iterator[None]:
                 os.environ[k] = v
 
 
+def environment_domain() -> int | None:
+    """The ROS_DOMAIN_ID the user set (None when unset or empty, as rcl reads it); ValueError naming the variable
+    when it is no domain id (0..232, as --domain-id takes: Fast DDS derives its ports from it)."""
+    value = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not value:
+        return None
+    if not value.isdigit() or int(value) > 232:
+        raise ValueError(f"ROS_DOMAIN_ID={value!r} in the environment is not a domain id (an integer 0..232)")
+    return int(value)
+
+
 @contextmanager
 def ros_session(name: str, *, domain_id: int | None = None, namespace: str | None = None,
                 localhost_only: bool = False, hidden: bool = True) -> Iterator[tuple[Any, SingleThreadedExecutor]]:
     """(node, executor) on a fresh rclpy Context, torn down in the Jazzy order (executor, node, context).
 
-    `domain_id` None: ROS_DOMAIN_ID from the environment, as every ROS tool. `localhost_only` keeps discovery
-    on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, read by rcl at init only). A `hidden` node's name
-    starts with '_' (hidden from `nodes`, as ros2cli's own nodes are). rclpy installs no signal handlers:
-    use StopSignals."""
+    `domain_id` None: ROS_DOMAIN_ID from the environment (`environment_domain`), as every ROS tool, else rcl's 0.
+    `localhost_only` keeps discovery on this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, read by rcl at init
+    only). A `hidden` node's name starts with '_' (hidden from `nodes`, as ros2cli's own nodes are). rclpy
+    installs no signal handlers: use StopSignals."""
     ctx = Context()
     env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"} if localhost_only else {}
     with environment(**env):
-        rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(context=ctx, domain_id=environment_domain() if domain_id is None else domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
     node = executor = None
     try:
         node = rclpy.create_node(f"_{name}_{os.getpid()}" if hidden else name, context=ctx, namespace=namespace,

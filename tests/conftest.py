@@ -1,9 +1,10 @@
 """Shared fixtures, and the markers that sort the suite into tiers.
 
 Before any test runs (so before any rclpy.init, in this process or in a node process a test starts, which
-inherits the environment): a random ROS_DOMAIN_ID in 100..200 for the session (the next ones for the other
-pytest-xdist workers), discovery kept to this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), and ROS logs in
-a temporary directory instead of ~/.ros.
+inherits the environment): a ROS_DOMAIN_ID for the session, $CQ_ROS_TEST_DOMAIN_BASE or a random one in
+100..200 (the next ones for the other pytest-xdist workers; every test's ROS, launches included, runs there),
+discovery kept to this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), and ROS logs in a temporary directory
+instead of ~/.ros.
 
 Markers (registered in pyproject.toml): `ros` for a test that starts ROS nodes or contexts, `root` for one that
 needs root (network namespaces), `slow` for one that takes more than about 10 s on 2 busy cores. A test that
@@ -40,13 +41,20 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def _domain_id() -> int:
-    """A domain of the session's own: pytest-xdist's controller draws a base (before it starts its workers,
-    which inherit it) and worker gw<i> takes base + i, so no two workers of one session share a graph."""
+    """A domain of the session's own: the base is $CQ_ROS_TEST_DOMAIN_BASE where the user set it (a shared host's
+    developers each take their own), else pytest-xdist's controller draws one in 100..200 (before it starts its
+    workers, which inherit it); worker gw<i> takes base + i, so no two workers of one session share a graph.
+    The suite never runs on the user's own ROS_DOMAIN_ID: that is where their live systems are."""
     worker = os.environ.get("PYTEST_XDIST_WORKER")
     if worker is None:
-        os.environ[_DOMAIN_BASE] = str(random.SystemRandom().randint(100, 200))
-        return int(os.environ[_DOMAIN_BASE])
-    return int(os.environ[_DOMAIN_BASE]) + int(worker.removeprefix("gw"))
+        given = os.environ.get(_DOMAIN_BASE, "").strip()
+        os.environ[_DOMAIN_BASE] = given or str(random.SystemRandom().randint(100, 200))
+    base = os.environ[_DOMAIN_BASE]
+    domain = int(base) + (int(worker.removeprefix("gw")) if worker else 0) if base.isdigit() else 233
+    if domain > 232:  # ROS domain ids end at 232 (Fast DDS's ports on Linux)
+        raise pytest.UsageError(f"{_DOMAIN_BASE}={base!r}: the suite's workers take base + 0, 1, ... up to "
+                                "domain 232; give a smaller integer")
+    return domain
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:

@@ -916,3 +916,164 @@ def test_a_feedback_from_far_ahead_is_refused_and_counted_without_a_loop(system_
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     agv1 = counters(system, 1)
     assert agv1["dropped.far_ahead"] >= len(sent) - 2 and "caught_up" not in agv1
+
+
+# -- statistics sealed to their run ----------------------------------------------------------------------------
+
+
+def _listener(system, ros_context, **kwargs):
+    """A launcher's StatsListener of `system`, on its executor."""
+    from cq_ros.gridmap import load_map
+    from ros_tools.launch_results import StatsListener
+
+    node = system.add(rclpy.create_node("launch", context=ros_context))
+    return StatsListener(node, load_map(system.world.config.gridmap.name), system.world.config.total_episodes,
+                         **kwargs)
+
+
+def test_an_earlier_runs_statistics_held_latched_are_refused_and_the_results_are_this_runs(system_in, ros_context,
+                                                                                           spin_until, key_file):
+    """Run A's world/stats and agv1/stats (sealed under the same key file with run A's nonce, every episode's, and
+    unlike this run's), latched on their topics before run B starts: B's launcher listener, told B's nonce,
+    refuses each as `other_run` and counts it; its results are B's own, the offline run's, without a conflict."""
+    from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, WorldStats, agent_stats_topic, \
+        read_key, serialize
+    from msgs_spec.auth import RunKey, new_run
+
+    algo, episodes = "cq", 6
+    run_a, run_b = new_run(), new_run()
+    system = system_in(algo, *CASE[:2], episodes, CASE[2],
+                       common_extra={"key_file": key_file, "run_nonce": run_b})
+    total = system.world.config.total_episodes
+    earlier = RunKey(read_key(key_file), run=run_a)
+    recorder = system.add(rclpy.create_node("earlier_run", context=ros_context))
+    world_pub = recorder.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+    agent_pub = recorder.create_publisher(AGENT_STATS.msg_type, agent_stats_topic(1), AGENT_STATS.qos)
+    for e in range(total):  # what run A said, held for every late reader (transient local)
+        world_pub.publish(serialize(WorldStats(e, 99, True, 7, 0, (-99.0, -99.0), 1.0), key=earlier))
+        agent_pub.publish(serialize(AgentStats(1, e, algo, joint_plays=42), key=earlier))
+    listener = _listener(system, ros_context, key=read_key(key_file), run=run_b)
+    finish(system)
+    assert spin_until(system.executor, lambda: listener.complete, 30.0), listener.missing()
+    rows = [listener.row(e, [1, 2]) for e in range(total)]
+    offline = offline_rows(algo, CASE[0], CASE[1], episodes, CASE[2])
+    assert [(r.steps, r.collisions, r.truncated, r.joint_plays) for r in rows] == \
+        [(int(o["steps"]), int(o["collisions"]), bool(o["truncated"]), int(o["joint_plays"])) for o in offline]
+    assert listener.drops["other_run"] == 2 * total  # every one of run A's, on both topics
+    assert listener.conflicts == {} and "conflicts" not in listener.launcher_counts()
+    assert listener.launcher_counts()["dropped"]["dropped.other_run"] == 2 * total
+
+
+def test_statistics_of_this_run_that_disagree_are_a_conflict_named_never_a_replacement(system_in, ros_context,
+                                                                                       spin_until, key_file):
+    """A key holder of this very run sends world/stats for episode 0 unlike the world's, before the world's own:
+    the listener keeps the first heard, and the world's, which says otherwise, is a conflict counted and named by
+    topic and episode; a resend of the same statistic is nothing."""
+    from msgs_spec import WORLD_STATS, WORLD_STATS_TOPIC, WorldStats, read_key, serialize
+    from msgs_spec.auth import RunKey, new_run
+
+    algo, episodes, run = "cq", 4, new_run()
+    system = system_in(algo, *CASE[:2], episodes, CASE[2], common_extra={"key_file": key_file, "run_nonce": run})
+    holder = RunKey(read_key(key_file), run=run)
+    pub = system.add(rclpy.create_node("holder", context=ros_context)).create_publisher(
+        WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+    forged = WorldStats(0, 99, True, 7, 0, (-99.0, -99.0), 1.0)
+    for _ in range(2):
+        pub.publish(serialize(forged, key=holder))
+    listener = _listener(system, ros_context, key=holder.secret, run=run)
+    assert spin_until(system.executor, lambda: 0 in listener.world, RUN_TIMEOUT_S)
+    assert listener.world[0] == forged  # heard first: the world had not played episode 0 yet
+    finish(system)
+    assert spin_until(system.executor, lambda: listener.complete, 30.0), listener.missing()
+    assert listener.world[0] == forged and listener.conflicts == {"world/stats": [0]}
+    assert listener.drops["conflicting"] == 1 and listener.launcher_counts()["conflicts"] == {"world/stats": "0"}
+    real = [s for s in system.world_stats if s != forged]  # the probe, holding no run, heard both
+    assert real[0] != forged and [listener.world[e] for e in range(1, len(real))] == real[1:]
+
+
+# -- progress, not arrival, watched ------------------------------------------------------------------------------
+
+
+class Stuck(AgentNode):
+    """An agent node that stops taking its feedback after its first 30 messages (a reader or callback that
+    stopped), while its process, its timers and its heartbeat reader live on."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.taken = 0
+
+    def _on_feedback(self, agent, msg):
+        self.taken += 1
+        if self.taken <= 30:
+            super()._on_feedback(agent, msg)
+
+
+@pytest.mark.parametrize("how", ["takes-no-feedback", "executor-stuck"])
+def test_an_agent_that_stops_acting_while_alive_ends_the_run_in_bounded_time_naming_it(system_in, spin_until, how):
+    """agv1 stops taking feedback (its heartbeats still come: the world is alive, but steps without it), or its
+    executor stops altogether. Deaf, agv1 gives up after its feedback_timeout saying it takes no feedback; either
+    way the world, whose other agent plays on, ends the run after NO_PROGRESS_STEPS step timeouts and its
+    startup_timeout naming agv1: no run goes on for minutes with a wrong reason."""
+    from world_node.lockstep import NO_PROGRESS_STEPS
+
+    system = system_in("cq", *CASE[:2], 200, CASE[2], world_extra={"step_timeout": 0.3, "startup_timeout": 3.0},
+                       common_extra={"heartbeat_period": 0.2}, agent_extra={1: {"feedback_timeout": 2.0}},
+                       agent_class={1: Stuck} if how == "takes-no-feedback" else None)
+    world, agv1 = system.world, system.agents[0]
+    if how == "executor-stuck":
+        assert spin_until(system.executor, lambda: world.core.episode >= 2, RUN_TIMEOUT_S)
+        system.executor.remove_node(agv1)
+    started = time.monotonic()
+    bound = 60.0 + NO_PROGRESS_STEPS * 0.3
+    assert spin_until(system.executor, lambda: world.done.done(), bound), "the world never ended the run"
+    assert world.done.result() == 1 and "agv1" in world.core.no_progress, world.core.no_progress
+    assert "gone, stuck" in world.core.no_progress and "restarted" not in world.core.no_progress.split(":")[0]
+    if how == "takes-no-feedback":
+        assert spin_until(system.executor, lambda: agv1.done.done(), 30.0)
+        assert agv1.done.result() == 1 and "it takes no feedback" in agv1.gave_up, agv1.gave_up
+    assert time.monotonic() - started < bound
+
+
+def test_a_far_ahead_heartbeat_by_a_key_holder_is_refused_and_real_ones_still_count(system_in, ros_context,
+                                                                                     spin_until, key_file):
+    """A heartbeat sealed as this run's world seals it (a key holder) with beat 2**31-1, sent every 50 ms: each
+    is refused as `far_ahead` (a beat may jump only as far as the time since the last allows), the world's
+    real heartbeats are still taken (none is `replayed`), and the run is the offline one."""
+    from msgs_spec import serialize
+    from msgs_spec.auth import RunKey
+
+    algo, episodes = "cq", 40
+    case = (*CASE[:2], (*CASE[2], ("eval_episodes", 0)))
+    system = system_in(algo, case[0], case[1], episodes, case[2],
+                       common_extra={"key_file": key_file, "heartbeat_period": 0.05})
+    assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
+    world_key = system.world.config.key
+    key = RunKey(world_key.secret, run=world_key.run, incarnation=world_key.incarnation)
+    sent = _inject_once_under_way(system, ros_context, spin_until, [
+        (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(2**31 - 1, 0, 0, 1), key=key))])
+    finish(system)
+    assert len(sent) >= 2
+    assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
+    for k, agent in enumerate(system.agents, 1):
+        assert agent.driver.link.beat < 2**31 - 1
+        assert counters(system, k)["dropped.far_ahead"] >= len(sent) - 1 and "dropped.replayed" not in counters(
+            system, k), counters(system, k)
+
+
+def test_a_heartbeat_beat_may_jump_only_as_far_as_the_time_since_the_last_allows():
+    """WorldLink alone, on a clock of its own: the first beat is taken wherever it is (a world running for
+    hours); then one BEAT_SLACK past the last is taken at once, one more is not, and after 2 s 200 more are."""
+    from agent_node.world_link import BEAT_SLACK, WorldLink, beat_bound
+    from msgs_spec import DropCounter, serialize
+
+    now = [100.0]
+    link = WorldLink(DropCounter(), None, lambda: now[0])
+
+    def beat(b):
+        return link.on_heartbeat(serialize(Heartbeat(b, 0, 0)))
+    assert beat(5000) and link.beat == 5000
+    assert not beat(5000 + BEAT_SLACK + 1) and link.drops["far_ahead"] == 1 and link.beat == 5000
+    assert beat(5000 + BEAT_SLACK) and link.beat == 5000 + BEAT_SLACK
+    now[0] += 2.0
+    assert beat(link.beat + beat_bound(2.0)) and not beat(link.beat + beat_bound(0.0) + 1)
+    assert link.drops["far_ahead"] == 2 and link.drops["replayed"] == 0

@@ -5,12 +5,9 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import math
-import os
-import random
 import re
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -294,6 +291,37 @@ def test_keyed_statistics_are_checked_by_a_receiver_with_the_key_and_read_by_one
     with pytest.raises(ms.WireError) as e:
         ms.decode(forged, key=key)
     assert e.value.kind == "unauthenticated"
+
+
+@pytest.mark.parametrize("example", ["world_stats", "agent_stats"])
+def test_statistics_sealed_to_a_run_are_refused_by_a_receiver_of_another(example):
+    """A node seals its statistics with its RunKey (`run`, `inc` before the `mac`, which covers them): a receiver
+    told the run refuses another run's, or unsealed ones, as `other_run`; the seal cannot be changed after the
+    MAC; the tools read the sealed form."""
+    from msgs_spec.auth import RunKey
+
+    key = bytes(range(32))
+    s = doc.EXAMPLES[example]
+    decode = ms.decode_world_stats if example == "world_stats" else ms.decode_agent_stats
+    sealed = _wire(ms.encode(s, key=RunKey(key, run=0xABC, incarnation=7)))
+    assert [kv.key for kv in sealed.status[0].values][-3:] == ["run", "inc", "mac"]
+    assert sealed.status[0].values[-3].value == "0000000000000abc" and sealed.status[0].values[-2].value == "00000007"
+    assert decode(sealed) == decode(sealed, key=key) == decode(sealed, key=RunKey(key, run=0xABC)) == s
+    for bad, receiver in ((sealed, dict(key=RunKey(key, run=0xABD))), (sealed, dict(key=key, run=0xABD)),
+                          (sealed, dict(run=0xABD)), (_wire(ms.encode(s, key=key)), dict(key=key, run=0xABC)),
+                          (_wire(ms.encode(s)), dict(run=0xABC))):
+        with pytest.raises(ms.WireError) as e:
+            decode(bad, **receiver)
+        assert e.value.kind == "other_run", receiver
+    moved = _wire(ms.encode(s, key=RunKey(key, run=0xABC)))
+    moved.status[0].values[-3].value = "0000000000000abd"  # resealed to another run without the key
+    with pytest.raises(ms.WireError) as e:
+        decode(moved, key=key, run=0xABD)
+    assert e.value.kind == "unauthenticated"
+    moved.status[0].values[-3].value = "abd"
+    with pytest.raises(ms.WireError) as e:
+        decode(moved)
+    assert e.value.kind == "malformed"
 
 
 def test_stats_stamp_and_summary():
@@ -699,7 +727,8 @@ def test_fuzz_stats_only_raise_wire_error(pairs, name, hw, n_status):
 
 def test_drop_counter_logs_first_and_every_nth_and_counts():
     logged = []
-    drops = ms.DropCounter(logged.append, every=3)
+    ticks = iter(range(0, 1000, 2))  # a drop every 2 s: never a flood
+    drops = ms.DropCounter(logged.append, every=3, clock=lambda: next(ticks))
     bad = _act(action=9)
     for _ in range(7):
         assert drops.guard(dact, bad, source="agv3/action", **ACTX) is None
@@ -715,6 +744,23 @@ def test_drop_counter_logs_first_and_every_nth_and_counts():
     # counters feed the statistics as is
     s = ms.AgentStats(agent=3, episode=0, algorithm="cq", counters=drops.as_counters())
     assert ms.decode(_wire(ms.encode(s))).counters == drops.as_counters()
+
+
+def test_a_flood_is_reported_once_with_its_rate_and_source_and_every_drop_counted():
+    """5,000 refused messages on one topic in 0.5 s (and a few elsewhere): one line says the flood, its source
+    and its rate; the rest are counted without a line; another source still logs its own."""
+    logged, now = [], [0.0]
+    drops = ms.DropCounter(logged.append, every=100, clock=lambda: now[0])
+    for i in range(5000):
+        now[0] = i * 1e-4
+        drops.record(ms.WireError("malformed", "junk"), "agv1/action")
+        if i % 1000 == 0:
+            drops.record(ms.WireError("stale_step", "old"), "agv2/action")
+    floods = [line for line in logged if "flood" in line]
+    assert len(floods) == 1 and "on agv1/action" in floods[0] and "100 in 0.01 s" in floods[0], floods
+    assert list(drops.floods) == ["agv1/action"] and 9000 < drops.floods["agv1/action"] < 11000
+    assert len(logged) == 3 and sum("agv2/action" in line for line in logged) == 1  # and agv1's first line
+    assert drops.counts == {"malformed": 5000, "stale_step": 5}
 
 
 def test_drop_counter_without_logger_and_bugs_propagate():
@@ -738,21 +784,6 @@ def test_bounds_validates():
 
 # --------------------------------------------------------------------------------------------------------
 # Over real DDS, in process: each topic's QoS delivers its payload; the position topic is latched
-
-
-@pytest.fixture
-def ros_context(tmp_path, monkeypatch):
-    rclpy = pytest.importorskip("rclpy")
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros_log"))
-    domain = random.Random(os.getpid() ^ time.time_ns()).randint(40, 99)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    try:
-        yield ctx
-    finally:
-        rclpy.try_shutdown(context=ctx)
 
 
 def test_every_topic_delivers_over_dds_with_its_qos_and_position_is_latched(ros_context, spin_until):
@@ -886,3 +917,28 @@ def test_the_fast_codec_agrees_with_the_reference(payload, sender, state, expect
         assert (keys[0].run, keys[0].held, keys[0].retired) == (keys[1].run, keys[1].held, keys[1].retired)
         if type(payload) is ms.Action:
             assert (keys[2].run, keys[2].held, keys[2].retired) == (keys[1].run, keys[1].held, keys[1].retired)
+
+
+@pytest.mark.parametrize("ros_type, label, n, dims", [
+    (Int32MultiArray, ACT.keyed_label, 20_000, 1), (Float64MultiArray, FB.label, 20_000, 1),
+    (Int32MultiArray, "x" * 10_000, 4, 1), (Int32MultiArray, ACT.label, 20_000, 2),
+    (Int32MultiArray, "x,y", 4, 1)], ids=["20000-values", "20000-floats", "10KB-label", "2-dims", "small"])
+def test_bytes_longer_than_the_keyed_form_are_refused_from_their_header_unread(monkeypatch, ros_type, label, n, dims):
+    """A flood's message too large for its layout is refused before it is deserialized (its header read in
+    place), with the kind the message object would get; one of the layout's size is still read whole."""
+    from msgs_spec import arrays
+
+    msg = ros_type()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=n, stride=n)] * dims
+    msg.data = [1] * n if ros_type is Int32MultiArray else [1.0] * n
+    decode = dfb if ros_type is Float64MultiArray else dact
+    with pytest.raises(ms.WireError) as as_object:
+        decode(msg)
+    raw = serialize_message(msg)
+    oversized = len(raw) > (FB if ros_type is Float64MultiArray else ACT)._longest
+    read = []
+    monkeypatch.setattr(arrays, "_deserialized", lambda layout, b: read.append(b) or deserialize_message(b, ros_type))
+    with pytest.raises(ms.WireError) as as_bytes:
+        decode(raw)
+    assert as_bytes.value.kind == as_object.value.kind and read == ([] if oversized else [raw])
+    assert oversized == (n > 4 or len(label) > 100)

@@ -1,6 +1,7 @@
 """`--help` on the node programs (python -m world_node, agent_node, ros_tools.compose): usage and every parameter
 with its ROS type, default and description, exit 0, and nothing started (no rclpy context, no node)."""
 
+import os
 import re
 import subprocess
 import sys
@@ -41,3 +42,19 @@ def test_help_starts_nothing(program, monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", [program, "-h", "--ros-args", "-p", "agent_id:=1"])
     assert module.main() == 0
     assert "Parameters of the" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", [[*map(str, ("-m", p, "--help"))] for p in PROGRAMS]
+                         + [["-m", "cq_ros.cli", "--help"], ["-m", "cq_ros.cli", "launch", "--help"],
+                            ["-m", "cq_ros.cli", "maps"]], ids=lambda c: " ".join(c[1:]))
+def test_a_reader_that_leaves_early_gets_no_traceback_and_exit_0(command):
+    # As `python -m world_node --help | head -1` once the reader has gone: the pipe's read end is closed before
+    # the program starts, so its very first write fails (Python ignores SIGPIPE and raises BrokenPipeError).
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run([sys.executable, *command], stdout=write_end, stderr=subprocess.PIPE, text=True,
+                              timeout=60)
+    finally:
+        os.close(write_end)
+    assert (done.returncode, done.stderr) == (0, "")

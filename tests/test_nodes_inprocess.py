@@ -367,7 +367,7 @@ def test_a_node_started_by_hand_takes_the_maps_defaults_under_the_settings_it_is
 @pytest.mark.parametrize("module,args,message", [
     ("world_node", ["-p", "map:=nowhere"], "parameter map: nowhere: no such map"),
     ("world_node", ["-p", "step_timeout:=-1.0"], "parameter step_timeout must be > 0"),
-    ("agent_node", ["-p", "agent_id:=1", "-p", "slip:=2.0"], "setting slip must be in [0, 1]"),
+    ("agent_node", ["-p", "agent_id:=1", "-p", "slip:=2.0"], "setting slip must be in [0, 1)"),
 ])
 @pytest.mark.ros
 def test_the_command_line_exits_2_with_one_line_for_a_bad_parameter(module, args, message):

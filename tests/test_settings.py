@@ -8,7 +8,7 @@ import pytest
 
 from cq_ros.lab.results import manifest_for
 from cq_ros.gridmap import load_map, parse_map
-from cq_ros.settings import Settings, SettingsError, run_settings
+from cq_ros.settings import Settings, SettingsError, run_settings, run_settings_and_presets
 
 FIELDS = [f.name for f in dataclasses.fields(Settings)]
 INT_FIELDS = [f.name for f in dataclasses.fields(Settings) if f.type in ("int", int)]
@@ -210,3 +210,39 @@ def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():
             assert table[name][1].startswith(description)
     with pytest.raises(KeyError):
         Settings.describe("no_such_setting")
+
+
+# Algorithm 2 as the paper reads, setting by setting (docs/choices.md's table says which value is the paper's):
+# written out here, not read from cq_ros.settings, so that a change there shows.
+PAPERS_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
+             "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0}
+
+
+@pytest.mark.parametrize("map_name", ["tunnel_to_goal_3", "warehouse_8", "warehouse_8_delayed"])
+def test_the_paper_preset_is_the_papers_cq_on_every_map_delayed_or_not(map_name):
+    gridmap = load_map(map_name)
+    settings, presets = run_settings_and_presets(gridmap, [], "paper")
+    assert {k: getattr(settings, k) for k in PAPERS_CQ} == PAPERS_CQ
+    assert set(PAPERS_CQ) == {f for f in FIELDS if f.startswith("cq_")}  # no cq_ choice left out
+    # every other setting is the run's without the preset (the map's own, its delays)
+    plain = run_settings(gridmap)
+    assert {k: v for k, v in settings.as_dict().items() if k not in PAPERS_CQ} == \
+        {k: v for k, v in plain.as_dict().items() if k not in PAPERS_CQ}
+    # the manifest's record: the preset's settings; under delays it leaves nothing to `under_delays`
+    assert presets == {"paper": PAPERS_CQ}
+    assert run_settings(gridmap, [], "paper") == settings
+
+
+def test_presets_say_what_they_set_and_the_user_wins_over_them():
+    delayed = load_map("warehouse_8_delayed")
+    settings, presets = run_settings_and_presets(delayed)
+    assert presets == {"under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1,
+                                        "cq_look_if_decisive": 1}}
+    _, presets = run_settings_and_presets(delayed, ["cq_mark_range=2"])
+    assert presets == {"under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_look_if_decisive": 1}}
+    assert run_settings_and_presets(load_map("warehouse_8"))[1] == {}  # no delay, no preset
+    settings, presets = run_settings_and_presets(delayed, ["cq_mark_range=2"], "paper")
+    assert settings.cq_mark_range == 2 and settings.cq_w1_alone == 0
+    assert presets == {"paper": {k: v for k, v in PAPERS_CQ.items() if k != "cq_mark_range"}}
+    with pytest.raises(SettingsError, match="unknown preset 'papers'; presets are: paper"):
+        run_settings(delayed, [], "papers")

@@ -170,6 +170,21 @@ def _read_bag(path):
     return out
 
 
+def record_until_heard(talker: Talker, *args: str) -> subprocess.CompletedProcess:
+    """`cq-ros record ARGS` stopped (Ctrl-C) once it has heard every topic of the talker, however long that took."""
+    recorder = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "record", *args, "--duration",
+                                 str(TOOL_TIMEOUT_S)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert talker.heard(TOOL_TIMEOUT_S), "the recorder never subscribed to every topic"
+        recorder.send_signal(signal.SIGINT)
+        stdout, stderr = recorder.communicate(timeout=TOOL_TIMEOUT_S)
+    finally:
+        if recorder.poll() is None:
+            recorder.kill()
+            recorder.wait()
+    return subprocess.CompletedProcess(recorder.args, recorder.returncode, stdout, stderr)
+
+
 @pytest.mark.parametrize("storage, explicit", [("mcap", True), ("sqlite3", False)])
 def test_record_writes_a_bag_that_rosbags_reads_back(talker, tmp_path, storage, explicit):
     from rclpy.serialization import deserialize_message
@@ -181,19 +196,8 @@ def test_record_writes_a_bag_that_rosbags_reads_back(talker, tmp_path, storage, 
     if explicit:
         done = cq_ros("record", "--out", str(bag), "--storage", storage, "--topics", position, stats, "--count", "30",
                       "--duration", str(TOOL_TIMEOUT_S / 2))
-    else:  # every topic found: stopped (Ctrl-C) once the recorder has heard each, however long that took
-        recorder = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "record", "--out", str(bag), "--storage",
-                                     storage, "--duration", str(TOOL_TIMEOUT_S)], stdout=subprocess.PIPE,
-                                    stderr=subprocess.PIPE, text=True)
-        try:
-            assert talker.heard(TOOL_TIMEOUT_S), "the recorder never subscribed to every topic"
-            recorder.send_signal(signal.SIGINT)
-            stdout, stderr = recorder.communicate(timeout=TOOL_TIMEOUT_S)
-        finally:
-            if recorder.poll() is None:
-                recorder.kill()
-                recorder.wait()
-        done = subprocess.CompletedProcess(recorder.args, recorder.returncode, stdout, stderr)
+    else:
+        done = record_until_heard(talker, "--out", str(bag), "--storage", storage)
     assert done.returncode == 0, done.stderr
     recorded = _read_bag(bag)
     if explicit:
@@ -234,3 +238,42 @@ def test_record_that_heard_nothing_exits_1_with_one_line_and_leaves_no_bag(tmp_p
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and f"heard no message on {topic}" in lines[0], done.stderr
     assert not bag.exists() and "recorded" not in done.stdout
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("tool", ["echo", "record"])
+def test_a_name_that_is_no_topic_is_one_line_naming_it_and_exit_2(tool, tmp_path):
+    args = ["echo", "not a topic"] if tool == "echo" else ["record", "--out", str(tmp_path / "bag"), "--topics",
+                                                           "not a topic", "--duration", "1"]
+    done = cq_ros(*args)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.strip().splitlines() == [
+        f"cq-ros {tool}: error: 'not a topic' is not a topic name: topic name must not contain characters other "
+        "than alphanumerics, '_', '~', '{', or '}'"]
+    assert not (tmp_path / "bag").exists()
+
+
+def test_record_with_a_namespace_records_that_systems_topics_and_resolves_relative_ones_there(talker, ros_context,
+                                                                                             tmp_path):
+    # Another system's project topic on the same domain, latched: a recorder of every namespace would get it.
+    other = rclpy.create_node("other", namespace=f"/other_{uuid.uuid4().hex[:8]}", context=ros_context)
+    try:
+        other.create_publisher(POSITION.msg_type, position_topic(1), POSITION.qos).publish(
+            encode(Position(agent=1, episode=0, step=0, row=0, col=0)))
+        namespace = talker.namespace.removeprefix("/")
+        every = record_until_heard(talker, "--out", str(tmp_path / "every"), "--namespace", namespace)
+        relative = cq_ros("record", "--out", str(tmp_path / "one"), "--namespace", f"/{namespace}", "--topics",
+                          "agv2/position", "--count", "5", "--duration", str(TOOL_TIMEOUT_S / 2))
+    finally:
+        other.destroy_node()
+    assert every.returncode == 0, every.stderr
+    assert set(_read_bag(tmp_path / "every")) == {talker.topic(t) for t in ("agv1/position", "agv2/position",
+                                                                            "world/stats")}
+    assert relative.returncode == 0, relative.stderr
+    assert set(_read_bag(tmp_path / "one")) == {talker.topic("agv2/position")}
+
+
+def test_record_refuses_a_namespace_that_is_no_ros_name_in_one_line(tmp_path):
+    done = cq_ros("record", "--out", str(tmp_path / "bag"), "--namespace", "9lives", "--duration", "1")
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert "namespace '9lives' is not a ROS namespace" in done.stderr and not (tmp_path / "bag").exists()

@@ -20,8 +20,7 @@ from .node import WorldNode
 
 def main() -> int:
     if help_requested(sys.argv):
-        print_help(__doc__, ("world",))
-        return 0
+        return print_help(__doc__, ("world",))
     return run_node(WorldNode, "world_node", (SettingsError,))
 
 

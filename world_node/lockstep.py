@@ -31,7 +31,9 @@ learners behind one AGV.
 No progress. A world whose acting agents all miss NO_PROGRESS_STEPS steps in a row, and for at least
 `rejoin_time` (the node's startup_timeout), is alive but goes nowhere (agents that gave up on it, or that
 refuse it: a restarted world is another incarnation, which the agents of its earlier life never take for it):
-it says so in `no_progress`, and the node ends the run (exit code 1). The time is there because an agent
+it says so in `no_progress`, and the node ends the run (exit code 1). So does one agent that misses as many
+steps for as long while the others play (its process gone and not restarted, its executor stuck, or deaf to its
+feedback): `no_progress` names it. The time is there because an agent
 restarted mid-run (`cq-ros launch --restart-agents`, a respawning supervisor) needs as long to join as one
 starting: on a busy machine that is longer than ten short step timeouts while its peers wait at their goals.
 
@@ -50,7 +52,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from cq_ros.gridmap import GridMap
-from node_runtime.parameters import check_numbers, map_and_settings
+from node_runtime.parameters import MIN_HEARTBEAT_PERIOD, check_numbers, map_and_settings
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
@@ -94,7 +96,7 @@ def world_config(values: Mapping[str, Any]) -> WorldConfig:
     """Check the node's parameter values (name -> value, already of the declared ROS type)."""
     check_numbers(values, (("episodes", 1, False), ("seed", 0, False), ("run", 0, False), ("step_timeout", 0, True),
                            ("startup_timeout", 0, True), ("min_stats_subscribers", 0, False),
-                           ("heartbeat_period", 0, True)))
+                           ("heartbeat_period", MIN_HEARTBEAT_PERIOD, False)))
     gridmap, settings = map_and_settings(values)
     return WorldConfig(gridmap, settings, values["episodes"], values["seed"], values["run"],
                        values["step_timeout"], values["startup_timeout"], values["min_stats_subscribers"],
@@ -139,6 +141,7 @@ class Lockstep:
         self.silent_steps = 0  # steps in a row that every acting agent missed
         self.rejoin_time = rejoin_time  # seconds of such silence before `no_progress` too
         self.silent_for = 0.0  # seconds those steps waited, awake (Patience: a stall of the node is no silence)
+        self.quiet: dict[int, tuple[int, float]] = {}  # agent -> (steps in a row it missed, their seconds awake)
         self._actions: list[int | None] = []
         self._patience = Patience(step_timeout, self.tick_period, clock)  # the wait for the step's actions
 
@@ -173,6 +176,7 @@ class Lockstep:
             return []
         self._actions[agent - 1] = action
         self.waiting.discard(agent)
+        self.quiet.pop(agent, None)
         if self.waiting:
             return []
         self.silent_steps, self.silent_for = 0, 0.0
@@ -194,13 +198,21 @@ class Lockstep:
         silent = len(missing) == acting
         self.silent_steps = self.silent_steps + 1 if silent else 0
         self.silent_for = self.silent_for + waited if silent else 0.0
+        names = ", ".join(agent_namespace(k) for k in missing)
+        limits = f"step_timeout={self.step_timeout} s each, startup_timeout={self.rejoin_time:g} s at least"
         if self.silent_steps >= NO_PROGRESS_STEPS and self.silent_for >= self.rejoin_time and self.no_progress is None:
             self.no_progress = (f"no action from any agent in {self.silent_steps} steps in a row, "
-                                f"{self.silent_for:.1f} s (step_timeout={self.step_timeout} s each, startup_timeout="
-                                f"{self.rejoin_time:g} s at least): the agents gave up on this world or refuse it "
-                                "(a world restarted mid-run is another incarnation to them)")
+                                f"{self.silent_for:.1f} s ({limits}; acting: {names}): they are gone, stuck or take "
+                                "no feedback, or they gave up on this world or refuse it (a world restarted mid-run "
+                                "is another incarnation to them)")
+        for k in missing:
+            steps, seconds = self.quiet.get(k, (0, 0.0))
+            self.quiet[k] = steps, seconds = steps + 1, seconds + waited
+            if steps >= NO_PROGRESS_STEPS and seconds >= self.rejoin_time and self.no_progress is None:
+                self.no_progress = (f"no action from {agent_namespace(k)} in {steps} steps in a row, {seconds:.1f} s "
+                                    f"({limits}) while the others play: it is gone, stuck, or takes no feedback")
         self._log(f"episode {self.episode} step {self.step}: no action from "
-                  f"{', '.join(agent_namespace(k) for k in missing)} within step_timeout={self.step_timeout} s "
+                  f"{names} within step_timeout={self.step_timeout} s "
                   f"(waited {waited:.2f} s); they stay for this step")
         self.waiting.clear()
         return self._advance()

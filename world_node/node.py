@@ -118,7 +118,8 @@ class WorldNode(Node):
         self._heartbeats = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
                                                     HEARTBEAT.reader_qos, raw=True)
         self._senders[Heartbeat] = lambda h: self._heartbeat.publish(serialize_heartbeat(h, key))
-        self._senders[WorldStats] = lambda w: self._stats.publish(serialize(w, key=key))
+        self._senders[WorldStats] = lambda w: self._stats.publish(
+            serialize(w, key=key, stamp=self.get_clock().now().to_msg()))
         self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
         self._graph = GraphWatch(self.get_name(), self.get_namespace(), self.get_logger().warning)
         self._waits_logged = False

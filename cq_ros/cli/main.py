@@ -21,7 +21,8 @@ from ..lab.runner import RunFailed
 from ..learners import ALGORITHMS, LEARNERS
 from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
-from ..settings import SettingsError
+from ..settings import PRESETS, SettingsError
+from .pipe import reader_may_leave
 
 
 class _Parser(argparse.ArgumentParser):
@@ -74,6 +75,11 @@ def _algos(text: str) -> list[str]:
         what = ", ".join(unknown) if unknown else repr(text)
         raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(LEARNERS)}")
     return algos
+
+
+def _sizes(text: str) -> list[int]:
+    """Comma-separated fleet sizes, each once."""
+    return list(dict.fromkeys(_agents(part) for part in text.split(",")))
 
 
 def _seeds(text: str) -> list[int]:
@@ -190,7 +196,7 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--episodes", type=_episodes, default=None, help="episodes (default 500)")
     p.add_argument("--seed", type=_seed, default=None, help="master seed (default 0)")
     p.add_argument("--domain-id", type=_domain_id, default=None, metavar="N",
-                   help="ROS_DOMAIN_ID of the run (default: random in 100..200)")
+                   help="ROS_DOMAIN_ID of the run (default: the environment's ROS_DOMAIN_ID, else random in 100..200)")
     p.add_argument("--namespace", default=None,
                    help="ROS namespace of the run, e.g. /demo or demo (default: random cq_<hex>)")
     p.add_argument("--step-timeout", type=_seconds, default=2.0, metavar="S",
@@ -277,6 +283,9 @@ def _add_ros_parsers(sub) -> None:
     p.add_argument("--duration", type=_seconds, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--count", type=_positive, default=None, metavar="N", help="stop after N messages")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage plugin (default mcap)")
+    p.add_argument("--namespace", default=None,
+                   help="record one system's topics: those under this namespace, against which relative --topics "
+                        "resolve (default: every cq_ros topic, under any namespace)")
     _add_domain_option(p)
 
     p = sub.add_parser("render", help="draw one episode as an animated GIF (or MP4 where ffmpeg is installed): "
@@ -369,6 +378,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five)")
     p.add_argument("--out", type=Path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
+    p.add_argument("--preset", choices=list(PRESETS), default=None,
+                   help="a named configuration over the map's settings, under --set: paper, CQ as Algorithm 2 "
+                        "reads (every cq_* choice at the paper's value, also under delays). The presets that "
+                        "set anything are printed on stderr and listed in the manifest (`presets`)")
     _add_run_options(p, runs=10, episodes=10_000)
 
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
@@ -411,20 +424,41 @@ def build_parser() -> argparse.ArgumentParser:
                    help="master seeds, instead of --seed: the grid runs once per seed (the first's in OUT, the "
                         "others' in OUT/seed_S), and when the collision averages settle (claims 1 and 2) is quoted "
                         "as a range over them, which takes at least 3 (e.g. 0,1,2)")
+    p = sub.add_parser("study", help="learners on held-out delayed warehouses, frozen greedy policies against the "
+                                     "planner: intervals over units, paired differences, ratios (OUT/study.md)",
+                       description="Per fleet size, MAPS warehouses generated from held-out generator seeds x RUNS "
+                       "runs; every configuration learns EPISODES episodes, then plays its greedy policy frozen "
+                       "(and, unless --no-learning-copy, learning, in a second run of the same seeds). "
+                       "cq_ros.lab.held_out says what it prints.")
+    p.add_argument("--agents", type=_sizes, required=True, metavar="N,N,...", help="fleet sizes, e.g. 8,12")
+    p.add_argument("--maps", type=_positive, default=10, help="generated maps per size (default 10)")
+    p.add_argument("--greedy-episodes", type=_number(1, kind=int), default=100, metavar="G",
+                   help="greedy episodes per unit and copy (default 100)")
+    p.add_argument("--algos", type=_algos, default=["cq", "indep", "near"],
+                   help="comma-separated, the first the reference of differences and ratios (default cq,indep,near)")
+    p.add_argument("--paper", action="store_true", help="add the paper's CQ (algo cq, preset paper) as cq_paper")
+    p.add_argument("--slip", type=_number(0, 1), default=0.1, metavar="P", help="the maps' slip (default 0.1)")
+    p.add_argument("--no-learning-copy", dest="learning_copy", action="store_false",
+                   help="play the frozen greedy policy only (half the learning)")
+    p.add_argument("--out", type=Path, required=True, help="result directory (study.md, units.csv, maps/)")
+    _add_run_options(p, runs=10, episodes=2000)
     _add_ros_parsers(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    return reader_may_leave(lambda: _main(argv))
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # `launch --hosts` runs them again on the world's host
     try:
         with _sigterm_as_ctrl_c():
             return _dispatch(args)
-    except BrokenPipeError:  # the reader left (`cq-ros maps | head`): nothing to tell it; no traceback at exit
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    except BrokenPipeError:  # the reader left (`cq-ros maps | head`): main's to end quietly, not an OSError below
+        raise
     except (MapError, SettingsError, FileExistsError, ValueError) as e:
         parser.exit(2, f"cq-ros {args.command}: error: {e}\n")
     except RunFailed as e:  # the traceback (the worker's, wherever the run was), then the line naming the run

@@ -13,7 +13,7 @@ from pathlib import Path
 from ..gridmap import available_maps, load_map, parse_map
 from ..lab.output import check_parent, removed_if_failing
 from ..mapgen.warehouse import warehouse_text
-from ..settings import Settings, run_settings
+from ..settings import Settings, run_settings, run_settings_and_presets
 
 
 def maps(args) -> int:
@@ -49,11 +49,13 @@ def experiment(args) -> int:
     from ..lab.experiment import experiment
 
     # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
-    settings = run_settings(load_map(args.map), args.overrides)
+    settings, presets = run_settings_and_presets(load_map(args.map), args.overrides, args.preset)
+    for name, changed in presets.items():
+        print(f"preset {name}: " + " ".join(f"{k}={v}" for k, v in changed.items()), file=sys.stderr)
     with removed_if_failing(args.out):  # results are written at the end: a run cut short leaves no folder
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
                          workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster,
-                         engine=args.engine)
+                         engine=args.engine, presets=presets)
     print_summary(out)
     print(f"results: {out}")
     return 0
@@ -231,5 +233,19 @@ def _note(line: str) -> None:
     print(f"cq-ros render: {line}", file=sys.stderr, flush=True)
 
 
+def study(args) -> int:
+    from ..lab.held_out import parse_configs, study
+
+    for agents in args.agents:  # a bad setting fails before any work starts
+        run_settings(parse_map(warehouse_text(agents, slip=args.slip)), args.overrides)
+    with removed_if_failing(args.out):
+        print(study(args.out, args.agents, args.maps, args.runs, args.episodes, args.greedy_episodes,
+                    parse_configs(args.algos, args.paper), args.seed, args.slip,
+                    args.overrides, args.jobs, args.cluster, args.learning_copy, args.force,
+                    shlex.join(["cq-ros", *args.argv])), end="")
+    print(f"results: {args.out}", file=sys.stderr)
+    return 0
+
+
 COMMANDS = {"maps": maps, "show": show, "settings": settings, "generate": generate, "import": import_,
-            "experiment": experiment, "reproduce": reproduce, "render": render}
+            "experiment": experiment, "reproduce": reproduce, "render": render, "study": study}

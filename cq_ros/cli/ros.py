@@ -173,7 +173,7 @@ def ros_tool(args) -> int:
         else:
             check_parent(args.out, "--out")
             tools.record(args.out, topics=args.topics, duration_s=args.duration, count=args.count,
-                         storage=args.storage, domain_id=args.domain_id)
+                         storage=args.storage, domain_id=args.domain_id, namespace=args.namespace)
     except tools.ToolError as e:
         print(f"cq-ros {args.command}: error: {e}", file=sys.stderr)
         return 1

@@ -16,7 +16,7 @@ from ..engine import RunResult
 from ..gridmap import GridMap, load_map
 from .results import engines_of, manifest_for, prepare_output, write_results
 from .runner import run_all
-from ..settings import Settings, run_settings
+from ..settings import Settings, run_settings_and_presets
 
 
 @dataclass(frozen=True)
@@ -49,12 +49,15 @@ def run_jobs(jobs: list[Job], workers: int | None = None, label: str = "runs", p
 
 def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: int, out: Path,
                settings: Settings | None = None, workers: int | None = None, force: bool = False,
-               figures: bool = True, cluster: str | None = None, engine: str = "compiled") -> Path:
+               figures: bool = True, cluster: str | None = None, engine: str = "compiled",
+               presets: dict | None = None) -> Path:
     """Run every algorithm on one map and write the result directory; returns it. Without `settings`, the
     run's are the map's (`cq_ros.settings.run_settings`). The runs go to `workers` local processes, or to the
-    Dask scheduler at `cluster`, and play on `engine` (cq_ros.compiled.play)."""
+    Dask scheduler at `cluster`, and play on `engine` (cq_ros.compiled.play). The manifest's `presets`: the
+    settings each preset set (`presets`, or without `settings` those of the map's own delays)."""
     gridmap = load_map(map_name)
-    settings = run_settings(gridmap) if settings is None else settings
+    if settings is None:
+        settings, presets = run_settings_and_presets(gridmap)
     out = prepare_output(out, force)
     started = time.perf_counter()
     jobs = [Job(str(map_name), a, r, episodes, seed, settings, engine) for a in algos for r in range(runs)]
@@ -62,7 +65,7 @@ def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: 
     wall = time.perf_counter() - started
     write_results(out, gridmap, list(results.values()),
                   manifest_for(gridmap, algos, runs, episodes, seed, settings, wall, executed_on,
-                               engine=engines_of(results.values())))
+                               engine=engines_of(results.values()), presets=presets or {}))
     if figures:
         from .plots import write_figures  # matplotlib only where figures are wanted
 

@@ -1,6 +1,7 @@
 """`cq-ros reproduce`: the paper's grid (its four maps x five algorithms), its figures, the same grid with
-exploration that stops, a settings sweep and REPORT.md, in which every claim of the paper's section 4 is
-checked against the numbers measured.
+exploration that stops, a settings sweep, the paper's CQ (the preset `paper`: Algorithm 2 as the paper reads)
+beside ours on the four maps, and REPORT.md, in which every claim of the paper's section 4 is checked against the
+numbers measured.
 
 The verdicts are computed, not written: a claim that does not reproduce says so, with its figure. So is
 the report's "In short" section, which docs/choices.md quotes word for word (tests/test_docs.py checks it).
@@ -22,7 +23,7 @@ from typing import NamedTuple
 from .experiment import Job, run_jobs
 from ..gridmap import load_map
 from ..learners import ALGORITHMS
-from ..settings import Settings
+from ..settings import PRESETS, Settings
 from .results import (EPISODES, GREEDY, OBSERVE, GreedyRun, load_episodes, load_greedy, load_observations,
                       engines_of, manifest_for, prepare_output, versions, write_results)
 from .summary import Metrics, compute_metrics, settled_episode, summary_table
@@ -36,6 +37,7 @@ THRESHOLDS = (0.05, 0.1)
 # every algorithm alike) keeps such runs to seconds; those episodes count as truncated.
 DECAY_STEP_CAP = 500
 IN_SHORT = "## In short"
+PAPER_CQ_DIR = "paper_cq"  # the paper's CQ (preset `paper`) on the four maps, first seed, fixed exploration
 MIN_SEEDS = 3  # a crossing episode is quoted only as a range over at least this many seeds
 
 
@@ -60,6 +62,11 @@ def sweep_variants(base: Settings) -> list[Variant]:
         Variant("confidence_fading", "joint states fade fast (conf_up 0.1, conf_max 1)",
                 {"conf_up": 0.1, "conf_max": 1.0}),
     ]
+
+
+def papers_cq(settings: Settings) -> Settings:
+    """The grid's settings with CQ as the paper reads it (the preset `paper`), whatever the grid's cq_* are."""
+    return settings.with_overrides(PRESETS["paper"])
 
 
 def decaying(settings: Settings, episodes: int) -> Settings:
@@ -92,6 +99,8 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
     for v in variants:
         jobs += [Job(SWEEP_MAP, "cq", r, episodes, seeds[0], settings.with_overrides(v.changes), engine)
                  for r in range(runs)]
+    paper = papers_cq(settings)
+    jobs += [Job(m, "cq", r, episodes, seeds[0], paper, engine) for m in PAPER_MAPS for r in range(runs)]
     jobs = list(dict.fromkeys(jobs))  # the "defaults" variant is the grid's own CQ runs on the sweep map
     results, executed_on = run_jobs(jobs, workers, label="reproduce", cluster=cluster)
     wall = time.perf_counter() - started
@@ -115,6 +124,13 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
         write_results(where, load_map(SWEEP_MAP), mine, manifest_for(load_map(SWEEP_MAP), ["cq"], runs, episodes,
                                                                      seeds[0], changed, wall, executed_on,
                                                                      variant=v.name, engine=engines_of(mine)))
+    for m in PAPER_MAPS:
+        mine = [results[j] for j in jobs if (j.map_name, j.seed, j.settings, j.algo) == (m, seeds[0], paper, "cq")]
+        where = out / PAPER_CQ_DIR / m
+        where.mkdir(parents=True, exist_ok=True)
+        write_results(where, load_map(m), mine, manifest_for(load_map(m), ["cq"], runs, episodes, seeds[0], paper,
+                                                             wall, executed_on, presets={"paper": PRESETS["paper"]},
+                                                             engine=engines_of(mine)))
     if figures:
         from .plots import write_figures
 
@@ -214,6 +230,7 @@ def render_report(out: Path, runs: int, episodes: int, seeds: Sequence[int], set
             lines.append(f"- {path}: " + (", ".join(f"[{f}]({path}/{f})" for f in figures) or "(not drawn)"))
     decay_name, decay_data = list(regimes.items())[1]
     lines += ["", f"## With exploration that stops ({decay_name})", "", summary_table(decay_data[0], settled=False)]
+    lines += ["", *_papers_cq_section(out, data, seeds)]
     if variants:
         lines += ["", *_sweep_section(out, variants)]
     return "\n".join(lines) + "\n"
@@ -553,6 +570,24 @@ def _sweep_section(out: Path, variants: list[Variant]) -> list[str]:
         (m,) = compute_metrics(load_episodes(out / "sweep" / v.name / EPISODES))
         lines.append(f"| {v.name} | {v.why} | {m.collisions_tail:.3f} ± {m.collisions_tail_std:.3f} | "
                      f"{m.final_states:.1f} | {m.joint_plays_tail:.2f} |")
+    return lines
+
+
+def _papers_cq_section(out: Path, data, seeds: Sequence[int]) -> list[str]:
+    """Ours against the paper's CQ (the preset `paper`) on the four maps, the first seed, fixed exploration."""
+    ours = {x.map: x for x in compute_metrics(data) if x.algo == "cq"}
+    lines = [f"## The paper's CQ beside ours ({_seed_list(seeds[:1])}, {exploration(Settings())})", "",
+             "The preset `paper` (`cq-ros experiment --algo cq --preset paper`): every cq_* choice at the paper's "
+             "value (docs/choices.md). Ours / the paper's:", "",
+             "| map | collisions/ep (last 10%) | final states | joint plays/ep (last 10%) | greedy collisions/ep "
+             "(steps/ep) |", "|---|---:|---:|---:|---:|"]
+    for m in PAPER_MAPS:
+        (theirs,) = compute_metrics(load_episodes(out / PAPER_CQ_DIR / m / EPISODES))
+        greedy = (_greedy(out / m).get("cq"), _greedy(out / PAPER_CQ_DIR / m).get("cq"))
+        lines.append(f"| {m} | {ours[m].collisions_tail:.3f} / {theirs.collisions_tail:.3f} "
+                     f"| {ours[m].final_states:.1f} / {theirs.final_states:.1f} "
+                     f"| {ours[m].joint_plays_tail:.2f} / {theirs.joint_plays_tail:.2f} | "
+                     + (" / ".join(_g(g) for g in greedy) if all(greedy) else "not played") + " |")
     return lines
 
 
