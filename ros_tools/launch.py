@@ -601,8 +601,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 raise LaunchError(f"{child.describe_exit()} after {len(listener.world)}/{listener.episodes} "
                                   f"episodes and cannot restart: {e}") from None
         ids = learners if child.name == "jsa" else [params["agent_id"]]
-        learnt = min(max((listener.newest[k].episode for k in ids if k in listener.newest), default=-1), episodes - 1)
-        lost = max(0, learnt - resumed)
+        # its learner had learnt at least to the checkpoint it wrote, whose statistics may not have come in yet
+        heard = max((listener.newest[k].episode for k in ids if k in listener.newest), default=-1)
+        learnt = max(min(heard, episodes - 1), resumed)
+        lost = learnt - resumed
         listener.learning_lost.setdefault(child.name, []).append(
             {"learnt_to": learnt, "resumed_from": resumed, "episodes": lost})
         start = f"its checkpoint of episode {resumed}" if resumed >= 0 else "a fresh learner (no checkpoint yet)"

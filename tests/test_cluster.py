@@ -87,7 +87,8 @@ def test_a_grid_on_the_cluster_writes_the_files_of_a_run_in_one_process_and_on_a
 
 
 def test_progress_on_the_cluster_counts_the_episodes_the_workers_play(cluster, capsys):
-    jobs = [Job("grid_game_2", "cq", r, 3000, 0, Settings(eval_episodes=0)) for r in range(2)]
+    # the reference engine: the compiled one plays both runs within one progress interval
+    jobs = [Job("grid_game_2", "cq", r, 3000, 0, Settings(eval_episodes=0), "reference") for r in range(2)]
     results, _ = run_jobs(jobs, label="test", progress_interval=0.05, cluster=cluster.address)
     assert [r.run for r in results.values()] == [0, 1]
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("test: runs")]
