@@ -34,6 +34,7 @@ from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
 from node_runtime.patience import Patience
+from node_runtime.report import node_report
 from node_runtime.run import when, when_acked
 
 from .checkpoint import checkpoint_bytes, write_checkpoint
@@ -156,6 +157,10 @@ class AgentNode(Node):
         self.get_logger().info(f"{cfg.algo} learner for {', '.join(map(agent_namespace, agents))} on map "
                                f"{cfg.gridmap.name}, {cfg.episodes} episodes, then "
                                f"{cfg.settings.eval_episodes} greedy")
+
+    def report(self) -> dict:
+        """What it counted so far, by kind and by topic (node_runtime.report)."""
+        return node_report(self.get_name(), self.driver.counters(), self.driver.drops)
 
     def _on_feedback(self, agent: int, msg: Any) -> None:
         self._apply(self.driver.on_feedback(agent, msg))

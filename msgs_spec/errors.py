@@ -77,7 +77,9 @@ class DropCounter:
 
     A source that refuses `every` messages within FLOOD_WINDOW_S is flooded: one line says so, with its rate,
     and no further line comes for it (its drops are still counted), so a flood of thousands a second costs no
-    log line each, nor one every `every`-th (`floods`: source -> the rate it was reported at).
+    log line each, nor one every `every`-th (`floods`: source -> the rate it was reported at). Every drop is
+    also counted by its source (`by_source`: a topic -> its drops, whatever their kind), so a node's report says
+    where junk came in.
 
     Not thread-safe by itself: use it from one executor thread (the project uses SingleThreadedExecutor).
     """
@@ -92,12 +94,14 @@ class DropCounter:
         self._counts: dict[str, int] = {}
         self._windows: dict[str, list] = {}  # source -> [its window's start, drops in it]
         self.floods: dict[str, float] = {}  # source -> drops a second when it was reported a flood
+        self.by_source: dict[str, int] = {}  # source -> its drops (of any kind)
 
     def record(self, error: WireError, source: str = "") -> int:
         """Count `error`; log it if it is the first of its kind or an every-th one, unless its source is
         flooded (said once). Returns the kind's count."""
         n = self._counts.get(error.kind, 0) + 1
         self._counts[error.kind] = n
+        self.by_source[source] = self.by_source.get(source, 0) + 1
         if self._log is None or source in self.floods:
             return n
         now = self._clock()

@@ -10,7 +10,13 @@ without the key (`cq-ros collect`, `ros2 topic echo`) reads both forms, as it do
 Sealed as the arrays are: a sender holding a RunKey puts its run nonce (`run`, 16 hex digits) and its
 incarnation (`inc`, 8) before the `mac`, which covers them, so a recording of an earlier run under the same key
 file is no statistic of this one. A receiver told the run (`run=`, or a RunKey's) refuses a statistic sealed
-with another, or with none, as `other_run`."""
+with another, or with none, as `other_run`.
+
+Decoders take a message or its serialized bytes (a raw subscription's). Bytes are judged from their CDR header
+before they are deserialized (`_oversized`): a status count other than 1 is `wrong_layout`; more pairs than a
+statistic of the map can hold (`pairs_bound`), or more bytes than so many pairs of the longest keys and values
+take (`bytes_bound`), is `malformed`. A flood's statistics of 2,000 pairs or 500 statuses so cost a header's
+reading, not a deserialization."""
 
 from __future__ import annotations
 
@@ -28,8 +34,9 @@ from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_no
 from .errors import WireError
 from .payloads import AgentStats, Bounds, MarkedJointState, WorldStats
 
-__all__ = ["WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
-           "encode_world_stats", "decode_world_stats", "encode_agent_stats", "decode_agent_stats"]
+__all__ = ["WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS", "COUNTERS_MAX",
+           "pairs_bound", "bytes_bound", "encode_world_stats", "decode_world_stats", "encode_agent_stats",
+           "decode_agent_stats"]
 
 WORLD_STATS_NAME = "world/stats"
 
@@ -123,6 +130,8 @@ def _parse_bool(key: str, s: str) -> bool:
 
 
 def _counter_pairs(counters: Mapping[str, int]) -> list[tuple[str, str]]:
+    if len(counters) > COUNTERS_MAX:
+        raise WireError("malformed", f"{len(counters)} counters, more than {COUNTERS_MAX}")
     out = []
     for name in sorted(counters):
         if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
@@ -133,6 +142,84 @@ def _counter_pairs(counters: Mapping[str, int]) -> list[tuple[str, str]]:
     return out
 
 
+
+# -- how large a statistic can be, judged before it is deserialized ------------------------------------------
+
+# A node counts a few dozen kinds of things (every WireError kind dropped, a dozen of its own, a checkpoint
+# failure per errno seen): encoders refuse more counters than this, so no statistic carries more.
+COUNTERS_MAX = 256
+_KEY_CHARS = 64  # the longest key: a counter's name ('count.dropped.other_incarnation' is 31)
+# Everything but the pairs: the encapsulation, the header (stamp, an empty frame_id), the status count, level,
+# name, the one-line summary, hardware id and the pair count, with room to spare.
+_HEAD_BYTES = 1024
+
+
+def pairs_bound(bounds: Bounds, agent: bool) -> int:
+    """The most pairs a statistic of a map of `bounds` can carry: a world's fixed keys, a return per agent,
+    COUNTERS_MAX counters and the seal; an agent's fixed keys, a marked joint state per (own cell, peer, peer
+    cell) of the grid, the counters and the seal."""
+    cells = bounds.rows * bounds.cols
+    fixed = len(_AGENT_INT_KEYS) + 1 + cells * cells * (bounds.n_agents - 1) if agent else 6 + bounds.n_agents
+    return fixed + COUNTERS_MAX + len(SEAL_KEYS)
+
+
+def bytes_bound(pairs: int) -> int:
+    """The longest serialized statistic of `pairs` pairs, each of the longest key and value (a state count of
+    WIDE_DIGITS digits and a sign); a string on the wire is its length word, its characters and NUL, and up to 3
+    bytes of alignment."""
+    pair = (4 + _KEY_CHARS + 1 + 3) + (4 + WIDE_DIGITS + 1 + 1 + 3)
+    return _HEAD_BYTES + pairs * pair
+
+
+def _string_end(raw: bytes, at: int) -> int:
+    """Where the CDR string at `at` (aligned to 4 first) ends; ValueError if it is no string."""
+    at += -at % 4
+    (n,) = struct.unpack_from("<I", raw, at)
+    if not 1 <= n <= len(raw) - at - 4 or raw[at + 4 + n - 1] != 0:
+        raise ValueError(f"a string of {n} bytes at {at}")
+    return at + 4 + n
+
+
+def _oversized(raw: bytes, bounds: Bounds | None, agent: bool) -> WireError | None:
+    """The refusal of a serialized DiagnosticArray read from its header alone (the counts of statuses and of the
+    first status's pairs, and its length against the map's bounds), or None: deserialize it and check it."""
+    try:
+        at = _string_end(raw, 12)  # after the encapsulation and the stamp: the frame_id
+        at += -at % 4
+        (statuses,) = struct.unpack_from("<I", raw, at)
+        if statuses != 1:
+            return WireError("wrong_layout", f"{statuses} statuses, expected exactly 1")
+        at += 4 + 1  # the level, a byte
+        for _ in range(3):  # name, message, hardware_id
+            at = _string_end(raw, at)
+        at += -at % 4
+        (pairs,) = struct.unpack_from("<I", raw, at)
+    except (struct.error, ValueError) as e:
+        return WireError("malformed", f"not a serialized DiagnosticArray ({len(raw)} bytes): {e}")
+    if bounds is None:
+        return None
+    most = pairs_bound(bounds, agent)
+    if pairs > most:
+        return WireError("malformed", f"{pairs} pairs, more than the {most} a statistic of this map carries")
+    if len(raw) > bytes_bound(most):
+        return WireError("malformed", f"{len(raw)} bytes, more than the {bytes_bound(most)} of the longest statistic "
+                                      "of this map")
+    return None
+
+
+def _message(msg: Any, bounds: Bounds | None, agent: bool) -> Any:
+    """`msg`, or the message of serialized bytes that pass `_oversized` (refused otherwise, unread)."""
+    if type(msg) is not bytes:
+        return msg
+    refusal = _oversized(msg, bounds, agent)
+    if refusal is not None:
+        raise refusal
+    from rclpy.serialization import deserialize_message
+
+    try:
+        return deserialize_message(msg, DiagnosticArray)
+    except Exception as e:  # rclpy raises its own errors for bytes that are no such message
+        raise WireError("malformed", f"not a serialized DiagnosticArray: {e}") from None
 
 
 def _mac_hex(key: bytes, name: str, hardware_id: str, pairs: list[tuple[str, str]]) -> str:
@@ -255,8 +342,9 @@ def encode_world_stats(s: WorldStats, *, stamp: Time | None = None, key: bytes |
 
 def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
                        episode: int | None = None, key: Any = None, run: int | None = None) -> WorldStats:
-    """`key`: the run's (bytes, or a RunKey); `run`: the run nonce it must be sealed with (None: a RunKey's)."""
-    name, hw, values = _stats_values(msg, key, run)
+    """`msg`: a DiagnosticArray or its serialized bytes; `key`: the run's (bytes, or a RunKey); `run`: the run
+    nonce it must be sealed with (None: a RunKey's)."""
+    name, hw, values = _stats_values(_message(msg, bounds, False), key, run)
     if name != WORLD_STATS_NAME or hw != "world":
         raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "
                                         f"expected {WORLD_STATS_NAME!r} 'world'")
@@ -338,7 +426,7 @@ def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None, key: bytes |
 def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, agent: int | None = None,
                        episode: int | None = None, key: Any = None, run: int | None = None) -> AgentStats:
     """As decode_world_stats."""
-    name, hw, values = _stats_values(msg, key, run)
+    name, hw, values = _stats_values(_message(msg, bounds, True), key, run)
     m = re.fullmatch(r"agv([0-9]+)/stats", name)
     if not m or hw != f"agv{m.group(1)}":
         raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, "

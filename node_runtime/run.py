@@ -18,6 +18,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
+from .report import report_line
+
 __all__ = ["EXECUTORS", "EXECUTOR_ENV", "SPIN_S", "FASTDDS_PROFILE", "FASTDDS_PROFILE_ENV", "executor_kind",
            "make_executor", "spin_nodes", "run_node", "POLL_S", "when", "FLUSH_TIMEOUT_S", "when_acked"]
 
@@ -89,7 +91,8 @@ def spin_nodes(executor: Any, nodes: list[Any], stop: Callable[[], bool] = lambd
 def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[Exception], ...]) -> int:
     """The `python -m world_node|agent_node|ros_tools.compose` main: spin the node, or the list of nodes,
     made by make_node() on the default context, on one executor (`make_executor`), until every `done`
-    Future holds its exit code; the process exits with the largest. A bad parameter (an exception in
+    Future holds its exit code; the process exits with the largest. Each node's report (node_runtime.report:
+    its counters as they stand at the end) is printed once the executor has stopped. A bad parameter (an exception in
     bad_input) is one line on stderr and exit code 2; Ctrl-C or SIGTERM exit code 130. make_node() must
     destroy what it made before it raises. Fast DDS reads FASTDDS_PROFILE unless $FASTRTPS_DEFAULT_PROFILES_FILE
     names another file."""
@@ -132,7 +135,8 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
     finally:
         # Jazzy order (docs/design.md, field notes): executor, then nodes, then the context.
         executor.shutdown()
-        for node in nodes:
+        for node in nodes:  # nothing more is counted once the executor stopped: each node's last word
+            print(report_line(node.report()), flush=True)
             node.destroy_node()
         rclpy.try_shutdown()
     return code

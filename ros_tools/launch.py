@@ -102,6 +102,7 @@ from cq_ros.settings import Settings, SettingsError, coerce, run_settings, split
 from msgs_spec import agent_namespace, new_key_file
 from msgs_spec.auth import KEY_BYTES, new_run
 from node_runtime.parameters import AGENT_PARAMETERS, WORLD_PARAMETERS, read_key_parameter
+from node_runtime.report import read_reports
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import TWIN_EXIT as WORLD_TWIN, world_config
 
@@ -233,6 +234,16 @@ class Child:
         how = f" (killed by {signal.Signals(-code).name})" if code is not None and code < 0 else ""
         said = self.last_error()
         return f"{self.name} (pid {self.process.pid}) exited with code {code}{how}" + (f" ({said})" if said else "")
+
+    def reports(self) -> dict[str, dict]:
+        """The reports its nodes printed at their end since its latest start (node_runtime.report; none if it was
+        killed, or still runs), by node name."""
+        try:
+            with open(self.log, "rb") as f:
+                f.seek(self.logged_at_start)
+                return read_reports(f.read().decode(errors="replace"))
+        except OSError:
+            return {}
 
     def last_error(self) -> str | None:
         """The node's last ERROR line, without rclpy's prefix (a refusal says why there), if its log has one."""
@@ -576,11 +587,15 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
 
     learner_nodes = list(nodes)[1:]
 
+    def reports() -> dict[str, dict]:
+        """Every node's report at its end (each child's log, since its latest start): its final counters."""
+        return {name: report for c in children for name, report in c.reports().items()}
+
     def write_ended(reason: str, how: str, status: int) -> str:
         """The manifest of a launch that ended before its results (`reason`): what became of it, for the line."""
         return write_ended_early(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started, rows,
                                  node_info(), run_info, reason, listener, learners, learner_nodes,
-                                 ended={"how": how, "reason": reason, "exit_status": status})
+                                 ended={"how": how, "reason": reason, "exit_status": status}, reports=reports())
 
     def ended_early(reason: str) -> EndedEarly:
         kept = write_ended(f"the launcher {reason}", "disk", EndedEarly.exit_status)
@@ -684,7 +699,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         # Degraded or clean: known from the statistics only, so the manifest is written with both and then told.
         result = write_heard(out, gridmap, algo, episodes, seed, settings, time.perf_counter() - started,
                              listener, learners, learner_nodes, node_info(), run_info, episodes_written=True,
-                             ended=_ended_as(listener, learners))
+                             ended=_ended_as(listener, learners), reports=reports())
         rows.free()
         if figures:
             from cq_ros.lab.plots import write_figures  # matplotlib only where figures are wanted

@@ -23,7 +23,7 @@ import os
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -38,9 +38,10 @@ from msgs_spec import (
     AGENT_STATS, HEARTBEAT, HEARTBEAT_TOPIC, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WireError,
     WorldStats, agent_stats_topic, decode_agent_stats, decode_heartbeat, decode_world_stats,
 )
+from node_runtime.report import rates
 
 __all__ = ["RESERVE_NAME", "RESERVE_BYTES", "DEPARTURES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
-           "write_ended_early", "checkpoint_failures", "departures", "describe_departures"]
+           "write_ended_early", "checkpoint_failures", "departures", "describe_departures", "counted"]
 
 RESERVE_NAME = ".reserve"  # in the result directory while the launch runs
 RESERVE_BYTES = 64 * 1024  # room for the manifest (a few KiB) once the disk is full
@@ -76,7 +77,11 @@ class StatsListener:
     With the run's `key` only this system's statistics count; given the `run` nonce, only this run's (one sealed
     with another, a recording of an earlier run under the same key file, is `dropped.other_run`). The first
     statistic heard for an episode is kept: a later one that says otherwise is a conflict, never a replacement,
-    logged and counted (`dropped.conflicting`) and named by topic and episode (`conflicts`)."""
+    logged and counted (`dropped.conflicting`) and named by topic and episode (`conflicts`).
+
+    Statistics are read as bytes and judged from their header before they are deserialized (msgs_spec.stats:
+    a flood's 2,000 pairs or 500 statuses cost a header's reading). A heartbeat that does not decode is counted
+    too (by its own counter, quietly: the heartbeat is only a display here, not worth a line)."""
 
     def __init__(self, node: Any, gridmap: GridMap, episodes: int, key: bytes | None = None, run: int | None = None):
         self.node, self.key, self.run = node, key, run
@@ -87,6 +92,7 @@ class StatsListener:
         # those lines are held, and shown once the run is heard (`show_held`) or dropped with the launch.
         self.held: list[str] | None = []
         self.drops = DropCounter(self._drop_line)
+        self.beats_dropped = DropCounter()
         self.world: dict[int, WorldStats] = {}
         self.collisions = 0  # over the episodes heard so far, for the progress display
         self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
@@ -99,15 +105,15 @@ class StatsListener:
         # went back to (ros_tools.launch records them; the manifest's `restarts.learning_lost`)
         self.learning_lost: dict[str, list[dict[str, int]]] = {}
         self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
-                                                     partial(self._on_agent, k), AGENT_STATS.qos)
+                                                     partial(self._on_agent, k), AGENT_STATS.qos, raw=True)
                             for k in self.agents]
         self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
-                                                   WORLD_STATS.qos)
+                                                   WORLD_STATS.qos, raw=True)
         # Where the world is, by its heartbeat (every second): progress within an episode, which on a big map
-        # can take minutes. Only a display: a heartbeat that does not decode is not worth a line.
+        # can take minutes.
         self.at: tuple[int, int] | None = None
         self._heartbeat_sub = node.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
-                                                       HEARTBEAT.reader_qos)
+                                                       HEARTBEAT.reader_qos, raw=True)
 
     def _drop_line(self, line: str) -> None:
         if self.held is None:
@@ -130,11 +136,9 @@ class StatsListener:
             self.collisions += stats.collisions
 
     def _on_heartbeat(self, msg: Any) -> None:
-        try:
-            beat = decode_heartbeat(msg, key=self.key)
-        except WireError:
-            return
-        self.at = (beat.episode, beat.step)
+        beat = self.beats_dropped.guard(decode_heartbeat, msg, key=self.key, source=HEARTBEAT_TOPIC)
+        if beat is not None:
+            self.at = (beat.episode, beat.step)
 
     def _on_agent(self, agent: int, msg: Any) -> None:
         stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent, key=self.key,
@@ -160,8 +164,16 @@ class StatsListener:
         return {topic: _ranges(sorted(set(episodes))) for topic, episodes in self.conflicts.items()}
 
     def launcher_counts(self) -> dict[str, Any]:
-        """The manifest's `launcher`: what the listener dropped, by kind, and the conflicts by topic."""
-        return {"dropped": self.drops.as_counters(),
+        """The manifest's `launcher`: what the listener dropped, by kind and by topic, the topics it heard a flood
+        on, and the conflicts by topic."""
+        by_kind, by_topic = self.drops.as_counters(), dict(self.drops.by_source)
+        for kind, n in self.beats_dropped.as_counters().items():
+            by_kind[kind] = by_kind.get(kind, 0) + n
+        for topic, n in self.beats_dropped.by_source.items():
+            by_topic[topic] = by_topic.get(topic, 0) + n
+        return {"dropped": dict(sorted(by_kind.items())),
+                **({"dropped_on": dict(sorted(by_topic.items()))} if by_topic else {}),
+                **({"floods": rates(self.drops.floods)} if self.drops.floods else {}),
                 **({"conflicts": self.named_conflicts()} if self.conflicts else {})}
 
     def row(self, episode: int, learners: list[int]) -> Episode | None:
@@ -341,16 +353,30 @@ def checkpoint_failures(counters: dict[str, int]) -> list[str]:
     return out
 
 
+def counted(name: str, last: Any, reports: Mapping[str, dict]) -> dict[str, Any]:
+    """A node's counters for the manifest: those of its report at exit (node_runtime.report) where it left one,
+    so that what it counted after its last statistics is in, with its drops by topic and its floods; else those
+    of its last statistics `last` (None: none heard). `counters_as_of` says which."""
+    report = reports.get(name)
+    if report is not None:
+        return {"counters": report["counters"], "counters_as_of": "exit",
+                **{part: report[part] for part in ("dropped_on", "floods") if report[part]}}
+    if last is None:
+        return {"counters": {}, "counters_as_of": "nothing heard"}
+    return {"counters": dict(last.counters), "counters_as_of": f"episode {last.episode} (its last statistics)"}
+
+
 def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
                 wall: float, listener: StatsListener, learners: list[int], learner_nodes: list[str],
                 nodes: dict, run_info: dict, *, episodes_written: bool = False,
-                ended: dict | None = None) -> LaunchResult:
+                ended: dict | None = None, reports: Mapping[str, dict] | None = None) -> LaunchResult:
     """episodes.csv (unless `episodes_written`: a launch's EpisodeRows wrote it), observe.csv, greedy.csv and
     manifest.json from the statistics heard: the first `episodes` (learning) and the greedy ones after them
     (ros_tools.launch says what comes from where); `nodes` is the manifest's account of the nodes (a launch's
     commands and exit codes), run_info the run's own entries, `ended` how the launch ended (as
-    write_ended_early's). `cq-ros collect` (ros_tools.collect) writes through it too. OSError if the disk refuses
-    them."""
+    write_ended_early's), `reports` the nodes' reports at exit (`counted`). `cq-ros collect` (ros_tools.collect)
+    writes through it too. OSError if the disk refuses them."""
+    reports = reports or {}
     played = range(listener.episodes)
     world = [listener.world[e] for e in played]
     per_learner = [[listener.agents[k][e] for k in learners if e in listener.agents[k]] for e in played]
@@ -363,9 +389,9 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
         communication={name: {"subscriptions_created": s.subscriptions_created,
                               "subscriptions_active": s.subscriptions_active,
-                              "peer_messages": s.peer_messages, "counters": dict(s.counters)}
+                              "peer_messages": s.peer_messages, **counted(name, s, reports)}
                        for name, s in zip(learner_nodes, final)},
-        world={"missed_actions": sum(w.missed_actions for w in world), "counters": dict(world[-1].counters),
+        world={"missed_actions": sum(w.missed_actions for w in world), **counted("world", world[-1], reports),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher=listener.launcher_counts(),
         departures=departures(listener, learners), **({"ended": ended} if ended is not None else {}),
@@ -377,20 +403,24 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
 def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
                       wall: float, rows: EpisodeRows, nodes: dict, run_info: dict, reason: str,
                       listener: StatsListener | None = None, learners: list[int] | None = None,
-                      learner_nodes: list[str] | None = None, ended: dict | None = None) -> str:
+                      learner_nodes: list[str] | None = None, ended: dict | None = None,
+                      reports: Mapping[str, dict] | None = None) -> str:
     """manifest.json of a launch that ended early (`reason`), with the rows written and, given the `listener`,
-    the counters heard so far (each node's last statistics) and the departures from the offline run; what
-    became of it, for the launch's last line."""
+    the counters (each node's report at exit, else its last statistics: `counted`) and the departures from the
+    offline run; what became of it, for the launch's last line."""
     heard = {}
+    reports = reports or {}
     if listener is not None and learners is not None:
         world = [listener.world[e] for e in sorted(listener.world)]
         heard = {"departures": departures(listener, learners),
                  "world": {"missed_actions": sum(w.missed_actions for w in world),
-                           "counters": dict(world[-1].counters) if world else {}},
+                           **counted("world", world[-1] if world else None, reports)},
                  "communication": {name: {"episodes_heard": len(listener.agents[k]),
-                                          "peer_messages": listener.newest[k].peer_messages,
-                                          "counters": dict(listener.newest[k].counters)}
-                                   for name, k in zip(learner_nodes or [], learners) if k in listener.newest},
+                                          **({"peer_messages": listener.newest[k].peer_messages}
+                                             if k in listener.newest else {}),
+                                          **counted(name, listener.newest.get(k), reports)}
+                                   for name, k in zip(learner_nodes or [], learners)
+                                   if k in listener.newest or name in reports},
                  "launcher": listener.launcher_counts(), **listener.restarts()}
     manifest = manifest_for(gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
                             ended_early={"reason": reason, "episodes_written": rows.written}, **heard,

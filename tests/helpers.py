@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import os
 import pickle
 import sys
@@ -228,3 +229,140 @@ def crafted_pickle(path, marker):
     """A checkpoint of the old pickled format whose learner, once unpickled, has run code (made `marker`)."""
     path.write_bytes(pickle.dumps({"format": 3, "algo": "cq", "map": "tunnel_to_goal", "agent": 0, "episode": 5,
                                    "learner": Payload(marker)}))
+
+
+# -- a junk flood on every topic of a namespace ------------------------------------------------------------
+
+def _array(ros_type, label: str, size: int, data) -> bytes:
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import MultiArrayDimension
+
+    msg = ros_type()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
+    msg.data = list(data)
+    return serialize_message(msg)
+
+
+def _statistics(statuses: list[tuple[str, str, list[tuple[str, str]]]]) -> bytes:
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from rclpy.serialization import serialize_message
+
+    return serialize_message(DiagnosticArray(status=[
+        DiagnosticStatus(name=name, hardware_id=hw, values=[KeyValue(key=k, value=v) for k, v in pairs])
+        for name, hw, pairs in statuses]))
+
+
+def junk(spec, agent: int | None, rng) -> list[bytes]:
+    """Serialized junk for a topic of `spec` (agent k's, or the world's with None), one of each kind a flood
+    without the key sends: garbage values, NaN and infinities (or int32's extremes), negative ids, a well-formed
+    message without a MAC, a forged MAC, 20,000 values, a 10 KB label, a wrong length; on a statistics topic
+    2,000 pairs, 500 statuses, a well-formed statistic without a MAC, garbage values, a 10 KB value."""
+    from msgs_spec import AGENT_STATS, encode
+    from msgs_spec.arrays import LAYOUT_BY_PAYLOAD
+    from msgs_spec.payloads import INT32_MAX
+
+    if spec.msg_type.__name__ == "DiagnosticArray":
+        name, hw = (f"agv{agent}/stats", f"agv{agent}") if spec is AGENT_STATS else ("world/stats", "world")
+        well_formed = [(kv.key, kv.value) for kv in encode(_example(spec)(agent)).status[0].values]
+        return [_statistics([(name, hw, [(f"k{i}", str(rng.random())) for i in range(2000)])]),
+                _statistics([(name, hw, well_formed)] * 500),
+                _statistics([(name, hw, well_formed)]),
+                _statistics([(name, hw, [(k, "nan" if i % 2 else "-3") for i, (k, _) in enumerate(well_formed)])]),
+                _statistics([(name, hw, [*well_formed[:-1], (well_formed[-1][0], "9" * 10_000)])])]
+    layout = LAYOUT_BY_PAYLOAD[spec.payload]
+    floats = layout.ros_type.__name__ == "Float64MultiArray"
+    n, label = layout.size, layout.label
+    extremes = [math.nan, math.inf, -math.inf] if floats else [INT32_MAX, -INT32_MAX - 1]
+    forged_mac = [rng.randrange(2**31) for _ in range(n + 7)]
+    return [_array(layout.ros_type, label, n, [rng.randrange(-99, 10**6) for _ in range(n)]),
+            _array(layout.ros_type, label, n, [extremes[i % len(extremes)] for i in range(n)]),
+            _array(layout.ros_type, label, n, [-1 - i for i in range(n)]),
+            _array(layout.ros_type, label, n, [agent or 1] + [0] * (n - 1)),
+            _array(layout.ros_type, layout.keyed_label, n + 7, forged_mac),
+            _array(layout.ros_type, label, 20_000, range(20_000)),
+            _array(layout.ros_type, "x" * 10_000, n, range(n)),
+            _array(layout.ros_type, label, n, range(n - 2))]
+
+
+def _example(spec):
+    from dataclasses import replace
+
+    from msgs_spec import AGENT_STATS
+    from msgs_spec.doc import EXAMPLES
+
+    if spec is AGENT_STATS:
+        return lambda agent: replace(EXAMPLES["agent_stats"], agent=agent, marked=())
+    return lambda _agent: EXAMPLES["world_stats"]
+
+
+class Flood:
+    """A node with a writer on every topic of a system's namespace (`n_agents` agents), sending junk (`junk`)
+    round the topics, no key. `sent` counts what went to each topic (relative name); `refused_keyless` the
+    heartbeats a reader without the key refuses too (the world reads heartbeats so: a twin has a key of its
+    own). Writers keep 1000 messages for their readers (1 on the latched position topics, whose history each new
+    subscription is sent). The context is its own, with the nodes' Fast DDS profile."""
+
+    def __init__(self, namespace: str, n_agents: int, seed: int, domain_id: int):
+        import random
+
+        import rclpy
+        from rclpy.context import Context
+
+        from msgs_spec import HEARTBEAT, POSITION, agent_topics, decode_heartbeat
+        from msgs_spec.topics import replace_depth
+        from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV
+
+        os.environ.setdefault(FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node("flood", namespace=f"/{namespace}", context=self.context)
+        rng = random.Random(seed)
+        self.topics = []  # (relative name, its writer, its junk)
+        for name, spec, agent in agent_topics(n_agents):
+            qos = replace_depth(spec.qos, 1 if spec is POSITION else 1000)
+            self.topics.append((name, self.node.create_publisher(spec.msg_type, name, qos), junk(spec, agent, rng)))
+        self.sent = {name: 0 for name, _, _ in self.topics}
+        self.refused_keyless = 0
+        self._heartbeat = HEARTBEAT.pattern
+        self._keyless = {}
+        for name, _, messages in self.topics:
+            if name == self._heartbeat:
+                for raw in messages:
+                    try:
+                        decode_heartbeat(raw)
+                        self._keyless[raw] = False
+                    except Exception:
+                        self._keyless[raw] = True
+        self._turn = 0
+
+    def matched(self, readers: dict[str, int]) -> bool:
+        """Whether each topic named in `readers` has at least that many readers matched."""
+        counts = {name: pub.get_subscription_count() for name, pub, _ in self.topics}
+        return all(counts[name] >= n for name, n in readers.items())
+
+    def send(self, n: int) -> None:
+        """n more messages, a topic after the other, each topic's junk kinds in turn."""
+        for _ in range(n):
+            name, pub, messages = self.topics[self._turn % len(self.topics)]
+            raw = messages[(self._turn // len(self.topics)) % len(messages)]
+            pub.publish(raw)
+            self.sent[name] += 1
+            if name == self._heartbeat and self._keyless[raw]:
+                self.refused_keyless += 1
+            self._turn += 1
+
+    @property
+    def total(self) -> int:
+        return self._turn
+
+    def acknowledged(self, timeout_s: float) -> bool:
+        """Whether every reader has acknowledged all that was sent, within timeout_s."""
+        from rclpy.duration import Duration
+
+        return all(pub.wait_for_all_acked(Duration(seconds=timeout_s)) for _, pub, _ in self.topics)
+
+    def close(self) -> None:
+        import rclpy
+
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)

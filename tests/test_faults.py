@@ -1077,3 +1077,64 @@ def test_a_heartbeat_beat_may_jump_only_as_far_as_the_time_since_the_last_allows
     now[0] += 2.0
     assert beat(link.beat + beat_bound(2.0)) and not beat(link.beat + beat_bound(0.0) + 1)
     assert link.drops["far_ahead"] == 2 and link.drops["replayed"] == 0
+
+
+# -- a junk flood, and every drop counted however the run ends ---------------------------------------------
+
+
+def test_a_nodes_report_at_exit_is_read_back_by_node_and_a_cut_line_is_none():
+    """node_runtime.report: the last report of each node in a log (a composed process's holds several) is read
+    back as written; a line cut short, or with a count that is no count, is no report."""
+    from msgs_spec import DropCounter, WireError
+    from node_runtime.report import node_report, read_reports, report_line
+
+    drops = DropCounter(lambda _line: None, clock=itertools.count().__next__)
+    for _ in range(3):
+        drops.record(WireError("malformed", "junk"), "agv1/action")
+    drops.record(WireError("unauthenticated"), "world/heartbeat")
+    first = node_report("world", {"dropped.malformed": 3, "dropped.unauthenticated": 1}, drops)
+    assert first["dropped_on"] == {"agv1/action": 3, "world/heartbeat": 1}
+    later = {**first, "counters": {"dropped.malformed": 4}}
+    agent = node_report("agv1", {}, DropCounter())
+    log = "\n".join(["[INFO] [1.0] [world]: stepping", report_line(first), report_line(agent), report_line(later),
+                     report_line({**later, "node": "agv2"})[:-5], report_line({**agent, "node": "agv3",
+                                                                                  "counters": {"x": -1}})])
+    assert read_reports(log) == {"world": later, "agv1": agent}
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_world_that_never_steps_reports_every_junk_message_it_refused_at_its_exit(tmp_path, key_file,
+                                                                                     ros_domain_id):
+    """A keyed world whose agents never come sends no statistics at all: everything it refuses (a flood on every
+    topic, no key) is counted after its last statistic. It gives up after its startup_timeout (exit 1), and its
+    report at exit (node_runtime.report) counts each junk message it read, by topic: every one on its action
+    topics, and those of world/heartbeat a reader without the key refuses (it reads heartbeats so)."""
+    from helpers import Flood
+    from node_runtime.report import read_reports
+
+    namespace, log = unique("report"), tmp_path / "world.log"
+    with open(log, "wb") as out:
+        world = subprocess.Popen([sys.executable, "-m", "world_node", "--ros-args", "-r", f"__ns:=/{namespace}",
+                                  "-p", "map:=tunnel_to_goal", "-p", "episodes:=5", "-p", "startup_timeout:=20.0",
+                                  "-p", f"key_file:={key_file}"], stdout=out, stderr=subprocess.STDOUT)
+    flood = Flood(namespace, 2, seed=1, domain_id=ros_domain_id)
+    try:
+        wait_until(lambda: flood.matched({"agv1/action": 1, "agv2/action": 1, "world/heartbeat": 1}), 60.0,
+                   "the world's readers", ended=lambda: world.poll() is not None, detail=lambda: text_of(log))
+        flood.send(4000)
+        assert flood.acknowledged(30.0)
+        code = world.wait(60.0)
+    finally:
+        flood.close()
+        if world.poll() is None:
+            world.kill()
+            world.wait(30)
+    assert code == 1 and "no start after startup_timeout" in text_of(log), text_of(log)
+    report = read_reports(text_of(log))["world"]
+    sent = flood.sent
+    assert report["dropped_on"] == {"agv1/action": sent["agv1/action"], "agv2/action": sent["agv2/action"],
+                                    "world/heartbeat": flood.refused_keyless}, (report, sent)
+    assert sum(v for k, v in report["counters"].items() if k.startswith("dropped.")) == \
+        sum(report["dropped_on"].values())
+    assert {"dropped.wrong_length", "dropped.wrong_layout", "dropped.unauthenticated"} <= set(report["counters"])

@@ -236,7 +236,7 @@ def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
                         r"after \d+/100020 episodes \(its log: .*agv1\.log\); stopped world, agv2 \(logs in .*\)",
                         last), last
     # what was heard is kept (the launcher writes each episode's row as it comes), and the manifest says how the
-    # run ended, with the counters heard so far
+    # run ended, with the counters of each node
     heard = int(re.search(r"after (\d+)/100020 episodes", last)[1])
     assert len((out / "episodes.csv").read_text().splitlines()) == 1 + heard
     manifest = json.loads((out / "manifest.json").read_text())
@@ -245,6 +245,9 @@ def test_a_killed_agent_stops_the_launch_with_one_line_naming_it(tmp_path):
     assert manifest["ended_early"]["episodes_written"] == heard
     assert manifest["nodes"]["agv1"]["exit_code"] == -9
     assert set(manifest["communication"]) <= {"agv1", "agv2"} and "counters" in manifest["world"]
+    # the nodes the launcher stopped said what they had counted at their exit; the killed one could not
+    assert manifest["world"]["counters_as_of"] == manifest["communication"]["agv2"]["counters_as_of"] == "exit"
+    assert manifest["communication"].get("agv1", {}).get("counters_as_of", "episode") != "exit"
     assert not (out / ".reserve").exists()
     _assert_no_key_left(manifest)
 

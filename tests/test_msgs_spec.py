@@ -942,3 +942,60 @@ def test_bytes_longer_than_the_keyed_form_are_refused_from_their_header_unread(m
         decode(raw)
     assert as_bytes.value.kind == as_object.value.kind and read == ([] if oversized else [raw])
     assert oversized == (n > 4 or len(label) > 100)
+
+
+_MARKED_MOST = 5 * 11 * 5 * 11 * 2  # B's grid: every (own cell, peer, peer cell) of 3 agents
+
+
+@pytest.mark.parametrize("name, values, n_status, kind", [
+    ("world/stats", [(f"k{i}", "v") for i in range(2000)], 1, "malformed"),
+    ("world/stats", _ws_values(), 500, "wrong_layout"),
+    ("world/stats", _ws_values(), 0, "wrong_layout"),
+    ("world/stats", _ws_values(steps="1" * 400_000), 1, "malformed"),
+    ("agv1/stats", [(f"marked.{i}", "x") for i in range(_MARKED_MOST + 400)], 1, "malformed"),
+], ids=["2000-pairs", "500-statuses", "no-status", "400KB-value", "agent-too-many-pairs"])
+def test_statistics_too_large_for_the_map_are_refused_from_their_header_unread(monkeypatch, name, values, n_status,
+                                                                               kind):
+    """A flood's statistics of 2,000 pairs, 500 statuses or a 400 KB value are refused from their CDR header,
+    never deserialized: more pairs than a statistic of the map can carry, more bytes than so many of the longest
+    pairs take, or a status count other than 1."""
+    from msgs_spec import stats
+
+    raw = serialize_message(_stats(values, name, name.split("/")[0], n_status))
+    read = []
+    monkeypatch.setattr("rclpy.serialization.deserialize_message", lambda *a: read.append(a))
+    decode = dws if name == "world/stats" else das
+    with pytest.raises(ms.WireError) as refused:
+        decode(raw, bounds=B)
+    assert refused.value.kind == kind and read == [], refused.value
+    assert stats.pairs_bound(B, agent=False) < 300 < _MARKED_MOST < stats.pairs_bound(B, agent=True)
+
+
+def test_statistics_as_bytes_decode_as_the_message_does_up_to_the_largest_the_map_allows():
+    """Serialized statistics (what a raw subscription hears) decode to what the message decodes to, keyed and
+    sealed or not, an agent's with as many marked joint states and counters as its map and the contract allow;
+    a bad one as bytes is refused with the message's kind."""
+    from msgs_spec import stats
+
+    key = RunKey(KEY, run=7)
+    world = doc.EXAMPLES["world_stats"]
+    assert dws(serialize_message(ms.encode(world, key=key)), bounds=ms.Bounds(2, 5, 11), key=key) == world
+    cells = [(r, c) for r in range(5) for c in range(11)]
+    marked = tuple(ms.MarkedJointState(*a, 2, *b, -1.2345678901234567e-300) for a in cells for b in cells)
+    counters = {f"c{i:03d}.{'x' * 40}": 2**31 - 1 for i in range(stats.COUNTERS_MAX)}
+    agent = ms.AgentStats(agent=1, episode=2**31 - 1, algorithm="cq", local_states=10**200 - 1,
+                          joint_states=10**200 - 1, marked=marked, counters=counters)
+    bounds = ms.Bounds(2, 5, 11)
+    raw = serialize_message(ms.encode(agent, key=key))
+    assert len(raw) <= stats.bytes_bound(stats.pairs_bound(bounds, agent=True))
+    assert das(raw, bounds=bounds, agent=1, key=key) == agent
+    with pytest.raises(ms.WireError, match="more than 256"):
+        ms.encode(ms.AgentStats(agent=1, episode=0, algorithm="cq", counters={**counters, "one_more": 1}))
+    bad = _stats(_ws_values(steps="-3"))
+    with pytest.raises(ms.WireError) as as_object:
+        dws(bad, bounds=B)
+    with pytest.raises(ms.WireError) as as_bytes:
+        dws(serialize_message(bad), bounds=B)
+    assert as_bytes.value.kind == as_object.value.kind == "out_of_range"
+    with pytest.raises(ms.WireError, match="malformed: not a serialized DiagnosticArray"):
+        dws(b"\x00\x01\x00\x00" + bytes(range(40)), bounds=B)

@@ -29,6 +29,7 @@ from msgs_spec.fast import serialize_feedback, serialize_heartbeat, serialize_po
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph, writers
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
+from node_runtime.report import node_report
 from node_runtime.run import when_acked
 
 from .lockstep import TWIN_EXIT, Lockstep, world_config
@@ -134,6 +135,10 @@ class WorldNode(Node):
         self._timer = self.create_timer(STARTUP_POLL_S, self._wait_for_agents)
         self.get_logger().info(f"map {cfg.gridmap.name}, {world.n} agents, {cfg.episodes} episodes and "
                                f"{cfg.settings.eval_episodes} greedy: waiting for the agents")
+
+    def report(self) -> dict:
+        """What it counted so far, by kind and by topic (node_runtime.report)."""
+        return node_report(self.get_name(), self.core.counters(), self.core.drops)
 
     def _missing(self) -> list[str]:
         """What the first step still waits for: agents whose action or feedback topic is not matched yet
