@@ -1138,3 +1138,97 @@ def test_a_world_that_never_steps_reports_every_junk_message_it_refused_at_its_e
     assert sum(v for k, v in report["counters"].items() if k.startswith("dropped.")) == \
         sum(report["dropped_on"].values())
     assert {"dropped.wrong_length", "dropped.wrong_layout", "dropped.unauthenticated"} <= set(report["counters"])
+
+
+FLOOD_MESSAGES, FLOOD_EPISODES = 40_000, 1000
+FLOOD_SETTINGS = ("step_cap=100", "reward_step=-1", "eval_episodes=2")
+# Every reader a 2-agent launch holds all run long, by topic: the world's of actions and heartbeats, each
+# agent's of its feedback and heartbeats, the launcher's of statistics and heartbeats (an agent reads a peer's
+# positions only while it needs them).
+FLOOD_READERS = {"agv1/action": 1, "agv2/action": 1, "agv1/feedback": 1, "agv2/feedback": 1, "world/heartbeat": 4,
+                 "world/stats": 1, "agv1/stats": 1, "agv2/stats": 1}
+
+
+def rows_written(path) -> int:
+    try:
+        return max(path.read_bytes().count(b"\n") - 1, 0)
+    except FileNotFoundError:
+        return 0
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_40000_message_junk_flood_on_every_topic_leaves_a_launch_the_offline_run_with_every_drop_counted(
+        tmp_path, ros_domain_id):
+    """40,000 junk messages without the key on every topic of a 2-agent keyed `cq-ros launch` (garbage values,
+    NaN and infinities, negative ids, 20,000 values, 10 KB labels, wrong lengths, forged MACs, statistics of
+    2,000 pairs or 500 statuses), spread over the first three fifths of its episodes so that each goes to readers
+    that are there: the run is the offline engine's, clean (exit 0), every junk message a node read is counted in
+    the manifest by topic (each node's report at exit), and a flood is said once per topic and node."""
+    from cq_ros.engine import run
+    from cq_ros.gridmap import load_map
+    from cq_ros.settings import Settings
+    from helpers import Flood
+
+    out, namespace, err = tmp_path / "result", unique("flood"), tmp_path / "stderr.txt"
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, "tunnel_to_goal", "cq", FLOOD_EPISODES,
+                                                   FLOOD_SETTINGS, "--no-figures"),
+                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    flood = Flood(namespace, 2, seed=1, domain_id=ros_domain_id)
+    started = None
+    try:
+        wait_for_line(out / "logs" / "world.log", "stepping", LAUNCH_TIMEOUT_S, launcher, detail=err)
+        wait_until(lambda: flood.matched(FLOOD_READERS), LAUNCH_TIMEOUT_S, "every reader of the flood",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        started = time.monotonic()
+        spread = FLOOD_EPISODES * 3 // 5
+
+        def flooded() -> bool:  # as many more as the episodes heard since call for, up to the flood's end
+            due = min(FLOOD_MESSAGES, (rows_written(out / "episodes.csv") + 1) * FLOOD_MESSAGES // spread)
+            flood.send(due - flood.total)
+            return flood.total == FLOOD_MESSAGES
+
+        wait_until(flooded, LAUNCH_TIMEOUT_S * 3, "the whole flood sent", ended=lambda: launcher.poll() is not None,
+                   detail=lambda: text_of(err), poll_s=0.02)
+        flooded_s = time.monotonic() - started
+        assert flood.acknowledged(30.0), "the flood not acknowledged by its readers"
+        assert launcher.poll() is None, "the run ended before the flood: some junk may have found no reader"
+        code = launcher.wait(LAUNCH_TIMEOUT_S * 3)
+    finally:
+        flood.close()
+        stop_launcher(launcher)
+    assert code == 0, text_of(err)
+    print(f"flood of {FLOOD_MESSAGES} in {flooded_s:.1f} s; the launch {time.monotonic() - started:.1f} s after "
+          f"its first step")
+    offline = run("cq", load_map("tunnel_to_goal"), Settings().with_overrides(list(FLOOD_SETTINGS)), 1, 0,
+                  FLOOD_EPISODES)
+    assert read_rows(out / "episodes.csv") == [(int(e["steps"]), int(e["collisions"]), bool(e["truncated"]))
+                                               for e in offline.episodes]
+    manifest = json.loads((out / "manifest.json").read_text())
+    sent, world, launcher_counts = flood.sent, manifest["world"], manifest["launcher"]
+    agents = manifest["communication"]
+    assert world["counters_as_of"] == agents["agv1"]["counters_as_of"] == agents["agv2"]["counters_as_of"] == "exit"
+    assert world["missed_actions"] == 0 and manifest["ended"]["how"] == "finished"
+    # every junk message each reader was sent is counted where it was read, by topic (a peer's positions, read
+    # now and then, only bounded)
+    assert {t: world["dropped_on"][t] for t in ("agv1/action", "agv2/action", "world/heartbeat")} == {
+        "agv1/action": sent["agv1/action"], "agv2/action": sent["agv2/action"],
+        "world/heartbeat": flood.refused_keyless}, world
+    for k in (1, 2):
+        dropped = agents[f"agv{k}"]["dropped_on"]
+        assert {t: dropped[t] for t in (f"agv{k}/feedback", "world/heartbeat")} == {
+            f"agv{k}/feedback": sent[f"agv{k}/feedback"], "world/heartbeat": sent["world/heartbeat"]}, dropped
+        assert dropped.get(f"agv{3 - k}/position", 0) <= sent[f"agv{3 - k}/position"] * 2
+    assert launcher_counts["dropped_on"] == {t: sent[t] for t in ("agv1/stats", "agv2/stats", "world/stats",
+                                                                   "world/heartbeat")}, launcher_counts
+    for counted in (world, agents["agv1"], agents["agv2"], launcher_counts):
+        kinds = counted["counters"] if "counters" in counted else counted["dropped"]
+        assert sum(v for k, v in kinds.items() if k.startswith("dropped.")) == sum(counted["dropped_on"].values())
+    assert {"dropped.wrong_layout", "dropped.malformed", "dropped.unauthenticated"} <= set(
+        launcher_counts["dropped"])
+    assert {"dropped.wrong_length", "dropped.wrong_layout", "dropped.unauthenticated"} <= set(world["counters"])
+    # a flood is one line per topic in each node's log, never one every 100th message
+    for log in (out / "logs").glob("*.log"):
+        said = re.findall(r"a flood of refused messages on (\S+):", text_of(log))
+        assert len(said) == len(set(said)), (log.name, said)
