@@ -59,12 +59,14 @@ it took, the launch ends early with one line naming the file and the OS's reason
 results folder removed or moved mid-run ends it at the next episode with one line, `ResultsGone`);
 a checkpoint an agent could not write is a warning line at the end, naming the node, the file and the reason.
 The manifest adds the communication cost over the whole launch (per agent node: peer subscriptions created, peer
-messages; the world's missed actions and dropped-message counters).
+messages; the world's missed actions and dropped-message counters, by kind and by topic).
 
 Ends. Every end writes manifest.json: `ended` says how (finished, degraded, node_failed, twin, interrupted,
-disk, incomplete: a node hung or statistics never came), the one-line reason and the exit status, beside the
-counters heard so far (ros_tools.launch_results); only a launch whose world refused at its start (a second
-system here) leaves nothing but its line. The exit
+disk, incomplete: a node hung or statistics never came), the one-line reason and the exit status, beside each
+node's counters: those of the report it printed at its exit (node_runtime.report: what it counted after its
+last statistics too, by topic), else, for a node killed by SIGKILL, its last statistics' (`counters_as_of`;
+ros_tools.launch_results); only a launch whose world refused at its start (a second system here) leaves
+nothing but its line. The exit
 status tells a clean run (`EXIT_CLEAN`, 0) from one that played every episode but left the offline engine's
 behaviour somewhere (`EXIT_DEGRADED`, 3: a missed or unapplied action, a feedback never heard; the summary
 says how many episodes that touched), a launch that failed or ended early (1) and one interrupted (130).
@@ -673,7 +675,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             stopped = f"; stopped {', '.join(stopping)}" if stopping else ""
             # A node that refused (exit 2: a second system here) before any row of this run leaves nothing worth
             # keeping, and the line says why; a node that crashed or was stopped leaves its log to read, and the
-            # manifest says how the run ended, with the counters heard so far.
+            # manifest says how the run ended, with the counters of each node.
             refused = any(c.exit_code == 2 for c in children)
             if rows.written == 0 and refused and made is not None:
                 rows.free()

@@ -309,3 +309,26 @@ def test_no_project_file_cites_a_document_or_tracker_outside_the_repository():
              if OUTSIDE.search(line)]
     assert cited == []
     assert OUTSIDE.search("see issue 18") and OUTSIDE.search("(DESIGN.md, field notes)")
+
+
+def _defined_tests() -> set[str]:
+    return {name for path in (ROOT / "tests").glob("test_*.py")
+            for name in re.findall(r"^\s*(?:async )?def (test_\w+)", path.read_text(), re.M)}
+
+
+def test_every_test_a_page_names_exists():
+    """A page that says which test shows something names a test the suite has (renamed or removed, the page
+    would point nowhere)."""
+    defined = _defined_tests()
+    pages = [README, ROOT / "msgs_spec" / "README.md", *(ROOT / "docs").glob("*.md")]
+    named = {(page.name, name) for page in pages for name in re.findall(r"`(test_\w+)`", page.read_text())}
+    assert len(named) > 40
+    assert [f"{page}: {name}" for page, name in sorted(named) if name not in defined] == []
+
+
+def test_the_faults_table_says_per_fault_what_the_run_does_what_is_counted_and_the_test_that_shows_it():
+    rows = [line for line in (ROOT / "docs" / "faults.md").read_text().splitlines() if line.startswith("| ")]
+    cells = [[c.strip() for c in re.split(r"(?<!\\)\|", row)[1:-1]] for row in rows]
+    assert cells[0] == ["fault", "what the run does", "counted", "shown by"]
+    for fault, does, _counted, shown in cells[2:]:
+        assert does and re.fullmatch(r"`test_\w+`(, `test_\w+`)*", shown), fault
