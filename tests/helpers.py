@@ -312,10 +312,15 @@ class Flood:
         from msgs_spec.topics import replace_depth
         from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV
 
-        os.environ.setdefault(FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node("flood", namespace=f"/{namespace}", context=self.context)
+        before = os.environ.get(FASTDDS_PROFILE_ENV)
+        os.environ.setdefault(FASTDDS_PROFILE_ENV, str(FASTDDS_PROFILE))  # read as the participant is made
+        try:
+            self.context = Context()
+            rclpy.init(context=self.context, domain_id=domain_id)
+            self.node = rclpy.create_node("flood", namespace=f"/{namespace}", context=self.context)
+        finally:  # the test's other contexts as they were
+            if before is None:
+                del os.environ[FASTDDS_PROFILE_ENV]
         rng = random.Random(seed)
         self.topics = []  # (relative name, its writer, its junk)
         for name, spec, agent in agent_topics(n_agents):
