@@ -265,7 +265,8 @@ def _assert_no_key_left(manifest: dict) -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
 def test_a_launcher_ended_by_a_signal_leaves_no_key_and_says_how_it_ended(tmp_path, sig):
-    """SIGTERM: every node stopped, exit 130, the manifest written (how: interrupted, with the counters heard).
+    """SIGTERM: every node stopped, exit 130, the manifest written (how: interrupted, with each node's counters
+    at its exit).
     kill -9: nothing can be written, but the nodes go with the launcher (PR_SET_PDEATHSIG) and the key with
     them: it was never a file with a name."""
     launcher, out, namespace, err = _start_long_launch(tmp_path)
@@ -284,6 +285,9 @@ def test_a_launcher_ended_by_a_signal_leaves_no_key_and_says_how_it_ended(tmp_pa
     assert "interrupted by SIGTERM" in manifest["ended"]["reason"]
     heard = len((out / "episodes.csv").read_text().splitlines()) - 1
     assert manifest["ended_early"]["episodes_written"] == heard
+    # every node stopped said what it had counted at its exit, after its last statistics too
+    assert {manifest["world"]["counters_as_of"]} | {c["counters_as_of"] for c in manifest["communication"].values()} \
+        == {"exit"} and set(manifest["communication"]) == {"agv1", "agv2"}
     _assert_no_key_left(manifest)
 
 
