@@ -117,21 +117,25 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
     executor = make_executor(kind)
     nodes: list[Any] = []
     code = 130
+    # Ctrl-C is two events: rclpy's handler shuts the context down (a spin or a call into rcl then raises
+    # RCLError), then Python's raises KeyboardInterrupt at its next bytecode, which may fall inside the handler of
+    # that RCLError: the outer try takes it wherever it lands.
     try:
-        made = make_node()
-        nodes = made if isinstance(made, list) else [made]
-        for node in nodes:
-            executor.add_node(node)
-        finished = spin_nodes(executor, nodes)
-        code = 130 if finished is None else finished  # None: shut down by a signal
-    except (*bad_input, ParameterException) as e:
-        print(f"{program}: {e}", file=sys.stderr)
-        code = 2
+        try:
+            made = make_node()
+            nodes = made if isinstance(made, list) else [made]
+            for node in nodes:
+                executor.add_node(node)
+            finished = spin_nodes(executor, nodes)
+            code = 130 if finished is None else finished  # None: shut down by a signal
+        except (*bad_input, ParameterException) as e:
+            print(f"{program}: {e}", file=sys.stderr)
+            code = 2
+        except Exception:
+            if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
+                raise
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:
-        if rclpy.ok():  # a real error; otherwise a signal shut the context down while the node was starting
-            raise
     finally:
         # Jazzy order (docs/design.md, field notes): executor, then nodes, then the context.
         executor.shutdown()

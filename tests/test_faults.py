@@ -844,15 +844,17 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
 # -- a run's messages bound to the run, a catch-up bounded ---------------------------------------------------
 
 
-def _inject_once_under_way(system, ros_context, spin_until, messages):
-    """Publish `messages` ((topic, spec, raw bytes) each) every 50 ms once the run is under way."""
+def _inject_once_under_way(system, ros_context, spin_until, messages, before_episode=None):
+    """Publish `messages` ((topic, spec, raw bytes) each) every 50 ms once the run is under way, until it ends
+    or, given `before_episode`, until the world plays that episode: episodes in which every node still reads
+    what was sent, however late a busy machine delivers it."""
     assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
     injector = system.add(rclpy.create_node("injector", context=ros_context))
     pubs = {topic: injector.create_publisher(spec.msg_type, topic, spec.qos) for topic, spec, _ in messages}
     sent = []
 
     def publish():
-        if not system.world.core.finished:
+        if not system.world.core.finished and (before_episode is None or system.world.core.episode < before_episode):
             for topic, _, raw in messages:
                 pubs[topic].publish(raw)
             sent.append(1)
@@ -1049,14 +1051,16 @@ def test_a_far_ahead_heartbeat_by_a_key_holder_is_refused_and_real_ones_still_co
     assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
     world_key = system.world.config.key
     key = RunKey(world_key.secret, run=world_key.run, incarnation=world_key.incarnation)
+    # sent only in the first 30 episodes, so that each agent reads every one (a bound of "all but the last"
+    # failed in a suite run beside two busy loops: the agents ended before reading the last two)
     sent = _inject_once_under_way(system, ros_context, spin_until, [
-        (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(2**31 - 1, 0, 0, 1), key=key))])
+        (HEARTBEAT_TOPIC, HEARTBEAT, serialize(Heartbeat(2**31 - 1, 0, 0, 1), key=key))], before_episode=30)
     finish(system)
     assert len(sent) >= 2
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     for k, agent in enumerate(system.agents, 1):
         assert agent.driver.link.beat < 2**31 - 1
-        assert counters(system, k)["dropped.far_ahead"] >= len(sent) - 1 and "dropped.replayed" not in counters(
+        assert counters(system, k)["dropped.far_ahead"] == len(sent) and "dropped.replayed" not in counters(
             system, k), counters(system, k)
 
 
