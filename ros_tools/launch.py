@@ -134,6 +134,9 @@ NODE_UP_S, STUCK_TRIES = 60.0, 2  # a node process that logs nothing this long a
 CHECKPOINT_EVERY = 50
 AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world finished is stuck
 DRAIN_S = 5.0  # after the last child exits, how long to wait for statistics still in the listener's queue
+# after a child fails, how long to wait for the rows of the episodes the world has said it played: the agents'
+# statistics of its last episode are sent at the same moment as its own and may still be on their way
+LAST_ROWS_S = 2.0
 STATUS_S = 5.0  # between two episodes, how often the progress says where the run is
 STOP_GRACE_S = ((signal.SIGINT, 3.0), (signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0))
 NAMESPACE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -786,6 +789,18 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str, settings: Settings) 
     return paths
 
 
+def _last_rows(executor: Any, listener: StatsListener, rows: EpisodeRows, stop: StopSignals) -> None:
+    """Write the rows of every episode the world has said it played, as their statistics come in (at most
+    LAST_ROWS_S): a run that ends on a failure keeps, and counts, each episode it heard the end of. (A second
+    system's world that stepped one episode before it yielded said "after 1 episodes" and kept no row: its
+    agents' statistics of that episode were still on their way.)"""
+    def written() -> bool:
+        rows.take(listener)
+        return rows.failure is not None or rows.written >= min(len(listener.world), rows.episodes)
+
+    spin_until(executor, written, LAST_ROWS_S, stop)
+
+
 def _where(listener: StatsListener, node_names: list[str]) -> str:
     """Where a run is between two episodes: before its first step how many of its nodes are in the graph, then
     the world's episode and step by its heartbeat."""
@@ -824,6 +839,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
             _restart(failed[0], env, listener, learners, restart_loss)
             continue
         if failed:
+            _last_rows(executor, listener, rows, stop)
             raise LaunchError(f"{failed[0].describe_exit()} after {len(listener.world)}/{listener.episodes} "
                               f"episodes (its log: {failed[0].log})")
         running = [c for c in children if c.running]
