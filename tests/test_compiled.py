@@ -162,17 +162,22 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_w1_alone": 1}),
     ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150})])
-def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides):
-    """K episodes on the reference engine, the team (through a checkpoint's pickle) turned into the kernel's
-    arrays, M more in the kernel (and its greedy episodes) = K + M on the reference engine; handed back, the
-    learners are the reference's."""
-    import pickle
+def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
+    """K episodes on the reference engine, its learners saved as agent checkpoints and loaded back into a team
+    turned into the kernel's arrays, M more in the kernel (and its greedy episodes) = K + M on the reference
+    engine; handed back, the learners are the reference's."""
+    import copy
+
+    from agent_node.checkpoint import load_checkpoint, save_checkpoint
 
     gm = load_map(map_name)
     s = run_settings(gm, overrides)
     team = reference_team(algo, gm, s, 7, 1)
     engine.record.table(team.episode() for _ in range(150))
-    kernel = compiled.kernel_of(pickle.loads(pickle.dumps(team)))
+    for k, learner in enumerate(team.learners):
+        save_checkpoint(tmp_path / f"agv{k}.npz", learner, 149)
+    loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(gm.n_agents)]
+    kernel = compiled.kernel_of(engine.Team(copy.deepcopy(team.world), loaded))
     if algo == "cq":
         theirs = [(k, *js) for k, learner in enumerate(team.learners) for js in learner.joint_states()]
         assert theirs, "a CQ run that marks nothing compares too little"
