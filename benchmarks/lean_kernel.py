@@ -227,6 +227,7 @@ def _lean(nbr, starts, goals, rows, cols, fp, ip, episodes, seed, out):
                         se_above = ss2 / (window - 1) / window
                         conflict = (se_drop > 0.0 and (m2 - m1) / math.sqrt(se_drop) < -t_two
                                     and not (se_above > 0.0 and (m2 - r) / math.sqrt(se_above) < -t_one))
+                local = nkeys[k] == 0  # acted on Q_k: it learns the step, and so do the rows marked now
                 if conflict:  # mark the peers near s, where they are now
                     for j in range(n):
                         if j == k or abs(rows[s] - rows[cells[j]]) + abs(cols[s] - cols[cells[j]]) > near:
@@ -244,7 +245,7 @@ def _lean(nbr, starts, goals, rows, cols, fp, ip, episodes, seed, out):
                             if nkeys[k] < SLOTS:
                                 keys[k, nkeys[k]] = m
                                 nkeys[k] += 1
-                if nkeys[k] == 0:
+                if local:
                     q[k, s, a] += alpha * (target_q - q[k, s, a])
                 for m in range(nkeys[k]):
                     jq[k, s, keys[k, m], a] += alpha * (target_q - jq[k, s, keys[k, m], a])
