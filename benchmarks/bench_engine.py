@@ -5,9 +5,14 @@ medians of interleaved repeats, their ratio, and whether both gave the same epis
 learning only: no greedy evaluation), CQ's ratio to independent learners, and the CPU per agent-step of indep
 and CQ on warehouse_8, _16 and _32 with the maps' own settings, with its ratio of warehouse_32 to warehouse_8
 (1.0 for a step linear in the fleet); optionally the wall time of the whole reproduce grid on all cores.
+`--limit` prints, instead, the limit under the compiled engine: on warehouse_16 and tunnel_to_goal, indep and
+CQ, the CPU per agent-step of the reference engine, the compiled engine, the compiled world alone (learners
+taken out: it replays the joint actions the learners chose, the same episodes) and the leanest kernel of the
+same rules and learning dynamics (benchmarks/lean_kernel.py, which says what it drops), medians of interleaved
+repeats, and their ratios.
 
     python benchmarks/bench_engine.py [--episodes 3000] [--warehouse-episodes 30] [--repeats 3]
-                                      [--engine compiled|reference] [--grid] [--grid-episodes 10000]
+                                      [--engine compiled|reference] [--grid] [--grid-episodes 10000] [--limit]
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import argparse
 import os
 import platform
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -66,6 +72,44 @@ def compare(episodes: dict[str, int], repeats: int) -> None:
               f"{'yes' if same else 'NO'})", flush=True)
 
 
+def limit(episodes: dict[str, int], repeats: int) -> None:
+    """The reference, our compiled engine, the compiled world alone and the lean kernel on the same work,
+    interleaved `repeats` times: medians of CPU ns per agent-step and their ratios."""
+    from lean_kernel import lean_run, recorded_actions, world_alone
+
+    for map_name in ("warehouse_16", "tunnel_to_goal"):  # load (or compile) the lean kernels, not timed
+        gridmap = load_map(map_name)
+        lean_run("cq", gridmap, run_settings(gridmap, {}), 1)
+        world_alone(gridmap, run_settings(gridmap, {}), *recorded_actions("indep", gridmap, Settings(), 1))
+    print(f"{'map':<15} {'algo':<6} {'reference':>10} {'compiled':>9} {'world':>7} {'lean':>7}   "
+          f"ns CPU per agent-step, medians of {repeats}; ratios")
+    for map_name, algo in (("warehouse_16", "indep"), ("warehouse_16", "cq"), ("tunnel_to_goal", "indep"),
+                           ("tunnel_to_goal", "cq")):
+        gridmap = load_map(map_name)
+        settings, n = run_settings(gridmap, {"eval_episodes": 0}), gridmap.n_agents
+        cost: dict[str, list[float]] = {"reference": [], "compiled": [], "world": [], "lean": []}
+        actions, lengths = recorded_actions(algo, gridmap, settings, episodes[map_name])
+        lean_steps = 0
+        for r in range(repeats):
+            for engine in ("reference", "compiled"):
+                ns, steps, table = cpu_per_agent_step(algo, map_name, episodes[map_name], engine)
+                cost[engine].append(ns)
+            started = time.process_time()
+            replayed = world_alone(gridmap, settings, actions, lengths) == table["collisions"].sum()
+            cost["world"].append((time.process_time() - started) / (steps * n) * 1e9)
+            started = time.process_time()
+            lean_steps = int(lean_run(algo, gridmap, settings, episodes[map_name], seed=r)[:, 0].sum())
+            cost["lean"].append((time.process_time() - started) / (lean_steps * n) * 1e9)
+            print(f"  {map_name} {algo} repeat {r + 1}/{repeats}: "
+                  + ", ".join(f"{k} {v[-1]:,.1f}" for k, v in cost.items()), file=sys.stderr, flush=True)
+        ref, comp, world, lean = (statistics.median(cost[k]) for k in cost)
+        print(f"{map_name:<15} {algo:<6} {ref:>10,.0f} {comp:>9,.1f} {world:>7,.1f} {lean:>7,.1f}   "
+              f"reference/compiled {ref / comp:,.0f}x, reference/lean {ref / lean:,.0f}x, compiled/lean "
+              f"{comp / lean:.2f}x, world alone {world / comp:.0%} of compiled  ({steps:,} joint steps "
+              f"compiled, {lean_steps:,} lean, {episodes[map_name]} episodes; the world alone replays the run's "
+              f"collisions: {'yes' if replayed else 'NO'})", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=3000)
@@ -76,6 +120,8 @@ def main() -> None:
     parser.add_argument("--grid", action="store_true", help="also time the full reproduce grid (minutes)")
     parser.add_argument("--grid-runs", type=int, default=10)
     parser.add_argument("--grid-episodes", type=int, default=10_000)
+    parser.add_argument("--limit", action="store_true",
+                        help="only the limit: reference, compiled, world alone and the lean kernel side by side")
     args = parser.parse_args()
 
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
@@ -84,6 +130,10 @@ def main() -> None:
     if not compiled.prepare():
         raise SystemExit("the compiled engine cannot load here: nothing to compare")
     print(f"compiled engine loaded in {time.perf_counter() - started:.1f} s")
+    if args.limit:
+        limit({"tunnel_to_goal": args.episodes, "warehouse_16": args.warehouse_episodes}, args.repeats)
+        print(f"load average {os.getloadavg()[0]:.2f}")
+        return
     compare({"tunnel_to_goal": args.episodes, "warehouse_16": args.warehouse_episodes}, args.repeats)
 
     print(f"engine: {args.engine}")

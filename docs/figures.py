@@ -187,7 +187,7 @@ FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": 
                                          "warehouses": warehouses, "delays": delays,
                                          "delays-held-out": delays_held_out,
                                          **{name: partial(printed, "speed", name)
-                                            for name in ("engine", "ros", "codec")},
+                                            for name in ("engine", "limit", "ros", "codec")},
                                          "lost-samples": partial(printed, "faults", "lost_samples")}
 
 

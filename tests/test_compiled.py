@@ -158,6 +158,40 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     assert engine.greedy_episodes(team, 3).tobytes() == engine.greedy_episodes(reference, 3).tobytes()
 
 
+@pytest.mark.parametrize("algo,map_name,overrides", [
+    ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
+    ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_w1_alone": 1}),
+    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150})])
+def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
+    """K episodes on the reference engine, its learners saved as agent checkpoints and loaded back into a team
+    turned into the kernel's arrays, M more in the kernel (and its greedy episodes) = K + M on the reference
+    engine; handed back, the learners are the reference's."""
+    import copy
+
+    from agent_node.checkpoint import load_checkpoint, save_checkpoint
+
+    gm = load_map(map_name)
+    s = run_settings(gm, overrides)
+    team = reference_team(algo, gm, s, 7, 1)
+    engine.record.table(team.episode() for _ in range(150))
+    for k, learner in enumerate(team.learners):
+        save_checkpoint(tmp_path / f"agv{k}.npz", learner, 149)
+    loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(gm.n_agents)]
+    kernel = compiled.kernel_of(engine.Team(copy.deepcopy(team.world), loaded))
+    if algo == "cq":
+        theirs = [(k, *js) for k, learner in enumerate(team.learners) for js in learner.joint_states()]
+        assert theirs, "a CQ run that marks nothing compares too little"
+        assert kernel.joint_states() == theirs
+    greedy = kernel.greedy().play(3)
+    assert greedy.tobytes() == engine.greedy_episodes(team, 3).tobytes()
+    assert kernel.play(60).tobytes() == engine.record.table(team.episode() for _ in range(60)).tobytes()
+    for ours, theirs in zip(compiled.team_of(kernel).learners, team.learners):
+        assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+        if algo == "cq":
+            assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
+            assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
+
+
 def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
     """The lab's experiment: the kernel plays indep and cq, the reference js (the manifest says so), and
     --engine reference writes the same files."""

@@ -213,3 +213,75 @@ def team_of(kernel: Kernel) -> Team:
     world = GridWorld(kernel.map, kernel.settings)
     set_state(world._rng, kernel.world[3][0])
     return Team(world, learners)
+
+
+def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, tuple], int]) -> None:
+    """Learner k of the kernel from the reference learner `learner` (between episodes): _hand_over's inverse.
+    `slots` gathers the pool slot of each (agent, joint state), in each learner's creation order."""
+    kernel.mt[k] = state_of(learner.rng)
+    ag = kernel.ag[k]
+    kernel.eps[k] = learner.epsilon
+    ag[K.PLAYED], ag[K.PLAYS], ag[K.HEARD] = learner.episodes_played, learner.joint_plays, learner.heard
+    ag[K.S], ag[K.A] = getattr(learner, "s", 0), getattr(learner, "a", 0)
+    kernel.q[k] = learner.q_local
+    if kernel.algo != "cq":
+        return
+    if learner.waiting is not None:
+        raise ValueError("a CQ learner hands over between episodes, where no step waits")
+    ag[K.DROPPED], ag[K.LOOKING] = learner.dropped_updates, learner.looking
+    jsi, jsf = kernel.js[0], kernel.js[1]
+    head, tail, n_js = kernel.js[4], kernel.js[5], kernel.js[6]
+    for key, row in learner.q_joint.items():
+        slot = slots[k, key] = len(slots)
+        jsi[slot, [K.JS_S, K.JS_J, K.JS_C, K.JS_SEQ, K.JS_AGENT]] = (*key, slot, k)
+        jsf[slot] = (learner.confidence[key], *row)
+    for s, keys in learner.marked.items():  # each cell's list in marking order
+        chain = [slots[k, key] for key in keys]
+        head[k, s], tail[k, s] = chain[0], chain[-1]
+        for prev, slot, nxt in zip([-1, *chain], chain, [*chain[1:], -1]):
+            jsi[slot, K.JS_PREV], jsi[slot, K.JS_NEXT] = prev, nxt
+    n_js[k] = len(learner.q_joint)
+    ag[K.NKEYS] = len(learner.keys)
+    kernel.cq[3][k, :len(learner.keys)] = [-1 if key is None else slots[k, key] for key in learner.keys]
+    wi, wf = kernel.win[0][k], kernel.win[1][k]
+    rows = []
+    for w, windows in enumerate(learner.windows):
+        samples = windows.w1 or windows.w2
+        wi[w, [W.N1, W.N2, W.HEAD, W.EXACT2, W.BUF]] = (windows.n1, len(windows.w2), windows.head, windows.exact2,
+                                                        -1)
+        wf[w] = (windows.sum1, windows.sq1, windows.sum2, windows.sq2)
+        if samples or windows.n1 == windows.size:  # the kernel keeps a row from a window's first reward on
+            wi[w, W.BUF] = kernel.win[3][0] + len(rows)
+            rows.append(samples)
+    if rows:
+        pool, used = kernel.win[2], kernel.win[3]
+        pool = W.room(pool, used, len(rows))
+        for i, samples in enumerate(rows):
+            pool[used[0] + i, :len(samples)] = samples
+        used[0] += len(rows)
+        kernel.win = (*kernel.win[:2], pool, *kernel.win[3:])
+
+
+def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
+    """A reference Team (learners and world, between episodes: fresh, learnt or loaded from checkpoints) as the
+    kernel's arrays: it plays on as the reference would have (team_of's inverse). `seed` and `run_index` only
+    name the run; the generators' states are the team's."""
+    learners = team.learners
+    algo = learners[0].name
+    kernel = Kernel(algo, team.world.map, learners[0].settings, seed, run_index)
+    kernel.ip[K.LEARNING] = int(learners[0].learning)
+    kernel.world[3][0] = state_of(team.world._rng)
+    if algo == "cq":
+        total = sum(len(learner.q_joint) for learner in learners)
+        cap = 64
+        while cap < total + len(learners) ** 2:
+            cap *= 2
+        jsi, jsf, free, meta, head, tail, n_js = (np.full((cap, 7), -1, np.int64), np.zeros((cap, 5)),
+                                                  np.arange(cap - 1, total - 1, -1, dtype=np.int64),
+                                                  np.array([cap - total, total], np.int64), *kernel.js[4:])
+        free = np.concatenate([free, np.zeros(total, np.int64)])
+        kernel.js = (jsi, jsf, free, meta, head, tail, n_js)
+    slots: dict[tuple[int, tuple], int] = {}
+    for k, learner in enumerate(learners):
+        _take_over(kernel, learner, k, slots)
+    return kernel
