@@ -19,6 +19,7 @@ import os
 import random
 import shutil
 import subprocess
+import sys
 import tempfile
 from typing import Callable
 
@@ -29,6 +30,7 @@ import helpers
 _LOG_DIR: str | None = None
 _DOMAIN_BASE = "CQ_ROS_TEST_DOMAIN_BASE"
 ROS_FIXTURES = {"ros_context", "ros_domain_id", "spin_until", "system_in"}
+COMPILE_S = 900.0  # the compiled engine's first compilation, on 2 busy cores (about 2 minutes idle)
 NODE_MODULES = {"world_node", "agent_node", "ros_tools.compose"}  # python -m <one of these> starts a node
 
 
@@ -38,6 +40,19 @@ def pytest_configure(config: pytest.Config) -> None:
     os.environ["ROS_DOMAIN_ID"] = str(_domain_id())
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ["ROS_LOG_DIR"] = _LOG_DIR
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        _compile_engine()
+
+
+def _compile_engine() -> None:
+    """Load the compiled engine once, before the workers start, so that a fresh clone's first compilation (numba's
+    cache) is not paid inside a test: the tests that run `cq-ros` bound each process at 120 s, and in a suite run
+    beside two busy loops a 5-episode `cq-ros experiment` timed out there, compiling while the other worker
+    compiled too. Where numba cannot load, the engine says so in one line and the tests of the fallback run."""
+    print("the suite's first step: loading the compiled engine (a fresh clone compiles it, 2 to 5 minutes)",
+          file=sys.stderr, flush=True)
+    subprocess.run([sys.executable, "-c", "from cq_ros.compiled import prepare; prepare()"], timeout=COMPILE_S,
+                   check=False)
 
 
 def _domain_id() -> int:
