@@ -37,6 +37,7 @@ def measure(kind: str, n: int, wait_s: float, domain_id: int) -> dict:
     from std_msgs.msg import Empty
 
     from msgs_spec import POSITION, QOS_FEEDBACK, Position, encode
+    from node_runtime.qos import profile
     from node_runtime.run import make_executor
 
     ctx = Context()
@@ -54,11 +55,12 @@ def measure(kind: str, n: int, wait_s: float, domain_id: int) -> dict:
     def subscribe(_msg) -> None:  # as AgentNode does it: from inside a callback
         if got["sub"] is not None:
             reader.destroy_subscription(got["sub"])
-        got["sub"] = reader.create_subscription(POSITION.msg_type, "position", on_position, POSITION.reader_qos)
+        got["sub"] = reader.create_subscription(POSITION.msg_type, "position", on_position,
+                                                profile(POSITION.reader_qos))
 
-    position = writer.create_publisher(POSITION.msg_type, "position", POSITION.qos)
-    kick = writer.create_publisher(Empty, "kick", QOS_FEEDBACK)
-    reader.create_subscription(Empty, "kick", subscribe, QOS_FEEDBACK)
+    position = writer.create_publisher(POSITION.msg_type, "position", profile(POSITION.qos))
+    kick = writer.create_publisher(Empty, "kick", profile(QOS_FEEDBACK))
+    reader.create_subscription(Empty, "kick", subscribe, profile(QOS_FEEDBACK))
     lost = in_reader = slow = 0
     try:
         deadline = time.monotonic() + 5.0
