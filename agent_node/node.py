@@ -30,6 +30,7 @@ from msgs_spec import (
     agent_stats_topic, feedback_topic, position_topic, serialize,
 )
 from node_runtime.qos import profile
+from node_runtime.rclpy_workarounds import raw_publisher, take_now
 from msgs_spec.fast import serialize_action
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.lost import count_lost
@@ -70,10 +71,9 @@ class _HeldPublisher:
         self.matched = Matched(then=self.flush)
         self.pub = node.create_publisher(spec.msg_type, topic, profile(spec.qos),
                                          event_callbacks=PublisherEventCallbacks(matched=self.matched))
-        # Serialized bytes go to the publisher's own publish_raw: what Publisher.publish(bytes) calls, the same
-        # bytes, without its per-call type check and handle lock (the node destroys its publishers only after
-        # it has stopped spinning). Statistics are messages, published as such.
-        self._raw = self.pub.handle.publish_raw
+        # Serialized bytes go straight to the writer (node_runtime.rclpy_workarounds; the node destroys its
+        # publishers only after it has stopped spinning). Statistics are messages, published as such.
+        self._raw = raw_publisher(self.pub)
         # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout);
         # statistics stamped with the node's clock as they go out
         self._serialize = serialize_action if spec is ACTION else self._stamped
@@ -282,8 +282,7 @@ class AgentNode(Node):
             sub = self._positions.get(peer)
             if sub is None:
                 continue
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            taken = take_now(sub)
             if taken is not None:
                 counters = self.driver.link.extra_counters
                 counters["unannounced_positions"] = counters.get("unannounced_positions", 0) + 1

@@ -68,6 +68,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         action_of, new_action, new_feedback, new_position, serialize_action, serialize_feedback, serialize_position,
     )
     from node_runtime.qos import profile
+    from node_runtime.rclpy_workarounds import raw_publisher, take_now
     from rclpy.event_handler import PublisherEventCallbacks
 
     from agent_node.node import UNANNOUNCED_CHECK_S
@@ -191,9 +192,9 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                         for k in ids}
         pub_feedback = {k: world.create_publisher(FEEDBACK.msg_type, feedback_topic(k), profile(FEEDBACK.qos))
                         for k in ids}
-        # Straight to the handle, as the nodes publish: what Publisher.publish(bytes) calls, without its checks
-        send_position = {k: pub.handle.publish_raw for k, pub in pub_position.items()}
-        send_feedback = {k: pub.handle.publish_raw for k, pub in pub_feedback.items()}
+        # Straight to the writer, as the nodes publish: what Publisher.publish(bytes) calls, without its checks
+        send_position = {k: raw_publisher(pub) for k, pub in pub_position.items()}
+        send_feedback = {k: raw_publisher(pub) for k, pub in pub_feedback.items()}
         listened = sorted({j for k in ids for j in watched[k]})
         actions_in = [0]
         stepped = [Future()]  # done once every action of the step is in
@@ -215,7 +216,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
             agent = node(f"agv{k}")
             pub = agent.create_publisher(ACTION.msg_type, action_topic(k), profile(ACTION.qos))
 
-            def arrive(raw, k=k, send=pub.handle.publish_raw, sender=k, agent=agent):
+            def arrive(raw, k=k, send=raw_publisher(pub), sender=k, agent=agent):
                 if checked:
                     decoded(decode_feedback if sender == k else decode_position, raw, sender, k)
                 if churn and sender == k:  # its feedback: the decision step of a subscription made mid-run
@@ -287,8 +288,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                 if stepped[0].done() or time.monotonic() > stop_at:
                     break
                 for k, (sub, _, _) in list(churning.items()):
-                    with sub.handle:
-                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                    taken = take_now(sub)
                     if taken is not None:
                         peer_in(k, taken[0])
             if actions_in[0] < agents:

@@ -38,6 +38,7 @@ def measure(kind: str, n: int, wait_s: float, domain_id: int) -> dict:
 
     from msgs_spec import POSITION, QOS_FEEDBACK, Position, encode
     from node_runtime.qos import profile
+    from node_runtime.rclpy_workarounds import take_now
     from node_runtime.run import make_executor
 
     ctx = Context()
@@ -77,8 +78,7 @@ def measure(kind: str, n: int, wait_s: float, domain_id: int) -> dict:
             if got["step"] != step:
                 lost += 1
                 sub = got["sub"]
-                with sub.handle:
-                    in_reader += sub.handle.take_message(sub.msg_type, sub.raw) is not None
+                in_reader += take_now(sub) is not None
             elif time.monotonic() - start > 0.1:
                 slow += 1
             if time.monotonic() > next_line:

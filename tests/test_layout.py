@@ -253,6 +253,25 @@ def test_the_cores_and_the_contracts_codec_load_no_rclpy():
     assert done.stdout.strip() == "True", done.stderr
 
 
+# rclpy's handles are its C objects behind a publisher, a subscription or a node: what reaches them works
+# around rclpy from pip and says why, in one module.
+HANDLE_HOME = "node_runtime/rclpy_workarounds.py"
+
+
+def handle_uses(source: str) -> list[int]:
+    """The lines of `source` that read a `.handle` attribute."""
+    return [node.lineno for node in ast.walk(ast.parse(source)) if isinstance(node, ast.Attribute)
+            and node.attr == "handle"]
+
+
+def test_only_the_rclpy_workarounds_touch_an_rclpy_handle():
+    touching = [f"{p.relative_to(ROOT).as_posix()}:{line}" for p in modules()
+                if p.relative_to(ROOT).as_posix() != HANDLE_HOME for line in handle_uses(p.read_text(encoding="utf-8"))]
+    assert touching == []
+    assert handle_uses((ROOT / HANDLE_HOME).read_text(encoding="utf-8"))  # where handles are touched, it sees them
+    assert handle_uses("with sub.handle:\n    pass") == [1]
+
+
 HEAVY = ("scipy", "matplotlib", "dask", "distributed", "rclpy", "foxglove")
 
 

@@ -25,6 +25,7 @@ from msgs_spec import (
     Position, WorldStats, action_topic, agent_namespace, decode_heartbeat, feedback_topic, position_topic, serialize,
 )
 from node_runtime.qos import profile
+from node_runtime.rclpy_workarounds import raw_publisher
 # Each payload's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
 from msgs_spec.fast import serialize_feedback, serialize_heartbeat, serialize_position
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph, writers
@@ -57,7 +58,7 @@ class _ListenedPosition:
         self.matched = Matched(then=self._on_match)
         pub = node.create_publisher(POSITION.msg_type, topic, profile(POSITION.qos),
                                     event_callbacks=PublisherEventCallbacks(matched=self.matched))
-        self.publish = _raw(pub)
+        self.publish = raw_publisher(pub)
 
     def send(self, position: Position) -> None:
         if self.matched.count:
@@ -70,13 +71,6 @@ class _ListenedPosition:
         if self.matched.count and self.held is not None:
             self.publish(serialize_position(self.held, self.key))
             self.held = None
-
-
-def _raw(pub: Any) -> Any:
-    """The publisher's own publish of serialized bytes: what Publisher.publish(bytes) calls, the same bytes,
-    without its per-call type check and handle lock (the node destroys its publishers only after it has
-    stopped spinning)."""
-    return pub.handle.publish_raw
 
 
 class WorldNode(Node):
@@ -104,7 +98,7 @@ class WorldNode(Node):
                           for k in agents}
         # What each payload of the core's outbox goes out as, looked up by its type alone (no isinstance chain).
         positions = {k: pub.send for k, pub in self._positions.items()}
-        feedback = {k: _raw(pub) for k, pub in self._feedback.items()}
+        feedback = {k: raw_publisher(pub) for k, pub in self._feedback.items()}
         self._senders = {
             Position: lambda p: positions[p.agent](p),
             Feedback: lambda f: feedback[f.agent](serialize_feedback(f, key)),
