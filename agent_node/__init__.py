@@ -5,6 +5,16 @@
 `agent_node.driver` (pure Python, unit-tested without ROS).
 """
 
-from .node import AgentNode
+from typing import Any
 
 __all__ = ["AgentNode"]
+
+
+def __getattr__(name: str) -> Any:
+    """`AgentNode`, imported on first use: the node loads rclpy, and `import agent_node.driver` (the core)
+    must not."""
+    if name == "AgentNode":
+        from .node import AgentNode
+
+        return AgentNode
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

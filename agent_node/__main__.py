@@ -11,17 +11,13 @@ or checkpoint (one line on stderr), 130 interrupted (Ctrl-C, SIGTERM).
 
 import sys
 
-from cq_ros.settings import SettingsError
-from node_runtime.parameters import help_requested, print_help
-from node_runtime.run import run_node
+from node_runtime.run import node_main
 
 from .node import AgentNode
 
 
 def main() -> int:
-    if help_requested(sys.argv):
-        return print_help(__doc__, ("agent",))
-    return run_node(AgentNode, "agent_node", (SettingsError,))
+    return node_main(__doc__, "agent", AgentNode)
 
 
 if __name__ == "__main__":

@@ -29,6 +29,8 @@ from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
     agent_stats_topic, feedback_topic, position_topic, serialize,
 )
+from node_runtime.qos import profile
+from node_runtime.rclpy_workarounds import raw_publisher, take_now
 from msgs_spec.fast import serialize_action
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.lost import count_lost
@@ -67,12 +69,11 @@ class _HeldPublisher:
         self.min_matched, self.latest_only, self.key = min_matched, latest_only, key
         self.held: list = []  # payloads not sent yet
         self.matched = Matched(then=self.flush)
-        self.pub = node.create_publisher(spec.msg_type, topic, spec.qos,
+        self.pub = node.create_publisher(spec.msg_type, topic, profile(spec.qos),
                                          event_callbacks=PublisherEventCallbacks(matched=self.matched))
-        # Serialized bytes go to the publisher's own publish_raw: what Publisher.publish(bytes) calls, the same
-        # bytes, without its per-call type check and handle lock (the node destroys its publishers only after
-        # it has stopped spinning). Statistics are messages, published as such.
-        self._raw = self.pub.handle.publish_raw
+        # Serialized bytes go straight to the writer (node_runtime.rclpy_workarounds; the node destroys its
+        # publishers only after it has stopped spinning). Statistics are messages, published as such.
+        self._raw = raw_publisher(self.pub)
         # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout);
         # statistics stamped with the node's clock as they go out
         self._serialize = serialize_action if spec is ACTION else self._stamped
@@ -128,12 +129,12 @@ class AgentNode(Node):
         # Raw: the driver decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
         lost = count_lost(self.driver.link.extra_counters)
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k),
-                                                   partial(self._on_feedback, k), FEEDBACK.reader_qos, raw=True,
-                                                   event_callbacks=lost)
+                                                   partial(self._on_feedback, k), profile(FEEDBACK.reader_qos),
+                                                   raw=True, event_callbacks=lost)
                           for k in agents]
         self._heartbeat = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
                                                    lambda m: self._apply(self.driver.on_heartbeat(m)),
-                                                   HEARTBEAT.reader_qos, raw=True, event_callbacks=lost)
+                                                   profile(HEARTBEAT.reader_qos), raw=True, event_callbacks=lost)
         self._positions = {}  # peer -> its position subscription, while the driver wants it
         self._writer: ThreadPoolExecutor | None = None  # writes the checkpoints, in order, off the executor
         self._writes: list = []  # (episode, concurrent Future) of the checkpoint writes not counted yet
@@ -189,7 +190,7 @@ class AgentNode(Node):
     def _subscribe(self, effect: Subscribe) -> None:
         peer = effect.peer
         self._positions[peer] = self.create_subscription(POSITION.msg_type, position_topic(peer),
-                                                         partial(self._on_position, peer), POSITION.reader_qos,
+                                                         partial(self._on_position, peer), profile(POSITION.reader_qos),
                                                          raw=True)
 
     def _unsubscribe(self, effect: Unsubscribe) -> None:
@@ -281,8 +282,7 @@ class AgentNode(Node):
             sub = self._positions.get(peer)
             if sub is None:
                 continue
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            taken = take_now(sub)
             if taken is not None:
                 counters = self.driver.link.extra_counters
                 counters["unannounced_positions"] = counters.get("unannounced_positions", 0) + 1

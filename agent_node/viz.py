@@ -11,6 +11,7 @@ from rclpy.event_handler import PublisherEventCallbacks
 
 from msgs_spec import Action, AgentStats
 from msgs_spec.viz import LOOKS, Looks, looks_topic
+from node_runtime.qos import profile
 from node_runtime.graph import Matched
 
 __all__ = ["AgentView"]
@@ -20,7 +21,7 @@ class AgentView:
     def __init__(self, node: Any, driver: Any):
         self.node, self.driver = node, driver
         self.watchers = {k: Matched() for k in driver.agents}
-        self.pubs = {k: node.create_publisher(LOOKS.msg_type, looks_topic(k), LOOKS.qos,
+        self.pubs = {k: node.create_publisher(LOOKS.msg_type, looks_topic(k), profile(LOOKS.qos),
                                               event_callbacks=PublisherEventCallbacks(matched=self.watchers[k]))
                      for k in driver.agents}
         self.last: dict[int, Looks] = {}  # agent -> its last decision's looks, to clear when its episode ends

@@ -67,6 +67,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     from msgs_spec.fast import (
         action_of, new_action, new_feedback, new_position, serialize_action, serialize_feedback, serialize_position,
     )
+    from node_runtime.qos import profile
+    from node_runtime.rclpy_workarounds import raw_publisher, take_now
     from rclpy.event_handler import PublisherEventCallbacks
 
     from agent_node.node import UNANNOUNCED_CHECK_S
@@ -185,13 +187,14 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         # and sent on a match (a subscription made mid-run waits for it).
         matched = {k: Matched(then=partial(on_match, k)) for k in ids}
         held: dict[int, int] = {}  # agent -> the step of its newest position not sent
-        pub_position = {k: world.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos,
+        pub_position = {k: world.create_publisher(POSITION.msg_type, position_topic(k), profile(POSITION.qos),
                                                   event_callbacks=PublisherEventCallbacks(matched=matched[k]))
                         for k in ids}
-        pub_feedback = {k: world.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in ids}
-        # Straight to the handle, as the nodes publish: what Publisher.publish(bytes) calls, without its checks
-        send_position = {k: pub.handle.publish_raw for k, pub in pub_position.items()}
-        send_feedback = {k: pub.handle.publish_raw for k, pub in pub_feedback.items()}
+        pub_feedback = {k: world.create_publisher(FEEDBACK.msg_type, feedback_topic(k), profile(FEEDBACK.qos))
+                        for k in ids}
+        # Straight to the writer, as the nodes publish: what Publisher.publish(bytes) calls, without its checks
+        send_position = {k: raw_publisher(pub) for k, pub in pub_position.items()}
+        send_feedback = {k: raw_publisher(pub) for k, pub in pub_feedback.items()}
         listened = sorted({j for k in ids for j in watched[k]})
         actions_in = [0]
         stepped = [Future()]  # done once every action of the step is in
@@ -204,16 +207,16 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                 if actions_in[0] == agents:
                     stepped[0].set_result(True)
 
-            subs.append(world.create_subscription(ACTION.msg_type, action_topic(k), action_in, ACTION.reader_qos,
-                                                  raw=True))
+            subs.append(world.create_subscription(ACTION.msg_type, action_topic(k), action_in,
+                                                  profile(ACTION.reader_qos), raw=True))
         need = {k: 1 + len(watched[k]) for k in ids}  # arrivals before agent k acts: its feedback and peers'
         got = dict.fromkeys(ids, 0)
         churning: dict[int, tuple] = {}  # agent -> (its subscription made at this step, the peer, the step)
         for k in ids:
             agent = node(f"agv{k}")
-            pub = agent.create_publisher(ACTION.msg_type, action_topic(k), ACTION.qos)
+            pub = agent.create_publisher(ACTION.msg_type, action_topic(k), profile(ACTION.qos))
 
-            def arrive(raw, k=k, send=pub.handle.publish_raw, sender=k, agent=agent):
+            def arrive(raw, k=k, send=raw_publisher(pub), sender=k, agent=agent):
                 if checked:
                     decoded(decode_feedback if sender == k else decode_position, raw, sender, k)
                 if churn and sender == k:  # its feedback: the decision step of a subscription made mid-run
@@ -225,10 +228,11 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
             sends[k] = arrive
 
             subs.append(agent.create_subscription(FEEDBACK.msg_type, feedback_topic(k), arrive,
-                                                  FEEDBACK.reader_qos, raw=True))
+                                                  profile(FEEDBACK.reader_qos), raw=True))
             for j in watched[k]:
                 subs.append(agent.create_subscription(POSITION.msg_type, position_topic(j),
-                                                      partial(arrive, sender=j), POSITION.reader_qos, raw=True))
+                                                      partial(arrive, sender=j), profile(POSITION.reader_qos),
+                                                      raw=True))
         def churn_step(agent, k) -> None:
             """As a CQ agent at a conflict state: drop the subscription of its last decision, subscribe to the
             peer the schedule names for this one (each made inside the agent's callback, as the nodes do)."""
@@ -238,7 +242,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
             if j is not None and j[0] == k:
                 peer = j[1]
                 churning[k] = [agent.create_subscription(POSITION.msg_type, position_topic(peer),
-                                                         partial(peer_in, k), POSITION.reader_qos, raw=True),
+                                                         partial(peer_in, k), profile(POSITION.reader_qos), raw=True),
                                peer, clock[0]]
                 created[0] += 1
 
@@ -284,8 +288,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                 if stepped[0].done() or time.monotonic() > stop_at:
                     break
                 for k, (sub, _, _) in list(churning.items()):
-                    with sub.handle:
-                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                    taken = take_now(sub)
                     if taken is not None:
                         peer_in(k, taken[0])
             if actions_in[0] < agents:

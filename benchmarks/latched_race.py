@@ -37,6 +37,8 @@ def measure(kind: str, n: int, wait_s: float, domain_id: int) -> dict:
     from std_msgs.msg import Empty
 
     from msgs_spec import POSITION, QOS_FEEDBACK, Position, encode
+    from node_runtime.qos import profile
+    from node_runtime.rclpy_workarounds import take_now
     from node_runtime.run import make_executor
 
     ctx = Context()
@@ -54,11 +56,12 @@ def measure(kind: str, n: int, wait_s: float, domain_id: int) -> dict:
     def subscribe(_msg) -> None:  # as AgentNode does it: from inside a callback
         if got["sub"] is not None:
             reader.destroy_subscription(got["sub"])
-        got["sub"] = reader.create_subscription(POSITION.msg_type, "position", on_position, POSITION.reader_qos)
+        got["sub"] = reader.create_subscription(POSITION.msg_type, "position", on_position,
+                                                profile(POSITION.reader_qos))
 
-    position = writer.create_publisher(POSITION.msg_type, "position", POSITION.qos)
-    kick = writer.create_publisher(Empty, "kick", QOS_FEEDBACK)
-    reader.create_subscription(Empty, "kick", subscribe, QOS_FEEDBACK)
+    position = writer.create_publisher(POSITION.msg_type, "position", profile(POSITION.qos))
+    kick = writer.create_publisher(Empty, "kick", profile(QOS_FEEDBACK))
+    reader.create_subscription(Empty, "kick", subscribe, profile(QOS_FEEDBACK))
     lost = in_reader = slow = 0
     try:
         deadline = time.monotonic() + 5.0
@@ -75,8 +78,7 @@ def measure(kind: str, n: int, wait_s: float, domain_id: int) -> dict:
             if got["step"] != step:
                 lost += 1
                 sub = got["sub"]
-                with sub.handle:
-                    in_reader += sub.handle.take_message(sub.msg_type, sub.raw) is not None
+                in_reader += take_now(sub) is not None
             elif time.monotonic() - start > 0.1:
                 slow += 1
             if time.monotonic() > next_line:

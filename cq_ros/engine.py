@@ -123,8 +123,7 @@ class Team:
         """The episode's first step (the world just reset): every learner observes where its agent starts;
         one that starts at its goal ends its episode here (it never acts). Whether the episode is over."""
         w = self.world
-        finished = w.finished
-        over = finished or w.t >= w.step_cap
+        finished, over = w.finished, w.over
         if self.central:
             self.needs = [central_outcome(self.learners[0], w.cells, None, finished, over)]
         else:
@@ -155,8 +154,7 @@ class Team:
         episode (at its goal, or the episode truncated) or observes its next step. Whether the episode is
         over."""
         w = self.world
-        finished = w.finished
-        over = finished or w.t >= w.step_cap
+        finished, over = w.finished, w.over
         if self.central:
             self.needs = [central_outcome(self.learners[0], w.cells, rewards, finished, over)]
             return over

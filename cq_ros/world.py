@@ -220,8 +220,21 @@ class GridWorld:
         return all(self.done)
 
     @property
+    def capped(self) -> bool:
+        """`step_cap` steps played: the episode ends here, whoever is not at their goal truncated."""
+        return self.t >= self.step_cap
+
+    @property
     def truncated(self) -> bool:
-        return self.t >= self.step_cap and not self.finished
+        return self.capped and not self.finished
+
+    @property
+    def over(self) -> bool:
+        """The episode-over rule, its one home: every agent at its goal, or `step_cap` steps played. The engine,
+        the world node's lockstep, the PettingZoo env and the plan executor ask it; the compiled engine
+        (cq_ros/compiled/learners.py, numba) keeps a twin that tests/test_compiled.py's byte-identical runs
+        hold to it."""
+        return self.finished or self.capped
 
     # -- the PettingZoo-style parallel API -----------------------------------------------------------
 

@@ -6,7 +6,7 @@ See msgs_spec/README.md (its tables are generated from this code; `python -m msg
 
     from msgs_spec import (Bounds, Action, Feedback, Position, WireError, DropCounter,
                            action_topic, feedback_topic, position_topic, ACTION, FEEDBACK, POSITION)
-    pub = node.create_publisher(ACTION.msg_type, action_topic(k), ACTION.qos)
+    pub = node.create_publisher(ACTION.msg_type, action_topic(k), profile(ACTION.qos))  # node_runtime.qos
     pub.publish(encode_action(Action(agent=k, episode=e, step=s, action=EAST)))
     ...
     fb = drops.guard(decode_feedback, msg, bounds=bounds, agent=k, episode=e, step=s + 1,
@@ -27,7 +27,7 @@ from .payloads import (
     Heartbeat, MarkedJointState, Position, WorldStats,
 )
 from .topics import (
-    ACTION, AGENT_PREFIX, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, QOS_ACTION,
+    ACTION, AGENT_PREFIX, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, QOS_ACTION, Qos,
     QOS_FEEDBACK, QOS_POSITION, QOS_STATS, READER_DEPTH, TOPICS, WORLD_STATS, WORLD_STATS_TOPIC, TopicSpec,
     action_topic, agent_namespace, agent_stats_topic, agent_topics, feedback_topic, parse_topic,
     position_topic, qos_summary, type_name,
@@ -50,7 +50,7 @@ __all__ = [
     "decode_world_stats",
     "encode_agent_stats", "decode_agent_stats",
     # topics
-    "AGENT_PREFIX", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
+    "AGENT_PREFIX", "Qos", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
     "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "HEARTBEAT", "AGENT_STATS", "WORLD_STATS", "TOPICS",
     "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic",
     "action_topic",

@@ -193,34 +193,25 @@ class ArrayLayout:
         data's length, with zeros for the alignment after the label; where that alignment lies, as a slice;
         the alignment bytes before the values; the values' Struct). All but the values and the alignment bytes
         (which rclpy's serializer leaves as they were in memory) is the same in every message of one form.
-        Derived from rclpy's own serialization of one message, and checked against it."""
+        Written out from CDR here, without rclpy (the contract's codec loads none); tests/test_msgs_spec.py
+        checks serialize() against rclpy's own bytes for every form."""
         return self._frames[keyed]
 
     @cached_property
     def _frames(self) -> dict[bool, tuple[bytes, tuple[int, int], int, struct.Struct]]:
-        from rclpy.serialization import serialize_message
-
         frames = {}
         for keyed in (False, True):
             label, size = self.dimension(keyed)
             values = struct.Struct(f"<{size}{self._code}")
-            msg = self.ros_type()
-            msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
-            msg.data = sample = [(i + 1) * 7 for i in range(size)]  # distinct values, to see where they lie
-            raw = serialize_message(msg)
-            start = len(raw) - values.size
-            length = struct.pack("<I", size)  # the data's length, just before the values or their alignment
-            pad = next((p for p in (0, 4) if raw[start - p - 4:start - p] == length), None)
-            if pad is None or raw[start:] != values.pack(*sample):
-                raise RuntimeError(f"{self.ros_type.__name__} {self.label}: its serialization does not end in "
-                                   "its length and values")
-            # CDR: a 4-byte header, the dimension count, the label's length, the label and its NUL, then
-            # alignment to 4 bytes counted from after the header
-            label_end = 12 + len(label) + 1
-            gap = label_end, label_end + (4 - label_end) % 4
-            head = bytearray(raw[:start - pad])
-            head[gap[0]:gap[1]] = bytes(gap[1] - gap[0])
-            frames[keyed] = bytes(head), gap, pad, values
+            text = label.encode("ascii") + b"\0"
+            # CDR, little-endian: the encapsulation header, the dimension count, the label (its length with its
+            # NUL, then it), alignment to 4 bytes counted from after the header, the dimension's size and
+            # stride, the layout's data_offset (0), the data's length; then alignment to a value's size
+            head = b"\x00\x01\x00\x00" + struct.pack("<II", 1, len(text)) + text
+            gap = len(head), len(head) + (4 - len(head)) % 4
+            head += bytes(gap[1] - gap[0]) + struct.pack("<IIII", size, size, 0, size)
+            pad = -(len(head) - 4) % struct.calcsize(f"<{self._code}")
+            frames[keyed] = head, gap, pad, values
         return frames
 
 

@@ -1,5 +1,8 @@
 """The one place naming every topic: name, ROS type, QoS, payload, publisher and subscribers.
 
+QoS is plain data here (`Qos`): the contract loads no rclpy, and node_runtime.qos.profile() makes the rclpy
+QoSProfile a node passes to create_publisher/create_subscription.
+
 Names are relative ("agv1/position"), so a node started with `-r __ns:=/run7` puts the whole system under
 /run7/ and parallel systems never mix. Agent k's topics live under `agv<k>/`.
 """
@@ -7,12 +10,11 @@ Names are relative ("agv1/position"), so a node started with `-r __ns:=/run7` pu
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, Int32MultiArray
 
 from . import codec
@@ -20,7 +22,7 @@ from .errors import WireError
 from .payloads import Action, AgentStats, Feedback, Heartbeat, Position, WorldStats
 
 __all__ = [
-    "AGENT_PREFIX", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
+    "AGENT_PREFIX", "Qos", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
     "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "HEARTBEAT", "AGENT_STATS", "WORLD_STATS", "TOPICS",
     "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic",
     "action_topic",
@@ -29,27 +31,39 @@ __all__ = [
 
 AGENT_PREFIX = "agv"
 
+RELIABILITIES = ("reliable", "best_effort")
+DURABILITIES = ("volatile", "transient_local")
+
+
+@dataclass(frozen=True)
+class Qos:
+    """A topic's QoS profile as plain data, history always keep last `depth` (rclpy's names, lower case)."""
+
+    reliability: str
+    durability: str
+    depth: int
+
+    def __post_init__(self) -> None:
+        if self.reliability not in RELIABILITIES or self.durability not in DURABILITIES or self.depth < 1:
+            raise ValueError(f"not a QoS of this contract: {self}")
+
+
 # Lockstep sends at most a couple of messages per topic between two waits (at an episode boundary the world
 # sends the last feedback and the next episode's step-0 feedback back to back), so depth 10 is headroom; a
 # reliable reader that fell 10 behind would be a bug elsewhere.
-QOS_FEEDBACK = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-                          history=HistoryPolicy.KEEP_LAST, depth=10)
-QOS_ACTION = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-                        history=HistoryPolicy.KEEP_LAST, depth=10)
+QOS_FEEDBACK = Qos("reliable", "volatile", 10)
+QOS_ACTION = Qos("reliable", "volatile", 10)
 # Latched: publisher AND subscriber must both use this profile (a volatile subscriber gets no history; a
 # transient-local subscriber to a volatile publisher gets nothing).
-QOS_POSITION = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                          history=HistoryPolicy.KEEP_LAST, depth=1)
+QOS_POSITION = Qos("reliable", "transient_local", 1)
 # Statistics must all arrive: a launch's rows and a collect's need every episode's. Transient local: a
 # volatile reader is owed only what is sent once both sides have matched, and with both cores busy a launcher
 # never got agv2's episodes 0-7, sent after agv2's writer had matched it (its reader matched later); a
 # transient-local reader is sent the writer's history on matching. Depth 1000: a reliable keep-last writer
 # drops its oldest sample, acknowledged or not, once it holds `depth`, and a reader keeps `depth` until its
 # executor takes them, so a listener may fall this many episodes behind a fast map on a busy machine.
-QOS_STATS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                       history=HistoryPolicy.KEEP_LAST, depth=1000)
-QOS_HEARTBEAT = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-                           history=HistoryPolicy.KEEP_LAST, depth=1)
+QOS_STATS = Qos("reliable", "transient_local", 1000)
+QOS_HEARTBEAT = Qos("reliable", "volatile", 1)
 # A reader's history is shared by every writer of its topic (DDS keeps it per instance; our topics have
 # one): at depth 10 a burst of a dozen messages from anyone else evicts the world's before the callback
 # takes it. The nodes read the lockstep topics at this depth, so a burst of a few hundred cannot.
@@ -62,24 +76,19 @@ def type_name(msg_type: type) -> str:
     return f"{pkg}/msg/{msg_type.__name__}"
 
 
-def qos_summary(qos: QoSProfile) -> str:
+def qos_summary(qos: Qos) -> str:
     """'reliable, transient local, keep last 1'."""
-    rel = {ReliabilityPolicy.RELIABLE: "reliable", ReliabilityPolicy.BEST_EFFORT: "best effort"}.get(
-        qos.reliability, qos.reliability.name.lower())
-    dur = {DurabilityPolicy.VOLATILE: "volatile", DurabilityPolicy.TRANSIENT_LOCAL: "transient local"}.get(
-        qos.durability, qos.durability.name.lower())
-    hist = f"keep last {qos.depth}" if qos.history == HistoryPolicy.KEEP_LAST else qos.history.name.lower()
-    return f"{rel}, {dur}, {hist}"
+    return f"{qos.reliability.replace('_', ' ')}, {qos.durability.replace('_', ' ')}, keep last {qos.depth}"
 
 
 @dataclass(frozen=True, eq=False)
 class TopicSpec:
-    """One topic of the system. `pattern` holds '{agent}' for per-agent topics. Treat `qos` as read-only."""
+    """One topic of the system. `pattern` holds '{agent}' for per-agent topics."""
 
     key: str
     pattern: str
     msg_type: type
-    qos: QoSProfile
+    qos: Qos
     payload: type
     publisher: str
     subscribers: str
@@ -87,7 +96,7 @@ class TopicSpec:
     reader_depth: int | None = None  # the nodes' subscriptions keep this many (None: as qos)
 
     @property
-    def reader_qos(self) -> QoSProfile:
+    def reader_qos(self) -> Qos:
         """The profile the nodes subscribe with: qos, deeper where `reader_depth` says (compatible: a reader's
         depth is its own)."""
         return self.qos if self.reader_depth is None else replace_depth(self.qos, self.reader_depth)
@@ -123,8 +132,8 @@ class TopicSpec:
         return _DECODERS[self.key](msg, bounds=bounds, agent=agent, episode=episode, step=step)
 
 
-def replace_depth(qos: QoSProfile, depth: int) -> QoSProfile:
-    return QoSProfile(reliability=qos.reliability, durability=qos.durability, history=qos.history, depth=depth)
+def replace_depth(qos: Qos, depth: int) -> Qos:
+    return replace(qos, depth=depth)
 
 
 def _agent_id(agent: Any) -> int:

@@ -30,13 +30,12 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point
 from nav_msgs.msg import OccupancyGrid
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from .errors import WireError
 from .payloads import Bounds
-from .topics import AGENT_PREFIX, TopicSpec, _agent_id
+from .topics import AGENT_PREFIX, Qos, TopicSpec, _agent_id
 
 __all__ = [
     "FRAME_ID", "LATTICE_RESOLUTION", "PALETTE", "OCCUPIED", "QOS_MAP", "QOS_MARKERS",
@@ -55,10 +54,8 @@ PALETTE = ((0.122, 0.467, 0.706), (1.0, 0.498, 0.055), (0.173, 0.627, 0.173), (0
 
 # The map is latched, as RViz's and Foxglove's map displays expect; markers are volatile and deep enough that a
 # recorder a few steps behind loses none.
-QOS_MAP = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                     history=HistoryPolicy.KEEP_LAST, depth=1)
-QOS_MARKERS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-                         history=HistoryPolicy.KEEP_LAST, depth=100)
+QOS_MAP = Qos("reliable", "transient_local", 1)
+QOS_MARKERS = Qos("reliable", "volatile", 100)
 
 
 @dataclass(frozen=True)

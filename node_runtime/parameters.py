@@ -24,6 +24,8 @@ from cq_ros.settings import Settings, SettingsError, run_settings
 from msgs_spec import KeyFileError, read_key
 from msgs_spec.auth import RunKey, new_run
 
+from .rclpy_workarounds import given_parameters
+
 __all__ = ["SETTING_NAMES", "check_names", "check_numbers", "map_and_settings", "WORLD_PARAMETERS",
            "AGENT_PARAMETERS", "PARAMETERS", "declare_node_parameters", "declare_parameters", "undeclared_overrides",
            "read_key_parameter", "run_key_parameters", "ros_type", "describe_parameters", "help_requested",
@@ -174,8 +176,7 @@ def declare_parameters(node: Any, parameters: dict[str, tuple[Any, str]], unset:
 def undeclared_overrides(node: Any) -> list[str]:
     """Parameter names given to `node` (command line, parameters file, parameter_overrides) that it did not
     declare: rclpy ignores them silently, so a typo would run with the default."""
-    # rclpy keeps the overrides in a private dict, the only place they are listed (rclpy 7.1.6).
-    return sorted(set(node._parameter_overrides) - set(node._parameters))
+    return sorted(name for name in given_parameters(node) if not node.has_parameter(name))
 
 
 def read_key_parameter(path: str) -> bytes | None:

@@ -1,5 +1,6 @@
 """The run loop of a node process: `python -m world_node`, `python -m agent_node` and the composed container
-(`python -m ros_tools.compose`) all spin their nodes through `run_node`, on the executor `make_executor` picks.
+(`python -m ros_tools.compose`) all spin their nodes through `run_node`, on the executor `make_executor` picks;
+the two node programs' whole main is `node_main`.
 
 rclpy's EventsExecutor is the default, stepped in bounded spins (spin_until_future_complete with a timeout; its
 unbounded spin() in rclpy 7.1.6 busy-loops and ignores signals, docs/design.md, field notes);
@@ -18,10 +19,13 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
+from cq_ros.settings import SettingsError
+
+from .parameters import help_requested, print_help
 from .report import report_line
 
 __all__ = ["EXECUTORS", "EXECUTOR_ENV", "SPIN_S", "FASTDDS_PROFILE", "FASTDDS_PROFILE_ENV", "executor_kind",
-           "make_executor", "spin_nodes", "run_node", "POLL_S", "when", "FLUSH_TIMEOUT_S", "when_acked"]
+           "make_executor", "spin_nodes", "run_node", "node_main", "POLL_S", "when", "FLUSH_TIMEOUT_S", "when_acked"]
 
 
 # The executors a node process can spin on (`$CQ_ROS_EXECUTOR`, `cq-ros launch --executor`). rclpy's
@@ -144,6 +148,15 @@ def run_node(make_node: Callable[[], Any], program: str, bad_input: tuple[type[E
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def node_main(usage: str, kind: str, make_node: Callable[[], Any]) -> int:
+    """The main of `python -m world_node` and `python -m agent_node` (`kind` "world" or "agent"): -h or --help
+    prints `usage` (the module's docstring) and the kind's parameters and starts nothing; otherwise
+    `run_node(make_node, ...)`, a bad setting (SettingsError) read as a bad parameter."""
+    if help_requested(sys.argv):
+        return print_help(usage, (kind,))
+    return run_node(make_node, f"{kind}_node", (SettingsError,))
 
 
 def _missing_params_files(argv: list[str]) -> str | None:

@@ -25,6 +25,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from msgs_spec import DropCounter, TopicSpec, WireError, parse_topic
 from msgs_spec.doc import to_yaml
 from msgs_spec.viz import LOOKS, MAP, SCENE, parse_view_topic
+from node_runtime.qos import profile
 
 from .session import StopSignals, ToolError, environment_domain, ros_session, spin_until
 
@@ -144,7 +145,7 @@ def echo(topic: str, *, count: int | None = None, timeout_s: float | None = None
             err.write(f"cq-ros echo: {name} carries {types[0]}, not the contract's {spec.type_name}: "
                       "echoing it unchecked\n")
             spec = None
-        fallback = spec.qos if spec is not None else QoSProfile(depth=10)
+        fallback = profile(spec.qos) if spec is not None else QoSProfile(depth=10)
         # Publishers seen a moment after the topic (a subscriber-only topic) still decide the QoS: wait briefly.
         spin_until(executor, lambda: bool(node.get_publishers_info_by_topic(name)),
                    min(GRAPH_POLL_S, wait), stop)

@@ -38,6 +38,7 @@ from msgs_spec import (
     AGENT_STATS, HEARTBEAT, HEARTBEAT_TOPIC, WORLD_STATS, WORLD_STATS_TOPIC, AgentStats, Bounds, DropCounter, WireError,
     WorldStats, agent_stats_topic, decode_agent_stats, decode_heartbeat, decode_world_stats,
 )
+from node_runtime.qos import profile
 from node_runtime.report import rates
 
 __all__ = ["RESERVE_NAME", "RESERVE_BYTES", "DEPARTURES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
@@ -105,15 +106,15 @@ class StatsListener:
         # went back to (ros_tools.launch records them; the manifest's `restarts.learning_lost`)
         self.learning_lost: dict[str, list[dict[str, int]]] = {}
         self._agent_subs = [node.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
-                                                     partial(self._on_agent, k), AGENT_STATS.qos, raw=True)
+                                                     partial(self._on_agent, k), profile(AGENT_STATS.qos), raw=True)
                             for k in self.agents]
         self._world_sub = node.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, self._on_world,
-                                                   WORLD_STATS.qos, raw=True)
+                                                   profile(WORLD_STATS.qos), raw=True)
         # Where the world is, by its heartbeat (every second): progress within an episode, which on a big map
         # can take minutes.
         self.at: tuple[int, int] | None = None
         self._heartbeat_sub = node.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
-                                                       HEARTBEAT.reader_qos, raw=True)
+                                                       profile(HEARTBEAT.reader_qos), raw=True)
 
     def _drop_line(self, line: str) -> None:
         if self.held is None:

@@ -22,6 +22,8 @@ from typing import Any
 
 from rclpy.qos import DurabilityPolicy, QoSProfile
 
+from node_runtime.qos import profile
+
 from .commands import compatible_qos, message_class
 from .session import StopSignals, ToolError, find_system, ros_session, spin_until
 
@@ -82,7 +84,7 @@ class Relay:
             for agent in (range(1, n_agents + 1) if spec.per_agent else [None]):
                 topic = self.prefix + spec.name(agent)
                 if topic not in self.channels:
-                    self.add(topic, spec.type_name, compatible_qos([], spec.qos))
+                    self.add(topic, spec.type_name, compatible_qos([], profile(spec.qos)))
 
     def add(self, topic: str, type_name: str, qos: QoSProfile) -> None:
         """Relay `topic` (of ROS type `type_name`), subscribed with `qos`; a type we cannot describe is skipped."""

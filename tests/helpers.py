@@ -164,6 +164,7 @@ def start_system(ctx, algo, map_name, seed, episodes, settings=(), *, world_extr
     from cq_ros.gridmap import load_map
     from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
         decode_world_stats
+    from node_runtime.qos import profile
     from world_node import WorldNode
 
     common = {"map": map_name, "episodes": episodes, "seed": seed, **dict(settings), **(common_extra or {})}
@@ -178,11 +179,11 @@ def start_system(ctx, algo, map_name, seed, episodes, settings=(), *, world_extr
     system = System(world, agents, SingleThreadedExecutor(context=ctx))
     probe = system.add(rclpy.create_node("probe", context=ctx))
     probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
-                              lambda m: system.world_stats.append(decode_world_stats(m)), WORLD_STATS.qos)
+                              lambda m: system.world_stats.append(decode_world_stats(m)), profile(WORLD_STATS.qos))
     for k in range(1, n + 1):
         system.agent_stats[k] = []
         probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k), lambda m, k=k: system.agent_stats[
-            k].append(decode_agent_stats(m)), AGENT_STATS.qos)
+            k].append(decode_agent_stats(m)), profile(AGENT_STATS.qos))
     for node in (*agents, world):
         system.executor.add_node(node)
     return system
@@ -310,6 +311,7 @@ class Flood:
 
         from msgs_spec import HEARTBEAT, POSITION, agent_topics, decode_heartbeat
         from msgs_spec.topics import replace_depth
+        from node_runtime.qos import profile
         from node_runtime.run import FASTDDS_PROFILE, FASTDDS_PROFILE_ENV
 
         before = os.environ.get(FASTDDS_PROFILE_ENV)
@@ -324,7 +326,7 @@ class Flood:
         rng = random.Random(seed)
         self.topics = []  # (relative name, its writer, its junk)
         for name, spec, agent in agent_topics(n_agents):
-            qos = replace_depth(spec.qos, 1 if spec is POSITION else 1000)
+            qos = profile(replace_depth(spec.qos, 1 if spec is POSITION else 1000))
             self.topics.append((name, self.node.create_publisher(spec.msg_type, name, qos), junk(spec, agent, rng)))
         self.sent = {name: 0 for name, _, _ in self.topics}
         self.refused_keyless = 0

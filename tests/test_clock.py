@@ -15,6 +15,7 @@ from rclpy.qos import DurabilityPolicy
 
 from helpers import finish
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic
+from node_runtime.qos import profile
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -28,10 +29,10 @@ def test_statistics_are_stamped_with_the_nodes_clock(system_in, ros_context, spi
     stamp = lambda m: m.header.stamp.sec * 10**9 + m.header.stamp.nanosec  # noqa: E731
     probe = system.add(rclpy.create_node("stamps", context=ros_context))
     probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, lambda m: stamps["world"].append(stamp(m)),
-                              WORLD_STATS.qos)
+                              profile(WORLD_STATS.qos))
     for k in (1, 2):
         probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
-                                  lambda m, k=k: stamps[f"agv{k}"].append(stamp(m)), AGENT_STATS.qos)
+                                  lambda m, k=k: stamps[f"agv{k}"].append(stamp(m)), profile(AGENT_STATS.qos))
     finish(system)
     after = time.time_ns()
     assert spin_until(system.executor, lambda: all(len(got) >= 4 for got in stamps.values()), 30.0), stamps
@@ -54,4 +55,5 @@ def test_the_docs_say_what_statistics_keep_for_a_late_subscriber():
     said = re.search(r"Statistics are kept for late subscribers: each writer keeps its last ([\d,]+) episodes",
                      ros_md)
     assert said and int(said.group(1).replace(",", "")) == WORLD_STATS.qos.depth == AGENT_STATS.qos.depth
-    assert WORLD_STATS.qos.durability == AGENT_STATS.qos.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    assert (profile(WORLD_STATS.qos).durability == profile(AGENT_STATS.qos).durability
+            == DurabilityPolicy.TRANSIENT_LOCAL)

@@ -25,6 +25,7 @@ from cq_ros.settings import Settings, run_settings
 from cq_ros.mapgen.warehouse import warehouse_text
 from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_topic, decode_agent_stats, \
     decode_world_stats
+from node_runtime.qos import profile
 from node_runtime.run import make_executor, spin_nodes
 from helpers import SEED, alive_with, launch_command, spin_until, unique, wait_for_line
 from ros_tools.compose import make_nodes
@@ -52,10 +53,10 @@ def composed_run(map_name: str, algo: str, tmp_path: Path, domain_id: int) -> tu
     world_stats, agent_stats = [], {k: [] for k in range(1, n + 1)}
     probe = rclpy.create_node("probe", context=ctx)
     probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
-                              lambda m: world_stats.append(decode_world_stats(m)), WORLD_STATS.qos)
+                              lambda m: world_stats.append(decode_world_stats(m)), profile(WORLD_STATS.qos))
     for k in agent_stats:
         probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
-                                  lambda m, k=k: agent_stats[k].append(decode_agent_stats(m)), AGENT_STATS.qos)
+                                  lambda m, k=k: agent_stats[k].append(decode_agent_stats(m)), profile(AGENT_STATS.qos))
     executor = make_executor("events", ctx)
     composed = []
     try:

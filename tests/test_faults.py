@@ -32,6 +32,7 @@ from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, Feedback, Heartbeat, Position, action_topic,
     encode, feedback_topic, new_key_file, position_topic,
 )
+from node_runtime.qos import profile
 from helpers import GRID, RUN_TIMEOUT_S, finish, launch_command, offline_rows, parameters, unique, wait_for_line, \
     wait_until
 from world_node import WorldNode
@@ -169,12 +170,12 @@ def test_junk_bursts_of_100_messages_per_step_on_every_topic_change_nothing(syst
     system = system_in(algo, case[0], case[1], episodes, case[2], common_extra={"key_file": key_file})
     world = system.world
     injector = system.add(rclpy.create_node("injector", context=ros_context))
-    pubs = [(kind, k, spec.msg_type, injector.create_publisher(spec.msg_type, topic(k), spec.qos))
+    pubs = [(kind, k, spec.msg_type, injector.create_publisher(spec.msg_type, topic(k), profile(spec.qos)))
             for kind, spec, topic in (("feedback", FEEDBACK, feedback_topic), ("position", POSITION, position_topic),
                                       ("action", ACTION, action_topic)) for k in (1, 2)]
     # once the run is under way (a heartbeat writer before its start: tests/test_twin.py)
     assert spin_until(system.executor, lambda: world.core.episode >= 0, RUN_TIMEOUT_S)
-    beat = injector.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
+    beat = injector.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, profile(HEARTBEAT.qos))
     done = set()
 
     def junk(kind, k, msg_type, e, s, i):
@@ -216,8 +217,8 @@ def test_a_second_writer_of_positions_and_actions_without_the_key_is_dropped(sys
     system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], common_extra={"key_file": key_file})
     world = system.world
     intruder = system.add(rclpy.create_node("intruder", context=ros_context))
-    actions = intruder.create_publisher(ACTION.msg_type, action_topic(2), ACTION.qos)
-    positions = intruder.create_publisher(POSITION.msg_type, position_topic(1), POSITION.qos)
+    actions = intruder.create_publisher(ACTION.msg_type, action_topic(2), profile(ACTION.qos))
+    positions = intruder.create_publisher(POSITION.msg_type, position_topic(1), profile(POSITION.qos))
 
     def intrude():
         if world.core.episode >= 0 and not world.core.finished:
@@ -238,7 +239,7 @@ def test_stale_positions_are_dropped_and_counted(system_in, ros_context, spin_un
     system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2])
     world = system.world
     intruder = system.add(rclpy.create_node("stale", context=ros_context))
-    pubs = {k: intruder.create_publisher(POSITION.msg_type, position_topic(k), POSITION.qos) for k in (1, 2)}
+    pubs = {k: intruder.create_publisher(POSITION.msg_type, position_topic(k), profile(POSITION.qos)) for k in (1, 2)}
 
     def stale():
         e, s = world.core.episode, world.core.step
@@ -855,7 +856,7 @@ def _inject_once_under_way(system, ros_context, spin_until, messages, before_epi
     what was sent, however late a busy machine delivers it."""
     assert spin_until(system.executor, lambda: system.world.core.episode >= 0, RUN_TIMEOUT_S)
     injector = system.add(rclpy.create_node("injector", context=ros_context))
-    pubs = {topic: injector.create_publisher(spec.msg_type, topic, spec.qos) for topic, spec, _ in messages}
+    pubs = {topic: injector.create_publisher(spec.msg_type, topic, profile(spec.qos)) for topic, spec, _ in messages}
     sent = []
 
     def publish():
@@ -954,8 +955,8 @@ def test_an_earlier_runs_statistics_held_latched_are_refused_and_the_results_are
     total = system.world.config.total_episodes
     earlier = RunKey(read_key(key_file), run=run_a)
     recorder = system.add(rclpy.create_node("earlier_run", context=ros_context))
-    world_pub = recorder.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
-    agent_pub = recorder.create_publisher(AGENT_STATS.msg_type, agent_stats_topic(1), AGENT_STATS.qos)
+    world_pub = recorder.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, profile(WORLD_STATS.qos))
+    agent_pub = recorder.create_publisher(AGENT_STATS.msg_type, agent_stats_topic(1), profile(AGENT_STATS.qos))
     for e in range(total):  # what run A said, held for every late reader (transient local)
         world_pub.publish(serialize(WorldStats(e, 99, True, 7, 0, (-99.0, -99.0), 1.0), key=earlier))
         agent_pub.publish(serialize(AgentStats(1, e, algo, joint_plays=42), key=earlier))
@@ -983,7 +984,7 @@ def test_statistics_of_this_run_that_disagree_are_a_conflict_named_never_a_repla
     system = system_in(algo, *CASE[:2], episodes, CASE[2], common_extra={"key_file": key_file, "run_nonce": run})
     holder = RunKey(read_key(key_file), run=run)
     pub = system.add(rclpy.create_node("holder", context=ros_context)).create_publisher(
-        WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+        WORLD_STATS.msg_type, WORLD_STATS_TOPIC, profile(WORLD_STATS.qos))
     forged = WorldStats(0, 99, True, 7, 0, (-99.0, -99.0), 1.0)
     for _ in range(2):
         pub.publish(serialize(forged, key=holder))

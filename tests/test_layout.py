@@ -8,8 +8,9 @@ A module imports only packages below its own; world_node and agent_node never im
 the lab imports no CLI and no envs; the envs (the PettingZoo interface) import no CLI and draw their
 `rgb_array` frames with the lab's renderer, not with a plotting library of their own; only the CLI's ROS
 commands reach `ros_tools`, inside their functions; `msgs_spec`, the wire contract, imports no other package
-of ours and from rclpy only its QoS. Imports inside functions count as much as those at the top, and no module
-imports itself back through others (no import cycle, lazy imports included).
+of ours and from rclpy only its serializer, inside the functions that read bytes; the cores of the two nodes
+and the contract's payloads and codec load no rclpy at all. Imports inside functions count as much as those at
+the top, and no module imports itself back through others (no import cycle, lazy imports included).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RANK = {"cq_ros": 0, "msgs_spec": 1, "node_runtime": 2, "world_node": 3, "agent_node": 3, "ros_tools": 4}
 ROS = {"rclpy", "rcl_interfaces", "std_msgs", "diagnostic_msgs", "nav_msgs", "visualization_msgs",
        "geometry_msgs", "builtin_interfaces", "rosbags"}
-CONTRACT_RCLPY = {"rclpy.qos", "rclpy.serialization"}  # all msgs_spec may take from rclpy: QoS and the wire bytes
+CONTRACT_RCLPY = {"rclpy.serialization"}  # all msgs_spec may take from rclpy: the wire bytes (its QoS is plain data)
 CLI_MODULES = {"cq_ros/cli/main.py", "cq_ros/cli/ros.py", "cq_ros/cli/offline.py"}  # the CLI modules that may
 # reach ros_tools, inside a ROS command: the dispatch, the ROS commands, and `render --bag`
 # What the science leaves to the lab and the CLI: plots, argument parsing, clusters, progress bars.
@@ -185,7 +186,8 @@ def test_every_package_of_the_layering_exists_and_is_installed():
 
 
 @pytest.mark.parametrize("path, source, broken", [
-    ("msgs_spec/codec.py", "from rclpy.executors import SingleThreadedExecutor", "only rclpy.qos"),
+    ("msgs_spec/codec.py", "from rclpy.executors import SingleThreadedExecutor", "only rclpy.serialization"),
+    ("msgs_spec/topics.py", "from rclpy.qos import QoSProfile", "only rclpy.serialization"),
     ("msgs_spec/topics.py", "import cq_ros.settings", "no other package"),
     ("msgs_spec/topics.py", "from node_runtime.run import run_node", "no other package"),
     ("world_node/node.py", "from agent_node.config import agent_config", "only packages below"),
@@ -214,7 +216,7 @@ def test_the_check_catches_each_kind_of_break(path, source, broken):
     ("cq_ros/cli/main.py", "def launch():\n    from ros_tools.launch import launch"),
     ("ros_tools/launch.py", "from world_node.lockstep import world_config\nfrom agent_node import AgentNode"),
     ("world_node/lockstep.py", "from .node import WorldNode\nfrom node_runtime.parameters import read_key_parameter"),
-    ("msgs_spec/topics.py", "from rclpy.qos import QoSProfile\nfrom std_msgs.msg import Int32MultiArray"),
+    ("msgs_spec/stats.py", "from std_msgs.msg import Int32MultiArray\ndef f():\n    import rclpy.serialization"),
     ("tests/test_x.py", "from ros_tools.commands import echo"),
     ("cq_ros/lab/plots.py", "import matplotlib\nfrom ..gridmap import load_map"),
     ("cq_ros/cli/offline.py", "from ..lab.experiment import experiment\nfrom ..settings import Settings"),
@@ -231,6 +233,43 @@ def test_the_cli_and_the_science_load_without_rclpy():
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+# The cores and the contract's payloads and codec: pure Python over the messages' types, run and tested
+# without a ROS context; the nodes and node_runtime.qos are where rclpy comes in.
+ROS_FREE = ("world_node.lockstep", "agent_node.driver", "msgs_spec", "msgs_spec.payloads", "msgs_spec.codec",
+            "msgs_spec.arrays", "msgs_spec.fast", "msgs_spec.stats", "msgs_spec.checks", "msgs_spec.errors",
+            "msgs_spec.auth", "msgs_spec.topics")
+
+
+def test_the_cores_and_the_contracts_codec_load_no_rclpy():
+    probe = f"import sys, {', '.join(ROS_FREE)}; print('rclpy' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"
+    # the probe can see rclpy come in: a node does load it
+    done = subprocess.run([sys.executable, "-c", probe.replace("import sys,", "import sys, world_node.node,")],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert done.stdout.strip() == "True", done.stderr
+
+
+# rclpy's handles are its C objects behind a publisher, a subscription or a node: what reaches them works
+# around rclpy from pip and says why, in one module.
+HANDLE_HOME = "node_runtime/rclpy_workarounds.py"
+
+
+def handle_uses(source: str) -> list[int]:
+    """The lines of `source` that read a `.handle` attribute."""
+    return [node.lineno for node in ast.walk(ast.parse(source)) if isinstance(node, ast.Attribute)
+            and node.attr == "handle"]
+
+
+def test_only_the_rclpy_workarounds_touch_an_rclpy_handle():
+    touching = [f"{p.relative_to(ROOT).as_posix()}:{line}" for p in modules()
+                if p.relative_to(ROOT).as_posix() != HANDLE_HOME for line in handle_uses(p.read_text(encoding="utf-8"))]
+    assert touching == []
+    assert handle_uses((ROOT / HANDLE_HOME).read_text(encoding="utf-8"))  # where handles are touched, it sees them
+    assert handle_uses("with sub.handle:\n    pass") == [1]
 
 
 HEAVY = ("scipy", "matplotlib", "dask", "distributed", "rclpy", "foxglove")

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 import msgs_spec as ms
 from msgs_spec import doc
 from msgs_spec.auth import WORLD, RunKey
+from node_runtime.qos import profile
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
@@ -91,18 +92,19 @@ def test_parse_topic_inverts_the_names_under_any_namespace():
 
 def test_qos_profiles_are_explicit_and_as_documented():
     for spec in ms.TOPICS:
-        q = spec.qos
+        q = profile(spec.qos)  # as the nodes make it of the contract's plain data
         assert q.reliability == ReliabilityPolicy.RELIABLE
         assert q.history == HistoryPolicy.KEEP_LAST
         assert q.depth >= 1
-    pos = ms.POSITION.qos
+    pos = profile(ms.POSITION.qos)
     assert (pos.durability, pos.depth) == (DurabilityPolicy.TRANSIENT_LOCAL, 1)  # latched
     for spec in (ms.FEEDBACK, ms.ACTION):
-        assert spec.qos.durability == DurabilityPolicy.VOLATILE
-        assert spec.qos.depth >= 2  # an episode boundary sends two feedbacks back to back
+        assert profile(spec.qos).durability == DurabilityPolicy.VOLATILE
+        assert profile(spec.qos).depth >= 2  # an episode boundary sends two feedbacks back to back
     for spec in (ms.AGENT_STATS, ms.WORLD_STATS):  # kept for a reader that matches late or falls behind
-        assert (spec.qos.durability, spec.qos.depth) == (DurabilityPolicy.TRANSIENT_LOCAL, 1000)
-    assert ms.qos_summary(pos) == "reliable, transient local, keep last 1"
+        assert (profile(spec.qos).durability, profile(spec.qos).depth) == (DurabilityPolicy.TRANSIENT_LOCAL, 1000)
+    assert ms.qos_summary(ms.POSITION.qos) == "reliable, transient local, keep last 1"
+    assert profile(ms.FEEDBACK.reader_qos).depth == ms.READER_DEPTH
 
 
 def test_readme_generated_block_matches_the_code():
@@ -230,6 +232,22 @@ def test_round_trip(strategy, spec):
                            step=getattr(p, "step", 0)) == p  # uniform call for every topic
         assert type(spec.encode(p)) is spec.msg_type
     check()
+
+
+@pytest.mark.parametrize("keyed", [False, True], ids=["plain", "keyed"])
+@pytest.mark.parametrize("layout", ms.ARRAY_LAYOUTS, ids=lambda layout: layout.payload.__name__)
+def test_each_frame_written_from_cdr_is_rclpys(layout, keyed):
+    """The codec writes its frames out without rclpy: each is rclpy's serialization of a message of its form,
+    but for the alignment bytes (rclpy leaves there what memory held; the frame has zeros)."""
+    head, (a, b), pad, values = layout.frame(keyed)
+    label, size = layout.dimension(keyed)
+    msg = layout.ros_type()
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
+    msg.data = sample = [(i + 1) * 7 for i in range(size)]  # distinct values, to see where they lie
+    theirs = bytearray(serialize_message(msg))
+    theirs[a:b] = bytes(b - a)
+    theirs[len(head):len(head) + pad] = bytes(pad)
+    assert bytes(theirs) == head + bytes(pad) + values.pack(*sample)
 
 
 @pytest.mark.parametrize("strategy", [feedbacks(), positions, actions_], ids=["feedback", "position", "action"])
@@ -799,14 +817,14 @@ def test_every_topic_delivers_over_dds_with_its_qos_and_position_is_latched(ros_
         for spec in ms.TOPICS:
             example = doc.EXAMPLES[spec.key]
             name = spec.name(example.agent) if spec.per_agent else spec.name()
-            pubs[spec.key] = (node.create_publisher(spec.msg_type, name, spec.qos), name, example)
+            pubs[spec.key] = (node.create_publisher(spec.msg_type, name, profile(spec.qos)), name, example)
         # latched: publish the position BEFORE anyone subscribes
         pub, name, example = pubs["position"]
         pub.publish(ms.encode(example))
 
         def subscribe(spec, name):
             got[spec.key] = []
-            node.create_subscription(spec.msg_type, name, lambda m, k=spec.key: got[k].append(m), spec.qos)
+            node.create_subscription(spec.msg_type, name, lambda m, k=spec.key: got[k].append(m), profile(spec.qos))
 
         for spec in ms.TOPICS:
             subscribe(spec, pubs[spec.key][1])

@@ -27,6 +27,7 @@ from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
     agent_stats_topic, decode_action, decode_agent_stats, decode_world_stats, encode, feedback_topic,
 )
+from node_runtime.qos import profile
 from helpers import GRID, RUN_TIMEOUT_S, System, finish, offline, offline_rows, parameters, start_system
 from world_node import WorldNode
 
@@ -142,8 +143,8 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
         "cell_out_of_range": lambda e, s: encode(Feedback(1, e, s, 40, 0, 0.0)),
     }
     injector = system.add(rclpy.create_node("injector", context=ros_context))
-    to_world = injector.create_publisher(ACTION.msg_type, action_topic(1), ACTION.qos)
-    to_agent = injector.create_publisher(FEEDBACK.msg_type, feedback_topic(1), FEEDBACK.qos)
+    to_world = injector.create_publisher(ACTION.msg_type, action_topic(1), profile(ACTION.qos))
+    to_agent = injector.create_publisher(FEEDBACK.msg_type, feedback_topic(1), profile(FEEDBACK.qos))
     plan = itertools.cycle([(to_world, f) for f in bad_actions.values()] +
                            [(to_agent, f) for f in bad_feedback.values()])
 
@@ -278,13 +279,13 @@ def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match
     for node in (agent, world):
         executor.add_node(node)
     try:
-        feedback = world.create_publisher(FEEDBACK.msg_type, feedback_topic(1), FEEDBACK.qos)
+        feedback = world.create_publisher(FEEDBACK.msg_type, feedback_topic(1), profile(FEEDBACK.qos))
         assert spin_until(executor, lambda: feedback.get_subscription_count() == 1, 10.0)
         feedback.publish(encode(Feedback(1, 0, 0, 0, 0, 0.0)))
         assert spin_until(executor, lambda: agent.driver.expect == (0, 1), 10.0)  # it has answered step 0
         received = []
         world.create_subscription(ACTION.msg_type, action_topic(1), lambda m: received.append(decode_action(m)),
-                                  ACTION.qos)
+                                  profile(ACTION.qos))
         assert spin_until(executor, lambda: received, 10.0)
         assert [(a.agent, a.episode, a.step) for a in received] == [(1, 0, 0)]
     finally:
@@ -314,9 +315,10 @@ def test_statistics_reach_a_subscriber_that_comes_after_the_run_episode_0_first(
         heard: dict[int, list[int]] = {0: [], 1: [], 2: []}  # 0: the world's
         for k in (1, 2):
             probe.create_subscription(AGENT_STATS.msg_type, agent_stats_topic(k),
-                                      lambda m, k=k: heard[k].append(decode_agent_stats(m).episode), AGENT_STATS.qos)
+                                      lambda m, k=k: heard[k].append(decode_agent_stats(m).episode),
+                                      profile(AGENT_STATS.qos))
         probe.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC,
-                                  lambda m: heard[0].append(decode_world_stats(m).episode), WORLD_STATS.qos)
+                                  lambda m: heard[0].append(decode_world_stats(m).episode), profile(WORLD_STATS.qos))
         total = episodes + greedy
         assert spin_until(executor, lambda: all(len(h) >= total for h in heard.values()), 10.0), heard
         assert heard == {k: list(range(total)) for k in heard}

@@ -21,6 +21,7 @@ from msgs_spec import (
     POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Position, WorldStats, decode_position, decode_world_stats, encode,
     position_topic,
 )
+from node_runtime.qos import profile
 from msgs_spec.doc import to_yaml
 from helpers import alive_with, wait_until
 
@@ -60,9 +61,9 @@ def talker(ros_context):
     agv1/position a position that breaks the contract (it claims to be agent 2's)."""
     namespace = f"/tools_{uuid.uuid4().hex[:8]}"
     node = rclpy.create_node("talker", namespace=namespace, context=ros_context)
-    position = node.create_publisher(POSITION.msg_type, position_topic(2), POSITION.qos)
-    wrong = node.create_publisher(POSITION.msg_type, position_topic(1), POSITION.qos)
-    stats = node.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+    position = node.create_publisher(POSITION.msg_type, position_topic(2), profile(POSITION.qos))
+    wrong = node.create_publisher(POSITION.msg_type, position_topic(1), profile(POSITION.qos))
+    stats = node.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, profile(WORLD_STATS.qos))
     talker = Talker(namespace, (position, wrong, stats))
 
     def tick() -> None:
@@ -258,7 +259,7 @@ def test_record_with_a_namespace_records_that_systems_topics_and_resolves_relati
     # Another system's project topic on the same domain, latched: a recorder of every namespace would get it.
     other = rclpy.create_node("other", namespace=f"/other_{uuid.uuid4().hex[:8]}", context=ros_context)
     try:
-        other.create_publisher(POSITION.msg_type, position_topic(1), POSITION.qos).publish(
+        other.create_publisher(POSITION.msg_type, position_topic(1), profile(POSITION.qos)).publish(
             encode(Position(agent=1, episode=0, step=0, row=0, col=0)))
         namespace = talker.namespace.removeprefix("/")
         every = record_until_heard(talker, "--out", str(tmp_path / "every"), "--namespace", namespace)

@@ -16,6 +16,7 @@ from rclpy.executors import SingleThreadedExecutor
 
 from helpers import GRID, RUN_TIMEOUT_S, finish, offline_rows, parameters, unique, wait_until
 from msgs_spec import HEARTBEAT, HEARTBEAT_TOPIC, WORLD_STATS, WORLD_STATS_TOPIC, Heartbeat, encode, new_key_file
+from node_runtime.qos import profile
 from node_runtime.graph import UNKNOWN_NODE
 from world_node import WorldNode
 from world_node.twin import HEARD_FOR_BEATS, KEPT, Identity, Twins
@@ -230,12 +231,12 @@ def test_a_heartbeat_squatter_before_a_keyed_start_neither_stops_nor_holds_back_
     system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], common_extra={"key_file": key},
                        world_extra={"min_stats_subscribers": 2})
     squatter = system.add(rclpy.create_node("squatter", context=ros_context))
-    pub = squatter.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
+    pub = squatter.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, profile(HEARTBEAT.qos))
     beats = iter(range(1, 10**9))
     squatter.create_timer(0.05, lambda: pub.publish(encode(Heartbeat(next(beats), 0, 0, 1, 0, 0))))
     assert spin_until(system.executor, lambda: bool(system.world.twins.fresh()), RUN_TIMEOUT_S)
     assert system.world.core.episode == -1  # heard while it waits
-    squatter.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, lambda _m: None, WORLD_STATS.qos)
+    squatter.create_subscription(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, lambda _m: None, profile(WORLD_STATS.qos))
     finish(system)
     assert [(s.steps, s.collisions, s.truncated) for s in system.world_stats] == [
         (int(e["steps"]), int(e["collisions"]), bool(e["truncated"]))

@@ -28,6 +28,7 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 from cq_ros.gridmap import load_map  # noqa: E402
 from cq_ros.gridmap import lattice  # noqa: E402
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene  # noqa: E402
+from node_runtime.qos import profile  # noqa: E402
 from helpers import launch_command, unique, wait_for_line, wait_until  # noqa: E402
 
 START_S = 90.0  # bound on the view process starting and finding the system on 2 busy cores
@@ -110,9 +111,9 @@ def test_view_relays_the_map_and_the_markers_to_a_foxglove_client(ros_context, r
     gridmap = load_map("grid_game_2")
     ns = f"view_{uuid.uuid4().hex[:6]}"
     world = rclpy.create_node("world", namespace=ns, context=ros_context)  # the system's world, as the relay finds it
-    map_pub = world.create_publisher(MAP.msg_type, MAP_TOPIC, MAP.qos)
+    map_pub = world.create_publisher(MAP.msg_type, MAP_TOPIC, profile(MAP.qos))
     map_pub.publish(MAP.encode(Occupancy(lattice(gridmap)), stamp=world.get_clock().now().to_msg()))
-    scene_pub = world.create_publisher(SCENE.msg_type, SCENE_TOPIC, SCENE.qos)
+    scene_pub = world.create_publisher(SCENE.msg_type, SCENE_TOPIC, profile(SCENE.qos))
     goals = tuple(gridmap.cells[g] for g in gridmap.goals)
     starts = tuple(gridmap.cells[s] for s in gridmap.starts)
     world.create_timer(0.2, lambda: scene_pub.publish(SCENE.encode(Scene(0, 0, starts, goals),

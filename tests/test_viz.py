@@ -21,6 +21,7 @@ from cq_ros.lab.render import (CELL_INCHES, DPI, Picture, cut_by_bag, engine_fra
 from cq_ros.settings import Settings
 from msgs_spec import Bounds
 from msgs_spec import viz
+from node_runtime.qos import profile
 from ros_tools.commands import read_view_bag
 from helpers import finish, wait_until
 
@@ -44,12 +45,13 @@ def watch(ctx, system) -> dict:
     seen = {"map": [], "scenes": [], "looks": []}
     viewer = system.add(rclpy.create_node("viewer", context=ctx))
     viewer.create_subscription(viz.MAP.msg_type, viz.MAP_TOPIC,
-                               lambda m: seen["map"].append(viz.MAP.decode(m)), viz.MAP.qos)
+                               lambda m: seen["map"].append(viz.MAP.decode(m)), profile(viz.MAP.qos))
     viewer.create_subscription(viz.SCENE.msg_type, viz.SCENE_TOPIC,
-                               lambda m: seen["scenes"].append(viz.SCENE.decode(m, bounds=bounds)), viz.SCENE.qos)
+                               lambda m: seen["scenes"].append(viz.SCENE.decode(m, bounds=bounds)),
+                               profile(viz.SCENE.qos))
     for k in range(1, gridmap.n_agents + 1):
         viewer.create_subscription(viz.LOOKS.msg_type, viz.looks_topic(k), lambda m, k=k: seen["looks"].append(
-            viz.LOOKS.decode(m, bounds=bounds, agent=k)), viz.LOOKS.qos)
+            viz.LOOKS.decode(m, bounds=bounds, agent=k)), profile(viz.LOOKS.qos))
     return seen
 
 

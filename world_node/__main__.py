@@ -11,17 +11,13 @@ as one agent, 130 interrupted (Ctrl-C, SIGTERM).
 
 import sys
 
-from cq_ros.settings import SettingsError
-from node_runtime.parameters import help_requested, print_help
-from node_runtime.run import run_node
+from node_runtime.run import node_main
 
 from .node import WorldNode
 
 
 def main() -> int:
-    if help_requested(sys.argv):
-        return print_help(__doc__, ("world",))
-    return run_node(WorldNode, "world_node", (SettingsError,))
+    return node_main(__doc__, "world", WorldNode)
 
 
 if __name__ == "__main__":

@@ -247,9 +247,9 @@ class Lockstep:
         self.collisions += w.last_collisions
         self.returns = [r + x for r, x in zip(self.returns, rewards)]
         out = self._positions()
-        cap = w.t >= w.step_cap
+        cap = w.capped
         out += [self._feedback(k - 1, rewards[k - 1], cap, self._actions[k - 1]) for k in acting]
-        if w.finished or cap:
+        if w.over:
             out.append(self._episode_stats())
             out += self._next_episode()
         else:

@@ -24,6 +24,8 @@ from msgs_spec import (
     ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
     Position, WorldStats, action_topic, agent_namespace, decode_heartbeat, feedback_topic, position_topic, serialize,
 )
+from node_runtime.qos import profile
+from node_runtime.rclpy_workarounds import raw_publisher
 # Each payload's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
 from msgs_spec.fast import serialize_feedback, serialize_heartbeat, serialize_position
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph, writers
@@ -54,9 +56,9 @@ class _ListenedPosition:
         self.key = key
         self.held: Position | None = None  # serialized only if it goes out
         self.matched = Matched(then=self._on_match)
-        pub = node.create_publisher(POSITION.msg_type, topic, POSITION.qos,
+        pub = node.create_publisher(POSITION.msg_type, topic, profile(POSITION.qos),
                                     event_callbacks=PublisherEventCallbacks(matched=self.matched))
-        self.publish = _raw(pub)
+        self.publish = raw_publisher(pub)
 
     def send(self, position: Position) -> None:
         if self.matched.count:
@@ -69,13 +71,6 @@ class _ListenedPosition:
         if self.matched.count and self.held is not None:
             self.publish(serialize_position(self.held, self.key))
             self.held = None
-
-
-def _raw(pub: Any) -> Any:
-    """The publisher's own publish of serialized bytes: what Publisher.publish(bytes) calls, the same bytes,
-    without its per-call type check and handle lock (the node destroys its publishers only after it has
-    stopped spinning)."""
-    return pub.handle.publish_raw
 
 
 class WorldNode(Node):
@@ -99,25 +94,26 @@ class WorldNode(Node):
         agents = range(1, world.n + 1)
         key = cfg.key
         self._positions = {k: _ListenedPosition(self, position_topic(k), key) for k in agents}
-        self._feedback = {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), FEEDBACK.qos) for k in agents}
+        self._feedback = {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), profile(FEEDBACK.qos))
+                          for k in agents}
         # What each payload of the core's outbox goes out as, looked up by its type alone (no isinstance chain).
         positions = {k: pub.send for k, pub in self._positions.items()}
-        feedback = {k: _raw(pub) for k, pub in self._feedback.items()}
+        feedback = {k: raw_publisher(pub) for k, pub in self._feedback.items()}
         self._senders = {
             Position: lambda p: positions[p.agent](p),
             Feedback: lambda f: feedback[f.agent](serialize_feedback(f, key)),
         }
-        self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, WORLD_STATS.qos)
+        self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, profile(WORLD_STATS.qos))
         self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
         # Raw: the core decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
         lost = count_lost(self.core.extra_counters)
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
-                                                     ACTION.reader_qos, raw=True, event_callbacks=lost)
+                                                     profile(ACTION.reader_qos), raw=True, event_callbacks=lost)
                          for k in agents}
-        self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, HEARTBEAT.qos)
+        self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, profile(HEARTBEAT.qos))
         # Every world's heartbeat, ours included: what a twin says of itself (world_node.twin)
         self._heartbeats = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
-                                                    HEARTBEAT.reader_qos, raw=True)
+                                                    profile(HEARTBEAT.reader_qos), raw=True)
         self._senders[Heartbeat] = lambda h: self._heartbeat.publish(serialize_heartbeat(h, key))
         self._senders[WorldStats] = lambda w: self._stats.publish(
             serialize(w, key=key, stamp=self.get_clock().now().to_msg()))

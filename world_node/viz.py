@@ -12,6 +12,7 @@ from cq_ros.gridmap import GridMap
 from cq_ros.gridmap import lattice
 from msgs_spec import Position
 from msgs_spec.viz import MAP, MAP_TOPIC, SCENE, SCENE_TOPIC, Occupancy, Scene
+from node_runtime.qos import profile
 from node_runtime.graph import Matched
 
 __all__ = ["WorldView"]
@@ -22,10 +23,10 @@ class WorldView:
         self.node = node
         self.n = gridmap.n_agents
         self.goals = tuple(gridmap.cells[g] for g in gridmap.goals)
-        self.map = node.create_publisher(MAP.msg_type, MAP_TOPIC, MAP.qos)
+        self.map = node.create_publisher(MAP.msg_type, MAP_TOPIC, profile(MAP.qos))
         self.map.publish(MAP.encode(Occupancy(lattice(gridmap)), stamp=node.get_clock().now().to_msg()))
         self.watchers = Matched()
-        self.scene = node.create_publisher(SCENE.msg_type, SCENE_TOPIC, SCENE.qos,
+        self.scene = node.create_publisher(SCENE.msg_type, SCENE_TOPIC, profile(SCENE.qos),
                                            event_callbacks=PublisherEventCallbacks(matched=self.watchers))
 
     def publish(self, out: list) -> None:

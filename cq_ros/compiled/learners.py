@@ -462,6 +462,8 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tmp, out):
         for k in range(n):  # Team.start
             _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, jsi, jsf, head, wt, wtr, wtk, row)
     t, collisions, ret = int(ep[T]), int(ep[COLLISIONS]), ep[RETURN]
+    # GridWorld.over's numba twin (it cannot call the world), here and below: tests/test_compiled.py's
+    # byte-identical result files hold the two to one rule.
     over = done.all() or t >= ip[STEP_CAP]
     while not over:
         if is_cq and (meta[FREE] < n * (n - 1) or used[0] + n > pool.shape[0]):  # each agent may mark n - 1

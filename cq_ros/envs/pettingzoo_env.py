@@ -131,7 +131,7 @@ class GridWorldEnv(ParallelEnv):
         # an agent at its goal stays with a no-op: its action is dropped, as GridWorld drops a parked one's
         _, acting_rewards, *_ = world.step({a: int(x) for a, x in actions.items()
                                             if a not in self._index or not world.done[self._index[a]]})
-        over = world.finished or world.truncated
+        over = world.over
         rewards = {a: acting_rewards.get(a, 0.0) for a in names}
         terminations = {a: over and world.done[i] for i, a in enumerate(names)}
         truncations = {a: over and not world.done[i] for i, a in enumerate(names)}

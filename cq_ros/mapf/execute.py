@@ -195,7 +195,7 @@ def execute(the_plan: Plan, gridmap: GridMap, settings: Settings, seed: int, run
     collisions = waits = delays = 0
     stuck = False
     held = 0
-    while not world.finished and world.t < world.step_cap:
+    while not world.over:
         joint, moving = choose(world)
         if not moving:
             stuck = True
