@@ -354,6 +354,13 @@ def size_tables(agents: int, rows: list[dict], configs: Sequence[Config], planne
                   "| --- |" + " ---: |" * len(FIGURES)]
         lines += [f"| {c.name} | " + " | ".join(figure(c.name, copy, n).show(d) for _, n, d in FIGURES) + " |"
                   for c in present]
+        # A few units whose AGVs stall against each other until the step cap (colliding at every step) can carry
+        # the mean: the median and the units always home say how many.
+        lines += ["", "Median over units of greedy collisions/ep: " + ", ".join(
+            f"{c.name} {np.median(unit_values(rows, c.name, f'{copy}_collisions')):.3f}" for c in present)
+            + "; units in which every greedy episode brought every AGV home: " + ", ".join(
+            f"{c.name} {sum(v == 1 for v in unit_values(rows, c.name, f'{copy}_home'))} of {units}" for c in present)
+            + "."]
         if len(present) < 2:
             continue
         lines += ["", f"Paired differences, {copy}:", "", f"| configuration | {header} |",
