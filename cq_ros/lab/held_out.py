@@ -13,12 +13,12 @@ through the lab's runner (cq_ros.lab.runner), on the compiled engine where it pl
 
 OUT keeps: units.csv (one row per unit and configuration, written as each finishes: a rerun with the same
 protocol plays only the units missing, so a study resumes, or grows by maps, runs, sizes or configurations),
-curve.csv, planner.csv (the planner's executions), study.json (the protocol a resume must match), maps/ and
-study.md, the tables (also printed): per size, per configuration the mean and 95% t interval over units
-(cq_ros.lab.study) of greedy collisions and peer positions heard per episode, the every-AGV-home rate, the greedy
-makespan over the planner's executed makespan, and the states at the end of learning; the paired differences
-from the first configuration; bootstrap intervals of the ratios of collisions (each / the first) and of heard
-(the first / each); and the curve.
+curve.csv, planner.csv (the planner's executions), study.json (the protocol a resume must match, and what the
+last command showed), maps/ and study.md, the tables (also printed; `report` makes them again from OUT): per
+size, per configuration the mean and 95% t interval over units (cq_ros.lab.study) of greedy collisions and peer
+positions heard per episode, the every-AGV-home rate, the greedy makespan over the planner's executed makespan,
+and the states at the end of learning; the paired differences from the first configuration; bootstrap intervals
+of the ratios of collisions (each / the first) and of heard (the first / each); and the curve.
 """
 
 from __future__ import annotations
@@ -185,13 +185,13 @@ def open_output(out: Path, protocol: dict, force: bool) -> Path:
                                "--force to overwrite")
         else:
             old = json.loads(kept.read_text())
-            mine = {k: v for k, v in protocol.items() if k != "configs"}
+            mine = {k: v for k, v in protocol.items() if k not in ("configs", "shown")}
             clash = [k for k, v in mine.items() if old.get(k) != v] + [
                 name for name, c in protocol["configs"].items() if old["configs"].get(name, c) != c]
             if clash:
                 raise ResultExists(f"output directory {out} holds a study of another protocol ({', '.join(clash)} "
                                    "differ); choose another or pass --force to overwrite")
-            protocol = {**protocol, "configs": {**old["configs"], **protocol["configs"]}}
+            protocol = {**old, **protocol, "configs": {**old["configs"], **protocol["configs"]}}
     out = check_folder(out, "output directory")
     kept.write_text(json.dumps(protocol, indent=1) + "\n")
     return out
@@ -247,9 +247,10 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     step = max(1, workers or os.cpu_count() or 1)  # units in flight at once; each batch's rows are kept at its end
     for i in range(0, len(units), step):
         batch = units[i:i + step]
-        ran = run_all(batch, partial(play_unit, loaded), workers, cluster, label=f"study units {i + 1}-{i + len(batch)}")
-        new = [{"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config, **r["row"],
-                "planner_makespan": planner[(u.agents, u.generator_seed, u.run)]["makespan"]}
+        ran = run_all(batch, partial(play_unit, loaded), workers, cluster,
+                      label=f"study units {i + 1}-{i + len(batch)}")
+        new = [{"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
+                **r["row"], "planner_makespan": planner[(u.agents, u.generator_seed, u.run)]["makespan"]}
                for u, r in zip(batch, ran.results)]
         append_rows(out / "units.csv", new)
         append_rows(out / "curve.csv", [
@@ -258,7 +259,11 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
         rows += new
         print(f"study: unit {i + len(batch)}/{len(units)}, {time.perf_counter() - started:.0f} s elapsed",
               file=sys.stderr, flush=True)
-    text = summary(out, sizes, maps, runs, configs, slip, command, presets)
+    kept = json.loads((out / "study.json").read_text())
+    kept["shown"] = {"sizes": list(sizes), "maps": maps, "runs": runs, "configs": [c.name for c in configs],
+                     "command": command, "presets": presets}
+    (out / "study.json").write_text(json.dumps(kept, indent=1) + "\n")
+    text = report(out)
     (out / "study.md").write_text(text)
     return text
 
@@ -288,10 +293,13 @@ def planned(out: Path, paths: dict[tuple[int, int], Path], runs: int, seed: int,
     return found
 
 
-def summary(out: Path, sizes: Sequence[int], maps: int, runs: int, configs: Sequence[Config], slip: float,
-            command: str, presets: dict[str, dict]) -> str:
-    """study.md, from OUT's csv files (the units of these sizes, maps and runs)."""
+def report(out: Path) -> str:
+    """study.md, from OUT's files alone: the units of the sizes, maps, runs and configurations the last command
+    asked for (study.json's `shown`), so that a page can show a kept study as the command printed it."""
     protocol = json.loads((out / "study.json").read_text())
+    shown = protocol["shown"]
+    sizes, maps, runs, command, presets = (shown[k] for k in ("sizes", "maps", "runs", "command", "presets"))
+    configs = [Config(**protocol["configs"][name]) for name in shown["configs"]]
     seeds = set(HELD_OUT_SEEDS[:maps])
     mine = [r for r in read_rows(out / "units.csv") if r["generator_seed"] in seeds and r["run"] < runs]
     curve = [r for r in read_rows(out / "curve.csv") if r["generator_seed"] in seeds and r["run"] < runs]
@@ -300,7 +308,7 @@ def summary(out: Path, sizes: Sequence[int], maps: int, runs: int, configs: Sequ
     lines = [
         "# Held-out study", "", f"Command: `{command}`", "",
         f"Generator seeds {HELD_OUT_SEEDS[0]}-{HELD_OUT_SEEDS[maps - 1]} (held out; tuning seeds "
-        f"{', '.join(map(str, TUNING_SEEDS))} never), slip {slip:g}; learner seed {protocol['seed']}, runs "
+        f"{', '.join(map(str, TUNING_SEEDS))} never), slip {protocol['slip']:g}; learner seed {protocol['seed']}, runs "
         f"0-{runs - 1}; {protocol['episodes']} learning episodes per configuration, then from that run "
         f"{protocol['greedy_episodes']} greedy episodes frozen (eval_learning=0, the primary figure) and "
         f"{protocol['greedy_episodes']} learning (eval_learning=1); the curve: {protocol['curve_episodes']} frozen "
