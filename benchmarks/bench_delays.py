@@ -18,13 +18,15 @@ per step.
     python benchmarks/bench_delays.py [--maps warehouse_8] [--algos indep,near,loc,cq] [--slips 0,0.1]
         [--seeds 0,1,2] [--runs 10] [--episodes 2000] [--jobs 2] [--set KEY=VALUE ...]
 
-The held-out protocol (`--generate AGENTS:SEED,SEED ...`, repeatable): instead of `--maps`, warehouses made by
-`cq-ros generate warehouse --agents AGENTS --seed SEED --slip P` (P from `--gen-slip`, 0.1), so that what is
-measured is on maps no setting was tuned on. `--variant NAME=ALGO:KEY=VALUE,...` (repeatable) adds a
-configuration: an algorithm with settings of its own over the maps' and `--set`'s. For each number of agents, a
-unit is one map and one run (run r of every configuration on a map: the same learner and world seeds, the same
-delays), and per configuration it prints the mean over units and the half-width of a 95% t interval, then each
-configuration's paired differences from the first (the same maps, the same runs):
+The protocol on generated maps (`--generate AGENTS:SEED,SEED ...`, repeatable), the tool of tuning (on the tuning
+generator seeds, cq_ros.lab.held_out.TUNING_SEEDS, with `--variant`s): instead of `--maps`, warehouses made by
+`cq-ros generate warehouse --agents AGENTS --seed SEED --slip P` (P from `--gen-slip`, 0.1). The held-out figures
+come from `cq-ros study` (cq_ros.lab.held_out: frozen and learning greedy copies, the planner, ratios, a curve).
+`--variant NAME=ALGO:KEY=VALUE,...` (repeatable) adds a configuration: an algorithm with settings of its own over
+the maps' and `--set`'s. For each number of agents, a unit is one map and one run (run r of every configuration on a
+map: the same learner and world seeds, the same delays), and per configuration it prints the mean over units and the
+half-width of a 95% t interval, then each configuration's paired differences from the first (the same maps, the same
+runs):
 - greedy collisions: per greedy episode;
 - greedy all home: the share of greedy episodes in which every AGV reached its goal before the step cap;
 - greedy heard: peer positions the learners took in per greedy episode (all agents together);

@@ -195,12 +195,13 @@ class Team:
         )
 
 
-def greedy_team(team: Team) -> Team:
+def greedy_team(team: Team, learning: bool | None = None) -> Team:
     """A copy of the team whose learners act at epsilon 0 (the learnt policy without exploration), frozen
-    unless settings.eval_learning (Learner.make_greedy), so the run itself is left exactly as it was."""
+    unless `learning` (None: settings.eval_learning; Learner.make_greedy), so the run itself is left exactly
+    as it was."""
     greedy = copy.deepcopy(team)
     for learner in greedy.learners:
-        learner.make_greedy()
+        learner.make_greedy(learning)
     return greedy
 
 

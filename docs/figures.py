@@ -183,7 +183,71 @@ def delays_held_out() -> str:
     return "\n".join(printed("delays/heldout", path.stem) for path in files)
 
 
-FIGURES: dict[str, Callable[[], str]] = {"reproduce": reproduce, "who-listens": who_listens,
+def study_folders() -> list[Path]:
+    """The studies kept under docs/data/study/ (each what `cq-ros study --out` wrote there), by fleet size; one
+    still being played (no `shown` in its study.json yet) is left out."""
+    kept = {path.parent: json.loads(path.read_text()) for path in (DATA / "study").glob("*/study.json")}
+    return sorted((folder for folder, protocol in kept.items() if "shown" in protocol),
+                  key=lambda folder: (kept[folder]["shown"]["sizes"][0], folder.name))
+
+
+def study() -> str:
+    """Each kept study as `cq-ros study` printed it (cq_ros.lab.held_out.report makes it again from the folder's
+    csv files), its title dropped and its headings put under the page's."""
+    from cq_ros.lab.held_out import report
+
+    out = []
+    for folder in study_folders():
+        lines = report(folder).splitlines()[2:]  # the title, and the blank line after it
+        out += [f"**docs/data/study/{folder.name}/**", "", *(("##" + line) if line.startswith("## ") else line
+                                                            for line in lines), ""]
+    return "\n".join(out)
+
+
+# The targets set for held-out delayed warehouses (frozen greedy policy): collisions per episode at most this.
+COLLISION_TARGETS = {8: 0.05, 12: 0.1, 16: 0.2, 32: 0.2}
+
+
+def study_targets() -> str:
+    """Each kept study's frozen greedy figures against the targets: met or missed, from its units.csv."""
+    from cq_ros.lab.held_out import BOOTSTRAP_SEED, read_rows, unit_values
+    from cq_ros.lab.study import makespan_ratio, mean_interval, ratio_interval
+
+    lines = ["| study | target | measured (frozen greedy policy, CQ) | |", "| --- | --- | --- | --- |"]
+    for folder in study_folders():
+        shown = json.loads((folder / "study.json").read_text())["shown"]
+        agents = shown["sizes"][0]
+        rows = [r for r in read_rows(folder / "units.csv") if r["agents"] == agents]
+        cq = unit_values(rows, "cq", "frozen_collisions")
+        home = unit_values(rows, "cq", "frozen_home")
+        collisions = mean_interval(cq)
+        ratio = ratio_interval(unit_values(rows, "indep", "frozen_collisions"), cq, BOOTSTRAP_SEED)
+        makespan = makespan_ratio(unit_values(rows, "cq", "frozen_makespan"),
+                                  unit_values(rows, "cq", "planner_makespan"))
+        name = f"{folder.name} ({agents} AGVs, {len(cq)} units)"
+        checks = [
+            ("every AGV home in every greedy episode", f"in {sum(h == 1 for h in home)} of {len(cq)} units",
+             all(h == 1 for h in home)),
+            (f"collisions at most {COLLISION_TARGETS[agents]:g} an episode", collisions.show(3),
+             collisions.mean <= COLLISION_TARGETS[agents]),
+            ("indep / CQ collisions at least 5x, bootstrap low end above 2x",
+             f"{ratio.mean:.2f}x ({ratio.low:.2f} to {ratio.high:.2f})", ratio.mean >= 5 and ratio.low > 2),
+            ("makespan within 1.5x of the planner's executed makespan", f"{makespan.show(2)}x", makespan.mean <= 1.5),
+        ]
+        if "near" in shown["configs"]:
+            heard = ratio_interval(unit_values(rows, "cq", "frozen_heard"), unit_values(rows, "near", "frozen_heard"),
+                                   BOOTSTRAP_SEED)
+            checks.append(("CQ hears at most half of near's", f"{heard.mean:.2f} ({heard.low:.2f} to {heard.high:.2f})",
+                           heard.mean <= 0.5))
+        else:
+            checks.append(("CQ hears at most half of near's", "near not in this study", None))
+        lines += [f"| {name} | {target} | {measured} | {'-' if met is None else 'met' if met else 'missed'} |"
+                  for target, measured, met in checks]
+    return "\n".join(lines) + "\n"
+
+
+FIGURES: dict[str, Callable[[], str]] = {"study": study, "study-targets": study_targets,
+                                         "reproduce": reproduce, "who-listens": who_listens,
                                          "warehouses": warehouses, "delays": delays,
                                          "delays-held-out": delays_held_out,
                                          **{name: partial(printed, "speed", name)

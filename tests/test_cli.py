@@ -326,24 +326,3 @@ def test_reproduce_reports_the_papers_cq_beside_ours(tmp_path):
         assert f"\n| {m} | " in section
 
 
-def test_study_plays_held_out_maps_and_its_tables_are_the_units_arithmetic(tmp_path, capsys):
-    from cq_ros.lab.held_out import HELD_OUT_SEEDS, TUNING_SEEDS
-    from cq_ros.lab.study import mean_interval
-
-    out = tmp_path / "study"
-    assert main(["study", "--agents", "4", "--maps", "1", "--runs", "2", "--episodes", "3", "--greedy-episodes", "2",
-                 "--algos", "cq,indep", "--set", "step_cap=60", "--out", str(out), "--jobs", "1"]) == 0
-    captured = capsys.readouterr()
-    assert "study: runs 8/8" in captured.err and "study: planning warehouse_4_gen1001.txt" in captured.err
-    assert not set(HELD_OUT_SEEDS) & set(TUNING_SEEDS)
-    rows = list(csv.DictReader(open(out / "units.csv")))
-    assert len(rows) == 2 * 2 * 2  # runs x configurations x copies
-    assert {r["generator_seed"] for r in rows} == {"1001"} and (out / "maps" / "warehouse_4_gen1001.txt").exists()
-    text = (out / "study.md").read_text()
-    assert captured.out == text
-    for copy in ("frozen", "learning"):
-        table = text.split(f"Greedy policy, {copy}:")[1]
-        cq = [float(r["collisions"]) for r in rows if (r["config"], r["copy"]) == ("cq", copy)]
-        assert f"| cq | {mean_interval(cq).show(3)} | " in table
-    assert "| indep - cq | " in text and "collisions: it / cq" in text
-

@@ -46,7 +46,8 @@ def test_the_figures_stand_where_the_pages_say():
                      "cq-confidence": "choices.md", "churn-defaults": "choices.md",
                      "churn-fast_fading": "choices.md", "bench-cluster": "cluster.md",
                      "scaling-three-runs": "warehouses.md", "yardstick": "warehouses.md",
-                     "delays-say": "warehouses.md", "delays-held-out": "warehouses.md"}
+                     "delays-say": "warehouses.md", "delays-held-out": "warehouses.md",
+                     "study": "warehouses.md", "study-targets": "warehouses.md"}
 
 
 def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():

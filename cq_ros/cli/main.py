@@ -427,20 +427,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("study", help="learners on held-out delayed warehouses, frozen greedy policies against the "
                                      "planner: intervals over units, paired differences, ratios (OUT/study.md)",
                        description="Per fleet size, MAPS warehouses generated from held-out generator seeds x RUNS "
-                       "runs; every configuration learns EPISODES episodes, then plays its greedy policy frozen "
-                       "(and, unless --no-learning-copy, learning, in a second run of the same seeds). "
-                       "cq_ros.lab.held_out says what it prints.")
+                       "runs; every configuration learns EPISODES episodes, then two greedy copies of that run play "
+                       "G episodes each, one frozen and one learning; every K learning episodes a frozen copy plays "
+                       "the curve's. OUT holds units already played: a rerun with the same protocol plays only the "
+                       "missing units. cq_ros.lab.held_out says what it writes.")
     p.add_argument("--agents", type=_sizes, required=True, metavar="N,N,...", help="fleet sizes, e.g. 8,12")
     p.add_argument("--maps", type=_positive, default=10, help="generated maps per size (default 10)")
     p.add_argument("--greedy-episodes", type=_number(1, kind=int), default=100, metavar="G",
                    help="greedy episodes per unit and copy (default 100)")
-    p.add_argument("--algos", type=_algos, default=["cq", "indep", "near"],
-                   help="comma-separated, the first the reference of differences and ratios (default cq,indep,near)")
+    p.add_argument("--algos", type=_algos, default=["cq", "indep"],
+                   help="comma-separated, the first the reference of differences and ratios (default cq,indep)")
     p.add_argument("--paper", action="store_true", help="add the paper's CQ (algo cq, preset paper) as cq_paper")
     p.add_argument("--slip", type=_number(0, 1), default=0.1, metavar="P", help="the maps' slip (default 0.1)")
-    p.add_argument("--no-learning-copy", dest="learning_copy", action="store_false",
-                   help="play the frozen greedy policy only (half the learning)")
-    p.add_argument("--out", type=Path, required=True, help="result directory (study.md, units.csv, maps/)")
+    p.add_argument("--curve-every", type=_positive, default=250, metavar="K",
+                   help="learning episodes between the curve's points (default 250)")
+    p.add_argument("--curve-episodes", type=_positive, default=20, metavar="C",
+                   help="frozen greedy episodes per point of the curve (default 20)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="result directory (study.md, units.csv, curve.csv, planner.csv, maps/); resumed if it holds "
+                        "a study of the same protocol")
     _add_run_options(p, runs=10, episodes=2000)
     _add_ros_parsers(sub)
     return parser

@@ -238,11 +238,11 @@ def study(args) -> int:
 
     for agents in args.agents:  # a bad setting fails before any work starts
         run_settings(parse_map(warehouse_text(agents, slip=args.slip)), args.overrides)
-    with removed_if_failing(args.out):
-        print(study(args.out, args.agents, args.maps, args.runs, args.episodes, args.greedy_episodes,
-                    parse_configs(args.algos, args.paper), args.seed, args.slip,
-                    args.overrides, args.jobs, args.cluster, args.learning_copy, args.force,
-                    shlex.join(["cq-ros", *args.argv])), end="")
+    # Not removed if failing: the units played so far are kept, for a rerun to resume.
+    print(study(args.out, args.agents, args.maps, args.runs, args.episodes, args.greedy_episodes,
+                parse_configs(args.algos, args.paper), args.seed, args.slip, args.overrides, args.jobs,
+                args.cluster, args.force, shlex.join(["cq-ros", *args.argv]), args.curve_every,
+                args.curve_episodes), end="")
     print(f"results: {args.out}", file=sys.stderr)
     return 0
 

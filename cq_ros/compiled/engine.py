@@ -112,11 +112,11 @@ class Kernel:
                     on_episode()
         return recfunctions.unstructured_to_structured(out, record.DTYPE) if episodes else record.table(())
 
-    def greedy(self) -> "Kernel":
-        """engine.greedy_team: a copy at epsilon 0, frozen unless settings.eval_learning."""
+    def greedy(self, learning: bool | None = None) -> "Kernel":
+        """engine.greedy_team: a copy at epsilon 0, frozen unless `learning` (None: settings.eval_learning)."""
         other = copy.deepcopy(self)
         other.eps[:] = 0.0
-        other.ip[K.LEARNING] = int(bool(self.settings.eval_learning))
+        other.ip[K.LEARNING] = int(bool(self.settings.eval_learning if learning is None else learning))
         return other
 
     def joint_states(self) -> list[tuple[int, int, int, int, float]]:

@@ -1,36 +1,52 @@
 """`cq-ros study`: learners judged on delayed warehouses that no setting was tuned on, against the planner.
 
 Per fleet size, `maps` warehouses generated from held-out generator seeds (HELD_OUT_SEEDS; the tuning seeds,
-TUNING_SEEDS, are refused) x `runs` runs: a unit is one map and one run, in which every configuration meets the
-same delays. Every configuration learns for the same `episodes`, then its greedy policy plays `greedy_episodes`
-episodes FROZEN (`eval_learning=0`: what a deployed fleet does, the primary figure) and, in a second run of the
-same seeds, on a greedy copy that goes on learning (`eval_learning=1`, beside it). The planner's plan is carried
-out under the same delays (cq_ros.mapf.execute: execution r draws run r's delays), the yardstick of makespans.
-The runs play through the lab (cq_ros.lab.experiment.run_jobs), on whichever engine it plays.
+TUNING_SEEDS, are never among them) x `runs` runs: a unit is one map and one run, in which every configuration
+meets the same delays and learns for the same `episodes`. From that ONE learning run, two greedy copies play
+`greedy_episodes` episodes each: one FROZEN (`eval_learning=0`: what a deployed fleet does, the primary figure)
+and one that goes on learning (`eval_learning=1`, beside it). Every `curve_every` learning episodes a frozen greedy
+copy plays `curve_episodes` episodes: the curve of greedy collisions against episodes, which shows where each
+learner has converged (its last point is the frozen copy's figure). The copies are deep copies, so the learning
+run is the one `cq-ros experiment` plays with the same seeds. The planner's plan is carried out under the same
+delays (cq_ros.mapf.execute: execution r draws run r's delays), the yardstick of makespans. The units play
+through the lab's runner (cq_ros.lab.runner), on the compiled engine where it plays the learner.
 
-It prints, and writes to OUT/study.md, per size: per configuration the mean and 95% t interval over units
-(cq_ros.lab.study) of greedy collisions and peer positions heard per episode, the every-AGV-home rate, the
-greedy makespan over the planner's executed makespan, and the states at the end of learning; the paired
-differences from the first configuration; bootstrap intervals of the ratios of collisions (each / the first) and
-of heard (the first / each); OUT/units.csv keeps every unit's figures, OUT/maps/ the maps.
+OUT keeps: units.csv (one row per unit and configuration, written as each finishes: a rerun with the same
+protocol plays only the units missing, so a study resumes, or grows by maps, runs, sizes or configurations),
+curve.csv, planner.csv (the planner's executions), study.json (the protocol a resume must match, and what the
+last command showed), maps/ and study.md, the tables (also printed; `report` makes them again from OUT): per
+size, per configuration the mean and 95% t interval over units (cq_ros.lab.study) of greedy collisions and peer
+positions heard per episode, the every-AGV-home rate, the greedy makespan over the planner's executed makespan,
+and the states at the end of learning; the paired differences from the first configuration; bootstrap intervals
+of the ratios of collisions (each / the first) and of heard (the first / each); and the curve.
 """
 
 from __future__ import annotations
 
 import csv
+import json
+import os
 import sys
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 
-from ..gridmap import load_map
+import numpy as np
+
+from .. import compiled
+from .. import episode as record
+from ..engine import Team, greedy_team, make_learners, world_seed
+from ..gridmap import GridMap, load_map
 from ..mapf.execute import execute
 from ..mapf.planner import plan
 from ..mapgen.warehouse import warehouse_text
 from ..settings import Settings, run_settings_and_presets
-from .experiment import Job, run_jobs
-from .results import prepare_output
+from ..world import GridWorld
+from .output import check_folder
+from .results import ResultExists
+from .runner import run_all
 from .study import Interval, home_rate, makespan_ratio, mean_interval, paired_difference, ratio_interval
 
 # Generator seeds: those the settings were chosen on (docs/choices.md), and the block the study draws from,
@@ -39,9 +55,12 @@ TUNING_SEEDS = (0, 7)
 HELD_OUT_SEEDS = range(1001, 1101)
 BOOTSTRAP_SEED = 0
 COPIES = ("frozen", "learning")  # eval_learning 0 and 1
-# (label, unit column, digits) of the per-configuration tables
+FIGURES_PER_COPY = ("collisions", "home", "heard", "makespan")
+# (label, unit column without its copy, digits) of the per-configuration tables
 FIGURES = (("greedy collisions/ep", "collisions", 3), ("every AGV home", "home", 2), ("heard/ep", "heard", 1),
            ("makespan / planner's", "makespan_ratio", 2), ("states", "states", 0))
+KEY = ("agents", "generator_seed", "run", "config")
+PLANNER = ("makespan", "collisions", "messages", "home")
 
 
 @dataclass(frozen=True)
@@ -56,6 +75,86 @@ def parse_configs(algos: Sequence[str], paper: bool) -> list[Config]:
     return [Config(a, a) for a in algos] + ([Config("cq_paper", "cq", "paper")] if paper else [])
 
 
+@dataclass(frozen=True)
+class Unit:
+    """One unit's learning run of one configuration (cq_ros.lab.runner's Run: map_name, algo, run, episodes)."""
+
+    map_name: str
+    algo: str
+    run: int
+    episodes: int
+    seed: int
+    settings: Settings
+    config: str
+    agents: int
+    generator_seed: int
+    greedy_episodes: int
+    curve_every: int
+    curve_episodes: int
+
+
+class Learning:
+    """One run's world and learners, on the engine cq_ros.compiled.engine_of chooses: learning episodes, and greedy
+    copies of the team as it stands."""
+
+    def __init__(self, algo: str, gridmap: GridMap, settings: Settings, seed: int, run: int):
+        if compiled.engine_of(algo) == "compiled":
+            from ..compiled.engine import Kernel
+
+            self.kernel, self.team = Kernel(algo, gridmap, settings, seed, run), None
+        else:
+            self.kernel = None
+            self.team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, run)),
+                             make_learners(algo, gridmap, settings, seed, run))
+
+    def play(self, episodes: int, on_episode: Callable[[], None]) -> np.ndarray:
+        if self.kernel is not None:
+            return self.kernel.play(episodes, on_episode)
+        rows = []
+        for _ in range(episodes):
+            rows.append(self.team.episode())
+            on_episode()
+        return record.table(rows)
+
+    def greedy(self, learning: bool, episodes: int) -> np.ndarray:
+        """`episodes` episodes of a greedy copy, frozen or learning; the run itself is left as it was."""
+        if self.kernel is not None:
+            return self.kernel.greedy(learning).play(episodes)
+        team = greedy_team(self.team, learning)
+        return record.table(team.episode() for _ in range(episodes))
+
+
+def greedy_figures(table: np.ndarray) -> dict[str, float]:
+    return {"collisions": float(table["collisions"].mean()), "home": home_rate(table["truncated"]),
+            "heard": float(table["heard"].mean()), "makespan": float(table["steps"].mean())}
+
+
+def play_unit(maps: dict[str, GridMap], unit: Unit, on_episode: Callable[[], None]) -> dict:
+    """Learn, with the curve's frozen copies on the way, then the frozen and learning copies: the unit's figures
+    ({copy}_{figure}, states, exploring collisions, seconds) and its curve [(episode, collisions, home)]."""
+    started = time.perf_counter()
+    learning = Learning(unit.algo, maps[unit.map_name], unit.settings, unit.seed, unit.run)
+    tables, curve, done = [], [], 0
+    while done < unit.episodes:
+        size = min(unit.curve_every, unit.episodes - done)
+        tables.append(learning.play(size, on_episode))
+        done += size
+        if done < unit.episodes:
+            point = greedy_figures(learning.greedy(False, unit.curve_episodes))
+            curve.append((done, point["collisions"], point["home"]))
+    episodes = np.concatenate(tables)
+    row: dict = {}
+    for copy in COPIES:
+        figures = greedy_figures(learning.greedy(copy == "learning", unit.greedy_episodes))
+        row.update({f"{copy}_{name}": value for name, value in figures.items()})
+    curve.append((unit.episodes, row["frozen_collisions"], row["frozen_home"]))
+    tail = max(1, len(episodes) // 10)
+    row.update(states=float(episodes["states"][-1]),
+               exploring_collisions=float(episodes["collisions"][-tail:].mean()),
+               seconds=round(time.perf_counter() - started, 2))
+    return {"row": row, "curve": curve}
+
+
 def generated(out: Path, agents: int, seed: int, slip: float) -> Path:
     """The warehouse `cq-ros generate warehouse --agents AGENTS --seed SEED --slip SLIP` makes, kept in OUT/maps."""
     path = out / "maps" / f"warehouse_{agents}_gen{seed}.txt"
@@ -64,127 +163,263 @@ def generated(out: Path, agents: int, seed: int, slip: float) -> Path:
     return path
 
 
+def protocol_of(episodes: int, greedy_episodes: int, curve_every: int, curve_episodes: int, seed: int, slip: float,
+                overrides: Sequence[str], configs: Sequence[Config]) -> dict:
+    """What a resumed study must share with the units already played (maps, runs, sizes and configurations may
+    grow; a configuration keeps its algorithm and preset)."""
+    return {"episodes": episodes, "greedy_episodes": greedy_episodes, "curve_every": curve_every,
+            "curve_episodes": curve_episodes, "seed": seed, "slip": slip, "overrides": list(overrides),
+            "configs": {c.name: asdict(c) for c in configs}}
+
+
+def open_output(out: Path, protocol: dict, force: bool) -> Path:
+    """OUT, new, or holding a study of the same protocol (to resume it); with force, emptied first."""
+    out = Path(out)
+    kept = out / "study.json"
+    if out.is_dir() and any(out.iterdir()):
+        if force:
+            for name in ("units.csv", "curve.csv", "planner.csv", "study.json", "study.md"):
+                (out / name).unlink(missing_ok=True)
+        elif not kept.exists():
+            raise ResultExists(f"output directory {out} is not empty and holds no study; choose another or pass "
+                               "--force to overwrite")
+        else:
+            old = json.loads(kept.read_text())
+            mine = {k: v for k, v in protocol.items() if k not in ("configs", "shown")}
+            clash = [k for k, v in mine.items() if old.get(k) != v] + [
+                name for name, c in protocol["configs"].items() if old["configs"].get(name, c) != c]
+            if clash:
+                raise ResultExists(f"output directory {out} holds a study of another protocol ({', '.join(clash)} "
+                                   "differ); choose another or pass --force to overwrite")
+            protocol = {**old, **protocol, "configs": {**old["configs"], **protocol["configs"]}}
+    out = check_folder(out, "output directory")
+    kept.write_text(json.dumps(protocol, indent=1) + "\n")
+    return out
+
+
+def read_rows(path: Path) -> list[dict]:
+    """A csv's rows, numbers as numbers (the configuration's name stays a string)."""
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return [{k: v if k == "config" else (int(v) if k in KEY else float(v)) for k, v in row.items()}
+                for row in csv.DictReader(f)]
+
+
+def append_rows(path: Path, rows: list[dict]) -> None:
+    new = not path.exists()
+    with open(path, "a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        if new:
+            writer.writeheader()
+        writer.writerows(rows)
+
+
 def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, greedy_episodes: int,
           configs: Sequence[Config], seed: int = 0, slip: float = 0.1, overrides: Sequence[str] = (),
-          workers: int | None = None, cluster: str | None = None, learning_copy: bool = True, force: bool = False,
-          command: str = "") -> str:
-    """Play the study and write OUT/study.md, OUT/units.csv and the maps; returns the tables printed."""
+          workers: int | None = None, cluster: str | None = None, force: bool = False, command: str = "",
+          curve_every: int = 250, curve_episodes: int = 20) -> str:
+    """Play the units OUT does not hold yet and write OUT (the module says what); returns the tables printed."""
     if maps > len(HELD_OUT_SEEDS):
         raise ValueError(f"--maps takes at most {len(HELD_OUT_SEEDS)} (the held-out generator seeds), got {maps}")
-    out = prepare_output(out, force)
+    out = open_output(out, protocol_of(episodes, greedy_episodes, curve_every, curve_episodes, seed, slip, overrides,
+                                       configs), force)
     started = time.perf_counter()
-    copies = COPIES if learning_copy else COPIES[:1]
-    units = [(agents, HELD_OUT_SEEDS[i], r) for agents in sizes for i in range(maps) for r in range(runs)]
-    paths = {(a, g): generated(out, a, g, slip) for a, g in dict.fromkeys((a, g) for a, g, _ in units)}
-    jobs: dict[tuple, Job] = {}
-    presets: dict[tuple, dict] = {}
+    wanted = [(a, HELD_OUT_SEEDS[i], r) for a in sizes for i in range(maps) for r in range(runs)]
+    paths = {(a, g): generated(out, a, g, slip) for a, g in dict.fromkeys((a, g) for a, g, _ in wanted)}
+    planner = planned(out, paths, runs, seed, overrides)
+    rows = read_rows(out / "units.csv")
+    done = {tuple(row[k] for k in KEY) for row in rows}
+    presets: dict[str, dict] = {}
+    units = []
     for (agents, g), path in paths.items():
         for c in configs:
-            for copy in copies:
-                wanted = [*overrides, f"eval_learning={COPIES.index(copy)}", f"eval_episodes={greedy_episodes}"]
-                settings, presets[(c.name, copy)] = run_settings_and_presets(load_map(path), wanted, c.preset)
-                for r in range(runs):
-                    jobs[(agents, g, r, c.name, copy)] = Job(str(path), c.algo, r, episodes, seed, settings)
-    planner = planned(paths, runs, seed, overrides)
-    results, _ = run_jobs(list(jobs.values()), workers, label="study", cluster=cluster)
-    rows = [unit_row(key, results[job], planner[key[:3]]) for key, job in jobs.items()]
-    with open(out / "units.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    text = "\n".join([
-        "# Held-out study", "", f"Command: `{command}`", "",
-        f"Generator seeds {HELD_OUT_SEEDS[0]}-{HELD_OUT_SEEDS[maps - 1]} (held out; tuning seeds "
-        f"{', '.join(map(str, TUNING_SEEDS))} never), slip {slip:g}; learner seed {seed}, runs 0-{runs - 1}; "
-        f"{episodes} learning episodes, then {greedy_episodes} greedy episodes "
-        + ("frozen and, in a second run of the same seeds, learning" if learning_copy else "frozen")
-        + f"; {time.perf_counter() - started:.0f} s. A unit is one map and one run; mean ± half-width of the 95% "
-        "t interval over units; ratios with bootstrap 95% intervals (units resampled, seed "
-        f"{BOOTSTRAP_SEED}).",
-        *(f"Preset {name} for {config} ({copy}): " + " ".join(f"{k}={v}" for k, v in set_.items())
-          for (config, copy), applied in presets.items() if copy == "frozen" for name, set_ in applied.items()),
-        *(line for agents in sizes for line in size_tables(agents, rows, configs, copies, planner)),
-    ]) + "\n"
+            settings, presets[c.name] = run_settings_and_presets(
+                load_map(path), [*overrides, "eval_learning=0", f"eval_episodes={greedy_episodes}"], c.preset)
+            units += [Unit(str(path), c.algo, r, episodes, seed, settings, c.name, agents, g, greedy_episodes,
+                           curve_every, curve_episodes) for r in range(runs) if (agents, g, r, c.name) not in done]
+    if len(units) < len(wanted) * len(configs):
+        print(f"study: {len(wanted) * len(configs) - len(units)} units of {out} played already, {len(units)} to play",
+              file=sys.stderr, flush=True)
+    loaded = {path: load_map(path) for path in {u.map_name for u in units}}
+    if any(compiled.engine_of(u.algo) == "compiled" for u in units):
+        compiled.prepare()  # here, once: the workers then load the compiled engine from its cache
+    step = max(1, workers or os.cpu_count() or 1)  # units in flight at once; each batch's rows are kept at its end
+    for i in range(0, len(units), step):
+        batch = units[i:i + step]
+        ran = run_all(batch, partial(play_unit, loaded), workers, cluster,
+                      label=f"study units {i + 1}-{i + len(batch)}")
+        new = [{"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
+                **r["row"], "planner_makespan": planner[(u.agents, u.generator_seed, u.run)]["makespan"]}
+               for u, r in zip(batch, ran.results)]
+        append_rows(out / "units.csv", new)
+        append_rows(out / "curve.csv", [
+            {"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
+             "episode": e, "collisions": c, "home": h} for u, r in zip(batch, ran.results) for e, c, h in r["curve"]])
+        rows += new
+        print(f"study: unit {i + len(batch)}/{len(units)}, {time.perf_counter() - started:.0f} s elapsed",
+              file=sys.stderr, flush=True)
+    kept = json.loads((out / "study.json").read_text())
+    kept["shown"] = {"sizes": list(sizes), "maps": maps, "runs": runs, "configs": [c.name for c in configs],
+                     "command": command, "presets": presets}
+    (out / "study.json").write_text(json.dumps(kept, indent=1) + "\n")
+    text = report(out)
     (out / "study.md").write_text(text)
     return text
 
 
-def planned(paths: dict[tuple[int, int], Path], runs: int, seed: int,
+def planned(out: Path, paths: dict[tuple[int, int], Path], runs: int, seed: int,
             overrides: Sequence[str]) -> dict[tuple[int, int, int], dict]:
-    """The planner's plan of each map executed in run r's delays: {(agents, generator seed, run): figures}."""
-    found = {}
-    for n, ((agents, g), path) in enumerate(sorted(paths.items())):
-        print(f"study: planning {path.name} ({n + 1}/{len(paths)})", file=sys.stderr, flush=True)
-        gridmap = load_map(path)
+    """The planner's plan of each map executed in run r's delays: {(agents, generator seed, run): figures}, kept
+    in OUT/planner.csv (a resume reads what it holds)."""
+    found = {(int(r["agents"]), int(r["generator_seed"]), int(r["run"])): r
+             for r in read_rows(out / "planner.csv")}
+    missing = [(a, g) for a, g in sorted(paths) if any((a, g, r) not in found for r in range(runs))]
+    for n, (agents, g) in enumerate(missing):
+        print(f"study: planning {paths[(agents, g)].name} ({n + 1}/{len(missing)})", file=sys.stderr, flush=True)
+        gridmap = load_map(paths[(agents, g)])
         the_plan = plan(gridmap)
         settings: Settings = run_settings_and_presets(gridmap, overrides)[0]
+        new = []
         for r in range(runs):
+            if (agents, g, r) in found:
+                continue
             done = execute(the_plan, gridmap, settings, seed, r)
             makespan = max(len(p) - 1 if a is None else a for p, a in zip(done.paths, done.arrivals))
-            found[(agents, g, r)] = {"makespan": makespan, "collisions": done.collisions,
-                                     "messages": done.messages, "home": done.home}
+            found[(agents, g, r)] = {"agents": agents, "generator_seed": g, "run": r, "makespan": makespan,
+                                     "collisions": done.collisions, "messages": done.messages, "home": int(done.home)}
+            new.append(found[(agents, g, r)])
+        append_rows(out / "planner.csv", new)
     return found
 
 
-def unit_row(key: tuple, result, planner: dict) -> dict:
-    agents, g, r, config, copy = key
-    greedy, episodes = result.greedy, result.episodes
-    tail = max(1, len(episodes) // 10)
-    makespan = float(greedy["steps"].mean())
-    return {"agents": agents, "generator_seed": g, "run": r, "config": config, "copy": copy,
-            "collisions": float(greedy["collisions"].mean()), "home": home_rate(greedy["truncated"]),
-            "heard": float(greedy["heard"].mean()), "makespan": makespan,
-            "planner_makespan": planner["makespan"],
-            "states": float(episodes["states"][-1]),
-            "exploring_collisions": float(episodes["collisions"][-tail:].mean())}
+def report(out: Path) -> str:
+    """study.md, from OUT's files alone: the units of the sizes, maps, runs and configurations the last command
+    asked for (study.json's `shown`), so that a page can show a kept study as the command printed it."""
+    protocol = json.loads((out / "study.json").read_text())
+    shown = protocol["shown"]
+    sizes, maps, runs, command, presets = (shown[k] for k in ("sizes", "maps", "runs", "command", "presets"))
+    configs = [Config(**protocol["configs"][name]) for name in shown["configs"]]
+    seeds = set(HELD_OUT_SEEDS[:maps])
+    mine = [r for r in read_rows(out / "units.csv") if r["generator_seed"] in seeds and r["run"] < runs]
+    curve = [r for r in read_rows(out / "curve.csv") if r["generator_seed"] in seeds and r["run"] < runs]
+    planner = [r for r in read_rows(out / "planner.csv") if r["generator_seed"] in seeds and r["run"] < runs]
+    seconds = sum(r["seconds"] for r in mine)
+    lines = [
+        "# Held-out study", "", f"Command: `{command}`", "",
+        f"Generator seeds {HELD_OUT_SEEDS[0]}-{HELD_OUT_SEEDS[maps - 1]} (held out; tuning seeds "
+        f"{', '.join(map(str, TUNING_SEEDS))} never), slip {protocol['slip']:g}; learner seed {protocol['seed']}, runs "
+        f"0-{runs - 1}; {protocol['episodes']} learning episodes per configuration, then from that run "
+        f"{protocol['greedy_episodes']} greedy episodes frozen (eval_learning=0, the primary figure) and "
+        f"{protocol['greedy_episodes']} learning (eval_learning=1); the curve: {protocol['curve_episodes']} frozen "
+        f"greedy episodes every {protocol['curve_every']}. Units played in {seconds:.0f} s (summed over units). "
+        "A unit is one map and one run; mean ± half-width of the 95% t interval over units; ratios with bootstrap "
+        f"95% intervals (units resampled, seed {BOOTSTRAP_SEED}).",
+        *(f"Preset {name} for {config}: " + " ".join(f"{k}={v}" for k, v in set_.items())
+          for config, applied in presets.items() for name, set_ in applied.items()),
+    ]
+    for agents in sizes:
+        lines += size_tables(agents, [r for r in mine if r["agents"] == agents], configs,
+                             [p for p in planner if p["agents"] == agents])
+        lines += curve_table([r for r in curve if r["agents"] == agents], configs)
+    return "\n".join(lines) + "\n"
 
 
-def size_tables(agents: int, rows: list[dict], configs: Sequence[Config], copies: Sequence[str],
-                planner: dict) -> list[str]:
-    """The tables of one fleet size."""
-    def values(config: str, copy: str, column: str) -> list[float]:
-        """Each unit's figure, in the units' order (the same for every configuration)."""
-        mine = [row for row in rows if (row["agents"], row["config"], row["copy"]) == (agents, config, copy)]
-        if column == "makespan_ratio":
-            return [row["makespan"] / row["planner_makespan"] for row in mine]
-        return [row[column] for row in mine]
+def unit_values(rows: list[dict], config: str, column: str) -> list[float]:
+    """Each unit's figure for one configuration, in the units' order (the same for every configuration)."""
+    mine = sorted((r for r in rows if r["config"] == config), key=lambda r: (r["generator_seed"], r["run"]))
+    if column.endswith("makespan_ratio"):
+        copy = column.split("_")[0]
+        return [r[f"{copy}_makespan"] / r["planner_makespan"] for r in mine]
+    return [r[column] for r in mine]
 
-    def figure(config: str, copy: str, column: str) -> Interval:
-        if column == "makespan_ratio":
-            return makespan_ratio(values(config, copy, "makespan"), values(config, copy, "planner_makespan"))
-        return mean_interval(values(config, copy, column))
 
-    mine = [p for (a, _, _), p in sorted(planner.items()) if a == agents]
+def size_tables(agents: int, rows: list[dict], configs: Sequence[Config], planner: list[dict]) -> list[str]:
+    """The tables of one fleet size: `rows` its units, `planner` its executions of the plan."""
+    def column(copy: str, name: str) -> str:
+        return name if name == "states" else f"{copy}_{name}"
+
+    def figure(config: str, copy: str, name: str) -> Interval:
+        if name == "makespan_ratio":
+            return makespan_ratio(unit_values(rows, config, f"{copy}_makespan"),
+                                  unit_values(rows, config, "planner_makespan"))
+        return mean_interval(unit_values(rows, config, column(copy, name)))
+
+    present = [c for c in configs if any(r["config"] == c.name for r in rows)]
+    units = len({(r["generator_seed"], r["run"]) for r in rows})
     header = " | ".join(label for label, _, _ in FIGURES)
-    lines = ["", f"## {agents} AGVs: {len(mine)} units", "",
+    lines = ["", f"## {agents} AGVs: {units} units", "",
              f"The planner's plan executed under the same delays: makespan "
-             f"{mean_interval([p['makespan'] for p in mine]).show(1)}, collisions "
-             f"{mean_interval([p['collisions'] for p in mine]).show(2)}, messages "
-             f"{mean_interval([p['messages'] for p in mine]).show(1)}, every AGV home in "
-             f"{sum(p['home'] for p in mine)} of {len(mine)}."]
-    first = configs[0].name
-    for copy in copies:
+             f"{mean_interval([p['makespan'] for p in planner]).show(1)}, collisions "
+             f"{mean_interval([p['collisions'] for p in planner]).show(2)}, messages "
+             f"{mean_interval([p['messages'] for p in planner]).show(1)}, every AGV home in "
+             f"{sum(int(p['home']) for p in planner)} of {len(planner)}."]
+    if not present:
+        return lines
+    first = present[0].name
+    for copy in COPIES:
         lines += ["", f"Greedy policy, {copy}:", "", f"| configuration | {header} |",
                   "| --- |" + " ---: |" * len(FIGURES)]
-        lines += [f"| {c.name} | " + " | ".join(figure(c.name, copy, col).show(d) for _, col, d in FIGURES) + " |"
-                  for c in configs]
-        if len(configs) < 2:
+        lines += [f"| {c.name} | " + " | ".join(figure(c.name, copy, n).show(d) for _, n, d in FIGURES) + " |"
+                  for c in present]
+        # A few units whose AGVs stall against each other until the step cap (colliding at every step) can carry
+        # the mean: the median and the units always home say how many.
+        lines += ["", "Median over units of greedy collisions/ep: " + ", ".join(
+            f"{c.name} {np.median(unit_values(rows, c.name, f'{copy}_collisions')):.3f}" for c in present)
+            + "; units in which every greedy episode brought every AGV home: " + ", ".join(
+            f"{c.name} {sum(v == 1 for v in unit_values(rows, c.name, f'{copy}_home'))} of {units}" for c in present)
+            + "."]
+        if len(present) < 2:
             continue
         lines += ["", f"Paired differences, {copy}:", "", f"| configuration | {header} |",
                   "| --- |" + " ---: |" * len(FIGURES)]
         lines += [f"| {c.name} - {first} | " + " | ".join(
-            paired_difference(values(c.name, copy, col), values(first, copy, col)).show(d) for _, col, d in FIGURES)
-            + " |" for c in configs[1:]]
+            paired_difference(unit_values(rows, c.name, column(copy, n)),
+                              unit_values(rows, first, column(copy, n))).show(d) for _, n, d in FIGURES)
+            + " |" for c in present[1:]]
         lines += ["", f"Ratios of means, {copy} (bootstrap 95%):", "",
                   f"| configuration | collisions: it / {first} | heard: {first} / it |", "| --- | ---: | ---: |"]
         lines += [f"| {c.name} | "
-                  + _ratio(ratio_interval(values(c.name, copy, "collisions"), values(first, copy, "collisions"),
-                                          BOOTSTRAP_SEED)) + " | "
-                  + _ratio(ratio_interval(values(first, copy, "heard"), values(c.name, copy, "heard"), BOOTSTRAP_SEED))
-                  + " |" for c in configs[1:]]
+                  + show_ratio(ratio_interval(unit_values(rows, c.name, f"{copy}_collisions"),
+                                              unit_values(rows, first, f"{copy}_collisions"), BOOTSTRAP_SEED)) + " | "
+                  + show_ratio(ratio_interval(unit_values(rows, first, f"{copy}_heard"),
+                                              unit_values(rows, c.name, f"{copy}_heard"), BOOTSTRAP_SEED))
+                  + " |" for c in present[1:]]
     return lines
 
 
-def _ratio(r: Interval) -> str:
-    return f"{r.mean:.2f} ({r.low:.2f} to {r.high:.2f})"
+def converged_at(points: dict[int, list[float]]) -> int:
+    """The first episode from which every point's mean lies inside the last point's 95% interval."""
+    episodes = sorted(points)
+    last = mean_interval(points[episodes[-1]])
+    at = episodes[-1]
+    for e in reversed(episodes):
+        mean = float(np.mean(points[e]))
+        if not (last.low <= mean <= last.high or mean == last.mean):
+            break
+        at = e
+    return at
 
+
+def curve_table(rows: list[dict], configs: Sequence[Config]) -> list[str]:
+    """Frozen greedy collisions per episode against learning episodes, mean over units, per configuration."""
+    present = [c.name for c in configs if any(r["config"] == c.name for r in rows)]
+    if not present:
+        return []
+    points = {c: {} for c in present}
+    for r in sorted(rows, key=lambda r: (r["generator_seed"], r["run"])):
+        if r["config"] in points:
+            points[r["config"]].setdefault(int(r["episode"]), []).append(r["collisions"])
+    episodes = sorted({e for p in points.values() for e in p})
+    lines = ["", "Frozen greedy collisions per episode against learning episodes (mean over units; the last "
+             "row is the table's):", "", "| episode | " + " | ".join(present) + " |",
+             "| ---: |" + " ---: |" * len(present)]
+    lines += [f"| {e} | " + " | ".join(f"{np.mean(points[c][e]):.3f}" if e in points[c] else "-" for c in present)
+              + " |" for e in episodes]
+    lines += ["", "Inside the last point's 95% interval from episode on: "
+              + ", ".join(f"{c} {converged_at(points[c])}" for c in present) + "."]
+    return lines
+
+
+def show_ratio(r: Interval) -> str:
+    return f"{r.mean:.2f} ({r.low:.2f} to {r.high:.2f})"

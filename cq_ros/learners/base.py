@@ -84,12 +84,12 @@ class Learner:
         if decay:
             self.epsilon = min(self.epsilon, self.settings.epsilon * max(0.0, 1.0 - self.episodes_played / decay))
 
-    def make_greedy(self) -> None:
+    def make_greedy(self, learning: bool | None = None) -> None:
         """Make this learner (a copy: the trained one is left as it is) the greedy evaluator: epsilon 0, and
-        frozen unless settings.eval_learning. The engine and the agent driver both switch through here, so
-        their greedy episodes stay the same."""
+        frozen unless `learning` (None: settings.eval_learning). The engine and the agent driver both switch
+        through here, so their greedy episodes stay the same."""
         self.epsilon = 0.0
-        self.learning = bool(self.settings.eval_learning)
+        self.learning = bool(self.settings.eval_learning if learning is None else learning)
 
     def state_count(self) -> int:
         """The size of the state space this learner conditions on now (local plus joint)."""

@@ -1,0 +1,100 @@
+"""`cq-ros study` (cq_ros.lab.held_out) end to end on a tiny study: its units come from one learning run each
+(the frozen and learning greedy copies are those `cq-ros experiment` plays with eval_learning 0 and 1), a rerun
+plays nothing twice, and its tables are cq_ros.lab.study's arithmetic on the units it kept."""
+
+import csv
+
+import pytest
+
+from cq_ros import compiled
+from cq_ros.cli.main import main
+from cq_ros.gridmap import load_map
+from cq_ros.lab.held_out import BOOTSTRAP_SEED, HELD_OUT_SEEDS, TUNING_SEEDS, show_ratio
+from cq_ros.lab.study import mean_interval, paired_difference, ratio_interval
+from cq_ros.settings import run_settings
+
+TINY = ["study", "--agents", "4", "--maps", "2", "--episodes", "20", "--greedy-episodes", "3", "--curve-every", "10",
+        "--curve-episodes", "2", "--set", "step_cap=60", "--jobs", "1"]
+
+
+def rows_of(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, capsys):
+    out = tmp_path / "study"
+    assert main([*TINY, "--runs", "2", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "study: planning warehouse_4_gen1001.txt (1/2)" in captured.err and "study: unit 8/8" in captured.err
+    assert not set(HELD_OUT_SEEDS) & set(TUNING_SEEDS)
+    rows = rows_of(out / "units.csv")
+    assert len(rows) == 2 * 2 * 2  # maps x runs x configurations
+    assert {r["generator_seed"] for r in rows} == {"1001", "1002"}
+    # the curve: a frozen copy after 10 episodes, and the frozen copy's figure at the end (20)
+    curve = rows_of(out / "curve.csv")
+    assert sorted({int(r["episode"]) for r in curve}) == [10, 20] and len(curve) == 2 * len(rows)
+    for r in rows:
+        end = [c for c in curve if (c["generator_seed"], c["run"], c["config"], c["episode"])
+               == (r["generator_seed"], r["run"], r["config"], "20")]
+        assert [float(c["collisions"]) for c in end] == [float(r["frozen_collisions"])]
+
+    # One learning run per unit: its frozen and learning copies are the experiment's greedy episodes with
+    # eval_learning 0 and 1 (the curve's copies leave the run as it was).
+    gridmap = load_map(out / "maps" / "warehouse_4_gen1002.txt")
+    unit = next(r for r in rows if (r["generator_seed"], r["run"], r["config"]) == ("1002", "1", "cq"))
+    for copy, learning in (("frozen", 0), ("learning", 1)):
+        settings = run_settings(gridmap, ["step_cap=60", f"eval_learning={learning}", "eval_episodes=3"])
+        played = compiled.play("cq", gridmap, settings, 0, 1, 20)
+        assert float(unit[f"{copy}_collisions"]) == played.greedy["collisions"].mean()
+        assert float(unit[f"{copy}_makespan"]) == played.greedy["steps"].mean()
+        assert float(unit["states"]) == played.episodes["states"][-1]
+
+    text = (out / "study.md").read_text()
+    assert captured.out == text and "Generator seeds 1001-1002 (held out; tuning seeds 0, 7 never)" in text
+
+    def values(config, column):
+        mine = sorted((r for r in rows if r["config"] == config), key=lambda r: (r["generator_seed"], r["run"]))
+        return [float(r[column]) for r in mine]
+
+    for copy in ("frozen", "learning"):
+        part = text.split(f"Greedy policy, {copy}:")[1]
+        assert f"| cq | {mean_interval(values('cq', f'{copy}_collisions')).show(3)} | " in part
+        difference = paired_difference(values("indep", f"{copy}_collisions"), values("cq", f"{copy}_collisions"))
+        assert f"| indep - cq | {difference.show(3)} | " in part
+        ratio = ratio_interval(values("indep", f"{copy}_collisions"), values("cq", f"{copy}_collisions"),
+                               BOOTSTRAP_SEED)
+        assert f"| indep | {show_ratio(ratio)} | " in part
+
+    # A rerun plays nothing; one with a run more plays that run's units only; another protocol is refused.
+    assert main([*TINY, "--runs", "2", "--out", str(out)]) == 0
+    assert "8 units of" in capsys.readouterr().err and len(rows_of(out / "units.csv")) == 8
+    assert main([*TINY, "--runs", "3", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "8 units of" in err and "4 to play" in err and "study: unit 4/4" in err
+    grown = rows_of(out / "units.csv")
+    keys = [(r["generator_seed"], r["run"], r["config"]) for r in grown]
+    assert len(grown) == 12 and len(set(keys)) == 12 and grown[:8] == rows
+    assert len(rows_of(out / "planner.csv")) == 2 * 3
+    with pytest.raises(SystemExit) as exited:
+        main([*TINY[:6], "21", *TINY[7:], "--runs", "3", "--out", str(out)])
+    assert exited.value.code == 2
+    assert "another protocol (episodes differ)" in capsys.readouterr().err
+
+
+def test_a_unit_on_the_reference_engine_is_its_experiment_run_too(tmp_path):
+    from cq_ros.engine import run
+    from cq_ros.lab.held_out import Unit, generated, play_unit
+
+    path = generated(tmp_path, 4, HELD_OUT_SEEDS[0], 0.1)
+    gridmap = load_map(path)
+    settings = run_settings(gridmap, ["step_cap=60", "eval_learning=0", "eval_episodes=3"])
+    assert compiled.engine_of("near") == "reference"
+    unit = Unit(str(path), "near", 1, 12, 0, settings, "near", 4, HELD_OUT_SEEDS[0], 3, 5, 2)
+    played = play_unit({str(path): gridmap}, unit, lambda: None)
+    assert [e for e, _, _ in played["curve"]] == [5, 10, 12]
+    for copy, learning in (("frozen", 0), ("learning", 1)):
+        reference = run("near", gridmap, run_settings(gridmap, ["step_cap=60", f"eval_learning={learning}",
+                                                                "eval_episodes=3"]), 0, 1, 12)
+        assert played["row"][f"{copy}_heard"] == reference.greedy["heard"].mean()
+        assert played["row"][f"{copy}_collisions"] == reference.greedy["collisions"].mean()
