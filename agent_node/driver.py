@@ -18,9 +18,11 @@ on inside the copy unless the setting eval_learning is 0), so its random stream 
 copy does. The world plays them as ordinary episodes (episode indices episodes..episodes+eval_episodes-1) and the
 AgentStats go on.
 
-The pieces they share have their own modules: `effects` (what a driver returns), `world_link` (liveness and
-catching up), `peer_view` (peer subscriptions and positions), `checkpoint`, `reading`; `config` makes a
-driver from a node's parameters.
+What the two drivers do alike lives once, in their base `_Driver`: the world link, heartbeat handling, the
+per-episode counters (joint plays and peer positions heard since the episode began), the AgentStats they send,
+checkpoints and the greedy switch. The pieces they share have their own modules: `effects` (what a driver
+returns), `world_link` (liveness and catching up), `peer_view` (peer subscriptions and positions), `checkpoint`,
+`reading`; `config` makes a driver from a node's parameters.
 """
 
 from __future__ import annotations
@@ -59,18 +61,18 @@ def counts(learner: Learner) -> tuple[int, int]:
     return learner.joint_plays, learner.heard
 
 
-# -- the decentralised agent ---------------------------------------------------------------------------
+# -- what both drivers share ----------------------------------------------------------------------------
 
 
-class AgentDriver:
-    """One decentralised learner (agent id `agent`, 1..N) in the lockstep protocol."""
+class _Driver:
+    """The state and rules AgentDriver and CentralDriver share; each says which agents it speaks for
+    (`agents`), what feedback it expects next (`_expected`), and how it adopts a later step (`_catch_up`)."""
 
-    def __init__(self, learner: Learner, agent: int, episodes: int, *, eval_episodes: int = 0, linger: int,
-                 checkpoint_every: int = 0, resync: bool = False, log: Callable[[str], Any] | None = None,
-                 key: Any = None, clock: Callable[[], float] = time.monotonic, max_catch_up: int = 100):
+    _counted: tuple[str, ...] = ("unapplied_actions",)  # own counts reported beside the drops, when non-zero
+
+    def __init__(self, learner: Learner, episodes: int, *, eval_episodes: int, linger: int, checkpoint_every: int,
+                 log: Callable[[str], Any] | None, key: Any, clock: Callable[[], float], max_catch_up: int):
         self.learner = learner
-        self.agent = agent
-        self.agents = (agent,)  # whose feedback it hears and whose actions it sends
         self.episodes = episodes  # learning episodes; then eval_episodes greedy ones
         self.eval_episodes = eval_episodes
         self.greedy = False  # playing the greedy episodes (self.learner is the copy at epsilon 0)
@@ -82,29 +84,115 @@ class AgentDriver:
                               max_catch_up=max_catch_up)
         self.peers = PeerView(self.map, self.drops, linger, key)
         self._log = log or (lambda _msg: None)
-        self.expect: tuple[int, int] | None = None if resync else (0, 0)  # next feedback; None: any
         self.finished = False
-        self.skipped_steps = 0  # steps the world took before we had acted (it timed us out)
-        self.unapplied_actions = 0  # actions we sent that the world did not apply (late or lost)
         self._played = False  # a feedback played: episodes left behind since get their statistics
+        self.unapplied_actions = 0  # actions sent that the world did not apply (late or lost)
+        self._begin_episode()
+
+    def on_heartbeat(self, msg: Any) -> Effects:
+        """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
+        held = self.link.vouched() if self.link.on_heartbeat(msg, self._expected()) else None
+        return self._catch_up(*held) if held else []
+
+    def counters(self) -> dict[str, int]:
+        out = self.drops.as_counters()
+        out.update((name, getattr(self, name)) for name in self._counted if getattr(self, name))
+        out.update(self.link.counters())
+        return out
+
+    def _expected(self) -> tuple[int, int] | None:
+        """The (episode, step) of the next feedback it expects; None: any (resuming)."""
+        raise NotImplementedError
+
+    def _catch_up(self, agent: int, fb: Any, cell: int) -> Effects:
+        """Adopt the world's later (episode, step) of `fb`, agent `agent`'s feedback at `cell`."""
+        raise NotImplementedError
+
+    def _begin_episode(self) -> None:
+        """An episode begins (or is resumed) here: its statistics count joint plays and peer positions heard
+        from now."""
+        self._before = counts(self.learner)
+
+    def _stats(self, agent: int, episode: int, marked: tuple[MarkedJointState, ...] = ()) -> AgentStats:
+        """Agent `agent`'s statistics of `episode`, which ends now."""
+        learner = self.learner
+        local, joint = state_counts(learner)
+        plays, heard = counts(learner)
+        return AgentStats(agent=agent, episode=episode, algorithm=learner.name,
+                          joint_plays=plays - self._before[0], heard=heard - self._before[1], local_states=local,
+                          joint_states=joint, subscriptions_created=self.peers.created,
+                          subscriptions_active=len(self.peers.idle), peer_messages=self.peers.messages,
+                          marked=marked, counters=self.counters())
+
+    def _read_feedback(self, agent: int, msg: Any) -> tuple[Any, int | None]:
+        """(the feedback, its cell index) of a message on agv<agent>/feedback, or (None, None) for one refused
+        (logged and counted): DropCounter.guard's work, without repacking the arguments of every message."""
+        try:
+            fb = decode_feedback(msg, bounds=self.bounds, agent=agent, key=self.link.key)
+        except WireError as e:
+            self.drops.record(e, feedback_topic(agent))
+            return None, None
+        try:
+            return fb, self.map.index(fb.row, fb.col)
+        except KeyError:  # cell_of records why (its topic's name made only then)
+            return fb, cell_of(self.map, self.drops, fb.row, fb.col, feedback_topic(agent))
+
+    def _after_episode(self, episode: int) -> Effects:
+        """After episode `episode`: a checkpoint (of learning episodes only: every checkpoint_every and the
+        last), then Finish after the last episode of all, or else on to the next (greedy from `episodes` on)."""
+        out: Effects = []
+        every = self.checkpoint_every
+        if every and episode < self.episodes and (episode == self.episodes - 1 or (episode + 1) % every == 0):
+            out.append(SaveCheckpoint(episode, self.learner))
+        if episode >= self.episodes + self.eval_episodes - 1:
+            self.finished = True
+            out.append(Finish())
+        else:
+            self._greedy_from(episode + 1)
+        return out
+
+    def _greedy_from(self, episode: int) -> None:
+        """Before playing `episode`: past the learning episodes, switch once to the greedy copy of the learner.
+
+        Exactly what cq_ros.engine.greedy_episodes does (a deep copy, then Learner.make_greedy: epsilon 0, frozen
+        unless eval_learning), so the copy's random
+        stream continues as the engine's does; the learner checkpointed before stays the trained one. The copy
+        keeps joint_plays and heard, so the per-episode counts (since `_before`, `counts`) go on unchanged."""
+        if episode >= self.episodes and not self.greedy:
+            self.learner = copy.deepcopy(self.learner)
+            self.learner.make_greedy()
+            self.greedy = True
+
+
+# -- the decentralised agent ---------------------------------------------------------------------------
+
+
+class AgentDriver(_Driver):
+    """One decentralised learner (agent id `agent`, 1..N) in the lockstep protocol."""
+
+    _counted = ("skipped_steps", "unapplied_actions")
+
+    def __init__(self, learner: Learner, agent: int, episodes: int, *, eval_episodes: int = 0, linger: int,
+                 checkpoint_every: int = 0, resync: bool = False, log: Callable[[str], Any] | None = None,
+                 key: Any = None, clock: Callable[[], float] = time.monotonic, max_catch_up: int = 100):
+        super().__init__(learner, episodes, eval_episodes=eval_episodes, linger=linger,
+                         checkpoint_every=checkpoint_every, log=log, key=key, clock=clock, max_catch_up=max_catch_up)
+        self.agent = agent
+        self.agents = (agent,)  # whose feedback it hears and whose actions it sends
+        self.expect: tuple[int, int] | None = None if resync else (0, 0)  # next feedback; None: any
+        self.skipped_steps = 0  # steps the world took before we had acted (it timed us out)
         self._acted: tuple[int, int, int] | None = None  # (episode, step, action) of the action just sent
         self._pending: tuple[int, int, tuple[int, ...]] | None = None  # (episode, step, peers) awaiting positions
-        self._before = counts(learner)  # joint plays and peer positions heard before the current episode
 
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback (the node subscribes to its own agent's only)."""
-        fb, cell = _read_feedback(self, agent, msg)
+        fb, cell = self._read_feedback(agent, msg)
         if cell is None:
             return []
         verdict = self.link.judge(agent, fb, cell, self.expect)
         if verdict == "adopt":
-            return self._catch_up(fb, cell)
+            return self._catch_up(agent, fb, cell)
         return self._play(fb, cell) if verdict == "play" else []
-
-    def on_heartbeat(self, msg: Any) -> Effects:
-        """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
-        held = self.link.vouched() if self.link.on_heartbeat(msg, self.expect) else None
-        return self._catch_up(*held[1:]) if held else []
 
     def on_position(self, peer: int, msg: Any) -> Effects:
         """A message from agv<peer>/position."""
@@ -117,16 +205,10 @@ class AgentDriver:
             return set()
         return self.peers.missing(*self._pending)
 
-    def counters(self) -> dict[str, int]:
-        out = self.drops.as_counters()
-        if self.skipped_steps:
-            out["skipped_steps"] = self.skipped_steps
-        if self.unapplied_actions:
-            out["unapplied_actions"] = self.unapplied_actions
-        out.update(self.link.counters())
-        return out
+    def _expected(self) -> tuple[int, int] | None:
+        return self.expect
 
-    def _catch_up(self, fb: Any, cell: int) -> Effects:
+    def _catch_up(self, agent: int, fb: Any, cell: int) -> Effects:
         """Adopt the world's later (episode, step), as a restarted agent does: the episodes left behind end
         here (with their statistics), and the feedback is played as a resumed agent's first."""
         self._log(self.link.adopted(self.expect if self._played else None, fb))
@@ -135,7 +217,7 @@ class AgentDriver:
             for episode in range(self.expect[0], fb.episode):
                 step_outcome(self.learner, None, over=True)  # left behind: no last outcome to learn from
                 out += self._end_episode(episode)
-                self._before = counts(self.learner)
+                self._begin_episode()
         self.expect = None
         return out if self.finished else out + self._play(fb, cell)
 
@@ -148,9 +230,9 @@ class AgentDriver:
                       f"{fb.step - 1} (step timeout); resuming there")
             self._pending = None
         if self.expect is None:  # resumed: the world may be past the learning episodes already
-            _greedy_from(self, fb.episode)
+            self._greedy_from(fb.episode)
         if fb.step == 0 or self.expect is None:
-            self._before = counts(self.learner)
+            self._begin_episode()
         # Learn only from the outcome of an action we sent and the world applied: after a skipped step or a
         # restart there is none; one that came after step_timeout (or was lost) the world stepped without.
         reward = None
@@ -194,68 +276,18 @@ class AgentDriver:
         # Until its next episode the agent sees nobody, except a joint-state learner, which will need every
         # peer again at its first step (dropping would cost a new subscription every episode).
         out = self.peers.need([j + 1 for j in self.learner.peers] if self.learner.joint_state else ())
-        out.append(Send(self._stats(episode)))
-        out += _after_episode(self, episode)
+        cells = self.map.cells
+        marked = tuple(MarkedJointState(*cells[s], j + 1, *cells[c], conf)
+                       for s, j, c, conf in self.learner.joint_states())
+        out.append(Send(self._stats(self.agent, episode, marked)))
+        out += self._after_episode(episode)
         return out
-
-    def _stats(self, episode: int) -> AgentStats:
-        learner, cells = self.learner, self.map.cells
-        local, joint = state_counts(learner)
-        marked = tuple(MarkedJointState(*cells[s], j + 1, *cells[c], conf) for s, j, c, conf in learner.joint_states())
-        return AgentStats(agent=self.agent, episode=episode, algorithm=learner.name,
-                          joint_plays=learner.joint_plays - self._before[0], heard=learner.heard - self._before[1],
-                          local_states=local,
-                          joint_states=joint, subscriptions_created=self.peers.created,
-                          subscriptions_active=len(self.peers.idle), peer_messages=self.peers.messages,
-                          marked=marked, counters=self.counters())
-
-
-def _read_feedback(driver: "AgentDriver | CentralDriver", agent: int, msg: Any) -> tuple[Any, int | None]:
-    """(the feedback, its cell index) of a message on agv<agent>/feedback, or (None, None) for one refused
-    (logged and counted): DropCounter.guard's work, without repacking the arguments of every message."""
-    try:
-        fb = decode_feedback(msg, bounds=driver.bounds, agent=agent, key=driver.link.key)
-    except WireError as e:
-        driver.drops.record(e, feedback_topic(agent))
-        return None, None
-    try:
-        return fb, driver.map.index(fb.row, fb.col)
-    except KeyError:  # cell_of records why (its topic's name made only then)
-        return fb, cell_of(driver.map, driver.drops, fb.row, fb.col, feedback_topic(agent))
-
-
-def _after_episode(driver: "AgentDriver | CentralDriver", episode: int) -> Effects:
-    """After episode `episode`: a checkpoint (of learning episodes only: every checkpoint_every and the last),
-    then Finish after the last episode of all, or else on to the next (greedy from `driver.episodes` on)."""
-    out: Effects = []
-    every = driver.checkpoint_every
-    if every and episode < driver.episodes and (episode == driver.episodes - 1 or (episode + 1) % every == 0):
-        out.append(SaveCheckpoint(episode, driver.learner))
-    if episode >= driver.episodes + driver.eval_episodes - 1:
-        driver.finished = True
-        out.append(Finish())
-    else:
-        _greedy_from(driver, episode + 1)
-    return out
-
-
-def _greedy_from(driver: "AgentDriver | CentralDriver", episode: int) -> None:
-    """Before playing `episode`: past the learning episodes, switch once to the greedy copy of the learner.
-
-    Exactly what cq_ros.engine.greedy_episodes does (a deep copy, then Learner.make_greedy: epsilon 0, frozen
-    unless eval_learning), so the copy's random
-    stream continues as the engine's does; the learner checkpointed before stays the trained one. The copy
-    keeps joint_plays and heard, so the per-episode counts (since `_before`, `counts`) go on unchanged."""
-    if episode >= driver.episodes and not driver.greedy:
-        driver.learner = copy.deepcopy(driver.learner)
-        driver.learner.make_greedy()
-        driver.greedy = True
 
 
 # -- the central (JSA) node ----------------------------------------------------------------------------
 
 
-class CentralDriver:
+class CentralDriver(_Driver):
     """The JSA learner driving every AGV, as cq_ros.engine.Team drives a central learner.
 
     A resumed central node does not know where the agents that get no feedback are, so it reads every
@@ -266,21 +298,9 @@ class CentralDriver:
     def __init__(self, learner: Learner, episodes: int, *, eval_episodes: int = 0, checkpoint_every: int = 0,
                  resync: bool = False, log: Callable[[str], Any] | None = None, key: Any = None,
                  clock: Callable[[], float] = time.monotonic, max_catch_up: int = 100):
-        self.learner = learner
-        self.episodes = episodes  # learning episodes; then eval_episodes greedy ones
-        self.eval_episodes = eval_episodes
-        self.greedy = False  # playing the greedy episodes (self.learner is the copy at epsilon 0)
-        self.checkpoint_every = checkpoint_every
-        self.map = learner.map
+        super().__init__(learner, episodes, eval_episodes=eval_episodes, linger=0,
+                         checkpoint_every=checkpoint_every, log=log, key=key, clock=clock, max_catch_up=max_catch_up)
         self.n = self.map.n_agents
-        self.bounds = bounds_of(self.map)
-        self.drops = DropCounter(log)
-        self.link = WorldLink(self.drops, key, clock, last_episode=episodes + eval_episodes - 1,
-                              max_catch_up=max_catch_up)
-        self.peers = PeerView(self.map, self.drops, linger=0, key=key)
-        self._log = log or (lambda _msg: None)
-        self.finished = False
-        self._played = False  # a feedback played: episodes left behind since get their statistics
         self.agents = range(1, self.n + 1)  # whose feedback it hears and whose actions it sends
         self._cells = list(self.map.starts)
         self._done = [False] * self.n
@@ -290,12 +310,10 @@ class CentralDriver:
         self._collect(set(self.agents))
         self._acted: tuple[int, int] | None = None
         self._sent: dict[int, int] = {}  # agent -> its action of the step acted at (self._acted)
-        self.unapplied_actions = 0  # actions sent that the world did not apply (late or lost)
-        self._before = counts(learner)
 
     def on_feedback(self, agent: int, msg: Any) -> Effects:
         """A message from agv<agent>/feedback."""
-        fb, cell = _read_feedback(self, agent, msg)
+        fb, cell = self._read_feedback(agent, msg)
         if cell is None:
             return []
         if self._resync is not None:  # the positions decide; a later feedback moves the step they must show
@@ -306,7 +324,7 @@ class CentralDriver:
             return []
         verdict = self.link.judge(agent, fb, cell, self.expect[agent])
         if verdict == "adopt":
-            return self._catch_up(agent, fb)
+            return self._catch_up(agent, fb, cell)
         if verdict != "play":
             return []
         self.link.heard()
@@ -341,17 +359,11 @@ class CentralDriver:
             self._done = [False] * self.n
             self._collect(set(self.agents))
             return out
-        self._before = counts(self.learner)
+        self._begin_episode()
         # The greedy switch first: a resume may join the world past the learning episodes.
-        _greedy_from(self, episode)
+        self._greedy_from(episode)
         central_outcome(self.learner, self._cells, None, False, False)  # nothing to learn: observe only
         return out + self._act(episode, step)
-
-    def on_heartbeat(self, msg: Any) -> Effects:
-        """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
-        expected = None if self._resync is not None or None in self.expect.values() else min(self.expect.values())
-        held = self.link.vouched() if self.link.on_heartbeat(msg, expected) else None
-        return self._catch_up(held[0], held[1]) if held else []
 
     @property
     def acting(self) -> list[int]:
@@ -362,11 +374,11 @@ class CentralDriver:
         """(agent, episode, step) of every position the node waits for (only while resuming)."""
         return set() if self._resync is None else self.peers.missing(*self._resync, self.agents)
 
-    def counters(self) -> dict[str, int]:
-        unapplied = {"unapplied_actions": self.unapplied_actions} if self.unapplied_actions else {}
-        return {**self.drops.as_counters(), **unapplied, **self.link.counters()}
+    def _expected(self) -> tuple[int, int] | None:
+        """The earliest step expected of any agent; None while resuming."""
+        return None if self._resync is not None or None in self.expect.values() else min(self.expect.values())
 
-    def _catch_up(self, agent: int, fb: Any) -> Effects:
+    def _catch_up(self, agent: int, fb: Any, cell: int) -> Effects:
         """Adopt the world's later (episode, step), as a resumed node does (from the positions of that step);
         the episodes left behind end here, with their statistics."""
         expected = self.expect[agent]
@@ -377,7 +389,7 @@ class CentralDriver:
             for episode in range(current, fb.episode):
                 central_outcome(self.learner, self._cells, None, False, True)  # left behind: nothing to learn
                 out += self._end_episode(episode)
-                self._before = counts(self.learner)
+                self._begin_episode()
         self._played = True
         self.link.heard()
         for inbox in self._inbox.values():
@@ -385,6 +397,7 @@ class CentralDriver:
         self._acted = None
         self.expect = dict.fromkeys(self.agents)
         return out + self._start_resync(fb)
+
     def _joint_step(self) -> Effects:
         """Every acting agent's feedback of a step is in: learn, then end the episode or act."""
         unapplied = 0  # acting agents whose action the world did not apply (it came late, or was lost)
@@ -394,10 +407,10 @@ class CentralDriver:
             self._truncated |= fb.truncated
             unapplied += fb.applied != self._sent.get(k)
         if fb.step == 0:
-            self._before = counts(self.learner)
+            self._begin_episode()
         # A no-op but after a resume from a truncated step, which may join the world past the learning
         # episodes without passing through _end_episode.
-        _greedy_from(self, fb.episode)
+        self._greedy_from(fb.episode)
         finished = all(self._done)
         rewards = None
         if self._acted == (fb.episode, fb.step - 1):
@@ -441,14 +454,5 @@ class CentralDriver:
         self._done = [False] * self.n
         self._collect(set(self.agents))
         out: Effects = [Send(self._stats(k, episode)) for k in self.agents]
-        out += _after_episode(self, episode)
+        out += self._after_episode(episode)
         return out
-
-    def _stats(self, agent: int, episode: int) -> AgentStats:
-        local, joint = state_counts(self.learner)
-        return AgentStats(agent=agent, episode=episode, algorithm=self.learner.name,
-                          joint_plays=self.learner.joint_plays - self._before[0],
-                          heard=self.learner.heard - self._before[1], local_states=local,
-                          joint_states=joint, subscriptions_created=self.peers.created,
-                          subscriptions_active=len(self.peers.idle), peer_messages=self.peers.messages,
-                          counters=self.counters())
