@@ -485,7 +485,10 @@ def test_an_agent_stopped_past_step_timeout_ends_degraded_and_says_where(tmp_pat
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
 
-    episodes = 400
+    # 2,000 episodes (about 15 s of stepping on 2 idle cores): the stop must land mid-run. With 400 the world
+    # played them all in 2.9 s, and the agents' rows, which the stop waited for, came only after: agv1 had
+    # exited by then (ProcessLookupError once; another time a zombie took the signal and the run ended clean).
+    episodes = 2000
     out, namespace, err = tmp_path / "result", unique("degraded"), tmp_path / "stderr.txt"
     sets = (*STALL_SETTINGS, "step_timeout=1.0", "feedback_timeout=10.0", "heartbeat_period=0.2")
     with open(err, "wb") as stderr:
@@ -493,10 +496,13 @@ def test_an_agent_stopped_past_step_timeout_ends_degraded_and_says_where(tmp_pat
                                                    "--no-figures"), stdout=subprocess.DEVNULL, stderr=stderr)
     pid = None
     try:
-        wait_until(lambda: text_of(out / "episodes.csv").count("\n") > 5, LAUNCH_TIMEOUT_S, "no five rows",
-                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        # the world's first episodes, by the launcher's progress (the world's statistics, matched before its
+        # first step), not the rows, which also wait for each agent's statistics to match the launcher
+        wait_until(lambda: re.search(rf": episodes \d+/{episodes}\b", text_of(err)), LAUNCH_TIMEOUT_S,
+                   "no progress", ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
         pid = agv1_pid(launcher, err)  # after the run's first steps: no start of it is replaced any more
         os.kill(pid, signal.SIGSTOP)
+        assert not re.search(rf": episodes {episodes}/", text_of(err)), "the run was over before the stop"
         time.sleep(3.0)  # the fault itself: three step timeouts stopped
         os.kill(pid, signal.SIGCONT)
         code = launcher.wait(LAUNCH_TIMEOUT_S)
