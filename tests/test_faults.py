@@ -618,7 +618,9 @@ def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoin
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
 
-    episodes, every = 400, 20
+    # 2,000 episodes: the world played 400 in about 3 s, before the agents' statistics (which the kill waits for,
+    # as rows) had matched the launcher, and the kill came after the run (an idle suite run: exit 1, not 3)
+    episodes, every = 2000, 20
     out, err = tmp_path / "result", tmp_path / "stderr.txt"
     launcher = restarting_launch(out, err, episodes, every)
     try:
@@ -633,7 +635,7 @@ def test_a_launch_with_restart_agents_restarts_a_killed_agent_from_its_checkpoin
     finally:
         stop_launcher(launcher)
     assert code == 3, text_of(err)
-    said = re.search(r"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/400 episodes: "
+    said = re.search(rf"agv1 \(pid \d+\) exited with code -9 \(killed by SIGKILL\) after \d+/{episodes} episodes: "
                      r"restarted it \(restart 1, pid \d+\); it resumes from its checkpoint of episode (\d+): "
                      r"(\d+) learning episodes? lost", text_of(err))
     assert said, text_of(err)
@@ -823,7 +825,8 @@ def test_a_disk_that_fills_mid_launch_keeps_every_row_heard_and_the_manifest_say
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
 
-    episodes = 400
+    episodes = 2000  # not 400: the world plays those in about 3 s, and the rows can come after it (the agents'
+    # statistics match the launcher late), so the disk would fill after the last row
     with tmpfs(tmp_path / "disk", 512) as disk:
         out, err = disk / "result", tmp_path / "stderr.txt"
         with open(err, "wb") as stderr:
