@@ -791,9 +791,10 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str, settings: Settings) 
 
 def _last_rows(executor: Any, listener: StatsListener, rows: EpisodeRows, stop: StopSignals) -> None:
     """Write the rows of every episode the world has said it played, as their statistics come in (at most
-    LAST_ROWS_S): a run that ends on a failure keeps, and counts, each episode it heard the end of. (A second
-    system's world that stepped one episode before it yielded said "after 1 episodes" and kept no row: its
-    agents' statistics of that episode were still on their way.)"""
+    LAST_ROWS_S): a run that ends on a failure keeps each episode it heard the end of. (A second system's world
+    that stepped one episode before it yielded said "after 1 episodes" and kept no row: its agents' statistics
+    of that episode were still on their way.) A killed agent's statistics of its last episode may never come:
+    the failure's line counts the rows kept, not the world's episodes."""
     def written() -> bool:
         rows.take(listener)
         return rows.failure is not None or rows.written >= min(len(listener.world), rows.episodes)
@@ -838,9 +839,9 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
                 sum(c.restarts for c in children) < restart_agents:
             _restart(failed[0], env, listener, learners, restart_loss)
             continue
-        if failed:
+        if failed:  # the episodes it counts are those whose rows it keeps (a killed agent's last never come)
             _last_rows(executor, listener, rows, stop)
-            raise LaunchError(f"{failed[0].describe_exit()} after {len(listener.world)}/{listener.episodes} "
+            raise LaunchError(f"{failed[0].describe_exit()} after {rows.written}/{listener.episodes} "
                               f"episodes (its log: {failed[0].log})")
         running = [c for c in children if c.running]
         if not running:
