@@ -436,13 +436,14 @@ def map_text(name: str) -> str:
     """The text of a shipped map; MapError listing the available names if there is none by that name."""
     names = available_maps()
     if name not in names:
-        raise _error(name, f"no such map; available: {', '.join(names)} (or give a path to a .txt file)")
+        raise _error(name, f"no such map; available: {', '.join(names)} (or give a path to a map file)")
     return (_maps_dir() / f"{name}.txt").read_text(encoding="utf-8")
 
 
 def load_map(name_or_path: str | os.PathLike) -> GridMap:
     """A shipped map by name (``"tunnel_to_goal_3"``), or a map file by path (a PathLike, or a str with a
-    directory separator or ending in .txt)."""
+    directory separator, ending in .txt, or naming a file that is not a shipped map's name, as `cq-ros generate
+    --out wh.map` writes)."""
     if isinstance(name_or_path, os.PathLike) or _looks_like_path(name_or_path):
         path = Path(name_or_path)
         try:
@@ -463,7 +464,8 @@ def load_map(name_or_path: str | os.PathLike) -> GridMap:
 
 
 def _looks_like_path(name: str) -> bool:
-    return name.endswith(".txt") or "/" in name or os.sep in name
+    return (name.endswith(".txt") or "/" in name or os.sep in name
+            or (name not in available_maps() and Path(name).is_file()))
 
 
 def lattice(gridmap: GridMap) -> tuple[tuple[bool, ...], ...]:

@@ -147,6 +147,15 @@ def test_load_by_name_and_by_path(tmp_path):
         assert dataclasses.replace(by_path, name="isr", source=by_name.source) == by_name
 
 
+def test_a_file_in_the_working_directory_loads_whatever_its_extension(tmp_path, monkeypatch):
+    """`cq-ros generate warehouse --out wh.map` then `--map wh.map`: a bare name that is a file, not a shipped map."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "wh.map").write_text(map_text("isr"))
+    assert load_map("wh.map").source == "wh.map"
+    (tmp_path / "isr").write_text(map_text("cit"))
+    assert load_map("isr").source.endswith("isr.txt")  # a shipped map's name stays the shipped map
+
+
 def test_unknown_name_lists_available_maps():
     with pytest.raises(MapError, match="no_such_map") as caught:
         load_map("no_such_map")
