@@ -47,9 +47,9 @@ __all__ = ["RESERVE_NAME", "RESERVE_BYTES", "DEPARTURES", "StatsListener", "Epis
 
 RESERVE_NAME = ".reserve"  # in the result directory while the launch runs
 RESERVE_BYTES = 64 * 1024  # room for the manifest (a few KiB) once the disk is full
+TAKEN_AT_ONCE = 1000  # messages a listener's subscription takes per wake of the executor, at most (_subscribe)
 # An agent's counters that say a step was not played as the offline engine plays it: an action the world did
 # not apply (late or lost), a feedback never heard (caught up past it). The world's own is `missed_actions`.
-TAKEN_AT_ONCE = 1000  # messages a listener's subscription takes per wake of the executor, at most (_subscribe)
 DEPARTURES = ("unapplied_actions", "caught_up", "missed_feedback")
 
 
@@ -118,10 +118,11 @@ class StatsListener:
     def _subscribe(self, spec: Any, topic: str, on_message: Any, qos: Any = None) -> Any:
         """A raw subscription to `topic` whose callback, woken by one message, also takes each further one its
         reader holds (at most TAKEN_AT_ONCE, then the other subscriptions get their turn). The executor takes one
-        message per wait, a few hundred microseconds in rclpy 7.1.6 and more on a busy machine, where judging a
-        junk statistic takes 3: a flood sent faster than that filled the reader's queue (READER_DEPTH, shared by
-        every writer) and evicted real statistics (a suite run beside two busy loops: "the launcher never got
-        agv1/stats episodes 276-277"). Taken in a burst, the queue drains as fast as the codec judges."""
+        message per wait, a few hundred microseconds in rclpy 7.1.6 and more on a busy machine, while judging a
+        junk statistic takes about 3 microseconds: a flood sent faster than that filled the reader's queue
+        (READER_DEPTH, shared by every writer) and evicted real statistics (a suite run beside two busy loops:
+        "the launcher never got agv1/stats episodes 276-277"). Taken in a burst, the queue drains as fast as the
+        codec judges."""
         subscription = []
 
         def on_wake(msg: Any) -> None:
