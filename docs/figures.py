@@ -210,14 +210,14 @@ COLLISION_TARGETS = {8: 0.05, 12: 0.1, 16: 0.2, 32: 0.2}
 
 def study_targets() -> str:
     """Each kept study's frozen greedy figures against the targets: met or missed, from its units.csv."""
-    from cq_ros.lab.held_out import BOOTSTRAP_SEED, read_rows, unit_values
+    from cq_ros.lab.held_out import BOOTSTRAP_SEED, shown_rows, unit_values
     from cq_ros.lab.study import makespan_ratio, mean_interval, ratio_interval
 
     lines = ["| study | target | measured (frozen greedy policy, CQ) | |", "| --- | --- | --- | --- |"]
     for folder in study_folders():
         shown = json.loads((folder / "study.json").read_text())["shown"]
         agents = shown["sizes"][0]
-        rows = [r for r in read_rows(folder / "units.csv") if r["agents"] == agents]
+        rows = [r for r in shown_rows(folder, "units.csv") if r["agents"] == agents]
         cq = unit_values(rows, "cq", "frozen_collisions")
         home = unit_values(rows, "cq", "frozen_home")
         collisions = mean_interval(cq)

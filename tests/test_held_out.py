@@ -3,13 +3,16 @@
 plays nothing twice, and its tables are cq_ros.lab.study's arithmetic on the units it kept."""
 
 import csv
+import importlib.util
+import shutil
+from pathlib import Path
 
 import pytest
 
 from cq_ros import compiled
 from cq_ros.cli.main import main
 from cq_ros.gridmap import load_map
-from cq_ros.lab.held_out import BOOTSTRAP_SEED, HELD_OUT_SEEDS, TUNING_SEEDS, show_ratio
+from cq_ros.lab.held_out import BOOTSTRAP_SEED, HELD_OUT_SEEDS, TUNING_SEEDS, show_ratio, shown_rows
 from cq_ros.lab.study import mean_interval, paired_difference, ratio_interval
 from cq_ros.settings import run_settings
 
@@ -17,12 +20,15 @@ TINY = ["study", "--agents", "4", "--maps", "2", "--episodes", "20", "--greedy-e
         "--curve-episodes", "2", "--set", "step_cap=60", "--jobs", "1"]
 
 
+ROOT = Path(__file__).resolve().parents[1]
+
+
 def rows_of(path):
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
 
 
-def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, capsys):
+def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, capsys, monkeypatch):
     out = tmp_path / "study"
     assert main([*TINY, "--runs", "2", "--out", str(out)]) == 0
     captured = capsys.readouterr()
@@ -80,6 +86,20 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
         main([*TINY[:6], "21", *TINY[7:], "--runs", "3", "--out", str(out)])
     assert exited.value.code == 2
     assert "another protocol (episodes differ)" in capsys.readouterr().err
+
+    # A smaller command shows only the units it asked for, in study.md and in the docs' targets table alike
+    # (docs/figures.py), though units.csv keeps the 12.
+    assert main([*TINY, "--runs", "1", "--out", str(out)]) == 0
+    assert "## 4 AGVs: 2 units" in capsys.readouterr().out
+    shown = shown_rows(out, "units.csv")
+    assert len(shown) == 4 and {(r["generator_seed"], r["run"]) for r in shown} == {(1001, 0), (1002, 0)}
+    spec = importlib.util.spec_from_file_location("docs_figures", ROOT / "docs" / "figures.py")
+    figures = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(figures)
+    shutil.copytree(out, tmp_path / "data" / "study" / "tiny")
+    monkeypatch.setattr(figures, "DATA", tmp_path / "data")
+    monkeypatch.setitem(figures.COLLISION_TARGETS, 4, 0.05)
+    assert "| tiny (4 AGVs, 2 units) |" in figures.study_targets()
 
 
 def test_a_unit_on_the_reference_engine_is_its_experiment_run_too(tmp_path):

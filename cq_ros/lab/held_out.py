@@ -293,6 +293,15 @@ def planned(out: Path, paths: dict[tuple[int, int], Path], runs: int, seed: int,
     return found
 
 
+def shown_rows(out: Path, name: str) -> list[dict]:
+    """The rows of OUT/NAME (units.csv, curve.csv or planner.csv) of the units the last command asked for
+    (study.json's `shown`: its sizes, maps and runs); OUT may hold more, from a larger command before it."""
+    shown = json.loads((out / "study.json").read_text())["shown"]
+    seeds, sizes = set(HELD_OUT_SEEDS[:shown["maps"]]), set(shown["sizes"])
+    return [r for r in read_rows(out / name)
+            if r["agents"] in sizes and r["generator_seed"] in seeds and r["run"] < shown["runs"]]
+
+
 def report(out: Path) -> str:
     """study.md, from OUT's files alone: the units of the sizes, maps, runs and configurations the last command
     asked for (study.json's `shown`), so that a page can show a kept study as the command printed it."""
@@ -300,10 +309,7 @@ def report(out: Path) -> str:
     shown = protocol["shown"]
     sizes, maps, runs, command, presets = (shown[k] for k in ("sizes", "maps", "runs", "command", "presets"))
     configs = [Config(**protocol["configs"][name]) for name in shown["configs"]]
-    seeds = set(HELD_OUT_SEEDS[:maps])
-    mine = [r for r in read_rows(out / "units.csv") if r["generator_seed"] in seeds and r["run"] < runs]
-    curve = [r for r in read_rows(out / "curve.csv") if r["generator_seed"] in seeds and r["run"] < runs]
-    planner = [r for r in read_rows(out / "planner.csv") if r["generator_seed"] in seeds and r["run"] < runs]
+    mine, curve, planner = (shown_rows(out, name) for name in ("units.csv", "curve.csv", "planner.csv"))
     seconds = sum(r["seconds"] for r in mine)
     lines = [
         "# Held-out study", "", f"Command: `{command}`", "",
