@@ -87,6 +87,14 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
     assert exited.value.code == 2
     assert "another protocol (episodes differ)" in capsys.readouterr().err
 
+    # A study stopped after a unit's curve was written but before its row plays the unit again, and the curve
+    # counts it once.
+    kept = (out / "units.csv").read_text().splitlines(keepends=True)
+    (out / "units.csv").write_text("".join(kept[:-1]))
+    assert main([*TINY, "--runs", "3", "--out", str(out)]) == 0
+    assert "1 to play" in capsys.readouterr().err
+    assert len(rows_of(out / "curve.csv")) == 2 * 12 + 2 and len(shown_rows(out, "curve.csv")) == 2 * 12
+
     # A smaller command shows only the units it asked for, in study.md and in the docs' targets table alike
     # (docs/figures.py), though units.csv keeps the 12.
     assert main([*TINY, "--runs", "1", "--out", str(out)]) == 0

@@ -252,10 +252,12 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
         new = [{"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
                 **r["row"], "planner_makespan": planner[(u.agents, u.generator_seed, u.run)]["makespan"]}
                for u, r in zip(batch, ran.results)]
-        append_rows(out / "units.csv", new)
+        # The curve first: a unit's row in units.csv is what marks it played, so a study stopped between the
+        # two writes plays the unit again (shown_rows keeps one row per unit) rather than lose its curve.
         append_rows(out / "curve.csv", [
             {"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
              "episode": e, "collisions": c, "home": h} for u, r in zip(batch, ran.results) for e, c, h in r["curve"]])
+        append_rows(out / "units.csv", new)
         rows += new
         print(f"study: unit {i + len(batch)}/{len(units)}, {time.perf_counter() - started:.0f} s elapsed",
               file=sys.stderr, flush=True)
@@ -295,11 +297,16 @@ def planned(out: Path, paths: dict[tuple[int, int], Path], runs: int, seed: int,
 
 def shown_rows(out: Path, name: str) -> list[dict]:
     """The rows of OUT/NAME (units.csv, curve.csv or planner.csv) of the units the last command asked for
-    (study.json's `shown`: its sizes, maps and runs); OUT may hold more, from a larger command before it."""
+    (study.json's `shown`: its sizes, maps and runs); OUT may hold more, from a larger command before it. One
+    row per unit and configuration (and curve point), the last written: a unit played again after a stop
+    between its curve and its row (the same seeds, the same figures) counts once."""
     shown = json.loads((out / "study.json").read_text())["shown"]
     seeds, sizes = set(HELD_OUT_SEEDS[:shown["maps"]]), set(shown["sizes"])
-    return [r for r in read_rows(out / name)
-            if r["agents"] in sizes and r["generator_seed"] in seeds and r["run"] < shown["runs"]]
+    kept: dict[tuple, dict] = {}
+    for r in read_rows(out / name):
+        if r["agents"] in sizes and r["generator_seed"] in seeds and r["run"] < shown["runs"]:
+            kept[tuple(r.get(k) for k in (*KEY, "episode"))] = r
+    return list(kept.values())
 
 
 def report(out: Path) -> str:
