@@ -50,7 +50,8 @@ from .runner import run_all
 from .study import Interval, home_rate, makespan_ratio, mean_interval, paired_difference, ratio_interval
 
 # Generator seeds: those the settings were chosen on (docs/choices.md), and the block the study draws from,
-# which no document, test or tuning run names (map i of a size is HELD_OUT_SEEDS[i]).
+# which no tuning run, and no document or test but the study's own, names (map i of a size is
+# HELD_OUT_SEEDS[i]).
 TUNING_SEEDS = (0, 7)
 HELD_OUT_SEEDS = range(1001, 1101)
 BOOTSTRAP_SEED = 0
