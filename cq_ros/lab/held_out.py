@@ -229,8 +229,7 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     wanted = [(a, HELD_OUT_SEEDS[i], r) for a in sizes for i in range(maps) for r in range(runs)]
     paths = {(a, g): generated(out, a, g, slip) for a, g in dict.fromkeys((a, g) for a, g, _ in wanted)}
     planner = planned(out, paths, runs, seed, overrides)
-    rows = read_rows(out / "units.csv")
-    done = {tuple(row[k] for k in KEY) for row in rows}
+    done = {tuple(row[k] for k in KEY) for row in read_rows(out / "units.csv")}
     presets: dict[str, dict] = {}
     units = []
     for (agents, g), path in paths.items():
@@ -259,7 +258,6 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
             {"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
              "episode": e, "collisions": c, "home": h} for u, r in zip(batch, ran.results) for e, c, h in r["curve"]])
         append_rows(out / "units.csv", new)
-        rows += new
         print(f"study: unit {i + len(batch)}/{len(units)}, {time.perf_counter() - started:.0f} s elapsed",
               file=sys.stderr, flush=True)
     kept = json.loads((out / "study.json").read_text())
