@@ -109,6 +109,16 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
     monkeypatch.setitem(figures.COLLISION_TARGETS, 4, 0.05)
     assert "| tiny (4 AGVs, 2 units) |" in figures.study_targets()
 
+    # A kept map the generator no longer makes (a generator changed since) refuses a resume, which would mix
+    # units on two maps; --force starts again.
+    kept_map = out / "maps" / "warehouse_4_gen1002.txt"
+    kept_map.write_text(kept_map.read_text() + "\n")
+    with pytest.raises(SystemExit) as exited:
+        main([*TINY, "--runs", "1", "--out", str(out)])
+    assert exited.value.code == 2 and "is not the map the generator makes now" in capsys.readouterr().err
+    assert main([*TINY, "--runs", "1", "--out", str(out), "--force"]) == 0
+    assert len(rows_of(out / "units.csv")) == 4
+
 
 def test_a_unit_on_the_reference_engine_is_its_experiment_run_too(tmp_path):
     from cq_ros.engine import run

@@ -157,10 +157,16 @@ def play_unit(maps: dict[str, GridMap], unit: Unit, on_episode: Callable[[], Non
 
 
 def generated(out: Path, agents: int, seed: int, slip: float) -> Path:
-    """The warehouse `cq-ros generate warehouse --agents AGENTS --seed SEED --slip SLIP` makes, kept in OUT/maps."""
+    """The warehouse `cq-ros generate warehouse --agents AGENTS --seed SEED --slip SLIP` makes, kept in OUT/maps.
+    One kept there already must be it: units played on another map (a generator changed since) must not be
+    resumed as if on this one (ResultExists)."""
     path = out / "maps" / f"warehouse_{agents}_gen{seed}.txt"
+    text = warehouse_text(agents, seed=seed, slip=slip)
+    if path.exists() and path.read_text() != text:
+        raise ResultExists(f"{path} is not the map the generator makes now: the units played on it would be "
+                           "mixed with units on another map; choose another output directory or pass --force")
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(warehouse_text(agents, seed=seed, slip=slip))
+    path.write_text(text)
     return path
 
 
@@ -181,6 +187,8 @@ def open_output(out: Path, protocol: dict, force: bool) -> Path:
         if force:
             for name in ("units.csv", "curve.csv", "planner.csv", "study.json", "study.md"):
                 (out / name).unlink(missing_ok=True)
+            for path in (out / "maps").glob("warehouse_*_gen*.txt"):
+                path.unlink()
         elif not kept.exists():
             raise ResultExists(f"output directory {out} is not empty and holds no study; choose another or pass "
                                "--force to overwrite")
