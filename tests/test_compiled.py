@@ -16,6 +16,7 @@ from test_world import random_maps
 
 from cq_ros import engine
 from cq_ros.compiled import engine as compiled
+from cq_ros.compiled.algorithms import KERNEL_ALGORITHMS
 from cq_ros.compiled import mt
 from cq_ros.compiled.windows import fsum
 from cq_ros.gridmap import load_map
@@ -63,7 +64,7 @@ def test_fsum_is_math_fsum(values):
     assert fsum(array, 0, len(values), True, partials) == math.fsum(v * v for v in values)
 
 
-@pytest.mark.parametrize("algo", ["indep", "cq"])
+@pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
 @pytest.mark.parametrize("map_name,episodes", [("tunnel_to_goal", 400), ("tunnel_to_goal_3", 200)])
 @pytest.mark.parametrize("eval_learning", [0, 1])
 def test_paper_maps_byte_identical_result_files(algo, map_name, episodes, eval_learning, tmp_path):
@@ -81,7 +82,7 @@ def test_paper_maps_byte_identical_result_files(algo, map_name, episodes, eval_l
         assert ours.joint_states, "a CQ run that marks nothing compares too little"
 
 
-@pytest.mark.parametrize("algo", ["indep", "cq"])
+@pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
 @pytest.mark.parametrize("delays", [{}, {"slip": 0.1, "start_hold": 3}])
 def test_generated_warehouse(algo, delays):
     gm = warehouse_map(6, seed=2, **delays)
@@ -89,7 +90,7 @@ def test_generated_warehouse(algo, delays):
     assert_twins(*both(algo, gm, s, episodes=6))
 
 
-ALGOS = st.sampled_from(["indep", "cq"])
+ALGOS = st.sampled_from(KERNEL_ALGORITHMS)
 
 
 @st.composite
@@ -106,7 +107,8 @@ def drawn_settings(draw):
         conf_drop=draw(st.sampled_from([0.0, 0.2])), conf_up=draw(st.sampled_from([0.0, 0.5])),
         cq_bootstrap_acted=draw(flag), cq_mark_range=draw(st.integers(0, 3)), cq_mark_colliders=draw(flag),
         cq_all_met=draw(flag), cq_w1_alone=draw(flag), cq_waits_fresh=draw(flag), cq_look_if_decisive=draw(flag),
-        step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
+        near_range=draw(st.integers(1, 3)), loc_range=draw(st.integers(1, 3)),
+        loc_cost=draw(st.sampled_from([0.0, 0.1, 1.0])), step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
         eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 0.9])), start_hold=hold)
 
 
@@ -131,10 +133,20 @@ def reference_team(algo, gm, s, seed, run_index):
                        engine.make_learners(algo, gm, s, seed, run_index))
 
 
+def assert_same_tables(ours, theirs):
+    """Two learners hold the same Q_k, generator state and (in creation order) states with peers."""
+    assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+    for table in compiled.TABLES.values():
+        assert list(getattr(ours, table, {}).items()) == list(getattr(theirs, table, {}).items())
+    if theirs.name in compiled.TABLES:
+        assert getattr(theirs, compiled.TABLES[theirs.name]), "a run that met no peer compares too little"
+
+
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_all_met": 0}),
-    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150})])
+    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
+    ("near", "tunnel_to_goal_3", {}), ("loc", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2})])
 def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, overrides):
     """K episodes compiled, handed over to reference learners, M more on the reference engine (and its greedy
     episodes) = K + M on the reference engine; the learners hold what the reference's hold."""
@@ -146,7 +158,7 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     reference = reference_team(algo, gm, s, 5, 2)
     assert first.tobytes() == engine.record.table(reference.episode() for _ in range(150)).tobytes()
     for ours, theirs in zip(team.learners, reference.learners):
-        assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+        assert_same_tables(ours, theirs)
         if algo == "cq":
             assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
@@ -161,7 +173,8 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_w1_alone": 1}),
-    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150})])
+    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
+    ("near", "tunnel_to_goal_3", {"slip": 0.1}), ("loc", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150})])
 def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
     """K episodes on the reference engine, its learners saved as agent checkpoints and loaded back into a team
     turned into the kernel's arrays, M more in the kernel (and its greedy episodes) = K + M on the reference
@@ -186,7 +199,7 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
     assert greedy.tobytes() == engine.greedy_episodes(team, 3).tobytes()
     assert kernel.play(60).tobytes() == engine.record.table(team.episode() for _ in range(60)).tobytes()
     for ours, theirs in zip(compiled.team_of(kernel).learners, team.learners):
-        assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+        assert_same_tables(ours, theirs)
         if algo == "cq":
             assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)

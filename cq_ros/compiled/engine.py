@@ -28,6 +28,15 @@ from ..learners.base import Learner
 from .mt import set_state, state_of
 from .world import new_scratch
 
+# the learners whose states with peers live in the kernel's table (cq_ros.compiled.learners), by the attribute
+# holding them in the reference learner
+TABLES = {"near": "q_near", "loc": "q_coord"}
+
+
+def new_table(cap: int, n: int):
+    """An empty table (cq_ros.compiled.learners says its layout) of `cap` slots for `n` agents."""
+    return (np.full((cap, n + 1), -1, np.int64), np.zeros((cap, 4)), np.full(2 * cap, -1, np.int64),
+            np.zeros(1, np.int64))
 
 
 class Kernel:
@@ -37,7 +46,7 @@ class Kernel:
         if algo not in KERNEL_ALGORITHMS:
             raise ValueError(f"the compiled engine plays {', '.join(KERNEL_ALGORITHMS)}, not {algo!r}")
         self.algo, self.map, self.settings, self.seed, self.run_index = algo, gridmap, settings, seed, run_index
-        st, cq = settings, algo == "cq"
+        st, cq, tables = settings, algo == "cq", algo in TABLES
         n, c = gridmap.n_agents, gridmap.n_cells
         rows, cols = zip(*gridmap.cells)
         self.geo = (np.array(gridmap.neighbours, np.int64), np.array(gridmap.starts, np.int64),
@@ -45,18 +54,19 @@ class Kernel:
         test = ConflictTest(st.window, st.significance) if cq else None
         self.fp = np.array([st.alpha, st.gamma, st.epsilon, st.slip, st.reward_step, st.reward_wall,
                             st.reward_collision, st.reward_goal, st.conf_init, st.conf_up, st.conf_down, st.conf_max,
-                            st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0])
-        self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, int(cq), st.cq_mark_range,
-                            st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met, st.cq_waits_fresh,
-                            st.cq_look_if_decisive], np.int64)
+                            st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0, st.loc_cost])
+        self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, K.ALGO_CODES[algo],
+                            st.cq_mark_range, st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met,
+                            st.cq_waits_fresh, st.cq_look_if_decisive,
+                            st.loc_range if algo == "loc" else st.near_range], np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
                       # the world's generator as GridWorld's constructor leaves it
                       state_of(GridWorld(gridmap, settings, seed=world_seed(seed, run_index))._rng)[None],
                       new_scratch(n, c))
-        self.ag = np.zeros((n, 10), np.int64)
+        self.ag = np.zeros((n, 11), np.int64)
         self.ag[:, K.NKEYS] = 1  # keys = [None]
         self.eps = np.full(n, st.epsilon)
-        self.q = np.zeros((n, c, 4))
+        self.q = np.zeros((n, c, 5 if algo == "loc" else 4))  # LoC's Q* has COORDINATE
         self.mt = np.array([state_of(random.Random(learner_seed(seed, run_index, k))) for k in range(n)])
         cap = 64 if cq else 1
         cells_kept = (n, c) if cq else (1, 1)
@@ -67,6 +77,7 @@ class Kernel:
         self.cq = (np.zeros((n, 8), np.int64), np.zeros(n), np.full((n, 4 * n), -1, np.int64), ck,
                    np.zeros(n, np.int64))
         self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window)
+        self.tab = new_table(64 if tables else 1, n)
         if cq and st.cq_w1_alone:
             self._w1_alone()
 
@@ -95,8 +106,9 @@ class Kernel:
             size = min(batch, episodes - done)
             started = time.perf_counter()
             try:
-                jsi, jsf, free, pool = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag, self.eps,
-                                                   self.q, self.mt, self.js, self.cq, self.win, out[done:done + size])
+                jsi, jsf, free, pool, tk, tq, th = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag,
+                                                               self.eps, self.q, self.mt, self.js, self.cq, self.win,
+                                                               self.tab, out[done:done + size])
             except SystemError as e:  # Ctrl-C (or SIGTERM, as the CLI raises it) while numba called back into
                 interrupt = _interrupt(e)  # Python: numba wraps it; it goes on as what it was
                 if interrupt is not None:
@@ -104,6 +116,7 @@ class Kernel:
                 raise
             self.js = (jsi, jsf, free, *self.js[3:])
             self.win = (*self.win[:2], pool, *self.win[3:])
+            self.tab = (tk, tq, th, self.tab[3])
             done += size
             if time.perf_counter() - started < 0.1:
                 batch *= 2
@@ -166,6 +179,12 @@ def _js_key(jsi, slot) -> tuple[int, int, int]:
     return int(jsi[slot, K.JS_S]), int(jsi[slot, K.JS_J]), int(jsi[slot, K.JS_C])
 
 
+def _state_key(key: np.ndarray, k: int) -> tuple[int, tuple[tuple[int, int], ...]]:
+    """A table key of agent k as the reference's (cell, near): the peers in range with their cells."""
+    cells = key[1:].tolist()
+    return cells[k], tuple((j, c) for j, c in enumerate(cells) if j != k and c >= 0)
+
+
 def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     """Learner k of the kernel, as the reference learner `learner` (fresh from make_learners) holds it."""
     set_state(learner.rng, kernel.mt[k])
@@ -176,6 +195,11 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
                                                                    int(ag[K.HEARD]))
     learner.s, learner.a = int(ag[K.S]), int(ag[K.A])
     learner.q_local = kernel.q[k].tolist()
+    if kernel.algo in TABLES:
+        tk, tq, used = kernel.tab[0], kernel.tab[1], int(kernel.tab[3][0])
+        mine = np.flatnonzero(tk[:used, 0] == k)
+        setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k): tq[i].tolist() for i in mine})
+        learner.waiting = None  # between episodes no step waits (near)
     if kernel.algo != "cq":
         return
     jsi, jsf = kernel.js[0], kernel.js[1]
@@ -224,10 +248,20 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
     ag[K.PLAYED], ag[K.PLAYS], ag[K.HEARD] = learner.episodes_played, learner.joint_plays, learner.heard
     ag[K.S], ag[K.A] = getattr(learner, "s", 0), getattr(learner, "a", 0)
     kernel.q[k] = learner.q_local
+    if getattr(learner, "waiting", None) is not None:
+        raise ValueError(f"a {kernel.algo} learner hands over between episodes, where no step waits")
+    if kernel.algo in TABLES:
+        tk, tq, tm = kernel.tab[0], kernel.tab[1], kernel.tab[3]
+        table = getattr(learner, TABLES[kernel.algo])
+        for (s, near), row in table.items():  # into a fresh table's free slots (kernel_of indexes them)
+            tk[tm[0], 0], tk[tm[0], 1 + k] = k, s
+            for j, c in near:
+                tk[tm[0], 1 + j] = c
+            tq[tm[0]] = row
+            tm[0] += 1
+        kernel.js[6][k] = len(table)
     if kernel.algo != "cq":
         return
-    if learner.waiting is not None:
-        raise ValueError("a CQ learner hands over between episodes, where no step waits")
     ag[K.DROPPED], ag[K.LOOKING] = learner.dropped_updates, learner.looking
     jsi, jsf = kernel.js[0], kernel.js[1]
     head, tail, n_js = kernel.js[4], kernel.js[5], kernel.js[6]
@@ -281,7 +315,15 @@ def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
                                                   np.array([cap - total, total], np.int64), *kernel.js[4:])
         free = np.concatenate([free, np.zeros(total, np.int64)])
         kernel.js = (jsi, jsf, free, meta, head, tail, n_js)
+    if algo in TABLES:
+        total = sum(len(getattr(learner, TABLES[algo])) for learner in learners)
+        cap = 64
+        while cap < total + len(learners):
+            cap *= 2
+        kernel.tab = new_table(cap, len(learners))
     slots: dict[tuple[int, tuple], int] = {}
     for k, learner in enumerate(learners):
         _take_over(kernel, learner, k, slots)
+    if algo in TABLES:
+        K.index_table(kernel.tab[0], kernel.tab[2], kernel.tab[3][0])
     return kernel
