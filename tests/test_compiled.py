@@ -135,7 +135,8 @@ def reference_team(algo, gm, s, seed, run_index):
 
 def assert_same_tables(ours, theirs):
     """Two learners hold the same Q_k, generator state and (in creation order) states with peers."""
-    assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+    assert getattr(ours, "q_local", None) == getattr(theirs, "q_local", None)
+    assert ours.rng.getstate() == theirs.rng.getstate()
     for table in compiled.TABLES.values():
         assert list(getattr(ours, table, {}).items()) == list(getattr(theirs, table, {}).items())
     if theirs.name in compiled.TABLES:
@@ -146,7 +147,8 @@ def assert_same_tables(ours, theirs):
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_all_met": 0}),
     ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
-    ("near", "tunnel_to_goal_3", {}), ("loc", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2})])
+    ("near", "tunnel_to_goal_3", {}), ("loc", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2}),
+    ("js", "tunnel_to_goal_3", {"eval_learning": 1})])
 def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, overrides):
     """K episodes compiled, handed over to reference learners, M more on the reference engine (and its greedy
     episodes) = K + M on the reference engine; the learners hold what the reference's hold."""
@@ -174,7 +176,8 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_w1_alone": 1}),
     ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
-    ("near", "tunnel_to_goal_3", {"slip": 0.1}), ("loc", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150})])
+    ("near", "tunnel_to_goal_3", {"slip": 0.1}), ("loc", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150}),
+    ("js", "tunnel_to_goal", {"start_hold": 2})])
 def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
     """K episodes on the reference engine, its learners saved as agent checkpoints and loaded back into a team
     turned into the kernel's arrays, M more in the kernel (and its greedy episodes) = K + M on the reference
@@ -206,7 +209,7 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
 
 
 def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
-    """The lab's experiment: the kernel plays indep and cq, the reference js (the manifest says so), and
+    """The lab's experiment: the kernel plays indep and cq, the reference jsa (the manifest says so), and
     --engine reference writes the same files."""
     import json
 
@@ -215,12 +218,12 @@ def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
 
     written = {}
     for engine_name in ("compiled", "reference"):
-        out = experiment("tunnel_to_goal", ["indep", "js", "cq"], 2, 60, 4, tmp_path / engine_name, workers=1,
+        out = experiment("tunnel_to_goal", ["indep", "jsa", "cq"], 2, 60, 4, tmp_path / engine_name, workers=1,
                          figures=False, engine=engine_name)
         manifest = json.loads((out / MANIFEST).read_text())
         written[engine_name] = [(out / f).read_bytes() for f in (EPISODES, GREEDY, OBSERVE)]
         expected = "compiled" if engine_name == "compiled" else "reference"
-        assert manifest["engine"] == {"indep": expected, "js": "reference", "cq": expected}
+        assert manifest["engine"] == {"indep": expected, "jsa": "reference", "cq": expected}
     assert written["compiled"] == written["reference"]
 
 

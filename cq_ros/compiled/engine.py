@@ -30,7 +30,7 @@ from .world import new_scratch
 
 # the learners whose states with peers live in the kernel's table (cq_ros.compiled.learners), by the attribute
 # holding them in the reference learner
-TABLES = {"near": "q_near", "loc": "q_coord"}
+TABLES = {"near": "q_near", "loc": "q_coord", "js": "q_joint"}
 
 
 def new_table(cap: int, n: int):
@@ -54,11 +54,13 @@ class Kernel:
         test = ConflictTest(st.window, st.significance) if cq else None
         self.fp = np.array([st.alpha, st.gamma, st.epsilon, st.slip, st.reward_step, st.reward_wall,
                             st.reward_collision, st.reward_goal, st.conf_init, st.conf_up, st.conf_down, st.conf_max,
-                            st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0, st.loc_cost])
+                            st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0, st.loc_cost,
+                            # JointStateQ.state_count, summed, as the episode's table holds it
+                            float(n * c ** n) if algo == "js" else 0.0])
         self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, K.ALGO_CODES[algo],
                             st.cq_mark_range, st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met,
                             st.cq_waits_fresh, st.cq_look_if_decisive,
-                            st.loc_range if algo == "loc" else st.near_range], np.int64)
+                            {"loc": st.loc_range, "js": np.iinfo(np.int64).max}.get(algo, st.near_range)], np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
                       # the world's generator as GridWorld's constructor leaves it
                       state_of(GridWorld(gridmap, settings, seed=world_seed(seed, run_index))._rng)[None],
@@ -179,9 +181,12 @@ def _js_key(jsi, slot) -> tuple[int, int, int]:
     return int(jsi[slot, K.JS_S]), int(jsi[slot, K.JS_J]), int(jsi[slot, K.JS_C])
 
 
-def _state_key(key: np.ndarray, k: int) -> tuple[int, tuple[tuple[int, int], ...]]:
-    """A table key of agent k as the reference's (cell, near): the peers in range with their cells."""
+def _state_key(key: np.ndarray, k: int, algo: str) -> tuple:
+    """A table key of agent k as the reference's: (cell, near), the peers in range with their cells; for JS the
+    cells, its own first."""
     cells = key[1:].tolist()
+    if algo == "js":
+        return cells[k], *cells[:k], *cells[k + 1:]
     return cells[k], tuple((j, c) for j, c in enumerate(cells) if j != k and c >= 0)
 
 
@@ -194,11 +199,12 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     learner.episodes_played, learner.joint_plays, learner.heard = (int(ag[K.PLAYED]), int(ag[K.PLAYS]),
                                                                    int(ag[K.HEARD]))
     learner.s, learner.a = int(ag[K.S]), int(ag[K.A])
-    learner.q_local = kernel.q[k].tolist()
+    if hasattr(learner, "q_local"):  # JS keeps none
+        learner.q_local = kernel.q[k].tolist()
     if kernel.algo in TABLES:
         tk, tq, used = kernel.tab[0], kernel.tab[1], int(kernel.tab[3][0])
         mine = np.flatnonzero(tk[:used, 0] == k)
-        setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k): tq[i].tolist() for i in mine})
+        setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k, kernel.algo): tq[i].tolist() for i in mine})
         learner.waiting = None  # between episodes no step waits (near)
     if kernel.algo != "cq":
         return
@@ -247,16 +253,21 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
     kernel.eps[k] = learner.epsilon
     ag[K.PLAYED], ag[K.PLAYS], ag[K.HEARD] = learner.episodes_played, learner.joint_plays, learner.heard
     ag[K.S], ag[K.A] = getattr(learner, "s", 0), getattr(learner, "a", 0)
-    kernel.q[k] = learner.q_local
+    if hasattr(learner, "q_local"):  # JS keeps none: the kernel's stays zeros
+        kernel.q[k] = learner.q_local
     if getattr(learner, "waiting", None) is not None:
         raise ValueError(f"a {kernel.algo} learner hands over between episodes, where no step waits")
     if kernel.algo in TABLES:
         tk, tq, tm = kernel.tab[0], kernel.tab[1], kernel.tab[3]
         table = getattr(learner, TABLES[kernel.algo])
-        for (s, near), row in table.items():  # into a fresh table's free slots (kernel_of indexes them)
-            tk[tm[0], 0], tk[tm[0], 1 + k] = k, s
-            for j, c in near:
-                tk[tm[0], 1 + j] = c
+        for state, row in table.items():  # into a fresh table's free slots (kernel_of indexes them)
+            tk[tm[0], 0] = k
+            if kernel.algo == "js":
+                tk[tm[0], 1:] = (*state[1:k + 1], state[0], *state[k + 1:])
+            else:
+                tk[tm[0], 1 + k] = state[0]
+                for j, c in state[1]:
+                    tk[tm[0], 1 + j] = c
             tq[tm[0]] = row
             tm[0] += 1
         kernel.js[6][k] = len(table)

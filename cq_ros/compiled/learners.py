@@ -1,4 +1,4 @@
-"""The learners the kernel plays (indep, cq, near, loc: algorithms.KERNEL_ALGORITHMS) and one episode of them
+"""The learners the kernel plays (indep, cq, near, loc, js: algorithms.KERNEL_ALGORITHMS) and one episode of them
 (cq_ros.engine.Team.episode), compiled.
 
 Each function is the twin of a reference method (named in its docstring) and does its float operations in the
@@ -8,8 +8,9 @@ Mersenne Twister. CQ's joint states of every agent live in one pool (`jsi`, `jsf
 creation order, the cell's list links; confidence and Q^j), each cell's list in marking order, so a cell's
 joint states, their order and `joint_states()`'s order are the reference's dicts' and lists'. Its waiting
 step is `wt[k]` (with `wtr`, `wtk`: reward, keys) and the keys it acts on `ck[k]`: -1 is Q_k, else a slot.
-near's states with peers in range and LoC's perceived joint states live in one hash table of every agent's
-(`tk`, `tq`, `th`, `tm`; its section says the layout); near's waiting step (NextStateLearner) is CQ's `wt[k]`,
+near's states with peers in range, LoC's perceived joint states and JS's joint states live in one hash table of
+every agent's (`tk`, `tq`, `th`, `tm`; its section says the layout); the waiting step of near and JS
+(NextStateLearner) is CQ's `wt[k]`,
 its row `wtk[k, 0]`, and the row acted on `ck[k, 0]`, in the same convention.
 Tables are indexed element by element, never sliced into rows: a view counts a reference (an atomic operation)
 each time, which cost more than the learning itself; a row acted on is copied into a 4-value buffer.
@@ -34,12 +35,13 @@ CONF = 0
 W_ON, W_CELL, W_ACTION, W_NEXT, W_DONE, W_CONFLICT, W_LEARNT, W_NKEYS = range(8)
 # fp: the float settings
 ALPHA, GAMMA, EPS0, SLIP, R_STEP, R_WALL, R_COLL, R_GOAL, CONF_INIT, CONF_UP, CONF_DOWN, CONF_MAX, CONF_DROP, \
-    T_TWO, T_ONE, LOC_COST = range(16)
-# ip: the int settings (ALGO: which learner, one of ALGO_CODES; RANGE: near_range or loc_range)
+    T_TWO, T_ONE, LOC_COST, JS_STATES = range(17)
+# ip: the int settings (ALGO: which learner, one of ALGO_CODES; RANGE: near_range, loc_range, or for JS beyond
+# any distance)
 N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, ALGO, MARK_RANGE, MARK_COLLIDERS, BOOT_ACTED, ALL_MET, \
     WAITS_FRESH, LOOK_DECISIVE, RANGE = range(13)
-INDEP, CQ, NEAR, LOC = range(4)
-ALGO_CODES = {"indep": INDEP, "cq": CQ, "near": NEAR, "loc": LOC}
+INDEP, CQ, NEAR, LOC, JS = range(5)
+ALGO_CODES = {"indep": INDEP, "cq": CQ, "near": NEAR, "loc": LOC, "js": JS}
 COORDINATE = 4  # LoC's fifth action (cq_ros.learners.loc.COORDINATE)
 # meta: the pool's free slots, the next creation number
 FREE, SEQ = 0, 1
@@ -406,7 +408,7 @@ def learn_indep(k, reward, next_cell, done, fp, ip, ag, q):
     q[k, s, a] += fp[ALPHA] * (target - q[k, s, a])
 
 
-# -- the tables of states seen with peers (near's q_near, LoC's q_coord) ---------------------------------
+# -- the tables of states seen with peers (near's q_near, LoC's q_coord, JS's q_joint) -------------------
 #
 # One table for every agent: a state's key (`tk` row: agent, then every agent's cell, a peer out of range -1,
 # so (s, near) of the reference is the key's cells that are not -1), its row (`tq`), and an open-addressed
@@ -488,7 +490,8 @@ def _near_key(k, s, reach, rows, cols, cells, key):
 @njit(cache=True, inline="always")
 def _table_row(k, s, ip, q, n_js, tk, tq, th, tm, key):
     """The slot of the state `key` (agent k in cell s), made as a copy of Q_k[s]'s first moves if new and
-    learning; -1 for a new state while frozen (a copy kept nowhere: Q_k[s] itself, as nothing changes)."""
+    learning; -1 for a new state while frozen (a copy kept nowhere: Q_k[s] itself, as nothing changes). JS keeps
+    no Q_k: its Q_k stays zeros, a new joint state's row."""
     p = _probe(tk, th, key)
     if th[p] >= 0 or not ip[LEARNING]:
         return th[p]
@@ -518,17 +521,18 @@ def _q_update(k, ref, cell, a, target, alpha, q, tq):
         tq[ref, a] += alpha * (target - tq[ref, a])
 
 
-# -- near ----------------------------------------------------------------------------------------------
+# -- near and JS ---------------------------------------------------------------------------------------
 
 @kernel
 def act_near(k, fp, ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, wt, wtr, wtk, ck, key, row):
-    """NearQ.act, then NextStateLearner.act_on: the step waiting in wt[k] (its row's ref in wtk[k, 0]) is
-    finished from the row of the state seen now, which is chosen on. ck[k, 0]: the row acted on."""
+    """NearQ.act or JointStateQ.act (every peer in range, always on a joint state), then
+    NextStateLearner.act_on: the step waiting in wt[k] (its row's ref in wtk[k, 0]) is finished from the row of
+    the state seen now, which is chosen on. ck[k, 0]: the row acted on."""
     s = ag[k, S]
     count = _near_key(k, s, ip[RANGE], rows, cols, cells, key)
     ag[k, HEARD] += count
     ref = -1
-    if count:
+    if count or ip[ALGO] == JS:
         ag[k, PLAYS] += 1
         ref = _table_row(k, s, ip, q, n_js, tk, tq, th, tm, key)
     if wt[k, W_ON]:  # a waiting step is a learning one: a new row was made before it is finished, as there
@@ -663,7 +667,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
     n = starts.shape[0]
     algo = ip[ALGO]
     is_cq = algo == CQ
-    tables = algo == NEAR or algo == LOC
+    tables = algo == NEAR or algo == LOC or algo == JS
     if not ep[STARTED]:
         reset(starts, goals, cells, done, hold, wmt, ip[START_HOLD])
         ep[STARTED], ep[T], ep[COLLISIONS], ep[RETURN] = 1, 0, 0, 0.0
@@ -689,7 +693,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
             if is_cq:
                 actions[k] = act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, meta, head,
                                     tail, n_js, wt, wtr, wtk, ck, made, row)
-            elif algo == NEAR:
+            elif algo == NEAR or algo == JS:
                 actions[k] = act_near(k, fp, ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, wt, wtr,
                                       wtk, ck, key, row)
             elif algo == LOC:
@@ -710,7 +714,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
             if is_cq:
                 learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool,
                          used, part, row)
-            elif algo == NEAR:
+            elif algo == NEAR or algo == JS:
                 learn_near(k, rewards[k], done[k], fp, ip, ag, q, tq, wt, wtr, wtk, ck)
             elif algo == LOC:
                 learn_loc(k, rewards[k], cells[k], done[k], fp, ip, ag, q, tq, ck)
@@ -725,7 +729,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
     out[0] = t
     out[1] = collisions
     out[2] = ag[:, PLAYS].sum() - ep[PLAYS0]
-    out[3] = n * ip[N_CELLS] + n_js.sum()
+    out[3] = fp[JS_STATES] if algo == JS else n * ip[N_CELLS] + n_js.sum()
     out[4] = ret
     out[5] = t >= ip[STEP_CAP] and not done.all()
     out[6] = ag[:, HEARD].sum() - ep[HEARD0]
