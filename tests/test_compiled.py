@@ -85,9 +85,16 @@ def test_paper_maps_byte_identical_result_files(algo, map_name, episodes, eval_l
 @pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
 @pytest.mark.parametrize("delays", [{}, {"slip": 0.1, "start_hold": 3}])
 def test_generated_warehouse(algo, delays):
-    gm = warehouse_map(6, seed=2, **delays)
+    gm = warehouse_map(4 if algo == "jsa" else 6, seed=2, **delays)  # JSA: at most 5 agents (4^n joint actions)
     s = run_settings(gm, {"eval_episodes": 3, "step_cap": 400})
     assert_twins(*both(algo, gm, s, episodes=6))
+
+
+def test_jsa_past_its_agents_is_refused_by_both_engines():
+    gm = warehouse_map(6, seed=2)
+    for run in (compiled.run, engine.run):
+        with pytest.raises(ValueError, match="jsa supports at most 5 agents"):
+            run("jsa", gm, Settings(), 0, 0, 1)
 
 
 ALGOS = st.sampled_from(KERNEL_ALGORITHMS)
@@ -113,7 +120,7 @@ def drawn_settings(draw):
 
 
 @given(random_maps(), drawn_settings(), ALGOS, st.integers(0, 2**32), st.integers(0, 3))
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=90, deadline=None)  # some 15 a learner
 def test_random_maps_seeds_and_settings(gm, s, algo, seed, run_index):
     assert_twins(*both(algo, gm, s, seed, run_index, episodes=25))
 
@@ -148,7 +155,7 @@ def assert_same_tables(ours, theirs):
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_all_met": 0}),
     ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
     ("near", "tunnel_to_goal_3", {}), ("loc", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2}),
-    ("js", "tunnel_to_goal_3", {"eval_learning": 1})])
+    ("js", "tunnel_to_goal_3", {"eval_learning": 1}), ("jsa", "tunnel_to_goal_3", {"slip": 0.1})])
 def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, overrides):
     """K episodes compiled, handed over to reference learners, M more on the reference engine (and its greedy
     episodes) = K + M on the reference engine; the learners hold what the reference's hold."""
@@ -177,7 +184,7 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_w1_alone": 1}),
     ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
     ("near", "tunnel_to_goal_3", {"slip": 0.1}), ("loc", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150}),
-    ("js", "tunnel_to_goal", {"start_hold": 2})])
+    ("js", "tunnel_to_goal", {"start_hold": 2}), ("jsa", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150})])
 def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
     """K episodes on the reference engine, its learners saved as agent checkpoints and loaded back into a team
     turned into the kernel's arrays, M more in the kernel (and its greedy episodes) = K + M on the reference
@@ -192,7 +199,7 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
     engine.record.table(team.episode() for _ in range(150))
     for k, learner in enumerate(team.learners):
         save_checkpoint(tmp_path / f"agv{k}.npz", learner, 149)
-    loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(gm.n_agents)]
+    loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(len(team.learners))]
     kernel = compiled.kernel_of(engine.Team(copy.deepcopy(team.world), loaded))
     if algo == "cq":
         theirs = [(k, *js) for k, learner in enumerate(team.learners) for js in learner.joint_states()]
@@ -209,8 +216,8 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
 
 
 def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
-    """The lab's experiment: the kernel plays indep and cq, the reference jsa (the manifest says so), and
-    --engine reference writes the same files."""
+    """The lab's experiment: the kernel plays every learner (the manifest says so), and --engine reference
+    writes the same files."""
     import json
 
     from cq_ros.lab.experiment import experiment
@@ -222,8 +229,7 @@ def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
                          figures=False, engine=engine_name)
         manifest = json.loads((out / MANIFEST).read_text())
         written[engine_name] = [(out / f).read_bytes() for f in (EPISODES, GREEDY, OBSERVE)]
-        expected = "compiled" if engine_name == "compiled" else "reference"
-        assert manifest["engine"] == {"indep": expected, "jsa": "reference", "cq": expected}
+        assert manifest["engine"] == {"indep": engine_name, "jsa": engine_name, "cq": engine_name}
     assert written["compiled"] == written["reference"]
 
 

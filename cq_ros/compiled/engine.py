@@ -24,18 +24,22 @@ from ..world import GridWorld, rewards_alone
 from . import learners as K
 from .algorithms import KERNEL_ALGORITHMS
 from . import windows as W
-from ..learners.base import Learner
+from ..learners.base import N_MOVES, Learner
+from ..learners.jsa import MAX_AGENTS
 from .mt import set_state, state_of
 from .world import new_scratch
 
 # the learners whose states with peers live in the kernel's table (cq_ros.compiled.learners), by the attribute
 # holding them in the reference learner
-TABLES = {"near": "q_near", "loc": "q_coord", "js": "q_joint"}
+TABLES = {"near": "q_near", "loc": "q_coord", "js": "q_joint", "jsa": "q_joint"}
+_EVERYWHERE = np.iinfo(np.int64).max  # the range of JS and JSA: every peer is seen
 
 
-def new_table(cap: int, n: int):
-    """An empty table (cq_ros.compiled.learners says its layout) of `cap` slots for `n` agents."""
-    return (np.full((cap, n + 1), -1, np.int64), np.zeros((cap, 4)), np.full(2 * cap, -1, np.int64),
+def new_table(cap: int, algo: str, n: int):
+    """An empty table (cq_ros.compiled.learners says its layout) of `cap` slots for `algo` and `n` agents: a
+    row holds the moves, or JSA's 4^n joint actions."""
+    width = N_MOVES ** n if algo == "jsa" else N_MOVES
+    return (np.full((cap, n + 1), -1, np.int64), np.zeros((cap, width)), np.full(2 * cap, -1, np.int64),
             np.zeros(1, np.int64))
 
 
@@ -45,6 +49,9 @@ class Kernel:
     def __init__(self, algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int):
         if algo not in KERNEL_ALGORITHMS:
             raise ValueError(f"the compiled engine plays {', '.join(KERNEL_ALGORITHMS)}, not {algo!r}")
+        if algo == "jsa" and gridmap.n_agents > MAX_AGENTS:
+            raise ValueError(f"jsa supports at most {MAX_AGENTS} agents (4^n joint actions), "
+                             f"the map has {gridmap.n_agents}")
         self.algo, self.map, self.settings, self.seed, self.run_index = algo, gridmap, settings, seed, run_index
         st, cq, tables = settings, algo == "cq", algo in TABLES
         n, c = gridmap.n_agents, gridmap.n_cells
@@ -55,12 +62,14 @@ class Kernel:
         self.fp = np.array([st.alpha, st.gamma, st.epsilon, st.slip, st.reward_step, st.reward_wall,
                             st.reward_collision, st.reward_goal, st.conf_init, st.conf_up, st.conf_down, st.conf_max,
                             st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0, st.loc_cost,
-                            # JointStateQ.state_count, summed, as the episode's table holds it
-                            float(n * c ** n) if algo == "js" else 0.0])
+                            # the learners' state_count (JS's, JSA's: n_cells^n each), summed, as the episode's
+                            # table holds it
+                            float((1 if algo == "jsa" else n) * c ** n) if algo in ("js", "jsa") else 0.0])
         self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, K.ALGO_CODES[algo],
                             st.cq_mark_range, st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met,
                             st.cq_waits_fresh, st.cq_look_if_decisive,
-                            {"loc": st.loc_range, "js": np.iinfo(np.int64).max}.get(algo, st.near_range)], np.int64)
+                            st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE],
+                           np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
                       # the world's generator as GridWorld's constructor leaves it
                       state_of(GridWorld(gridmap, settings, seed=world_seed(seed, run_index))._rng)[None],
@@ -79,7 +88,7 @@ class Kernel:
         self.cq = (np.zeros((n, 8), np.int64), np.zeros(n), np.full((n, 4 * n), -1, np.int64), ck,
                    np.zeros(n, np.int64))
         self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window)
-        self.tab = new_table(64 if tables else 1, n)
+        self.tab = new_table(64 if tables else 1, algo, n)
         if cq and st.cq_w1_alone:
             self._w1_alone()
 
@@ -181,11 +190,11 @@ def _js_key(jsi, slot) -> tuple[int, int, int]:
     return int(jsi[slot, K.JS_S]), int(jsi[slot, K.JS_J]), int(jsi[slot, K.JS_C])
 
 
-def _state_key(key: np.ndarray, k: int, algo: str) -> tuple:
-    """A table key of agent k as the reference's: (cell, near), the peers in range with their cells; for JS the
-    cells, its own first."""
+def _state_key(key: np.ndarray, k: int, joint: bool) -> tuple:
+    """A table key of agent k as the reference's: (cell, near), the peers in range with their cells; for a
+    joint-state learner (JS, JSA) every cell, its own first."""
     cells = key[1:].tolist()
-    if algo == "js":
+    if joint:
         return cells[k], *cells[:k], *cells[k + 1:]
     return cells[k], tuple((j, c) for j, c in enumerate(cells) if j != k and c >= 0)
 
@@ -198,13 +207,16 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     learner.learning = bool(kernel.ip[K.LEARNING])
     learner.episodes_played, learner.joint_plays, learner.heard = (int(ag[K.PLAYED]), int(ag[K.PLAYS]),
                                                                    int(ag[K.HEARD]))
-    learner.s, learner.a = int(ag[K.S]), int(ag[K.A])
+    learner.a = int(ag[K.A])
+    if not learner.central:  # the central learner's state is the cells, observed afresh at each step
+        learner.s = int(ag[K.S])
     if hasattr(learner, "q_local"):  # JS keeps none
         learner.q_local = kernel.q[k].tolist()
     if kernel.algo in TABLES:
         tk, tq, used = kernel.tab[0], kernel.tab[1], int(kernel.tab[3][0])
         mine = np.flatnonzero(tk[:used, 0] == k)
-        setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k, kernel.algo): tq[i].tolist() for i in mine})
+        setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k, learner.joint_state): tq[i].tolist()
+                                                      for i in mine})
         learner.waiting = None  # between episodes no step waits (near)
     if kernel.algo != "cq":
         return
@@ -262,7 +274,7 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
         table = getattr(learner, TABLES[kernel.algo])
         for state, row in table.items():  # into a fresh table's free slots (kernel_of indexes them)
             tk[tm[0], 0] = k
-            if kernel.algo == "js":
+            if learner.joint_state:
                 tk[tm[0], 1:] = (*state[1:k + 1], state[0], *state[k + 1:])
             else:
                 tk[tm[0], 1 + k] = state[0]
@@ -329,9 +341,9 @@ def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     if algo in TABLES:
         total = sum(len(getattr(learner, TABLES[algo])) for learner in learners)
         cap = 64
-        while cap < total + len(learners):
+        while cap < total + 2 * team.world.map.n_agents:
             cap *= 2
-        kernel.tab = new_table(cap, len(learners))
+        kernel.tab = new_table(cap, algo, team.world.map.n_agents)
     slots: dict[tuple[int, tuple], int] = {}
     for k, learner in enumerate(learners):
         _take_over(kernel, learner, k, slots)

@@ -1,4 +1,4 @@
-"""The learners the kernel plays (indep, cq, near, loc, js: algorithms.KERNEL_ALGORITHMS) and one episode of them
+"""The learners the kernel plays (every one: algorithms.KERNEL_ALGORITHMS) and one episode of them
 (cq_ros.engine.Team.episode), compiled.
 
 Each function is the twin of a reference method (named in its docstring) and does its float operations in the
@@ -8,12 +8,11 @@ Mersenne Twister. CQ's joint states of every agent live in one pool (`jsi`, `jsf
 creation order, the cell's list links; confidence and Q^j), each cell's list in marking order, so a cell's
 joint states, their order and `joint_states()`'s order are the reference's dicts' and lists'. Its waiting
 step is `wt[k]` (with `wtr`, `wtk`: reward, keys) and the keys it acts on `ck[k]`: -1 is Q_k, else a slot.
-near's states with peers in range, LoC's perceived joint states and JS's joint states live in one hash table of
-every agent's (`tk`, `tq`, `th`, `tm`; its section says the layout); the waiting step of near and JS
-(NextStateLearner) is CQ's `wt[k]`,
-its row `wtk[k, 0]`, and the row acted on `ck[k, 0]`, in the same convention.
-Tables are indexed element by element, never sliced into rows: a view counts a reference (an atomic operation)
-each time, which cost more than the learning itself; a row acted on is copied into a 4-value buffer.
+near's states with peers in range, LoC's perceived joint states and JS's and JSA's joint states live in one
+hash table of every agent's (`tk`, `tq`, `th`, `tm`; its section says the layout); the waiting step of near
+and JS (NextStateLearner) is CQ's `wt[k]`, its row `wtk[k, 0]`, and the row acted on `ck[k, 0]`, in the same
+convention. Tables are indexed element by element, never sliced into rows: a view counts a reference (an
+atomic operation) each time, which cost more than the learning itself; a row acted on is copied into a buffer.
 """
 
 from __future__ import annotations
@@ -40,8 +39,8 @@ ALPHA, GAMMA, EPS0, SLIP, R_STEP, R_WALL, R_COLL, R_GOAL, CONF_INIT, CONF_UP, CO
 # any distance)
 N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, ALGO, MARK_RANGE, MARK_COLLIDERS, BOOT_ACTED, ALL_MET, \
     WAITS_FRESH, LOOK_DECISIVE, RANGE = range(13)
-INDEP, CQ, NEAR, LOC, JS = range(5)
-ALGO_CODES = {"indep": INDEP, "cq": CQ, "near": NEAR, "loc": LOC, "js": JS}
+INDEP, CQ, NEAR, LOC, JS, JSA = range(6)
+ALGO_CODES = {"indep": INDEP, "cq": CQ, "near": NEAR, "loc": LOC, "js": JS, "jsa": JSA}
 COORDINATE = 4  # LoC's fifth action (cq_ros.learners.loc.COORDINATE)
 # meta: the pool's free slots, the next creation number
 FREE, SEQ = 0, 1
@@ -408,11 +407,12 @@ def learn_indep(k, reward, next_cell, done, fp, ip, ag, q):
     q[k, s, a] += fp[ALPHA] * (target - q[k, s, a])
 
 
-# -- the tables of states seen with peers (near's q_near, LoC's q_coord, JS's q_joint) -------------------
+# -- the tables of states seen with peers (near's q_near, LoC's q_coord, JS's and JSA's q_joint) ---------
 #
 # One table for every agent: a state's key (`tk` row: agent, then every agent's cell, a peer out of range -1,
 # so (s, near) of the reference is the key's cells that are not -1), its row (`tq`), and an open-addressed
-# hash index (`th`: slot or -1, twice the slots, a power of two); `tm[0]` the slots used. Slots are made in
+# hash index (`th`: slot or -1, twice the slots, a power of two); `tm[0]` the slots used. JSA's one learner
+# (agent 0) keys every cell and its rows hold the 4^n joint actions. Slots are made in
 # creation order and never dropped, so an agent's slots in order are its dict's order (team_of).
 
 @njit(cache=True, inline="always")
@@ -489,9 +489,9 @@ def _near_key(k, s, reach, rows, cols, cells, key):
 
 @njit(cache=True, inline="always")
 def _table_row(k, s, ip, q, n_js, tk, tq, th, tm, key):
-    """The slot of the state `key` (agent k in cell s), made as a copy of Q_k[s]'s first moves if new and
-    learning; -1 for a new state while frozen (a copy kept nowhere: Q_k[s] itself, as nothing changes). JS keeps
-    no Q_k: its Q_k stays zeros, a new joint state's row."""
+    """The slot of the state `key` (agent k in cell s), made if new and learning: a copy of Q_k[s]'s first moves
+    (near, LoC) or zeros (JS, JSA); -1 for a new state while frozen (a row kept nowhere, as nothing changes:
+    Q_k[s] for near and LoC, zeros for JS, whose Q_k stays zeros, and JSA)."""
     p = _probe(tk, th, key)
     if th[p] >= 0 or not ip[LEARNING]:
         return th[p]
@@ -500,8 +500,9 @@ def _table_row(k, s, ip, q, n_js, tk, tq, th, tm, key):
     th[p] = slot
     for i in range(key.shape[0]):
         tk[slot, i] = key[i]
+    copy = ip[ALGO] == NEAR or ip[ALGO] == LOC
     for a in range(tq.shape[1]):
-        tq[slot, a] = q[k, s, a]
+        tq[slot, a] = q[k, s, a] if copy else 0.0
     n_js[k] += 1
     return slot
 
@@ -578,7 +579,8 @@ def observe_loc(k, cell, ag, eps, q, mt, row):
 @kernel
 def act_loc(k, ip, ag, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, ck, key, moves):
     """LearningOfCoordination.act: COORDINATE looks at every peer and, with one in range, acts greedily on
-    Q^C of the joint state perceived (ck[k, 0] its row, -1 none); else greedily on Q*'s moves (`moves`: 4)."""
+    Q^C of the joint state perceived (ck[k, 0] its row, -1 none); else greedily on Q*'s moves (`moves`: a
+    table row's size, 4)."""
     ck[k, 0] = -1
     if ag[k, CHOICE] != COORDINATE:
         ag[k, A] = ag[k, CHOICE]
@@ -607,6 +609,39 @@ def learn_loc(k, reward, next_cell, done, fp, ip, ag, q, tq, ck):
     _q_update(k, -1, s, move, reward + future, fp[ALPHA], q, tq)
     if ag[k, CHOICE] == COORDINATE:
         _q_update(k, -1, s, COORDINATE, reward - fp[LOC_COST] + future, fp[ALPHA], q, tq)
+
+
+# -- JSA -----------------------------------------------------------------------------------------------
+
+@kernel
+def act_jsa(ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, ck, key, joint):
+    """JointStateActionQ.act (its one learner is agent 0): epsilon-greedy over the joint actions of the joint
+    state (ck[0, 0] its row; `joint` holds the row, 4^n values)."""
+    _near_key(0, cells[0], ip[RANGE], rows, cols, cells, key)
+    ref = ck[0, 0] = _table_row(0, cells[0], ip, q, n_js, tk, tq, th, tm, key)
+    for a in range(joint.shape[0]):
+        joint[a] = tq[ref, a] if ref >= 0 else 0.0
+    a = epsilon_greedy(joint, eps[0], mt, 0)
+    ag[0, A] = a
+    ag[0, PLAYS] += 1
+    return a
+
+
+@kernel
+def learn_jsa(reward, done, fp, ip, ag, q, cells, rows, cols, n_js, tk, tq, th, tm, ck, key):
+    """JointStateActionQ.learn: the next joint state's row is made (if new) before the update."""
+    if not ip[LEARNING]:
+        return
+    target = reward
+    if not done:
+        _near_key(0, cells[0], ip[RANGE], rows, cols, cells, key)
+        nxt = _table_row(0, cells[0], ip, q, n_js, tk, tq, th, tm, key)
+        best = tq[nxt, 0]
+        for a in range(1, tq.shape[1]):
+            if tq[nxt, a] > best:
+                best = tq[nxt, a]
+        target = reward + fp[GAMMA] * best
+    _q_update(0, ck[0, 0], 0, ag[0, A], target, fp[ALPHA], q, tq)
 
 
 # -- the episode ---------------------------------------------------------------------------------------
@@ -663,17 +698,19 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
     wt, wtr, wtk, ck, made = cq
     wi, wf, pool, used, part = win
     tk, tq, th, tm = tab
-    rw, row, actions, ep, key, moves = tmp
+    rw, row, actions, ep, key, trow = tmp
     n = starts.shape[0]
     algo = ip[ALGO]
     is_cq = algo == CQ
-    tables = algo == NEAR or algo == LOC or algo == JS
+    tables = algo != INDEP and algo != CQ
     if not ep[STARTED]:
         reset(starts, goals, cells, done, hold, wmt, ip[START_HOLD])
         ep[STARTED], ep[T], ep[COLLISIONS], ep[RETURN] = 1, 0, 0, 0.0
         ep[PLAYS0], ep[HEARD0] = ag[:, PLAYS].sum(), ag[:, HEARD].sum()
         over = done.all() or ip[STEP_CAP] <= 0
-        for k in range(n):  # Team.start
+        if algo == JSA and over:  # Team.start, central: its state is the cells, observed where it acts
+            end_episode(0, fp, ip, ag, eps)
+        for k in range(n if algo != JSA else 0):  # Team.start
             _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, mt, jsi, jsf, head, wt, wtr, wtk, row)
     t, collisions, ret = int(ep[T]), int(ep[COLLISIONS]), ep[RETURN]
     # GridWorld.over's numba twin (it cannot call the world), here and below: tests/test_compiled.py's
@@ -683,10 +720,15 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
         if is_cq and (meta[FREE] < n * (n - 1) or used[0] + n > pool.shape[0]):  # each agent may mark n - 1
             ep[T], ep[COLLISIONS], ep[RETURN] = t, collisions, ret                 # joint states, open a window
             return False
-        if tables and tm[0] + n > tk.shape[0]:  # each agent may make a state
+        if tables and tm[0] + 2 * n > tk.shape[0]:  # each agent may make a state (JSA's one learner, two)
             ep[T], ep[COLLISIONS], ep[RETURN] = t, collisions, ret
             return False
-        for k in range(n):  # Team.choose
+        if algo == JSA:  # central_act: agent i's move is digit i in base 4; those at their goals ignore it
+            joint = act_jsa(ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, ck, key, trow)
+            for k in range(n):
+                actions[k] = -1 if done[k] else joint % 4
+                joint //= 4
+        for k in range(n if algo != JSA else 0):  # Team.choose
             actions[k] = -1
             if not ag[k, ACTIVE]:
                 continue
@@ -697,7 +739,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
                 actions[k] = act_near(k, fp, ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, wt, wtr,
                                       wtk, ck, key, row)
             elif algo == LOC:
-                actions[k] = act_loc(k, ip, ag, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, ck, key, moves)
+                actions[k] = act_loc(k, ip, ag, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, ck, key, trow)
             else:
                 s = ag[k, S]
                 for a in range(4):
@@ -708,7 +750,14 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
                            ci, clock, pair, listed)
         t += 1
         over = done.all() or t >= ip[STEP_CAP]
-        for k in range(n):  # Team.learn
+        total = 0.0
+        for k in range(n):
+            total += rewards[k]
+        if algo == JSA:  # central_outcome: the sum of the rewards, done once every agent is
+            learn_jsa(total, done.all(), fp, ip, ag, q, cells, rows, cols, n_js, tk, tq, th, tm, ck, key)
+            if over:
+                end_episode(0, fp, ip, ag, eps)
+        for k in range(n if algo != JSA else 0):  # Team.learn
             if actions[k] < 0:
                 continue
             if is_cq:
@@ -721,15 +770,12 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
             else:
                 learn_indep(k, rewards[k], cells[k], done[k], fp, ip, ag, q)
             _step_outcome(k, cells[k], over or done[k], fp, ip, ag, eps, q, mt, jsi, jsf, head, wt, wtr, wtk, row)
-        total = 0.0
-        for k in range(n):
-            total += rewards[k]
         ret += total
     ep[STARTED] = 0
     out[0] = t
     out[1] = collisions
     out[2] = ag[:, PLAYS].sum() - ep[PLAYS0]
-    out[3] = fp[JS_STATES] if algo == JS else n * ip[N_CELLS] + n_js.sum()
+    out[3] = fp[JS_STATES] if algo == JS or algo == JSA else n * ip[N_CELLS] + n_js.sum()
     out[4] = ret
     out[5] = t >= ip[STEP_CAP] and not done.all()
     out[6] = ag[:, HEARD].sum() - ep[HEARD0]
@@ -744,11 +790,11 @@ def play_many(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, out):
     tk, tq, th, tm = tab
     n = geo[1].shape[0]
     tmp = (np.array([fp[R_STEP], fp[R_WALL], fp[R_COLL], fp[R_GOAL]]), np.empty(q.shape[2]),
-           np.full(n, -1, np.int64), np.zeros(6), np.empty(n + 1, np.int64), np.empty(4))
+           np.full(n, -1, np.int64), np.zeros(6), np.empty(n + 1, np.int64), np.empty(tq.shape[1]))
     for e in range(out.shape[0]):
         while not play(geo, fp, ip, world, ag, eps, q, mt, (jsi, jsf, free, meta, head, tail, n_js), cq,
                        (wi, wf, pool, used, part), (tk, tq, th, tm), tmp, out[e]):
             jsi, jsf, free = grow_pool(jsi, jsf, free, meta, n * (n - 1))
             pool = W.room(pool, used, n)
-            tk, tq, th = grow_table(tk, tq, th, tm, n)
+            tk, tq, th = grow_table(tk, tq, th, tm, 2 * n)
     return jsi, jsf, free, pool, tk, tq, th
