@@ -471,7 +471,7 @@ def grow_table(tk, tq, th, tm, slots):
     return tk2, tq2, th2
 
 
-@njit(cache=True, inline="always")
+@kernel
 def _near_key(k, s, reach, rows, cols, cells, key):
     """The state (s, near) as a key (the table's layout): the peers within `reach` of s; how many there are."""
     key[0] = k
@@ -487,7 +487,7 @@ def _near_key(k, s, reach, rows, cols, cells, key):
     return count
 
 
-@njit(cache=True, inline="always")
+@kernel
 def _table_row(k, s, ip, q, n_js, tk, tq, th, tm, key):
     """The slot of the state `key` (agent k in cell s), made if new and learning: a copy of Q_k[s]'s first moves
     (near, LoC) or zeros (JS, JSA); -1 for a new state while frozen (a row kept nowhere, as nothing changes:
@@ -552,7 +552,7 @@ def act_near(k, fp, ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm,
     return a
 
 
-@njit(cache=True, inline="always")
+@kernel
 def learn_near(k, reward, done, fp, ip, ag, q, tq, wt, wtr, wtk, ck):
     """NextStateLearner.learn: at the goal the update is made now, else it waits for the next state's row."""
     if not ip[LEARNING]:
@@ -567,7 +567,7 @@ def learn_near(k, reward, done, fp, ip, ag, q, tq, wt, wtr, wtk, ck):
 
 # -- LoC -----------------------------------------------------------------------------------------------
 
-@njit(cache=True, inline="always")
+@kernel
 def observe_loc(k, cell, ag, eps, q, mt, row):
     """LearningOfCoordination.observe: epsilon-greedy over Q*'s five actions (`row` holds five)."""
     ag[k, S] = cell
@@ -597,7 +597,7 @@ def act_loc(k, ip, ag, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, ck, key, 
     return ag[k, A]
 
 
-@njit(cache=True, inline="always")
+@kernel
 def learn_loc(k, reward, next_cell, done, fp, ip, ag, q, tq, ck):
     """LearningOfCoordination.learn."""
     if not ip[LEARNING]:
