@@ -233,13 +233,14 @@ def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
     assert written["compiled"] == written["reference"]
 
 
+@pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
 @pytest.mark.parametrize("greedy,episode", [(False, 40), (True, None)])
-def test_render_films_what_the_reference_films(greedy, episode):
+def test_render_films_what_the_reference_films(algo, greedy, episode):
     from cq_ros.lab.render import engine_frames
 
     gm, s = load_map("tunnel_to_goal_3"), Settings()
-    ours = engine_frames(gm, "cq", s, 1, 60, episode, greedy=greedy)
-    assert ours == engine_frames(gm, "cq", s, 1, 60, episode, greedy=greedy, engine="reference")
+    ours = engine_frames(gm, algo, s, 1, 60, episode, greedy=greedy)
+    assert ours == engine_frames(gm, algo, s, 1, 60, episode, greedy=greedy, engine="reference")
 
 
 def test_without_numba_the_reference_plays_with_one_line_saying_so():

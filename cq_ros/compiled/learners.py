@@ -423,7 +423,7 @@ def _hash(key):
     return h ^ (h >> 29)
 
 
-@njit(cache=True)
+@kernel
 def _probe(tk, th, key):
     """Where `key` sits in the index `th`: its slot's place, or the empty place (-1) where it would go."""
     mask = th.shape[0] - 1
