@@ -95,6 +95,13 @@ def epsilon_greedy(row, epsilon, mt, g):
     return greedy(row, mt, g)
 
 
+@kernel
+def choose(row, epsilon, mt, g):
+    """epsilon_greedy, called: near, LoC, JS and JSA share one compilation of it (each inlining costs seconds of
+    the first compilation)."""
+    return epsilon_greedy(row, epsilon, mt, g)
+
+
 @njit(cache=True, inline="always")
 def _distance(rows, cols, a, b):
     return abs(rows[a] - rows[b]) + abs(cols[a] - cols[b])
@@ -547,7 +554,7 @@ def act_near(k, fp, ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm,
     for a in range(row.shape[0]):
         row[a] = _q_at(k, ref, s, a, q, tq)
     ck[k, 0] = ref
-    a = epsilon_greedy(row, eps[k], mt, k)
+    a = choose(row, eps[k], mt, k)
     ag[k, A] = a
     return a
 
@@ -573,7 +580,7 @@ def observe_loc(k, cell, ag, eps, q, mt, row):
     ag[k, S] = cell
     for a in range(row.shape[0]):
         row[a] = q[k, cell, a]
-    ag[k, CHOICE] = epsilon_greedy(row, eps[k], mt, k)
+    ag[k, CHOICE] = choose(row, eps[k], mt, k)
 
 
 @kernel
@@ -621,7 +628,7 @@ def act_jsa(ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm, ck, key
     ref = ck[0, 0] = _table_row(0, cells[0], ip, q, n_js, tk, tq, th, tm, key)
     for a in range(joint.shape[0]):
         joint[a] = tq[ref, a] if ref >= 0 else 0.0
-    a = epsilon_greedy(joint, eps[0], mt, 0)
+    a = choose(joint, eps[0], mt, 0)
     ag[0, A] = a
     ag[0, PLAYS] += 1
     return a
