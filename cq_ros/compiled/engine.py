@@ -210,14 +210,13 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     learner.a = int(ag[K.A])
     if not learner.central:  # the central learner's state is the cells, observed afresh at each step
         learner.s = int(ag[K.S])
-    if hasattr(learner, "q_local"):  # JS keeps none
+    if hasattr(learner, "q_local"):  # JS and JSA keep none
         learner.q_local = kernel.q[k].tolist()
     if kernel.algo in TABLES:
         tk, tq, used = kernel.tab[0], kernel.tab[1], int(kernel.tab[3][0])
         mine = np.flatnonzero(tk[:used, 0] == k)
         setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k, learner.joint_state): tq[i].tolist()
                                                       for i in mine})
-        learner.waiting = None  # between episodes no step waits (near)
     if kernel.algo != "cq":
         return
     jsi, jsf = kernel.js[0], kernel.js[1]
@@ -264,8 +263,10 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
     ag = kernel.ag[k]
     kernel.eps[k] = learner.epsilon
     ag[K.PLAYED], ag[K.PLAYS], ag[K.HEARD] = learner.episodes_played, learner.joint_plays, learner.heard
-    ag[K.S], ag[K.A] = getattr(learner, "s", 0), getattr(learner, "a", 0)
-    if hasattr(learner, "q_local"):  # JS keeps none: the kernel's stays zeros
+    ag[K.A] = getattr(learner, "a", 0)
+    if not learner.central:  # the central learner's state is the cells, observed afresh at each step
+        ag[K.S] = getattr(learner, "s", 0)
+    if hasattr(learner, "q_local"):  # JS and JSA keep none: the kernel's stays zeros
         kernel.q[k] = learner.q_local
     if getattr(learner, "waiting", None) is not None:
         raise ValueError(f"a {kernel.algo} learner hands over between episodes, where no step waits")
@@ -319,6 +320,14 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
         kernel.win = (*kernel.win[:2], pool, *kernel.win[3:])
 
 
+def _slots_for(need: int) -> int:
+    """A pool's or the table's size holding `need` slots: 64, doubled as often as that needs."""
+    cap = 64
+    while cap < need:
+        cap *= 2
+    return cap
+
+
 def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     """A reference Team (learners and world, between episodes: fresh, learnt or loaded from checkpoints) as the
     kernel's arrays: it plays on as the reference would have (team_of's inverse). `seed` and `run_index` only
@@ -330,20 +339,16 @@ def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     kernel.world[3][0] = state_of(team.world._rng)
     if algo == "cq":
         total = sum(len(learner.q_joint) for learner in learners)
-        cap = 64
-        while cap < total + len(learners) ** 2:
-            cap *= 2
+        cap = _slots_for(total + len(learners) ** 2)
         jsi, jsf, free, meta, head, tail, n_js = (np.full((cap, 7), -1, np.int64), np.zeros((cap, 5)),
                                                   np.arange(cap - 1, total - 1, -1, dtype=np.int64),
                                                   np.array([cap - total, total], np.int64), *kernel.js[4:])
         free = np.concatenate([free, np.zeros(total, np.int64)])
         kernel.js = (jsi, jsf, free, meta, head, tail, n_js)
     if algo in TABLES:
-        total = sum(len(getattr(learner, TABLES[algo])) for learner in learners)
-        cap = 64
-        while cap < total + 2 * team.world.map.n_agents:
-            cap *= 2
-        kernel.tab = new_table(cap, algo, team.world.map.n_agents)
+        n = team.world.map.n_agents
+        kernel.tab = new_table(_slots_for(sum(len(getattr(learner, TABLES[algo])) for learner in learners) + 2 * n),
+                               algo, n)
     slots: dict[tuple[int, tuple], int] = {}
     for k, learner in enumerate(learners):
         _take_over(kernel, learner, k, slots)
