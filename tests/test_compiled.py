@@ -188,7 +188,7 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
 def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
     """K episodes on the reference engine, its learners saved as agent checkpoints and loaded back into a team
     turned into the kernel's arrays, M more in the kernel (and its greedy episodes) = K + M on the reference
-    engine; handed back, the learners are the reference's."""
+    engine; handed back, the learners are the reference's. The team itself, not loaded, turns into the same."""
     import copy
 
     from agent_node.checkpoint import load_checkpoint, save_checkpoint
@@ -201,13 +201,16 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
         save_checkpoint(tmp_path / f"agv{k}.npz", learner, 149)
     loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(len(team.learners))]
     kernel = compiled.kernel_of(engine.Team(copy.deepcopy(team.world), loaded))
+    direct = compiled.kernel_of(copy.deepcopy(team))
     if algo == "cq":
         theirs = [(k, *js) for k, learner in enumerate(team.learners) for js in learner.joint_states()]
         assert theirs, "a CQ run that marks nothing compares too little"
         assert kernel.joint_states() == theirs
     greedy = kernel.greedy().play(3)
     assert greedy.tobytes() == engine.greedy_episodes(team, 3).tobytes()
-    assert kernel.play(60).tobytes() == engine.record.table(team.episode() for _ in range(60)).tobytes()
+    played = kernel.play(60)
+    assert played.tobytes() == engine.record.table(team.episode() for _ in range(60)).tobytes()
+    assert direct.play(60).tobytes() == played.tobytes()
     for ours, theirs in zip(compiled.team_of(kernel).learners, team.learners):
         assert_same_tables(ours, theirs)
         if algo == "cq":
