@@ -419,11 +419,12 @@ def learn_indep(k, reward, next_cell, done, fp, ip, ag, q):
 # One table for every agent: a state's key (`tk` row: agent, then every agent's cell, a peer out of range -1,
 # so (s, near) of the reference is the key's cells that are not -1), its row (`tq`), and an open-addressed
 # hash index (`th`: slot or -1, twice the slots, a power of two); `tm[0]` the slots used. JSA's one learner
-# (agent 0) keys every cell and its rows hold the 4^n joint actions. Slots are made in
-# creation order and never dropped, so an agent's slots in order are its dict's order (team_of).
+# (agent 0) keys every cell and its rows hold the 4^n joint actions. Slots are made in creation order and never
+# dropped, so an agent's slots in order are its dict's order (team_of).
 
 @njit(cache=True, inline="always")
 def _hash(key):
+    """A key's place in the index before probing: any mix that spreads keys will do, as probing finds them."""
     h = 0x345678
     for i in range(key.shape[0]):
         h = (h ^ key[i]) * 1000003  # wraps around, as int64 does in numba
@@ -543,8 +544,8 @@ def act_near(k, fp, ip, ag, eps, q, mt, cells, rows, cols, n_js, tk, tq, th, tm,
     if count or ip[ALGO] == JS:
         ag[k, PLAYS] += 1
         ref = _table_row(k, s, ip, q, n_js, tk, tq, th, tm, key)
-    if wt[k, W_ON]:  # a waiting step is a learning one: a new row was made before it is finished, as there
-        wt[k, W_ON] = 0
+    if wt[k, W_ON]:  # only a learning learner leaves a step waiting: the new row above was made before this
+        wt[k, W_ON] = 0  # update, as NearQ.act makes it before act_on
         best = _q_at(k, ref, s, 0, q, tq)
         for a in range(1, row.shape[0]):
             v = _q_at(k, ref, s, a, q, tq)
