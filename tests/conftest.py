@@ -30,7 +30,7 @@ import helpers
 _LOG_DIR: str | None = None
 _DOMAIN_BASE = "CQ_ROS_TEST_DOMAIN_BASE"
 ROS_FIXTURES = {"ros_context", "ros_domain_id", "spin_until", "system_in"}
-COMPILE_S = 900.0  # bounds the compiled engine's first compilation (28 s on 2 cores at load 2; minutes when busy)
+COMPILE_S = 900.0  # bounds the compiled engine's first compilation (39 s on 2 cores at load 3; minutes when busy)
 NODE_MODULES = {"world_node", "agent_node", "ros_tools.compose"}  # python -m <one of these> starts a node
 
 
@@ -49,7 +49,7 @@ def _compile_engine() -> None:
     cache) is not paid inside a test: the tests that run `cq-ros` bound each process at 120 s, and in a suite run
     beside two busy loops a 5-episode `cq-ros experiment` timed out there, compiling while the other worker
     compiled too. Where numba cannot load, the engine says so in one line and the tests of the fallback run."""
-    print("the suite's first step: loading the compiled engine (a fresh clone compiles it: about 30 s, more "
+    print("the suite's first step: loading the compiled engine (a fresh clone compiles it: about 40 s, more "
           "when busy)",
           file=sys.stderr, flush=True)
     subprocess.run([sys.executable, "-c", "from cq_ros.compiled import prepare; prepare()"], timeout=COMPILE_S,

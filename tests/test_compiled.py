@@ -16,6 +16,7 @@ from test_world import random_maps
 
 from cq_ros import engine
 from cq_ros.compiled import engine as compiled
+from cq_ros.compiled.algorithms import KERNEL_ALGORITHMS
 from cq_ros.compiled import mt
 from cq_ros.compiled.windows import fsum
 from cq_ros.gridmap import load_map
@@ -63,7 +64,7 @@ def test_fsum_is_math_fsum(values):
     assert fsum(array, 0, len(values), True, partials) == math.fsum(v * v for v in values)
 
 
-@pytest.mark.parametrize("algo", ["indep", "cq"])
+@pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
 @pytest.mark.parametrize("map_name,episodes", [("tunnel_to_goal", 400), ("tunnel_to_goal_3", 200)])
 @pytest.mark.parametrize("eval_learning", [0, 1])
 def test_paper_maps_byte_identical_result_files(algo, map_name, episodes, eval_learning, tmp_path):
@@ -81,15 +82,22 @@ def test_paper_maps_byte_identical_result_files(algo, map_name, episodes, eval_l
         assert ours.joint_states, "a CQ run that marks nothing compares too little"
 
 
-@pytest.mark.parametrize("algo", ["indep", "cq"])
+@pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
 @pytest.mark.parametrize("delays", [{}, {"slip": 0.1, "start_hold": 3}])
 def test_generated_warehouse(algo, delays):
-    gm = warehouse_map(6, seed=2, **delays)
+    gm = warehouse_map(4 if algo == "jsa" else 6, seed=2, **delays)  # JSA: at most 5 agents (4^n joint actions)
     s = run_settings(gm, {"eval_episodes": 3, "step_cap": 400})
     assert_twins(*both(algo, gm, s, episodes=6))
 
 
-ALGOS = st.sampled_from(["indep", "cq"])
+def test_jsa_past_its_agents_is_refused_by_both_engines():
+    gm = warehouse_map(6, seed=2)
+    for run in (compiled.run, engine.run):
+        with pytest.raises(ValueError, match="jsa supports at most 5 agents"):
+            run("jsa", gm, Settings(), 0, 0, 1)
+
+
+ALGOS = st.sampled_from(KERNEL_ALGORITHMS)
 
 
 @st.composite
@@ -106,12 +114,13 @@ def drawn_settings(draw):
         conf_drop=draw(st.sampled_from([0.0, 0.2])), conf_up=draw(st.sampled_from([0.0, 0.5])),
         cq_bootstrap_acted=draw(flag), cq_mark_range=draw(st.integers(0, 3)), cq_mark_colliders=draw(flag),
         cq_all_met=draw(flag), cq_w1_alone=draw(flag), cq_waits_fresh=draw(flag), cq_look_if_decisive=draw(flag),
-        step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
+        near_range=draw(st.integers(1, 3)), loc_range=draw(st.integers(1, 3)),
+        loc_cost=draw(st.sampled_from([0.0, 0.1, 1.0])), step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
         eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 0.9])), start_hold=hold)
 
 
 @given(random_maps(), drawn_settings(), ALGOS, st.integers(0, 2**32), st.integers(0, 3))
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=90, deadline=None)  # some 15 a learner
 def test_random_maps_seeds_and_settings(gm, s, algo, seed, run_index):
     assert_twins(*both(algo, gm, s, seed, run_index, episodes=25))
 
@@ -131,10 +140,22 @@ def reference_team(algo, gm, s, seed, run_index):
                        engine.make_learners(algo, gm, s, seed, run_index))
 
 
+def assert_same_tables(ours, theirs):
+    """Two learners hold the same Q_k, generator state and (in creation order) states with peers."""
+    assert getattr(ours, "q_local", None) == getattr(theirs, "q_local", None)
+    assert ours.rng.getstate() == theirs.rng.getstate()
+    for table in compiled.TABLES.values():
+        assert list(getattr(ours, table, {}).items()) == list(getattr(theirs, table, {}).items())
+    if theirs.name in compiled.TABLES:
+        assert getattr(theirs, compiled.TABLES[theirs.name]), "a run that met no peer compares too little"
+
+
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_all_met": 0}),
-    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150})])
+    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
+    ("near", "tunnel_to_goal_3", {}), ("loc", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2}),
+    ("js", "tunnel_to_goal_3", {"eval_learning": 1}), ("jsa", "tunnel_to_goal_3", {"slip": 0.1})])
 def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, overrides):
     """K episodes compiled, handed over to reference learners, M more on the reference engine (and its greedy
     episodes) = K + M on the reference engine; the learners hold what the reference's hold."""
@@ -146,7 +167,7 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     reference = reference_team(algo, gm, s, 5, 2)
     assert first.tobytes() == engine.record.table(reference.episode() for _ in range(150)).tobytes()
     for ours, theirs in zip(team.learners, reference.learners):
-        assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+        assert_same_tables(ours, theirs)
         if algo == "cq":
             assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
@@ -161,11 +182,13 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
     ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_w1_alone": 1}),
-    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150})])
+    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
+    ("near", "tunnel_to_goal_3", {"slip": 0.1}), ("loc", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150}),
+    ("js", "tunnel_to_goal", {"start_hold": 2}), ("jsa", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150})])
 def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
     """K episodes on the reference engine, its learners saved as agent checkpoints and loaded back into a team
     turned into the kernel's arrays, M more in the kernel (and its greedy episodes) = K + M on the reference
-    engine; handed back, the learners are the reference's."""
+    engine; handed back, the learners are the reference's. The team itself, not loaded, turns into the same."""
     import copy
 
     from agent_node.checkpoint import load_checkpoint, save_checkpoint
@@ -176,25 +199,28 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
     engine.record.table(team.episode() for _ in range(150))
     for k, learner in enumerate(team.learners):
         save_checkpoint(tmp_path / f"agv{k}.npz", learner, 149)
-    loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(gm.n_agents)]
+    loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(len(team.learners))]
     kernel = compiled.kernel_of(engine.Team(copy.deepcopy(team.world), loaded))
+    direct = compiled.kernel_of(copy.deepcopy(team))
     if algo == "cq":
         theirs = [(k, *js) for k, learner in enumerate(team.learners) for js in learner.joint_states()]
         assert theirs, "a CQ run that marks nothing compares too little"
         assert kernel.joint_states() == theirs
     greedy = kernel.greedy().play(3)
     assert greedy.tobytes() == engine.greedy_episodes(team, 3).tobytes()
-    assert kernel.play(60).tobytes() == engine.record.table(team.episode() for _ in range(60)).tobytes()
+    played = kernel.play(60)
+    assert played.tobytes() == engine.record.table(team.episode() for _ in range(60)).tobytes()
+    assert direct.play(60).tobytes() == played.tobytes()
     for ours, theirs in zip(compiled.team_of(kernel).learners, team.learners):
-        assert ours.q_local == theirs.q_local and ours.rng.getstate() == theirs.rng.getstate()
+        assert_same_tables(ours, theirs)
         if algo == "cq":
             assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
 
 
 def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
-    """The lab's experiment: the kernel plays indep and cq, the reference js (the manifest says so), and
-    --engine reference writes the same files."""
+    """The lab's experiment: the kernel plays every learner (the manifest says so), and --engine reference
+    writes the same files."""
     import json
 
     from cq_ros.lab.experiment import experiment
@@ -202,22 +228,22 @@ def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
 
     written = {}
     for engine_name in ("compiled", "reference"):
-        out = experiment("tunnel_to_goal", ["indep", "js", "cq"], 2, 60, 4, tmp_path / engine_name, workers=1,
+        out = experiment("tunnel_to_goal", ["indep", "jsa", "cq"], 2, 60, 4, tmp_path / engine_name, workers=1,
                          figures=False, engine=engine_name)
         manifest = json.loads((out / MANIFEST).read_text())
         written[engine_name] = [(out / f).read_bytes() for f in (EPISODES, GREEDY, OBSERVE)]
-        expected = "compiled" if engine_name == "compiled" else "reference"
-        assert manifest["engine"] == {"indep": expected, "js": "reference", "cq": expected}
+        assert manifest["engine"] == {"indep": engine_name, "jsa": engine_name, "cq": engine_name}
     assert written["compiled"] == written["reference"]
 
 
+@pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
 @pytest.mark.parametrize("greedy,episode", [(False, 40), (True, None)])
-def test_render_films_what_the_reference_films(greedy, episode):
+def test_render_films_what_the_reference_films(algo, greedy, episode):
     from cq_ros.lab.render import engine_frames
 
     gm, s = load_map("tunnel_to_goal_3"), Settings()
-    ours = engine_frames(gm, "cq", s, 1, 60, episode, greedy=greedy)
-    assert ours == engine_frames(gm, "cq", s, 1, 60, episode, greedy=greedy, engine="reference")
+    ours = engine_frames(gm, algo, s, 1, 60, episode, greedy=greedy)
+    assert ours == engine_frames(gm, algo, s, 1, 60, episode, greedy=greedy, engine="reference")
 
 
 def test_without_numba_the_reference_plays_with_one_line_saying_so():

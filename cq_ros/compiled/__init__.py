@@ -1,5 +1,6 @@
-"""The compiled engine (numba): the reference engine's twin for the learners it covers (`engine.ALGORITHMS`),
-byte for byte, tens of times faster; `play` chooses the engine of a run and says which played it.
+"""The compiled engine (numba): the reference engine's twin for the learners it covers (every one:
+`algorithms.KERNEL_ALGORITHMS`), byte for byte, tens of times faster; `play` chooses the engine of a run and
+says which played it.
 
 The reference learners (cq_ros.learners) stay the statement of each algorithm, used by the ROS nodes; the kernel
 is their compiled twin, kept one with them by tests/test_compiled.py. numba is imported only here, on first use:

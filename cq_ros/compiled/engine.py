@@ -24,10 +24,23 @@ from ..world import GridWorld, rewards_alone
 from . import learners as K
 from .algorithms import KERNEL_ALGORITHMS
 from . import windows as W
-from ..learners.base import Learner
+from ..learners.base import N_MOVES, Learner
+from ..learners.jsa import MAX_AGENTS
 from .mt import set_state, state_of
 from .world import new_scratch
 
+# the learners whose states with peers live in the kernel's table (cq_ros.compiled.learners), by the attribute
+# holding them in the reference learner
+TABLES = {"near": "q_near", "loc": "q_coord", "js": "q_joint", "jsa": "q_joint"}
+_EVERYWHERE = np.iinfo(np.int64).max  # the range of JS and JSA: every peer is seen
+
+
+def new_table(cap: int, algo: str, n: int):
+    """An empty table (cq_ros.compiled.learners says its layout) of `cap` slots for `algo` and `n` agents: a
+    row holds the moves, or JSA's 4^n joint actions."""
+    width = N_MOVES ** n if algo == "jsa" else N_MOVES
+    return (np.full((cap, n + 1), -1, np.int64), np.zeros((cap, width)), np.full(2 * cap, -1, np.int64),
+            np.zeros(1, np.int64))
 
 
 class Kernel:
@@ -36,8 +49,11 @@ class Kernel:
     def __init__(self, algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int):
         if algo not in KERNEL_ALGORITHMS:
             raise ValueError(f"the compiled engine plays {', '.join(KERNEL_ALGORITHMS)}, not {algo!r}")
+        if algo == "jsa" and gridmap.n_agents > MAX_AGENTS:
+            raise ValueError(f"jsa supports at most {MAX_AGENTS} agents (4^n joint actions), "
+                             f"the map has {gridmap.n_agents}")
         self.algo, self.map, self.settings, self.seed, self.run_index = algo, gridmap, settings, seed, run_index
-        st, cq = settings, algo == "cq"
+        st, cq, tables = settings, algo == "cq", algo in TABLES
         n, c = gridmap.n_agents, gridmap.n_cells
         rows, cols = zip(*gridmap.cells)
         self.geo = (np.array(gridmap.neighbours, np.int64), np.array(gridmap.starts, np.int64),
@@ -45,18 +61,23 @@ class Kernel:
         test = ConflictTest(st.window, st.significance) if cq else None
         self.fp = np.array([st.alpha, st.gamma, st.epsilon, st.slip, st.reward_step, st.reward_wall,
                             st.reward_collision, st.reward_goal, st.conf_init, st.conf_up, st.conf_down, st.conf_max,
-                            st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0])
-        self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, int(cq), st.cq_mark_range,
-                            st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met, st.cq_waits_fresh,
-                            st.cq_look_if_decisive], np.int64)
+                            st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0, st.loc_cost,
+                            # the learners' state_count (JS's, JSA's: n_cells^n each), summed, as the episode's
+                            # table holds it
+                            float((1 if algo == "jsa" else n) * c ** n) if algo in ("js", "jsa") else 0.0])
+        self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, K.ALGO_CODES[algo],
+                            st.cq_mark_range, st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met,
+                            st.cq_waits_fresh, st.cq_look_if_decisive,
+                            st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE],
+                           np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
                       # the world's generator as GridWorld's constructor leaves it
                       state_of(GridWorld(gridmap, settings, seed=world_seed(seed, run_index))._rng)[None],
                       new_scratch(n, c))
-        self.ag = np.zeros((n, 10), np.int64)
+        self.ag = np.zeros((n, 11), np.int64)
         self.ag[:, K.NKEYS] = 1  # keys = [None]
         self.eps = np.full(n, st.epsilon)
-        self.q = np.zeros((n, c, 4))
+        self.q = np.zeros((n, c, 5 if algo == "loc" else 4))  # LoC's Q* has COORDINATE
         self.mt = np.array([state_of(random.Random(learner_seed(seed, run_index, k))) for k in range(n)])
         cap = 64 if cq else 1
         cells_kept = (n, c) if cq else (1, 1)
@@ -67,6 +88,7 @@ class Kernel:
         self.cq = (np.zeros((n, 8), np.int64), np.zeros(n), np.full((n, 4 * n), -1, np.int64), ck,
                    np.zeros(n, np.int64))
         self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window)
+        self.tab = new_table(64 if tables else 1, algo, n)
         if cq and st.cq_w1_alone:
             self._w1_alone()
 
@@ -95,8 +117,9 @@ class Kernel:
             size = min(batch, episodes - done)
             started = time.perf_counter()
             try:
-                jsi, jsf, free, pool = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag, self.eps,
-                                                   self.q, self.mt, self.js, self.cq, self.win, out[done:done + size])
+                jsi, jsf, free, pool, tk, tq, th = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag,
+                                                               self.eps, self.q, self.mt, self.js, self.cq, self.win,
+                                                               self.tab, out[done:done + size])
             except SystemError as e:  # Ctrl-C (or SIGTERM, as the CLI raises it) while numba called back into
                 interrupt = _interrupt(e)  # Python: numba wraps it; it goes on as what it was
                 if interrupt is not None:
@@ -104,6 +127,7 @@ class Kernel:
                 raise
             self.js = (jsi, jsf, free, *self.js[3:])
             self.win = (*self.win[:2], pool, *self.win[3:])
+            self.tab = (tk, tq, th, self.tab[3])
             done += size
             if time.perf_counter() - started < 0.1:
                 batch *= 2
@@ -166,6 +190,15 @@ def _js_key(jsi, slot) -> tuple[int, int, int]:
     return int(jsi[slot, K.JS_S]), int(jsi[slot, K.JS_J]), int(jsi[slot, K.JS_C])
 
 
+def _state_key(key: np.ndarray, k: int, joint: bool) -> tuple:
+    """A table key of agent k as the reference's: (cell, near), the peers in range with their cells; for a
+    joint-state learner (JS, JSA) every cell, its own first."""
+    cells = key[1:].tolist()
+    if joint:
+        return cells[k], *cells[:k], *cells[k + 1:]
+    return cells[k], tuple((j, c) for j, c in enumerate(cells) if j != k and c >= 0)
+
+
 def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     """Learner k of the kernel, as the reference learner `learner` (fresh from make_learners) holds it."""
     set_state(learner.rng, kernel.mt[k])
@@ -174,8 +207,16 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     learner.learning = bool(kernel.ip[K.LEARNING])
     learner.episodes_played, learner.joint_plays, learner.heard = (int(ag[K.PLAYED]), int(ag[K.PLAYS]),
                                                                    int(ag[K.HEARD]))
-    learner.s, learner.a = int(ag[K.S]), int(ag[K.A])
-    learner.q_local = kernel.q[k].tolist()
+    learner.a = int(ag[K.A])
+    if not learner.central:  # the central learner's state is the cells, observed afresh at each step
+        learner.s = int(ag[K.S])
+    if hasattr(learner, "q_local"):  # JS and JSA keep none
+        learner.q_local = kernel.q[k].tolist()
+    if kernel.algo in TABLES:
+        tk, tq, used = kernel.tab[0], kernel.tab[1], int(kernel.tab[3][0])
+        mine = np.flatnonzero(tk[:used, 0] == k)
+        setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k, learner.joint_state): tq[i].tolist()
+                                                      for i in mine})
     if kernel.algo != "cq":
         return
     jsi, jsf = kernel.js[0], kernel.js[1]
@@ -222,12 +263,29 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
     ag = kernel.ag[k]
     kernel.eps[k] = learner.epsilon
     ag[K.PLAYED], ag[K.PLAYS], ag[K.HEARD] = learner.episodes_played, learner.joint_plays, learner.heard
-    ag[K.S], ag[K.A] = getattr(learner, "s", 0), getattr(learner, "a", 0)
-    kernel.q[k] = learner.q_local
+    ag[K.A] = getattr(learner, "a", 0)
+    if not learner.central:  # the central learner's state is the cells, observed afresh at each step
+        ag[K.S] = getattr(learner, "s", 0)
+    if hasattr(learner, "q_local"):  # JS and JSA keep none: the kernel's stays zeros
+        kernel.q[k] = learner.q_local
+    if getattr(learner, "waiting", None) is not None:
+        raise ValueError(f"a {kernel.algo} learner hands over between episodes, where no step waits")
+    if kernel.algo in TABLES:
+        tk, tq, tm = kernel.tab[0], kernel.tab[1], kernel.tab[3]
+        table = getattr(learner, TABLES[kernel.algo])
+        for state, row in table.items():  # into a fresh table's free slots (kernel_of indexes them)
+            tk[tm[0], 0] = k
+            if learner.joint_state:
+                tk[tm[0], 1:] = (*state[1:k + 1], state[0], *state[k + 1:])
+            else:
+                tk[tm[0], 1 + k] = state[0]
+                for j, c in state[1]:
+                    tk[tm[0], 1 + j] = c
+            tq[tm[0]] = row
+            tm[0] += 1
+        kernel.js[6][k] = len(table)
     if kernel.algo != "cq":
         return
-    if learner.waiting is not None:
-        raise ValueError("a CQ learner hands over between episodes, where no step waits")
     ag[K.DROPPED], ag[K.LOOKING] = learner.dropped_updates, learner.looking
     jsi, jsf = kernel.js[0], kernel.js[1]
     head, tail, n_js = kernel.js[4], kernel.js[5], kernel.js[6]
@@ -262,6 +320,14 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
         kernel.win = (*kernel.win[:2], pool, *kernel.win[3:])
 
 
+def _slots_for(need: int) -> int:
+    """A pool's or the table's size holding `need` slots: 64, doubled as often as that needs."""
+    cap = 64
+    while cap < need:
+        cap *= 2
+    return cap
+
+
 def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     """A reference Team (learners and world, between episodes: fresh, learnt or loaded from checkpoints) as the
     kernel's arrays: it plays on as the reference would have (team_of's inverse). `seed` and `run_index` only
@@ -273,15 +339,19 @@ def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     kernel.world[3][0] = state_of(team.world._rng)
     if algo == "cq":
         total = sum(len(learner.q_joint) for learner in learners)
-        cap = 64
-        while cap < total + len(learners) ** 2:
-            cap *= 2
+        cap = _slots_for(total + len(learners) ** 2)
         jsi, jsf, free, meta, head, tail, n_js = (np.full((cap, 7), -1, np.int64), np.zeros((cap, 5)),
                                                   np.arange(cap - 1, total - 1, -1, dtype=np.int64),
                                                   np.array([cap - total, total], np.int64), *kernel.js[4:])
         free = np.concatenate([free, np.zeros(total, np.int64)])
         kernel.js = (jsi, jsf, free, meta, head, tail, n_js)
+    if algo in TABLES:
+        n = team.world.map.n_agents
+        kernel.tab = new_table(_slots_for(sum(len(getattr(learner, TABLES[algo])) for learner in learners) + 2 * n),
+                               algo, n)
     slots: dict[tuple[int, tuple], int] = {}
     for k, learner in enumerate(learners):
         _take_over(kernel, learner, k, slots)
+    if algo in TABLES:
+        K.index_table(kernel.tab[0], kernel.tab[2], kernel.tab[3][0])
     return kernel
