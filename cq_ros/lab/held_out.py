@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import sys
 import time
@@ -442,4 +443,7 @@ def curve_table(rows: list[dict], configs: Sequence[Config]) -> list[str]:
 
 
 def show_ratio(r: Interval) -> str:
+    """A ratio and its interval; none where the denominator's mean is 0 (what indep hears, say)."""
+    if math.isinf(r.mean):
+        return "- (divides by 0)"
     return f"{r.mean:.2f} ({r.low:.2f} to {r.high:.2f})"
