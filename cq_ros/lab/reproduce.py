@@ -446,7 +446,7 @@ def _regime_finding(name: str, per_seed: list, seeds: Sequence[int]) -> str:
     settled = {t: [settled_at(d, t) for d in per_seed] for t in THRESHOLDS}
     first = settled[THRESHOLDS[0]]
     joint_never = sorted({(m, a) for s in first for m in PAPER_MAPS for a in ("js", "jsa") if s[(m, a)] is None},
-                         key=lambda k: PAPER_MAPS.index(k[0]))
+                         key=lambda k: (PAPER_MAPS.index(k[0]), k[1]))  # a set's order varies by process
     joint = _span([s[(m, a)] for s in first for m in PAPER_MAPS for a in ("js", "jsa")])
     return (text + ". Its 100-episode average settles "
             + "; ".join(f"below {t:g}: " + ", ".join(f"{m} {over_seeds([s[(m, 'cq')] for s in per], seeds)}"
