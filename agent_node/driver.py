@@ -35,7 +35,7 @@ from typing import Any, Callable
 from cq_ros.engine import central_act, central_outcome, step_act, step_outcome
 from cq_ros.learners import Learner
 from msgs_spec import (
-    Action, AgentStats, DropCounter, MarkedJointState, WireError, decode_feedback, feedback_topic,
+    Action, AgentStats, DropCounter, MarkedJointState, WireError, agent_namespace, decode_feedback, feedback_topic,
 )
 from msgs_spec.fast import new_action
 
@@ -83,6 +83,7 @@ class _Driver:
         self.link = WorldLink(self.drops, key, clock, last_episode=episodes + eval_episodes - 1,
                               max_catch_up=max_catch_up)
         self.peers = PeerView(self.map, self.drops, linger, key)
+        self._clock = clock
         self._log = log or (lambda _msg: None)
         self.finished = False
         self._played = False  # a feedback played: episodes left behind since get their statistics
@@ -94,9 +95,24 @@ class _Driver:
         held = self.link.vouched() if self.link.on_heartbeat(msg, self._expected()) else None
         return self._catch_up(*held) if held else []
 
+    def renew_quiet(self) -> Effects:
+        """Called every check period by the node: renew each peer subscription waited on that delivers nothing
+        (PeerView.renew_quiet), saying so."""
+        out, renewed = self.peers.renew_quiet({peer for peer, _, _ in self.waiting_for()}, self._clock())
+        for peer, quiet in renewed:
+            self._log(f"no position from {agent_namespace(peer)} in {quiet:.1f} s of waiting for it: subscribing to "
+                      "it anew (renewed_subscriptions)")
+        return out
+
+    def waiting_for(self) -> set[tuple[int, int, int]]:
+        """(peer, episode, step) of every position it waits for now."""
+        raise NotImplementedError
+
     def counters(self) -> dict[str, int]:
         out = self.drops.as_counters()
         out.update((name, getattr(self, name)) for name in self._counted if getattr(self, name))
+        if self.peers.renewed:
+            out["renewed_subscriptions"] = self.peers.renewed
         out.update(self.link.counters())
         return out
 

@@ -1,4 +1,4 @@
-"""What a driver asks its agent node to do, in order: subscribe to or drop a peer's position topic, send a
+"""What a driver asks its agent node to do, in order: subscribe to, drop or renew a peer's position topic, send a
 message, save a checkpoint, finish. Drivers return lists of these (`Effects`) and never touch ROS themselves,
 so the protocol is tested without a ROS graph (tests/test_driver.py)."""
 
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from cq_ros.learners import Learner
 from msgs_spec import Action, AgentStats
 
-__all__ = ["Subscribe", "Unsubscribe", "Send", "SaveCheckpoint", "Finish", "Effects"]
+__all__ = ["Subscribe", "Unsubscribe", "Renew", "Send", "SaveCheckpoint", "Finish", "Effects"]
 
 
 @dataclass(frozen=True)
@@ -19,6 +19,13 @@ class Subscribe:
 
 @dataclass(frozen=True)
 class Unsubscribe:
+    peer: int
+
+
+@dataclass(frozen=True)
+class Renew:
+    """Drop the peer's position subscription and make it anew: it delivered nothing while waited for."""
+
     peer: int
 
 

@@ -3,9 +3,10 @@
 Thin on purpose, like the ros2/examples minimal nodes: it declares its parameters, creates the publishers
 and subscriptions msgs_spec names with msgs_spec's QoS, and hands every message to the driver of
 `agent_node.driver` (made by `agent_node.config`), carrying out the effects it returns: publish, subscribe
-to or drop a peer's position topic (always from inside an executor callback, as docs/design.md's field notes
-require), save a checkpoint, finish. While the driver waits for peer positions, it also takes one that its
-reader holds but the executor never announced (`_take_unannounced`: a middleware race, see there).
+to, drop or renew a peer's position topic (always from inside an executor callback, as docs/design.md's field
+notes require), save a checkpoint, finish. While the driver waits for peer positions, it also takes one that its
+reader holds but the executor never announced (`_take_unannounced`: a middleware race, see there), and lets the
+driver renew a subscription that delivers nothing (agent_node.peer_view, RENEW_AFTER_S).
 Constructible in-process (`AgentNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding
 the exit code.
 """
@@ -41,7 +42,7 @@ from node_runtime.run import when, when_acked
 
 from .checkpoint import checkpoint_bytes, write_checkpoint
 from .config import agent_config, make_driver
-from .effects import Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe
+from .effects import Finish, Renew, SaveCheckpoint, Send, Subscribe, Unsubscribe
 from .viz import AgentView
 
 __all__ = ["AgentNode"]
@@ -140,7 +141,7 @@ class AgentNode(Node):
         self._writes: list = []  # (episode, concurrent Future) of the checkpoint writes not counted yet
         # What each effect a driver returns does, looked up by its type (no chain of patterns per effect)
         self._carry_out = {Send: self._send, Subscribe: self._subscribe, Unsubscribe: self._unsubscribe,
-                           SaveCheckpoint: lambda e: self._save_checkpoint(e.episode, e.learner),
+                           Renew: self._renew, SaveCheckpoint: lambda e: self._save_checkpoint(e.episode, e.learner),
                            Finish: lambda _e: self._finish(0)}
         self._view = AgentView(self, self.driver) if self.get_parameter("markers").value else None
         self.done = Future()  # result: the exit code (0 last (greedy) episode played, 1 the world went silent)
@@ -195,6 +196,14 @@ class AgentNode(Node):
 
     def _unsubscribe(self, effect: Unsubscribe) -> None:
         self.destroy_subscription(self._positions.pop(effect.peer))
+
+    def _renew(self, effect: Renew) -> None:
+        # Which side lost the match, for whoever reads the log: the reader's view of the writers
+        writers = self._positions[effect.peer].get_publisher_count()
+        self.get_logger().warning(f"{position_topic(effect.peer)}: its reader had matched {writers} writer(s); "
+                                  "made anew")
+        self._unsubscribe(effect)
+        self._subscribe(effect)
 
     def _save_checkpoint(self, episode: int, learner: Any) -> None:
         """Take the learner's state now (it goes on learning) and write it on the node's writer thread: the
@@ -287,6 +296,7 @@ class AgentNode(Node):
                 counters = self.driver.link.extra_counters
                 counters["unannounced_positions"] = counters.get("unannounced_positions", 0) + 1
                 self._on_position(peer, taken[0])
+        self._apply(self.driver.renew_quiet())
         self._stalled = self.driver.waiting_for()
 
     def _check_graph(self) -> None:

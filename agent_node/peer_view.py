@@ -12,6 +12,12 @@ Positions (`PeerView`) are kept per stamp from the step the agent decides at onw
 and counted (`stale_*`), a second one for a stamp already heard with another cell too (`conflicting`: the
 first writer wins), and at most `AHEAD` stamps are kept per peer (the farthest go first), so no burst of
 other positions can push out the world's.
+
+A subscription waited on that delivers no new position for `RENEW_AFTER_S` is made anew (`renew_quiet`), then
+after twice as long, and so on. Once in a CI run (tests/test_faults.py, a launch of grid_game_2 at its 1,766th
+episode) a new subscription got nothing for 28 steps while the world stepped on without the agent, and the run
+ended; whichever side lost the match, a new subscription is a new match, which the world answers with the
+position it holds, and the writer's latched history holds the newest one it sent.
 """
 
 from __future__ import annotations
@@ -21,12 +27,15 @@ from typing import Any, Iterable
 from cq_ros.gridmap import GridMap
 from msgs_spec import DropCounter, WireError, decode_position, position_topic
 
-from .effects import Effects, Subscribe, Unsubscribe
+from .effects import Effects, Renew, Subscribe, Unsubscribe
 from .reading import bounds_of, cell_of, record_sequence
 
-__all__ = ["AHEAD", "PeerView"]
+__all__ = ["AHEAD", "RENEW_AFTER_S", "PeerView"]
 
 AHEAD = 8  # stamps of positions kept per peer from the one the agent decides at
+# Waited on this long without a new position, a subscription is made anew: a new subscription's match takes
+# milliseconds on a running graph, and a step waits step_timeout (2 s by default) for an action.
+RENEW_AFTER_S = 1.0
 
 
 class PeerView:
@@ -47,6 +56,8 @@ class PeerView:
         self.between_episodes = False  # its episode is over: older positions are the others' traffic, not faults
         self._seen: dict[int, dict[tuple[int, int], int]] = {}  # peer -> {(episode, step): cell} from floor on
         self._fresh: set[int] = set()  # peers subscribed whose first position has not come yet
+        self._quiet: dict[int, tuple[float, int]] = {}  # peer waited for -> (quiet since, renewals since)
+        self.renewed = 0  # subscriptions made anew (renew_quiet)
 
     @property
     def subscribed(self) -> list[int]:
@@ -71,6 +82,7 @@ class PeerView:
             if self.idle[j] > self.linger:
                 del self.idle[j]
                 self._seen.pop(j, None)
+                self._quiet.pop(j, None)
                 self._fresh.discard(j)
                 out.append(Unsubscribe(j))
         for j in sorted(peers - self.idle.keys()):
@@ -115,12 +127,33 @@ class PeerView:
                                             f"{pos.col} after {self.map.cells[held[stamp]]}"), position_topic(peer))
             return False
         held[stamp] = cell
+        self._quiet.pop(peer, None)  # it delivers
         if len(held) > AHEAD:  # the farthest goes: the world's next positions are the nearest
             farthest = max(held)
             del held[farthest]
             record_sequence(self.drops, farthest, self.floor, position_topic(peer))
             return farthest != stamp
         return True
+
+    def renew_quiet(self, waiting: Iterable[int], now: float) -> tuple[Effects, list[tuple[int, float]]]:
+        """Renew the subscriptions of the peers in `waiting` (waited for now) that delivered no new position
+        since they were first seen waited for, or since their last renewal, for RENEW_AFTER_S times 2 per
+        renewal so far. Returns the effects and (peer, seconds quiet) of each renewed."""
+        waiting = set(waiting)
+        for j in [j for j in self._quiet if j not in waiting]:
+            del self._quiet[j]
+        out: Effects = []
+        renewed = []
+        for j in sorted(waiting & self.idle.keys()):
+            since, renewals = self._quiet.setdefault(j, (now, 0))
+            if now - since >= RENEW_AFTER_S * 2 ** renewals:
+                self._quiet[j] = (now, renewals + 1)
+                self._fresh.add(j)  # its first position may again be the latched one from before
+                self.created += 1
+                self.renewed += 1
+                out.append(Renew(j))
+                renewed.append((j, now - since))
+        return out, renewed
 
     def missing(self, episode: int, step: int, peers: Iterable[int]) -> set[tuple[int, int, int]]:
         """(peer, episode, step) for every peer in `peers` whose position stamped (episode, step) has not come."""

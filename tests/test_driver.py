@@ -15,7 +15,8 @@ import pytest
 from agent_node.checkpoint import load_checkpoint, save_checkpoint
 from agent_node.config import agent_config, make_driver
 from agent_node.driver import AgentDriver, CentralDriver
-from agent_node.effects import Finish, SaveCheckpoint, Send, Subscribe, Unsubscribe
+from agent_node.effects import Finish, Renew, SaveCheckpoint, Send, Subscribe, Unsubscribe
+from agent_node.peer_view import RENEW_AFTER_S
 from cq_ros.engine import make_learner, run, world_seed
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner
@@ -200,6 +201,36 @@ def test_a_step_the_world_took_without_us_is_skipped_not_learnt():
     assert sent(effects) == [Action(1, 0, 1, 1)]
     assert not any(c[0] == "learn" for c in learner.calls)
     assert d.skipped_steps == 1 and d.counters()["skipped_steps"] == 1 and logs
+
+
+def test_a_subscription_waited_on_that_delivers_nothing_is_made_anew_then_after_twice_as_long():
+    """Once in CI a new position subscription got nothing for 28 steps (agent_node.peer_view): whichever side
+    lost the match, a new subscription is a new match. Positions flowing, nothing is renewed."""
+    clock, logs = Clock(), []
+    d = AgentDriver(Stub(needs=[(1,)] * 6), 1, episodes=1, linger=0, log=logs.append, clock=clock)
+    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == [Subscribe(2)]
+    assert d.renew_quiet() == []  # first seen waited for at 0.0
+    clock.now = RENEW_AFTER_S - 0.01
+    assert d.renew_quiet() == []
+    d.on_feedback(1, fb(1, 0, 1, 0, 0))  # the world timed us out and stepped: still waiting for agent 2
+    clock.now = RENEW_AFTER_S
+    assert d.renew_quiet() == [Renew(2)] and "agv2" in logs[-1]
+    clock.now = 2.9 * RENEW_AFTER_S
+    assert d.renew_quiet() == []  # the next one after twice as long
+    clock.now = 3 * RENEW_AFTER_S
+    assert d.renew_quiet() == [Renew(2)]
+    # the renewed reader's first position may be the latched one from before: no fault
+    assert d.on_position(2, pos(2, 0, 0, 1, 0)) == [] and d.drops.total == 0
+    assert sent(d.on_position(2, pos(2, 0, 1, 1, 0))) == [Action(1, 0, 1, 1)]
+    assert d.counters()["renewed_subscriptions"] == 2 and d.peers.created == 3
+    # positions flowing: each step's within RENEW_AFTER_S of the last, however long the run
+    for step in range(2, 6):
+        d.on_feedback(1, fb(1, 0, step, 0, 0))
+        assert d.renew_quiet() == []
+        clock.now += 0.9 * RENEW_AFTER_S
+        assert d.renew_quiet() == []
+        assert sent(d.on_position(2, pos(2, 0, step, 1, 0)))
+    assert d.counters()["renewed_subscriptions"] == 2
 
 
 def test_bad_feedback_is_counted_and_dropped():
