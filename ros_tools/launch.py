@@ -133,6 +133,9 @@ STARTUP_PER_NODE_S = 4.0
 NODE_UP_S, STUCK_TRIES = 60.0, 2  # a node process that logs nothing this long after its start is started again
 CHECKPOINT_EVERY = 50
 AGENT_EXIT_GRACE_S = 10.0  # an agent still running this long after the world finished is stuck
+# A node still a process this long after its report (its last word) hangs in its teardown, every episode heard:
+# it is stopped (`_stop_hung_at_exit`).
+EXIT_HANG_S = 5.0
 DRAIN_S = 5.0  # after the last child exits, how long to wait for statistics still in the listener's queue
 # after a child fails, how long to wait for the rows of the episodes the world has said it played: the agents'
 # statistics of its last episode are sent at the same moment as its own and may still be on their way
@@ -203,6 +206,9 @@ class Child:
     stuck_starts: int = 0  # times the launch started it again because it never came up (`_unstick`)
     started_at: float = 0.0  # time.monotonic() of its latest start
     logged_at_start: int = 0  # its log's size then
+    reported_at: float | None = None  # time.monotonic() its report was first seen in its log (`_stop_hung_at_exit`)
+    looked_at: float = 0.0  # ... when its log was last looked at for it
+    hung_at_exit: bool = False  # stopped by the launch after its report: its work was done
 
     def start(self, env: dict[str, str]) -> None:
         # the child keeps its own copy of the descriptor; a restarted one's log goes on after its first life's
@@ -755,6 +761,26 @@ def _unstick(children: list[Child], env: dict, listener: StatsListener) -> None:
                        f"start stuck in ROS: started it again (pid {child.process.pid})", file=sys.stderr)
 
 
+def _stop_hung_at_exit(running: list[Child]) -> None:
+    """Every episode heard: stop a node still a process EXIT_HANG_S after its report, its last word, saying so;
+    its work is done and the launch goes on as if it had exited 0. Seen once beside two busy loops: a world on
+    static unicast peers (tests/test_hosts.py) played all its episodes, printed its report, and was still a
+    process 90 s later, somewhere in the teardown of its node and context, and the launch waited for it."""
+    now = time.monotonic()
+    for child in running:
+        if child.reported_at is None:
+            if now - child.looked_at >= 1.0:  # the log is read at most once a second
+                child.looked_at = now
+                if child.reports():
+                    child.reported_at = now
+        elif now - child.reported_at > EXIT_HANG_S:
+            child.hung_at_exit = True
+            child.signal_group(signal.SIGKILL)
+            child.process.wait(timeout=STOP_GRACE_S[-1][1])
+            tqdm.write(f"cq-ros launch: {child.name} (pid {child.process.pid}) still running {EXIT_HANG_S:g} s after "
+                       "its report, every episode played: stopped it", file=sys.stderr)
+
+
 def _ended_as(listener: StatsListener, learners: list[int]) -> dict:
     """The manifest's `ended` of a launch that heard every episode: clean, or degraded (and why: a departure
     from the offline engine, or statistics that conflicted with the first heard of their episode)."""
@@ -834,7 +860,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
         bar.within(lambda: _where(listener, node_names))
         if not compose:
             _unstick(children, env, listener)
-        failed = [c for c in children if c.exit_code not in (None, 0)]
+        failed = [c for c in children if c.exit_code not in (None, 0) and not c.hung_at_exit]
         if failed and not compose and children[0].running and failed[0] is not children[0] and \
                 sum(c.restarts for c in children) < restart_agents:
             _restart(failed[0], env, listener, learners, restart_loss)
@@ -846,6 +872,8 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
         running = [c for c in children if c.running]
         if not running:
             return
+        if len(listener.world) >= listener.episodes:
+            _stop_hung_at_exit(running)
         if world_done_at is None and not children[0].running:
             world_done_at = time.monotonic()
         if world_done_at is not None and time.monotonic() - world_done_at > AGENT_EXIT_GRACE_S:

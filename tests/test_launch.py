@@ -462,3 +462,30 @@ def test_a_launch_runs_on_the_ros_domain_id_of_its_environment(tmp_path, ros_dom
     assert f"ROS_DOMAIN_ID={ros_domain_id}, namespace /{namespace}" in done.stderr
     assert json.loads((out / "manifest.json").read_text())["domain_id"] == ros_domain_id
     assert not alive_with(namespace)
+
+
+def test_a_node_still_a_process_after_its_report_is_stopped_once_every_episode_is_heard(tmp_path, monkeypatch,
+                                                                                          capsys):
+    """Seen once beside two busy loops: a world that played every episode and printed its report was still a
+    process 90 s later, and the launch waited for it. A node that has reported is stopped EXIT_HANG_S later and
+    counts as done; one that has not reported is left to the launch's other rules."""
+    from node_runtime.report import report_line
+    from ros_tools import launch as launcher
+
+    monkeypatch.setattr(launcher, "EXIT_HANG_S", 0.2)
+    report = report_line({"node": "world", "counters": {}, "dropped_on": {}, "floods": {}})
+    hung = launcher.Child("world", ["sh", "-c", f"echo '{report}'; exec sleep 60"], tmp_path / "world.log")
+    busy = launcher.Child("agv1", ["sh", "-c", "echo working; exec sleep 60"], tmp_path / "agv1.log")
+    for child in (hung, busy):
+        child.start(dict(os.environ))
+    try:
+        wait_until(lambda: hung.reports() and busy.said_anything(), 30, "the children never wrote")
+        wait_until(lambda: launcher._stop_hung_at_exit([c for c in (hung, busy) if c.running]) or not hung.running,
+                   30, "the reported node was never stopped")
+        assert hung.hung_at_exit and hung.exit_code == -signal.SIGKILL
+        assert busy.running and not busy.hung_at_exit
+        assert "world (pid" in capsys.readouterr().err
+    finally:
+        for child in (hung, busy):
+            child.signal_group(signal.SIGKILL)
+            child.process.wait(timeout=10)
