@@ -9,10 +9,14 @@ and CQ on warehouse_8, _16 and _32 with the maps' own settings, with its ratio o
 CQ, the CPU per agent-step of the reference engine, the compiled engine, the compiled world alone (learners
 taken out: it replays the joint actions the learners chose, the same episodes) and the leanest kernel of the
 same rules and learning dynamics (benchmarks/lean_kernel.py, which says what it drops), medians of interleaved
-repeats, and their ratios.
+repeats, and their ratios. `--process` prints, instead, whole processes: the wall and CPU seconds of
+`cq-ros experiment --map tunnel_to_goal --algo cq --runs 1 --episodes 5000` on each engine, start-up and output
+included, with and without figures, beside its floor: the same command at 1 episode without greedy ones
+(start-up and output alone), and the imports alone.
 
     python benchmarks/bench_engine.py [--episodes 3000] [--warehouse-episodes 30] [--repeats 3]
                                       [--engine compiled|reference] [--grid] [--grid-episodes 10000] [--limit]
+                                      [--process]
 """
 
 from __future__ import annotations
@@ -20,7 +24,9 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import resource
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -110,6 +116,41 @@ def limit(episodes: dict[str, int], repeats: int) -> None:
               f"collisions: {'yes' if replayed else 'NO'})", flush=True)
 
 
+def whole_processes(repeats: int) -> None:
+    """Wall and CPU seconds (medians of interleaved repeats) of whole `cq-ros experiment` processes on each engine,
+    and of their floor: the command at 1 episode without greedy ones (start-up and output) and the imports alone."""
+    experiment = [sys.executable, "-m", "cq_ros.cli", "experiment", "--map", "tunnel_to_goal", "--algo", "cq",
+                  "--runs", "1", "--force", "--out"]
+    cases = {}
+    for engine in compiled.ENGINES:
+        for name, tail in ((f"experiment 5000 episodes, {engine}", []),
+                           (f"experiment 5000 episodes, --no-figures, {engine}", ["--no-figures"]),
+                           (f"experiment 1 episode, no greedy ones, --no-figures, {engine}",
+                            ["--no-figures", "--set", "eval_episodes=0"])):
+            cases[name] = (experiment, ["--episodes", "5000" if "5000" in name else "1", "--engine", engine, *tail])
+    for module in ("cq_ros.cli.main", "numba", "cq_ros.compiled.engine"):
+        cases[f"python -c 'import {module}'"] = ([sys.executable, "-c", f"import {module}"], None)
+    wall: dict[str, list[float]] = {name: [] for name in cases}
+    cpu: dict[str, list[float]] = {name: [] for name in cases}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(repeats):
+            for name, (head, tail) in cases.items():
+                command = head if tail is None else [*head, str(Path(tmp) / "out"), *tail]
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
+                started = time.perf_counter()
+                subprocess.run(command, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                wall[name].append(time.perf_counter() - started)
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu[name].append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
+            print(f"repeat {r + 1}/{repeats} done", file=sys.stderr, flush=True)
+    for name in cases:
+        print(f"{name:<62} {statistics.median(wall[name]):6.2f} s wall {statistics.median(cpu[name]):6.2f} s CPU")
+    for tail in ("", ", --no-figures"):
+        ratio = statistics.median(wall[f"experiment 5000 episodes{tail}, reference"]) / statistics.median(
+            wall[f"experiment 5000 episodes{tail}, compiled"])
+        print(f"reference / compiled, 5000 episodes{tail}: {ratio:.2f}x wall")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=3000)
@@ -122,6 +163,8 @@ def main() -> None:
     parser.add_argument("--grid-episodes", type=int, default=10_000)
     parser.add_argument("--limit", action="store_true",
                         help="only the limit: reference, compiled, world alone and the lean kernel side by side")
+    parser.add_argument("--process", action="store_true",
+                        help="only whole processes: cq-ros experiment on each engine beside its start-up floor")
     args = parser.parse_args()
 
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
@@ -130,6 +173,10 @@ def main() -> None:
     if not compiled.prepare():
         raise SystemExit("the compiled engine cannot load here: nothing to compare")
     print(f"compiled engine loaded in {time.perf_counter() - started:.1f} s")
+    if args.process:
+        whole_processes(args.repeats)
+        print(f"load average {os.getloadavg()[0]:.2f}")
+        return
     if args.limit:
         limit({"tunnel_to_goal": args.episodes, "warehouse_16": args.warehouse_episodes}, args.repeats)
         print(f"load average {os.getloadavg()[0]:.2f}")

@@ -251,7 +251,7 @@ FIGURES: dict[str, Callable[[], str]] = {"study": study, "study-targets": study_
                                          "warehouses": warehouses, "delays": delays,
                                          "delays-held-out": delays_held_out,
                                          **{name: partial(printed, "speed", name)
-                                            for name in ("engine", "limit", "ros", "codec")},
+                                            for name in ("engine", "limit", "process", "ros", "codec")},
                                          "lost-samples": partial(printed, "faults", "lost_samples")}
 
 

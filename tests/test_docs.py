@@ -40,7 +40,8 @@ def test_every_generated_block_holds_what_its_data_give(page):
 def test_the_figures_stand_where_the_pages_say():
     found = {name: page.name for page in figures.pages() for name, _, _ in figures.blocks(page.read_text())}
     assert found == {"reproduce": "choices.md", "who-listens": "ros.md", "warehouses": "warehouses.md",
-                     "delays": "warehouses.md", "engine": "speed.md", "limit": "speed.md", "ros": "speed.md",
+                     "delays": "warehouses.md", "engine": "speed.md", "limit": "speed.md", "process": "speed.md",
+                     "ros": "speed.md",
                      "codec": "speed.md",
                      "lost-samples": "faults.md", "cq-bootstrap": "choices.md", "cq-frozen": "choices.md",
                      "cq-confidence": "choices.md", "churn-defaults": "choices.md",
