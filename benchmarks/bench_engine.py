@@ -123,11 +123,12 @@ def whole_processes(repeats: int) -> None:
                   "--runs", "1", "--force", "--out"]
     cases = {}
     for engine in compiled.ENGINES:
-        for name, tail in ((f"experiment 5000 episodes, {engine}", []),
-                           (f"experiment 5000 episodes, --no-figures, {engine}", ["--no-figures"]),
-                           (f"experiment 1 episode, no greedy ones, --no-figures, {engine}",
-                            ["--no-figures", "--set", "eval_episodes=0"])):
-            cases[name] = (experiment, ["--episodes", "5000" if "5000" in name else "1", "--engine", engine, *tail])
+        for label, episodes, tail in (("5000 episodes", 5000, []),
+                                      ("5000 episodes, --no-figures", 5000, ["--no-figures"]),
+                                      ("1 episode, no greedy ones, --no-figures", 1,
+                                       ["--no-figures", "--set", "eval_episodes=0"])):
+            cases[f"experiment {label}, {engine}"] = (experiment, ["--episodes", str(episodes), "--engine", engine,
+                                                                   *tail])
     for module in ("cq_ros.cli.main", "numba", "cq_ros.compiled.engine"):
         cases[f"python -c 'import {module}'"] = ([sys.executable, "-c", f"import {module}"], None)
     wall: dict[str, list[float]] = {name: [] for name in cases}
