@@ -139,3 +139,27 @@ def test_a_unit_on_either_engine_is_its_experiment_run_too(tmp_path, monkeypatch
                                                                 "eval_episodes=3"]), 0, 1, 12)
         assert played["row"][f"{copy}_heard"] == reference.greedy["heard"].mean()
         assert played["row"][f"{copy}_collisions"] == reference.greedy["collisions"].mean()
+
+
+def test_paired_figures_pair_the_same_units_where_configurations_played_different_ones():
+    """cq played units (1001, 0), (1001, 1), (1002, 0); near (1001, 1), (1002, 0), (1002, 1), as a study resumed
+    with near and stopped part way leaves them: the paired difference is over the two units both played, unit by
+    unit (near - cq: 1.0 and 3.0), never the first three of each in sort order (which would pair (1001, 0) with
+    (1001, 1))."""
+    from cq_ros.lab.held_out import Config, size_tables
+
+    def unit(config, seed, run, collisions):
+        figures = {f"{copy}_{name}": 1.0 for copy in ("frozen", "learning") for name in ("home", "heard", "makespan")}
+        return {"agents": 4, "generator_seed": seed, "run": run, "config": config, "states": 10.0, **figures,
+                "planner_makespan": 1.0,
+                "frozen_collisions": collisions, "learning_collisions": collisions}
+
+    rows = [unit("cq", 1001, 0, 9.0), unit("cq", 1001, 1, 1.0), unit("cq", 1002, 0, 2.0),
+            unit("near", 1001, 1, 2.0), unit("near", 1002, 0, 5.0), unit("near", 1002, 1, 0.0)]
+    planner = [{"makespan": 1.0, "collisions": 0.0, "messages": 0.0, "home": 1}]
+    lines = size_tables(4, rows, [Config("cq", "cq"), Config("near", "near")], planner)
+    at = lines.index("Paired differences, frozen (over the 2 units every configuration played):")
+    assert lines[at + 4].startswith(f"| near - cq | {paired_difference([2.0, 5.0], [1.0, 2.0]).show(3)} |")
+    ratios = lines.index("Ratios of means, frozen (bootstrap 95%) (over the 2 units every configuration played):")
+    assert lines[ratios + 4].startswith(
+        f"| near | {show_ratio(ratio_interval([2.0, 5.0], [1.0, 2.0], BOOTSTRAP_SEED))} |")

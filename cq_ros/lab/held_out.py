@@ -346,9 +346,12 @@ def report(out: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def unit_values(rows: list[dict], config: str, column: str) -> list[float]:
-    """Each unit's figure for one configuration, in the units' order (the same for every configuration)."""
-    mine = sorted((r for r in rows if r["config"] == config), key=lambda r: (r["generator_seed"], r["run"]))
+def unit_values(rows: list[dict], config: str, column: str, units: Sequence[tuple] | None = None) -> list[float]:
+    """Each unit's figure for one configuration, in the units' order: of every unit it played, or of `units`
+    ((generator_seed, run) pairs) where given, so that two configurations' lists pair unit by unit even where
+    one has played units the other has not (a study resumed with a new configuration, stopped part way)."""
+    played = {(r["generator_seed"], r["run"]): r for r in rows if r["config"] == config}
+    mine = [played[u] for u in (sorted(played) if units is None else units)]
     if column.endswith("makespan_ratio"):
         copy = column.split("_")[0]
         return [r[f"{copy}_makespan"] / r["planner_makespan"] for r in mine]
@@ -378,6 +381,14 @@ def size_tables(agents: int, rows: list[dict], configs: Sequence[Config], planne
     if not present:
         return lines
     first = present[0].name
+    # paired figures over the units every configuration played, the same units in the same order for each
+    shared = sorted(set.intersection(*({(r["generator_seed"], r["run"]) for r in rows if r["config"] == c.name}
+                                       for c in present)))
+    over = "" if len(shared) == units else f" (over the {len(shared)} units every configuration played)"
+
+    def paired(config: str, name: str) -> list[float]:
+        return unit_values(rows, config, name, shared)
+
     for copy in COPIES:
         lines += ["", f"Greedy policy, {copy}:", "", f"| configuration | {header} |",
                   "| --- |" + " ---: |" * len(FIGURES)]
@@ -392,19 +403,18 @@ def size_tables(agents: int, rows: list[dict], configs: Sequence[Config], planne
             + "."]
         if len(present) < 2:
             continue
-        lines += ["", f"Paired differences, {copy}:", "", f"| configuration | {header} |",
+        lines += ["", f"Paired differences, {copy}{over}:", "", f"| configuration | {header} |",
                   "| --- |" + " ---: |" * len(FIGURES)]
         lines += [f"| {c.name} - {first} | " + " | ".join(
-            paired_difference(unit_values(rows, c.name, column(copy, n)),
-                              unit_values(rows, first, column(copy, n))).show(d) for _, n, d in FIGURES)
-            + " |" for c in present[1:]]
-        lines += ["", f"Ratios of means, {copy} (bootstrap 95%):", "",
+            paired_difference(paired(c.name, column(copy, n)), paired(first, column(copy, n))).show(d)
+            for _, n, d in FIGURES) + " |" for c in present[1:]]
+        lines += ["", f"Ratios of means, {copy} (bootstrap 95%){over}:", "",
                   f"| configuration | collisions: it / {first} | heard: {first} / it |", "| --- | ---: | ---: |"]
         lines += [f"| {c.name} | "
-                  + show_ratio(ratio_interval(unit_values(rows, c.name, f"{copy}_collisions"),
-                                              unit_values(rows, first, f"{copy}_collisions"), BOOTSTRAP_SEED)) + " | "
-                  + show_ratio(ratio_interval(unit_values(rows, first, f"{copy}_heard"),
-                                              unit_values(rows, c.name, f"{copy}_heard"), BOOTSTRAP_SEED))
+                  + show_ratio(ratio_interval(paired(c.name, f"{copy}_collisions"), paired(first, f"{copy}_collisions"),
+                                              BOOTSTRAP_SEED)) + " | "
+                  + show_ratio(ratio_interval(paired(first, f"{copy}_heard"), paired(c.name, f"{copy}_heard"),
+                                              BOOTSTRAP_SEED))
                   + " |" for c in present[1:]]
     return lines
 
