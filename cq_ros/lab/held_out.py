@@ -26,7 +26,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -253,22 +252,23 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     loaded = {path: load_map(path) for path in {u.map_name for u in units}}
     if any(compiled.engine_of(u.algo) == "compiled" for u in units):
         compiled.prepare()  # here, once: the workers then load the compiled engine from its cache
-    step = max(1, workers or os.cpu_count() or 1)  # units in flight at once; each batch's rows are kept at its end
-    for i in range(0, len(units), step):
-        batch = units[i:i + step]
-        ran = run_all(batch, partial(play_unit, loaded), workers, cluster,
-                      label=f"study units {i + 1}-{i + len(batch)}")
-        new = [{"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
-                **r["row"], "planner_makespan": planner[(u.agents, u.generator_seed, u.run)]["makespan"]}
-               for u, r in zip(batch, ran.results)]
+
+    def keep(index: int, result: dict) -> None:
+        """A unit's rows, kept as soon as it ends: a study stopped later plays only what it had not finished."""
+        u = units[index]
+        key = {"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config}
         # The curve first: a unit's row in units.csv is what marks it played, so a study stopped between the
         # two writes plays the unit again (shown_rows keeps one row per unit) rather than lose its curve.
-        append_rows(out / "curve.csv", [
-            {"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config,
-             "episode": e, "collisions": c, "home": h} for u, r in zip(batch, ran.results) for e, c, h in r["curve"]])
-        append_rows(out / "units.csv", new)
-        print(f"study: unit {i + len(batch)}/{len(units)}, {time.perf_counter() - started:.0f} s elapsed",
+        append_rows(out / "curve.csv", [{**key, "episode": e, "collisions": c, "home": h}
+                                        for e, c, h in result["curve"]])
+        append_rows(out / "units.csv", [{**key, **result["row"], "planner_makespan":
+                                         planner[(u.agents, u.generator_seed, u.run)]["makespan"]}])
+        finished[0] += 1
+        print(f"study: unit {finished[0]}/{len(units)}, {time.perf_counter() - started:.0f} s elapsed",
               file=sys.stderr, flush=True)
+
+    finished = [0]
+    run_all(units, partial(play_unit, loaded), workers, cluster, label="study units", on_result=keep)
     kept = json.loads((out / "study.json").read_text())
     kept["shown"] = {"sizes": list(sizes), "maps": maps, "runs": runs, "configs": [c.name for c in configs],
                      "command": command, "presets": presets}

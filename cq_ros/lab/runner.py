@@ -91,22 +91,23 @@ class Ran:
 
 def run_all(runs: Iterable[Run], play: Callable[[Any, Callable[[], None]], Any], workers: int | None = None,
             cluster: str | None = None, label: str = "runs", progress_interval: float = 30.0,
-            fresh_process: bool = False) -> Ran:
+            fresh_process: bool = False, on_result: Callable[[int, Any], None] | None = None) -> Ran:
     """Play every run: on the Dask scheduler at `cluster`, else on `workers` local processes (default one per
     core; one: in this process), or each in a fresh process if `fresh_process`. Progress on stderr (Progress);
-    the first run that fails stops the rest and raises RunFailed; a worker refused or a cluster out of reach
-    raises cq_ros.lab.cluster.ClusterError."""
+    `on_result(i, result)` as each run ends (in the order they end), so a caller can keep what is done before the
+    rest is; the first run that fails stops the rest and raises RunFailed; a worker refused or a cluster out of
+    reach raises cq_ros.lab.cluster.ClusterError."""
     runs = list(runs)
     with _backend(runs, workers, cluster, label, fresh_process) as backend:
         progress = Progress(label, sum(r.episodes for r in runs), len(runs), progress_interval)
         try:
-            outcomes = _gather(runs, play, backend, progress)
+            outcomes = _gather(runs, play, backend, progress, on_result)
         finally:
             progress.close()
         return Ran([result for result, _ in outcomes], backend.executed_on([where for _, where in outcomes]))
 
 
-def _gather(runs: list, play, backend: Backend, progress: Progress) -> list:
+def _gather(runs: list, play, backend: Backend, progress: Progress, on_result) -> list:
     queue = iter(enumerate(runs))
     outcomes: dict[int, Any] = {}
     pending: dict[Future, int] = {}
@@ -136,6 +137,8 @@ def _gather(runs: list, play, backend: Backend, progress: Progress) -> list:
             index = pending.pop(future)
             outcomes[index] = _outcome(future, runs[index])
             ended[index] = runs[index].episodes
+            if on_result is not None:
+                on_result(index, outcomes[index][0])
         shown()
 
 
