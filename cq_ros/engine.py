@@ -195,22 +195,23 @@ class Team:
         )
 
 
-def greedy_team(team: Team, learning: bool | None = None) -> Team:
-    """A copy of the team whose learners act at epsilon 0 (the learnt policy without exploration), frozen
-    unless `learning` (None: settings.eval_learning; Learner.make_greedy), so the run itself is left exactly
-    as it was."""
-    greedy = copy.deepcopy(team)
+def greedy_team(team: Team, learning: bool | None = None, keep: bool = True) -> Team:
+    """The team with its learners at epsilon 0 (the learnt policy without exploration), frozen unless
+    `learning` (None: settings.eval_learning; Learner.make_greedy): a copy, so the run itself is left exactly
+    as it was, or (`keep` False, for a caller done with the run) the team itself, which costs no memory where
+    a copy holds every learner's tables and CQ's reward windows again."""
+    greedy = copy.deepcopy(team) if keep else team
     for learner in greedy.learners:
         learner.make_greedy(learning)
     return greedy
 
 
-def greedy_episodes(team: Team, episodes: int) -> np.ndarray:
-    """What the learnt policy does without exploration: `episodes` episodes played by greedy_team(team)
+def greedy_episodes(team: Team, episodes: int, keep: bool = True) -> np.ndarray:
+    """What the learnt policy does without exploration: `episodes` episodes played by greedy_team(team, keep=keep)
     (none played, no copy made: a copy of a warehouse_32 team costs about a second)."""
     if episodes == 0:
         return record.table(())
-    greedy = greedy_team(team)
+    greedy = greedy_team(team, keep=keep)
     return record.table(greedy.episode() for _ in range(episodes))
 
 
@@ -237,4 +238,4 @@ def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: i
             on_episode()
     table = record.table(rows)
     kept = [(learner.agent, *js) for learner in team.learners for js in learner.joint_states()]
-    return RunResult(algo, run_index, table, kept, greedy_episodes(team, settings.eval_episodes))
+    return RunResult(algo, run_index, table, kept, greedy_episodes(team, settings.eval_episodes, keep=False))

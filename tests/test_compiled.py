@@ -218,6 +218,34 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
 
 
+@pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)
+@pytest.mark.parametrize("eval_learning", [0, 1])
+def test_greedy_copies_leave_the_run_as_it_was_and_a_frozen_one_shares_what_was_learnt(algo, eval_learning,
+                                                                                      monkeypatch):
+    """A greedy copy plays what the reference's (a deep copy) plays and leaves the kernel as it was: it plays on
+    as the reference's team. A frozen copy shares the learnt arrays instead of copying them (only a learning step
+    writes them); run, done with its kernel, plays the greedy episodes on it and gives what a copy gives."""
+    gm = load_map("tunnel_to_goal_3")
+    s = run_settings(gm, {"eval_learning": eval_learning, "eval_episodes": 3})
+    kernel, team = compiled.Kernel(algo, gm, s, 5, 1), reference_team(algo, gm, s, 5, 1)
+    assert kernel.play(100).tobytes() == engine.record.table(team.episode() for _ in range(100)).tobytes()
+    learnt = [a.copy() for a in kernel.learnt()]
+    greedy = kernel.greedy()
+    assert {np.shares_memory(a, b) for a, b in zip(kernel.learnt(), greedy.learnt())} == {not eval_learning}
+    assert greedy.play(3).tobytes() == engine.greedy_episodes(team, 3).tobytes()
+    assert all(np.array_equal(a, b) for a, b in zip(learnt, kernel.learnt()))
+    assert kernel.play(20).tobytes() == engine.record.table(team.episode() for _ in range(20)).tobytes()
+
+    def refused(*_):
+        raise AssertionError("compiled.run copied its kernel")
+
+    copied = engine.greedy_episodes(team, 3)
+    with monkeypatch.context() as patch:
+        patch.setattr(compiled.copy, "deepcopy", refused)
+        played = compiled.run(algo, gm, s, 5, 1, 120)
+    assert played.greedy.tobytes() == copied.tobytes()
+
+
 def test_experiment_plays_compiled_by_default_and_says_which_engine(tmp_path):
     """The lab's experiment: the kernel plays every learner (the manifest says so), and --engine reference
     writes the same files."""

@@ -1002,15 +1002,25 @@ def test_engine_run_is_reproducible(algo):
     assert not np.array_equal(first.episodes, other.episodes)
 
 
-def test_engine_run_copies_the_team_only_to_play_greedy_episodes(monkeypatch):
-    copies = []
-    real = engine.greedy_team
-    monkeypatch.setattr(engine, "greedy_team", lambda team: copies.append(team) or real(team))
+@pytest.mark.parametrize("eval_learning", [0, 1])
+def test_engine_run_plays_its_greedy_episodes_on_its_own_team_as_a_copy_would(eval_learning, monkeypatch):
+    """run is done with its team once the greedy episodes come: they play on the team itself (no copy: a copy
+    of a CQ team holds every reward window again) and give what a copy of the team gives."""
     gm = load_map("grid_game_2")
+    settings = SMALL.with_overrides({"eval_episodes": 3, "eval_learning": eval_learning})
+    team = Team(GridWorld(gm, settings, seed=engine.world_seed(3, 0)), make_learners("cq", gm, settings, 3, 0))
+    for _ in range(30):
+        team.episode()
+    copied = engine.greedy_episodes(team, 3)
+
+    def refused(*_):
+        raise AssertionError("engine.run copied its team")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(engine.copy, "deepcopy", refused)
+        played = engine.run("cq", gm, settings, 3, 0, 30)
+    assert played.greedy.tobytes() == copied.tobytes()
     assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 0}), 3, 0, 5).greedy.shape == (0,)
-    assert copies == []
-    assert engine.run("cq", gm, SMALL.with_overrides({"eval_episodes": 2}), 3, 0, 5).greedy.shape == (2,)
-    assert len(copies) == 1
 
 
 def test_make_learners_unknown_algorithm_names_the_algorithms():

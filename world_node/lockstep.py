@@ -40,9 +40,9 @@ starting: on a busy machine that is longer than ten short step timeouts while it
 `world_config` turns the node's parameters into a checked `WorldConfig`; a bad value raises `SettingsError`
 with one line naming the parameter. The node plays `episodes + eval_episodes` episodes: the agents learn
 in the first `episodes` and play their greedy policy in the rest, as `cq_ros.engine.run` then
-`greedy_episodes`; for the world they are alike. The engine plays the greedy ones in a deep copy of its
-world, whose RNG (used only for delays) goes on from the same state; since it never uses the original
-again, going on with the one world is the same.
+`greedy_episodes`; for the world they are alike. `run` plays the greedy ones on its own world (it needs
+the run no more), whose RNG (used only for delays) goes on from the same state, as the node's one world
+does.
 """
 
 from __future__ import annotations

@@ -136,11 +136,26 @@ class Kernel:
                     on_episode()
         return recfunctions.unstructured_to_structured(out, record.DTYPE) if episodes else record.table(())
 
-    def greedy(self, learning: bool | None = None) -> "Kernel":
-        """engine.greedy_team: a copy at epsilon 0, frozen unless `learning` (None: settings.eval_learning)."""
-        other = copy.deepcopy(self)
+    def learnt(self) -> tuple[np.ndarray, ...]:
+        """The arrays only a learning step writes: Q_k, the joint-state pool and its cells' lists, the windows and
+        their samples, the table. A frozen learner's episodes read them and leave them as they were."""
+        jsi, jsf, free, _meta, head, tail, _n_js = self.js
+        return (self.q, jsi, jsf, free, head, tail, *self.win[:3], *self.tab[:3])
+
+    def greedy(self, learning: bool | None = None, keep: bool = True) -> "Kernel":
+        """engine.greedy_team: at epsilon 0, frozen unless `learning` (None: settings.eval_learning). A copy, or
+        (`keep` False, for a caller done with the run) the kernel itself, which costs no memory. A frozen copy
+        shares `learnt()` with the run and copies the rest (the agents' counters, generators, step state): a
+        deep copy held every window and row again, on a MovingAI-size map as much as the run itself."""
+        learning = bool(self.settings.eval_learning if learning is None else learning)
+        if not keep:
+            other = self
+        elif learning:
+            other = copy.deepcopy(self)
+        else:
+            other = copy.deepcopy(self, {id(a): a for a in self.learnt()})
         other.eps[:] = 0.0
-        other.ip[K.LEARNING] = int(bool(self.settings.eval_learning if learning is None else learning))
+        other.ip[K.LEARNING] = int(learning)
         return other
 
     def joint_states(self) -> list[tuple[int, int, int, int, float]]:
@@ -166,8 +181,9 @@ def run(algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: i
     """cq_ros.engine.run, compiled (for KERNEL_ALGORITHMS)."""
     kernel = Kernel(algo, gridmap, settings, seed, run_index)
     table = kernel.play(episodes, on_episode)
-    greedy = kernel.greedy().play(settings.eval_episodes) if settings.eval_episodes else record.table(())
-    return RunResult(algo, run_index, table, kernel.joint_states(), greedy, engine="compiled")
+    kept = kernel.joint_states()
+    greedy = kernel.greedy(keep=False).play(settings.eval_episodes) if settings.eval_episodes else record.table(())
+    return RunResult(algo, run_index, table, kept, greedy, engine="compiled")
 
 
 _WARM_MAP = """agent 1: start 0,0  goal 0,2

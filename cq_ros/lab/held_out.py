@@ -117,11 +117,12 @@ class Learning:
             on_episode()
         return record.table(rows)
 
-    def greedy(self, learning: bool, episodes: int) -> np.ndarray:
-        """`episodes` episodes of a greedy copy, frozen or learning; the run itself is left as it was."""
+    def greedy(self, learning: bool, episodes: int, keep: bool = True) -> np.ndarray:
+        """`episodes` episodes of a greedy copy, frozen or learning; the run itself is left as it was, unless
+        `keep` is False (nothing follows: the run itself plays them, no copy made)."""
         if self.kernel is not None:
-            return self.kernel.greedy(learning).play(episodes)
-        team = greedy_team(self.team, learning)
+            return self.kernel.greedy(learning, keep).play(episodes)
+        team = greedy_team(self.team, learning, keep)
         return record.table(team.episode() for _ in range(episodes))
 
 
@@ -146,7 +147,7 @@ def play_unit(maps: dict[str, GridMap], unit: Unit, on_episode: Callable[[], Non
     episodes = np.concatenate(tables)
     row: dict = {}
     for copy in COPIES:
-        figures = greedy_figures(learning.greedy(copy == "learning", unit.greedy_episodes))
+        figures = greedy_figures(learning.greedy(copy == "learning", unit.greedy_episodes, keep=copy != COPIES[-1]))
         row.update({f"{copy}_{name}": value for name, value in figures.items()})
     curve.append((unit.episodes, row["frozen_collisions"], row["frozen_home"]))
     tail = max(1, len(episodes) // 10)

@@ -73,7 +73,7 @@ def engine_frames(gridmap: GridMap, algo: str, settings: Settings, seed: int, ep
             if progress is not None:
                 progress(e)
     if greedy:
-        team, episode = greedy_team(team), episodes
+        team, episode = greedy_team(team, keep=False), episodes  # the run is not needed after: no copy
     frames: list[Frame] = []
     place = gridmap.cells
 
