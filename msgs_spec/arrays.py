@@ -65,6 +65,8 @@ class _Form:
     data: struct.Struct  # every value of the data: the fields, then keyed the seal's and the MAC's words
     # derived from those, read per message
     start: int  # where the values start
+    end: int  # where the fields' values end (and the seal starts)
+    sealed_end: int  # where the seal ends (and the MAC starts)
     length: int
     before_gap: bytes
     after_gap: bytes  # up to the alignment before the values
@@ -75,8 +77,9 @@ class _Form:
                 and raw.startswith(self.after_gap, self.gap[1]))
 
 
-def _form(label: str, size: int, code: str) -> _Form:
-    """The form of a one-dimension array labelled `label` of `size` values of struct code `code`, in CDR
+def _form(label: str, size: int, fields: int, code: str) -> _Form:
+    """The form of a one-dimension array labelled `label` of `size` values (`fields` of them the payload's, then
+    keyed the seal's and the MAC's words) of struct code `code`, in CDR
     (little-endian): the encapsulation header, the dimension count, the label (its length with its NUL, then
     it), alignment to 4 bytes counted from after the header, the dimension's size and stride, the layout's
     data_offset (0), the data's length, alignment to a value's size. tests/test_msgs_spec.py checks it against
@@ -87,13 +90,15 @@ def _form(label: str, size: int, code: str) -> _Form:
     head += bytes(gap[1] - gap[0]) + struct.pack("<IIII", size, size, 0, size)
     framed = head
     head += bytes(-(len(head) - 4) % struct.calcsize(code))
-    data = struct.Struct(f"<{size}{code}")
-    return _Form(head, gap, data, len(head), len(head) + data.size, head[:gap[0]], framed[gap[1]:])
+    data, value = struct.Struct(f"<{size}{code}"), struct.calcsize(code)
+    end = len(head) + fields * value
+    return _Form(head, gap, data, len(head), end, end + SEAL_WORDS * value, len(head) + data.size, head[:gap[0]],
+                 framed[gap[1]:])
 
 
 # What a value of each field kind must be, as source over a value {v}: (the test that a value as nodes build
 # payloads is one: its exact type, and an int in int32's range or a finite float; the test that a float64 read
-# from the wire is one; that float as the field's value). Compiled per layout (ArrayLayout._exact,
+# from the wire is one; that float as the field's value). Compiled per layout (ArrayLayout._plain,
 # _from_floats), as dataclasses compiles an __init__: a loop over the fields costs three times the tests.
 _KIND_SOURCE = {
     "int": ("type({v}) is int and -2147483648 <= {v} <= 2147483647",
@@ -150,7 +155,7 @@ class ArrayLayout:
     @cached_property
     def forms(self) -> tuple[_Form, _Form]:
         """(plain, keyed)."""
-        return tuple(_form(*self.dimension(keyed), self.code) for keyed in (False, True))
+        return tuple(_form(*self.dimension(keyed), self.size, self.code) for keyed in (False, True))
 
     @cached_property
     def _struct(self) -> struct.Struct:
@@ -187,11 +192,14 @@ class ArrayLayout:
                          make=object.__new__, payload=self.payload, **setters)
 
     @cached_property
-    def _exact(self) -> Callable[[tuple], bool]:
-        """values -> is each of exactly its field's type and what the field holds (an int that fits int32, a
-        finite float, a bool), as _typed would give it back: as nodes build payloads."""
+    def _plain(self) -> Callable[[Any], tuple | None]:
+        """payload -> its field values when each is of exactly its field's type and what the field holds (an
+        int that fits int32, a finite float, a bool), as _typed would give them back: as nodes build payloads;
+        None otherwise."""
+        reads = "".join(f"    v{i} = payload.{name}\n" for i, name in enumerate(self.fields))
         tests = " and ".join(_KIND_SOURCE[kind][0].format(v=f"v{i}") for i, kind in enumerate(self.field_kinds))
-        return _compiled("exact", f"def exact(values):\n    {self._names}, = values\n    return {tests}\n")
+        return _compiled("plain", f"def plain(payload):\n{reads}    if {tests}:\n        return ({self._names},)\n"
+                                  "    return None\n")
 
     def _checking(self, key: RunKey, sender: int) -> tuple[bytes | None, tuple]:
         """(the seal `key` holds for `sender`'s messages of this layout, None while it holds no run or no
@@ -215,8 +223,14 @@ class ArrayLayout:
 
     def serialize(self, payload: Any, key: bytes | RunKey | None = None) -> bytes:
         """The bytes rclpy would serialize `encode(payload, key=key)` to (alignment bytes zero): the frame, the
-        checked values, then keyed the seal and the MAC over the values and the seal."""
-        packed = self._packed(payload)
+        values, checked as a decoder checks them (WireError otherwise), then keyed the seal and the MAC over the
+        values and the seal."""
+        if type(payload) is not self.payload:
+            raise WireError("wrong_type", f"expected {self.payload.__name__}, got {type(payload).__name__}")
+        # as nodes build them, else converted (numpy numbers, a whole float) or the numbers' own error
+        values = self._plain(payload) or self._typed(self._values(payload))
+        self.check(values, None, None, None, None)
+        packed = self._struct.pack(*values)
         if key is None:
             return self.forms[0].head + packed
         if type(key) is RunKey:
@@ -243,16 +257,6 @@ class ArrayLayout:
         msg.data = list(data)
         return msg
 
-    def _packed(self, payload: Any) -> bytes:
-        """The payload's field values packed, checked as a decoder checks them (WireError otherwise)."""
-        if type(payload) is not self.payload:
-            raise WireError("wrong_type", f"expected {self.payload.__name__}, got {type(payload).__name__}")
-        values = self._values(payload)
-        if not self._exact(values):
-            values = self._typed(values)  # converted (numpy numbers, a whole float), or the numbers' own error
-        self.check(values, None, None, None, None)
-        return self._struct.pack(*values)
-
     def _typed(self, values: tuple) -> tuple:
         """The values as their fields' types: WireError (not_finite, not_integer, out_of_range, malformed)
         for the first that is no such value."""
@@ -270,60 +274,61 @@ class ArrayLayout:
                       episode: int | None = None, step: int | None = None,
                       key: bytes | RunKey | None = None) -> tuple:
         """decode's field values, with every check of it (and its binding of `key`), without the payload:
-        what the world keeps of an action is its value."""
-        if type(msg) is bytes:
-            keyed = self.forms[1].holds(msg)
-            if keyed or self.forms[0].holds(msg):  # the bytes as our nodes send them, read in place
-                start = self.forms[keyed].start
-                seal = self._authentic(msg, start, keyed, key, agent)
-                values = self._struct.unpack_from(msg, start)
-                if self.code == "d":
-                    values = self._from_floats(values) or self._typed(values)
+        what the world keeps of an action is its value. A message object is checked as its bytes are."""
+        raw = msg if type(msg) is bytes else self._serialized(msg)
+        plain, keyed = self.forms
+        form = keyed if keyed.holds(raw) else plain if plain.holds(raw) else None
+        if form is None:  # not as our nodes send them: refused from the header when too long, else deserialized
+            if len(raw) > keyed.length:
+                refusal = self._oversized(raw)
+                if refusal is not None:
+                    raise refusal
+            raw = self._serialized(self._deserialized(raw))
+            form = keyed if len(raw) == keyed.length else plain
+        seal = None
+        if key is not None:
+            if form is plain:
+                raise WireError("unauthenticated", f"no MAC ({self.label}), and this receiver holds the run's key")
+            if type(key) is RunKey:  # an action's sender is the topic's agent, else the one it names
+                sender = WORLD if self.payload is not Action else agent if agent is not None else \
+                    self._struct.unpack_from(raw, form.start)[0]
+                held, hashes = key.derived.get((self, sender)) or self._checking(key, sender)
             else:
-                if len(msg) > self.forms[1].length:  # no message of the layout: refused unread
-                    refusal = self._oversized(msg)
-                    if refusal is not None:
-                        raise refusal
-                values, seal = self._message_values(self._deserialized(msg), key, agent)
-        else:
-            values, seal = self._message_values(msg, key, agent)
+                held, hashes = None, primed(key, self.label)
+            if not raw.endswith(self._mac.pack(*mac_of(hashes, raw[form.start:form.sealed_end]))):
+                raise WireError("unauthenticated", "the MAC does not match the run's key")
+            if type(key) is RunKey and (held is None or not raw.startswith(held, form.end)):
+                seal = self._seal_of(key, raw, form.end, sender)
+        values = self._struct.unpack_from(raw, form.start)
+        if self.code == "d":
+            values = self._from_floats(values) or self._typed(values)
         self.check(values, bounds, agent, episode, step)
         if seal is not None:  # bound only by a message every check accepted
             key.accept(*seal)
         return values
 
-    def _authentic(self, raw: bytes, start: int, keyed: bool, key: bytes | RunKey | None,
-                   agent: int | None) -> tuple[int, int, int] | None:
-        """Checks the MAC and the seal of the values, seal and MAC at `start` of `raw` for a receiver holding
-        `key`; (run, incarnation, sender) for `key.accept` once every check passed when the seal is not the
-        one the RunKey holds already, else None. An action's sender is the topic's agent, else the agent it
-        names; the world's messages are WORLD's."""
-        if key is None:
-            return None
-        if not keyed:
-            raise WireError("unauthenticated", f"no MAC ({self.label}), and this receiver holds the run's key")
-        end = start + self._struct.size
-        sealed_end = end + self._seal.size
-        if type(key) is RunKey:
-            sender = WORLD if self.payload is not Action else agent if agent is not None else \
-                self._struct.unpack_from(raw, start)[0]
-            held, hashes = key.derived.get((self, sender)) or self._checking(key, sender)
-        else:
-            held, hashes = None, primed(key, self.label)
-        if not raw.endswith(self._mac.pack(*mac_of(hashes, raw[start:sealed_end]))):
-            raise WireError("unauthenticated", "the MAC does not match the run's key")
-        if type(key) is not RunKey or (held is not None and raw.startswith(held, end)):
-            return None
-        words = self._seal.unpack_from(raw, end)
+    def _checking(self, key: RunKey, sender: int) -> tuple[bytes | None, tuple]:
+        """(the seal `key` holds for `sender`'s messages of this layout, None while it holds no run or no
+        incarnation of it; the primed HMAC hashes), kept in the key's `derived` until its binding changes."""
+        incarnation = key.held.get(sender)
+        seal = None if key.run is None or incarnation is None else \
+            self._seal.pack(key.run >> 32, key.run & 0xFFFFFFFF, incarnation)
+        got = key.derived[(self, sender)] = seal, key.hashes(self.label)
+        return got
+
+    def _seal_of(self, key: RunKey, raw: bytes, at: int, sender: int) -> tuple[int, int, int]:
+        """(run, incarnation, sender) of the seal at `at` of `raw` (its MAC matched), for `key.accept` once
+        every check passed; WireError other_run / other_incarnation when `key` holds another."""
+        words = self._seal.unpack_from(raw, at)
         run, incarnation = (int(words[0]) << 32) | int(words[1]), int(words[2])
         refusal = key.refusal(run, incarnation, sender)
         if refusal is not None:
             raise WireError(*refusal)
         return run, incarnation, sender
 
-    def _message_values(self, msg: Any, key: bytes | RunKey | None, agent: int | None) -> tuple[tuple, Any]:
-        """(the field values, the seal to accept) of a message object, checked against the layout, the MAC
-        and the seal as its serialized bytes would be."""
+    def _serialized(self, msg: Any) -> bytes:
+        """The bytes of a message object in the layout's form, once its type, layout and length are the
+        layout's (WireError otherwise): then it is checked as those bytes are."""
         if type(msg) is not self.ros_type:
             raise WireError("wrong_type", f"expected {self.ros_type.__name__}, got {type(msg).__name__}")
         try:
@@ -344,18 +349,15 @@ class ArrayLayout:
                                             f"expected {size} {size} 0")
         if len(data) != size:
             raise WireError("wrong_length", f"{len(data)} values, expected {size} ({d.label})")
-        seal = None
-        if key is not None:
-            try:
-                raw = self.forms[keyed].data.pack(*data)
-            except struct.error:  # a value the wire type cannot hold: no MAC was made over it
-                raise WireError("unauthenticated", "the MAC does not match the run's key") from None
-            seal = self._authentic(raw, 0, keyed, key, agent)
-        return self._typed(data[:self.size]), seal
+        form = self.forms[keyed]
+        try:
+            return form.head + form.data.pack(*data)
+        except struct.error as e:  # a value the wire type cannot hold
+            raise WireError("malformed", f"unreadable message: {e}") from None
 
     def _oversized(self, raw: bytes) -> WireError | None:
         """The refusal of serialized bytes longer than the layout's keyed form, which no message of the layout
-        is (a flood's 20,000 values, a 10 KB label), read from the CDR header alone, as _message_values words
+        is (a flood's 20,000 values, a 10 KB label), read from the CDR header alone, as _serialized words
         it for the message: dims, label, size, stride, data_offset, the data's length; its values are never
         read. None for bytes whose header is the layout's own (then only what follows can be wrong)."""
         try:
@@ -397,6 +399,7 @@ class ArrayLayout:
 
 
 def _check_stamp(agent_id: int, e: int, s: int, bounds: Bounds | None, agent: int | None) -> None:
+    """The checks a stamped payload starts with: its episode and step, then its agent."""
     if e < 0 or s < 0:
         check_nonneg("episode", e)
         check_nonneg("step", s)
