@@ -21,7 +21,7 @@ length, MAC then seal, numbers (finite, integer, int32 range), then the payload'
 `check`: agent id, action / cell range, episode, step). Encoders refuse what no decoder would accept (bad values,
 not context), so a sender's bug shows at the sender.
 
-Nodes publish `serialize(payload)`: the bytes rclpy would make of `encode(payload)` (alignment bytes zero),
+Nodes publish `layout.serialize(payload, key)`: the bytes rclpy would make of `encode(payload)` (alignment zero),
 written out from CDR here without rclpy; they read with raw subscriptions, and every decoder takes a message or
 its serialized bytes alike. Bytes in one of the layout's two forms (`_Form`) are read in place: the frame
 compared, the MAC made from the hashes the node's RunKey primed, the seal compared as bytes with the one the
@@ -57,8 +57,8 @@ Check = Callable[..., None]  # (values, bounds, agent, episode, step): raises th
 @dataclass(frozen=True, slots=True)
 class _Form:
     """One serialized form of a layout (plain, or keyed: the seal and the MAC after the fields). Every message
-    of a form has the same bytes but for the values and the alignment after the label, which rclpy's
-    serializer leaves as memory held it (`head` has zeros there)."""
+    of a form has the same bytes but for the values and the alignment bytes (after the label, before the
+    values), which rclpy's serializer leaves as memory held them (`head` has zeros there)."""
 
     head: bytes  # everything before the values, alignment bytes zero
     gap: tuple[int, int]  # where the alignment after the label lies (the one before the values ends `head`)
@@ -78,12 +78,11 @@ class _Form:
 
 
 def _form(label: str, size: int, fields: int, code: str) -> _Form:
-    """The form of a one-dimension array labelled `label` of `size` values (`fields` of them the payload's, then
-    keyed the seal's and the MAC's words) of struct code `code`, in CDR
-    (little-endian): the encapsulation header, the dimension count, the label (its length with its NUL, then
-    it), alignment to 4 bytes counted from after the header, the dimension's size and stride, the layout's
-    data_offset (0), the data's length, alignment to a value's size. tests/test_msgs_spec.py checks it against
-    rclpy's own bytes for every form."""
+    """The form of a one-dimension array labelled `label` of `size` values of struct code `code` (`fields` of
+    them the payload's, then keyed the seal's and the MAC's words), in CDR (little-endian): the encapsulation
+    header, the dimension count, the label (its length with its NUL, then it), alignment to 4 bytes counted
+    from after the header, the dimension's size and stride, the layout's data_offset (0), the data's length,
+    alignment to a value's size. tests/test_msgs_spec.py checks it against rclpy's own bytes for every form."""
     text = label.encode("ascii") + b"\0"
     head = b"\x00\x01\x00\x00" + struct.pack("<II", 1, len(text)) + text
     gap = len(head), len(head) + (4 - len(head)) % 4
@@ -175,11 +174,14 @@ class ArrayLayout:
         """payload -> its field values, in order."""
         return operator.attrgetter(*self.fields)
 
-
     @cached_property
     def _names(self) -> str:
         """The fields' values as compiled code names them: v0, v1, ..."""
         return ", ".join(f"v{i}" for i in range(self.size))
+
+    def _per_field(self, column: int, sep: str) -> str:
+        """A column of _KIND_SOURCE for every field, in order, joined by `sep`."""
+        return sep.join(_KIND_SOURCE[kind][column].format(v=f"v{i}") for i, kind in enumerate(self.field_kinds))
 
     @cached_property
     def new(self) -> Callable[..., Any]:
@@ -197,27 +199,16 @@ class ArrayLayout:
         int that fits int32, a finite float, a bool), as _typed would give them back: as nodes build payloads;
         None otherwise."""
         reads = "".join(f"    v{i} = payload.{name}\n" for i, name in enumerate(self.fields))
-        tests = " and ".join(_KIND_SOURCE[kind][0].format(v=f"v{i}") for i, kind in enumerate(self.field_kinds))
-        return _compiled("plain", f"def plain(payload):\n{reads}    if {tests}:\n        return ({self._names},)\n"
-                                  "    return None\n")
-
-    def _checking(self, key: RunKey, sender: int) -> tuple[bytes | None, tuple]:
-        """(the seal `key` holds for `sender`'s messages of this layout, None while it holds no run or no
-        incarnation of it; the primed HMAC hashes), kept in the key's `derived` until its binding changes."""
-        incarnation = key.held.get(sender)
-        seal = None if key.run is None or incarnation is None else \
-            self._seal.pack(key.run >> 32, key.run & 0xFFFFFFFF, incarnation)
-        got = key.derived[(self, sender)] = seal, key.hashes(self.label)
-        return got
+        return _compiled("plain", f"def plain(payload):\n{reads}    if {self._per_field(0, ' and ')}:\n"
+                                  f"        return ({self._names},)\n    return None\n")
 
     @cached_property
     def _from_floats(self) -> Callable[[tuple], tuple | None]:
         """A float64 array's field values -> their fields' values when each is what its field holds (a whole
         number in int32 range, a finite float, a flag 0 or 1); None otherwise (then _typed says which is not)."""
-        tests = " and ".join(_KIND_SOURCE[kind][1].format(v=f"v{i}") for i, kind in enumerate(self.field_kinds))
-        values = ", ".join(_KIND_SOURCE[kind][2].format(v=f"v{i}") for i, kind in enumerate(self.field_kinds))
         return _compiled("from_floats", f"def from_floats(values):\n    {self._names}, = values\n"
-                                        f"    if {tests}:\n        return ({values},)\n    return None\n")
+                                        f"    if {self._per_field(1, ' and ')}:\n"
+                                        f"        return ({self._per_field(2, ', ')},)\n    return None\n")
 
     # -- encode ---------------------------------------------------------------------------------------------
 
