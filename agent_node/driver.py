@@ -35,9 +35,9 @@ from typing import Any, Callable
 from cq_ros.engine import central_act, central_outcome, step_act, step_outcome
 from cq_ros.learners import Learner
 from msgs_spec import (
-    Action, AgentStats, DropCounter, MarkedJointState, WireError, agent_namespace, decode_feedback, feedback_topic,
+    ACTION_LAYOUT, Action, AgentStats, DropCounter, MarkedJointState, WireError, agent_namespace, decode_feedback,
+    feedback_topic,
 )
-from msgs_spec.fast import new_action
 
 from .effects import Effects, Finish, SaveCheckpoint, Send
 from .peer_view import PeerView
@@ -278,7 +278,7 @@ class AgentDriver(_Driver):
         self._pending = None
         action = step_act(self.learner, {j - 1: c for j, c in cells.items()} if cells else {})
         self._acted = (episode, step, action)
-        return [Send(new_action(self.agent, episode, step, action))]
+        return [Send(ACTION_LAYOUT.new(self.agent, episode, step, action))]
 
     def _unapplied(self, fb: Any) -> None:
         self.unapplied_actions += 1

@@ -27,12 +27,11 @@ from rclpy.task import Future
 from cq_ros.lab.output import os_reason
 from cq_ros.settings import SettingsError
 from msgs_spec import (
-    ACTION, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic, agent_namespace,
-    agent_stats_topic, feedback_topic, position_topic, serialize,
+    ACTION, ACTION_LAYOUT, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, Action, action_topic,
+    agent_namespace, agent_stats_topic, feedback_topic, position_topic, serialize,
 )
 from node_runtime.qos import profile
 from node_runtime.rclpy_workarounds import raw_publisher, take_now
-from msgs_spec.fast import serialize_action
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
@@ -77,7 +76,7 @@ class _HeldPublisher:
         self._raw = raw_publisher(self.pub)
         # An action's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout);
         # statistics stamped with the node's clock as they go out
-        self._serialize = serialize_action if spec is ACTION else self._stamped
+        self._serialize = ACTION_LAYOUT.serialize if spec is ACTION else self._stamped
 
     def _stamped(self, payload: Any, key: Any) -> Any:
         return serialize(payload, key=key, stamp=self.clock.now().to_msg())

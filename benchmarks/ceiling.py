@@ -13,12 +13,12 @@ a composed run's is our Python around each message. As the world node does, a po
 not sent (a writer with no reader still pays for its publish).
 
 `--contract` puts back the wire contract alone: every message is built as its payload for the step (as the
-nodes build theirs, msgs_spec.fast's new_*) and sealed with its node's key (msgs_spec.serialize), and every
+nodes build theirs, each layout's `new`) and sealed with its node's key (msgs_spec.serialize), and every
 arrival decoded with every check, the MAC included (bounds, agent, episode and step), as the nodes do; still
 no driver, learner or world. The gap between the two rates is what the contract costs, the rest of a
 composed run's gap is the nodes' own Python.
 
-`--mac-only` makes and checks every message's MAC alone (the primed HMAC hashes copied, as msgs_spec.fast does;
+`--mac-only` makes and checks every message's MAC alone (the primed HMAC hashes copied, as msgs_spec.arrays does;
 the bytes sent are the ceiling's, their MAC made anew): no payload, frame, seal, bounds or stamp check. No
 contract sealed with this MAC can cost less in Python; the gap between it and `--contract` is the checks and
 the payloads.
@@ -61,12 +61,9 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
 
     from msgs_spec import (
         ACTION, ACTION_LAYOUT, FEEDBACK, FEEDBACK_LAYOUT, POSITION, POSITION_LAYOUT, Action, Bounds, Feedback,
-        Position, action_topic, decode_feedback, decode_position, feedback_topic, position_topic, serialize,
+        Position, action_topic, feedback_topic, position_topic, serialize,
     )
     from msgs_spec.auth import MAC_WORDS, WORLD, RunKey, new_run
-    from msgs_spec.fast import (
-        action_of, new_action, new_feedback, new_position, serialize_action, serialize_feedback, serialize_position,
-    )
     from node_runtime.qos import profile
     from node_runtime.rclpy_workarounds import raw_publisher, take_now
     from rclpy.event_handler import PublisherEventCallbacks
@@ -79,8 +76,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     if peers not in PEERS:
         raise ValueError(f"peers {peers!r}: choose from {', '.join(PEERS)}")
     # Sealed messages, as a launch sends them (the seal's and the MAC's words make them longer): each node holds
-    # the run's key as a RunKey of its own, bound to the run, as the nodes do (a bare key would take the
-    # reference codec's path, which no node takes).
+    # the run's key as a RunKey of its own, bound to the run, as the nodes do (a bare key seals with run 0 and
+    # checks the MAC alone, which no node does).
     secret, run = secrets.token_bytes(32), new_run()
     ids = range(1, agents + 1)
     keys = {k: RunKey(secret, run) for k in [WORLD, *ids]}  # the world's (WORLD) and each agent's
@@ -101,29 +98,31 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
 
     def make_action(k):
         return action[k]
-    checked = contract or mac_only  # every arrival checked: decoded(decode, raw, sender, receiver)
+    checked = contract or mac_only  # every arrival checked: decoded(layout, raw, sender, receiver)
     if contract:
-        def decoded(decode, raw, k, receiver):  # what a node does with each arrival: decode with every check
-            decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=keys[receiver])
+        def decoded(layout, raw, k, receiver):  # what a node does with each arrival: decode with every check
+            if layout is ACTION_LAYOUT:  # as the world node reads an action: its value alone
+                layout.decode_values(raw, bounds, k, 0, clock[0], keys[receiver])
+            else:
+                layout.decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=keys[receiver])
 
         def make_position(k):  # noqa: F811
-            return serialize_position(new_position(k, 0, clock[0], 0, 0), keys[WORLD])
+            return POSITION_LAYOUT.serialize(POSITION_LAYOUT.new(k, 0, clock[0], 0, 0), keys[WORLD])
 
         def make_feedback(k):  # noqa: F811
-            return serialize_feedback(new_feedback(k, 0, clock[0], 0, 0, -1.0, False, False, -1), keys[WORLD])
+            return FEEDBACK_LAYOUT.serialize(FEEDBACK_LAYOUT.new(k, 0, clock[0], 0, 0, -1.0, False, False, -1),
+                                             keys[WORLD])
 
         def make_action(k):  # noqa: F811
-            return serialize_action(new_action(k, 0, clock[0], 0), keys[k])
+            return ACTION_LAYOUT.serialize(ACTION_LAYOUT.new(k, 0, clock[0], 0), keys[k])
     if mac_only:
         # The floor of any contract sealed with this MAC in Python: per message sent, the HMAC of its values and
-        # seal made from the primed hashes (as msgs_spec.fast makes it) and the bytes joined; per arrival, its
+        # seal made from the primed hashes (as msgs_spec.arrays makes it) and the bytes joined; per arrival, its
         # HMAC made again and compared; no payload, frame, seal, bounds or stamp checked.
-        def macked(layout):  # (the sealed bytes' frame, where the MAC starts, the MAC's Struct, the primed hashes)
-            head, _, pad, values = layout.frame(True)
-            mac = struct.Struct(f"<{MAC_WORDS}{'I' if values.format.endswith('i') else 'd'}")
-            return len(head) + pad, mac, keys[WORLD].hashes(layout.label)
-        forms = {d: macked(lay) for d, lay in ((decode_feedback, FEEDBACK_LAYOUT), (decode_position, POSITION_LAYOUT),
-                                                (action_of, ACTION_LAYOUT))}
+        def macked(layout):  # (where the values start, the MAC's Struct, the primed hashes)
+            mac = struct.Struct(f"<{MAC_WORDS}{'I' if layout.code == 'i' else 'd'}")
+            return layout.forms[1].start, mac, keys[WORLD].hashes(layout.label)
+        forms = {lay: macked(lay) for lay in (FEEDBACK_LAYOUT, POSITION_LAYOUT, ACTION_LAYOUT)}
         words = struct.Struct(f">{MAC_WORDS}I")
 
         def mac_of(form, body):
@@ -134,18 +133,18 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
             outer.update(inner.digest())
             return mac.pack(*words.unpack_from(outer.digest()))
 
-        def decoded(decode, raw, k, receiver):  # noqa: F811
-            form = forms[decode]
+        def decoded(layout, raw, k, receiver):  # noqa: F811
+            form = forms[layout]
             if not raw.endswith(mac_of(form, raw[form[0]:len(raw) - form[1].size])):
                 raise RuntimeError("a MAC did not match")
 
-        def remade(decode, sample):  # the message's bytes with its MAC made anew
-            form = forms[decode]
+        def remade(layout, sample):  # the message's bytes with its MAC made anew
+            form = forms[layout]
             head, body = sample[:form[0]], sample[form[0]:len(sample) - form[1].size]
             return lambda k: head + body + mac_of(form, body)
-        make_position = remade(decode_position, position[1])  # noqa: F811
-        make_feedback = remade(decode_feedback, feedback[1])  # noqa: F811
-        make_action = remade(action_of, action[1])  # noqa: F811
+        make_position = remade(POSITION_LAYOUT, position[1])  # noqa: F811
+        make_feedback = remade(FEEDBACK_LAYOUT, feedback[1])  # noqa: F811
+        make_action = remade(ACTION_LAYOUT, action[1])  # noqa: F811
     watched = {k: [j for j in ids if j != k] if peers == "all" else [] for k in ids}
     # churn: subscriptions made a step (at most 1), each to a peer's position topic for one decision step, as
     # CQ's agents make them; at the steps of a fixed schedule, the agents and their peers in turn.
@@ -201,8 +200,8 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
         subs = []
         for k in ids:
             def action_in(raw, k=k):
-                if checked:  # as the world node reads an action: its value alone (msgs_spec.fast.action_of)
-                    decoded(action_of, raw, k, WORLD)
+                if checked:
+                    decoded(ACTION_LAYOUT, raw, k, WORLD)
                 actions_in[0] += 1
                 if actions_in[0] == agents:
                     stepped[0].set_result(True)
@@ -218,7 +217,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
 
             def arrive(raw, k=k, send=raw_publisher(pub), sender=k, agent=agent):
                 if checked:
-                    decoded(decode_feedback if sender == k else decode_position, raw, sender, k)
+                    decoded(FEEDBACK_LAYOUT if sender == k else POSITION_LAYOUT, raw, sender, k)
                 if churn and sender == k:  # its feedback: the decision step of a subscription made mid-run
                     churn_step(agent, k)
                 got[k] += 1

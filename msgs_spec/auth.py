@@ -30,7 +30,7 @@ from functools import lru_cache
 from pathlib import Path
 
 __all__ = ["KEY_BYTES", "MAC_WORDS", "SEAL_WORDS", "WORLD", "KeyFileError", "RunKey", "new_key_file", "write_key_file",
-           "read_key", "mac_words", "new_run", "secret_of"]
+           "read_key", "mac_words", "mac_of", "primed", "new_run", "secret_of"]
 
 KEY_BYTES = 32
 MAC_WORDS = 4  # 128 bits as four 32-bit words, appended to the array's data
@@ -90,17 +90,22 @@ def read_key(path: str | os.PathLike) -> bytes:
     return key
 
 
-def mac_words(key: bytes, label: str, packed: bytes) -> tuple[int, ...]:
-    """The MAC of one array payload (its layout label and its packed values) as MAC_WORDS unsigned 32-bit words."""
-    inner, outer = _keyed(key, label)
-    inner, outer = inner.copy(), outer.copy()
+def mac_words(key: "bytes | RunKey", label: str, packed: bytes) -> tuple[int, ...]:
+    """The MAC of one array payload (its layout label and its packed values) as MAC_WORDS unsigned 32-bit words,
+    under a bare key or a RunKey's secret."""
+    return mac_of(key.hashes(label) if type(key) is RunKey else primed(key, label), packed)
+
+
+def mac_of(hashes: tuple, packed: bytes) -> tuple[int, ...]:
+    """mac_words from the (inner, outer) hashes primed for its key and label (RunKey.hashes), copied."""
+    inner, outer = hashes[0].copy(), hashes[1].copy()
     inner.update(packed)
     outer.update(inner.digest())
     return _WORDS.unpack_from(outer.digest())
 
 
 @lru_cache(maxsize=64)
-def _keyed(key: bytes, label: str) -> tuple:
+def primed(key: bytes, label: str) -> tuple:
     """HMAC-SHA256 under `key` (RFC 2104) as its inner hash, having read the domain and `label`, and its outer
     hash: both copied for each message, so the key's setup and the prefix are hashed once per layout. The two
     hashlib copies cost half of what copying an hmac.HMAC does (1.6 against 2.8 us a MAC here); the digest is
@@ -133,9 +138,9 @@ class RunKey:
         self.retired: dict[int, set[int]] = {}  # sender -> incarnations it spoke with before (an agent restarted)
         self.replaced = 0  # agent incarnations replaced by a newer one (restarts, or a twin)
         self._seals: dict[str, bytes] = {}  # struct code -> the seal words as the wire holds them
-        self._hashes: dict[str, tuple] = {}  # label -> (inner, outer) HMAC hashes, as _keyed
-        # What a codec derives from the binding (the run, the incarnations held) to check and seal without
-        # reading it again per message (msgs_spec.fast): dropped whenever the binding changes.
+        self._hashes: dict[str, tuple] = {}  # label -> (inner, outer) HMAC hashes, as primed
+        # What the codec derives from the binding (the seal each sender's messages carry) to check it without
+        # reading the binding again per message (msgs_spec.arrays): dropped whenever the binding changes.
         self.derived: dict = {}
 
     def __repr__(self) -> str:  # never the secret
@@ -156,7 +161,7 @@ class RunKey:
         """(inner, outer) HMAC-SHA256 hashes primed for `label`, to be copied per message."""
         h = self._hashes.get(label)
         if h is None:
-            h = self._hashes[label] = _keyed(self.secret, label)
+            h = self._hashes[label] = primed(self.secret, label)
         return h
 
     def refusal(self, run: int, incarnation: int, sender: int) -> tuple[str, str] | None:

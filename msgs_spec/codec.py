@@ -1,11 +1,9 @@
 """encode(payload) -> standard ROS message; decode(message, what the receiver expects) -> payload.
 
-The entry points over every payload; the array payloads' codec is msgs_spec.arrays (the reference) and
-msgs_spec.fast (the same checks and bytes, cheaper per call: what serialize and decode_* here are), the
-statistics' msgs_spec.stats, the value checks both share msgs_spec.checks.
-
-Every decoder validates and raises only `WireError` for any input; the array layouts, the keyed form and the
-serialized bytes the nodes publish are described in msgs_spec.arrays.
+The entry points over every payload: the array payloads' codec is msgs_spec.arrays (each layout's serialize,
+encode and decode; the layouts, the keyed form and the serialized bytes the nodes publish are described
+there), the statistics' msgs_spec.stats, the value checks both share msgs_spec.checks. Every decoder validates
+and raises only `WireError` for any input.
 
 Statistics: diagnostic_msgs/DiagnosticArray holding one DiagnosticStatus whose `values` are KeyValue pairs.
 """
@@ -20,11 +18,9 @@ from std_msgs.msg import Float64MultiArray, Int32MultiArray
 
 from .arrays import (
     ACTION_LAYOUT, ARRAY_LAYOUTS, FEEDBACK_LAYOUT, HEARTBEAT_LAYOUT, LAYOUT_BY_PAYLOAD, LAYOUT_BY_WIRE,
-    POSITION_LAYOUT, ArrayLayout, decode_array, encode_action, encode_array, encode_feedback, encode_heartbeat,
-    encode_position,
+    POSITION_LAYOUT, ArrayLayout, decode_action, decode_feedback, decode_heartbeat, decode_position, encode_action,
+    encode_feedback, encode_heartbeat, encode_position,
 )
-# What nodes call per message: the fast path, which agrees with the reference codec (msgs_spec.arrays)
-from .fast import decode_action, decode_feedback, decode_heartbeat, decode_position, serialize_array
 from .checks import check_sequence
 from .errors import WireError
 from .payloads import AgentStats, Bounds, WorldStats
@@ -49,7 +45,7 @@ def encode(payload: Any, *, key: bytes | None = None, stamp: Time | None = None)
     """The ROS message for any payload: `key` keys it (msgs_spec.auth), `stamp` is the header time of
     statistics."""
     if type(payload) in LAYOUT_BY_PAYLOAD:
-        return encode_array(LAYOUT_BY_PAYLOAD[type(payload)], payload, key)
+        return LAYOUT_BY_PAYLOAD[type(payload)].encode(payload, key=key)
     try:
         enc = _STATS_ENCODERS[type(payload)]
     except KeyError:
@@ -65,7 +61,7 @@ def serialize(payload: Any, *, key: bytes | None = None, stamp: Time | None = No
     layout = LAYOUT_BY_PAYLOAD.get(type(payload))
     if layout is None:
         return encode(payload, key=key, stamp=stamp)
-    return serialize_array(layout, payload, key)
+    return layout.serialize(payload, key)
 
 
 def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
@@ -90,5 +86,5 @@ def decode(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None,
         layout = LAYOUT_BY_WIRE.get((t, label))
         if layout is None:
             raise WireError("wrong_layout", f"{t.__name__} with label {label!r} is no project payload")
-        return decode_array(layout, msg, bounds, agent, episode, step, key)
+        return layout.decode(msg, bounds=bounds, agent=agent, episode=episode, step=step, key=key)
     raise WireError("wrong_type", f"{t.__module__}.{t.__name__} is no project message type")

@@ -48,13 +48,19 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
     return out
 
 
+def _mapping(topic) -> str:
+    """A topic's field mapping: an array payload's fields as its layout lists them, then the topic's note."""
+    layout = codec.LAYOUT_BY_PAYLOAD.get(topic.payload)
+    return topic.fields if layout is None else f"data = [{', '.join(layout.fields)}] {topic.fields}"
+
+
 def render_spec() -> str:
     """The generated Markdown: topics, array layouts, statistics keys, rejection kinds, echo examples."""
     lines: list[str] = ["### Topics", ""]
     lines += _table(
         ["topic (relative)", "type", "QoS", "publisher", "subscribers", "payload", "field mapping"],
         [[f"`{t.pattern.replace('{agent}', '<k>')}`", f"`{t.type_name}`", qos_summary(t.qos), t.publisher,
-          t.subscribers, f"`{t.payload.__name__}`", t.fields] for t in TOPICS])
+          t.subscribers, f"`{t.payload.__name__}`", _mapping(t)] for t in TOPICS])
     for lay in codec.ARRAY_LAYOUTS:
         wire = "int32" if lay.ros_type.__name__.startswith("Int32") else "float64"
         lines += ["", f"### `{lay.payload.__name__}` as `std_msgs/msg/{lay.ros_type.__name__}`", "",

@@ -92,7 +92,7 @@ class TopicSpec:
     payload: type
     publisher: str
     subscribers: str
-    fields: str  # the field mapping, one line (the README gives the details)
+    fields: str  # the field mapping, one line (the README gives the details; an array's fields come from its layout)
     reader_depth: int | None = None  # the nodes' subscriptions keep this many (None: as qos)
 
     @property
@@ -147,7 +147,7 @@ _NS = AGENT_PREFIX + "{agent}/"
 FEEDBACK = TopicSpec(
     "feedback", _NS + "feedback", Float64MultiArray, QOS_FEEDBACK, Feedback,
     "world", "agent k (the JSA central node: every agent's)",
-    "data = [agent, episode, step, row, col, reward, done, truncated, applied] (float64; flags 0/1; applied -1: none)",
+    "(float64; flags 0/1; applied -1: none)",
     READER_DEPTH,
 )
 POSITION = TopicSpec(
@@ -155,20 +155,20 @@ POSITION = TopicSpec(
     "world (every agent, every step, before any feedback of that step; while a reader is matched, the newest "
     "on a match)",
     "peers of k while they need k (CQ: in a conflict state; JS: always; LoC: on COORDINATE); tools",
-    "data = [agent, episode, step, row, col] (int32)",
+    "(int32)",
     READER_DEPTH,
 )
 ACTION = TopicSpec(
     "action", _NS + "action", Int32MultiArray, QOS_ACTION, Action,
     "agent k (the JSA central node: every agent's)", "world",
-    "data = [agent, episode, step, action] (int32; action 0..3 = N, E, S, W)",
+    "(int32; action 0..3 = N, E, S, W)",
     READER_DEPTH,
 )
 HEARTBEAT = TopicSpec(
     "heartbeat", "world/heartbeat", Int32MultiArray, QOS_HEARTBEAT, Heartbeat,
     "world, every heartbeat_period from its start, whether or not anyone acts",
     "agents (the world is alive; where it is, to catch up without a key); tools",
-    "data = [beat, episode, step] (int32)",
+    "(int32)",
     READER_DEPTH,
 )
 AGENT_STATS = TopicSpec(

@@ -238,7 +238,7 @@ def test_the_cli_and_the_science_load_without_rclpy():
 # The cores and the contract's payloads and codec: pure Python over the messages' types, run and tested
 # without a ROS context; the nodes and node_runtime.qos are where rclpy comes in.
 ROS_FREE = ("world_node.lockstep", "agent_node.driver", "msgs_spec", "msgs_spec.payloads", "msgs_spec.codec",
-            "msgs_spec.arrays", "msgs_spec.fast", "msgs_spec.stats", "msgs_spec.checks", "msgs_spec.errors",
+            "msgs_spec.arrays", "msgs_spec.stats", "msgs_spec.checks", "msgs_spec.errors",
             "msgs_spec.auth", "msgs_spec.topics")
 
 

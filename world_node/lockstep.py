@@ -56,10 +56,10 @@ from node_runtime.parameters import MIN_HEARTBEAT_PERIOD, check_numbers, map_and
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    NO_ACTION, Action, Bounds, DropCounter, Feedback, Heartbeat, WireError, WorldStats, action_topic, agent_namespace,
+    ACTION_LAYOUT, FEEDBACK_LAYOUT, NO_ACTION, POSITION_LAYOUT, Action, Bounds, DropCounter, Feedback, Heartbeat,
+    WireError, WorldStats, action_topic, agent_namespace,
 )
 from msgs_spec.auth import RunKey
-from msgs_spec.fast import action_of, new_feedback, new_position
 from node_runtime.parameters import run_key_parameters
 from node_runtime.patience import Patience
 
@@ -157,8 +157,7 @@ class Lockstep:
     def on_action(self, agent: int, msg: Any) -> Outbox:
         """A message from agv<agent>/action; the step's outcome once it was the last action missing."""
         try:  # DropCounter.guard's work, without repacking the arguments of every action, nor an Action object
-            action = action_of(msg, bounds=self.bounds, agent=agent, episode=self.episode, step=self.world.t,
-                               key=self.key)
+            action = ACTION_LAYOUT.decode_values(msg, self.bounds, agent, self.episode, self.world.t, self.key)[3]
         except WireError as e:
             self.drops.record(e, action_topic(agent))
             if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
@@ -284,15 +283,15 @@ class Lockstep:
     def _positions(self) -> Outbox:
         w = self.world
         episode, t, cells = self.episode, w.t, w.map.cells
-        return [new_position(i + 1, episode, t, *cells[c]) for i, c in enumerate(w.cells)]
+        return [POSITION_LAYOUT.new(i + 1, episode, t, *cells[c]) for i, c in enumerate(w.cells)]
 
     def _feedback(self, i: int, reward: float, cap: bool, applied: int | None = None) -> Feedback:
         """Agent i's feedback; `applied`: its action the world applied into this step (None: none came)."""
         w = self.world
         row, col = w.map.cells[w.cells[i]]
         done = w.done[i]
-        return new_feedback(i + 1, self.episode, w.t, row, col, reward, done, cap and not done,
-                            NO_ACTION if applied is None else applied)
+        return FEEDBACK_LAYOUT.new(i + 1, self.episode, w.t, row, col, reward, done, cap and not done,
+                                   NO_ACTION if applied is None else applied)
 
     def _episode_stats(self) -> WorldStats:
         w = self.world

@@ -21,13 +21,12 @@ from cq_ros.engine import world_seed
 from cq_ros.settings import SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    ACTION, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat,
-    Position, WorldStats, action_topic, agent_namespace, decode_heartbeat, feedback_topic, position_topic, serialize,
+    ACTION, FEEDBACK, FEEDBACK_LAYOUT, HEARTBEAT, HEARTBEAT_LAYOUT, HEARTBEAT_TOPIC, POSITION, POSITION_LAYOUT,
+    WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace,
+    decode_heartbeat, feedback_topic, position_topic, serialize,
 )
 from node_runtime.qos import profile
 from node_runtime.rclpy_workarounds import raw_publisher
-# Each payload's own serializer (msgs_spec.serialize's bytes, without its lookup of the payload's layout)
-from msgs_spec.fast import serialize_feedback, serialize_heartbeat, serialize_position
 from node_runtime.graph import CHECK_PERIOD_S, GraphWatch, Matched, watch_graph, writers
 from node_runtime.lost import count_lost
 from node_runtime.parameters import declare_node_parameters
@@ -62,14 +61,14 @@ class _ListenedPosition:
 
     def send(self, position: Position) -> None:
         if self.matched.count:
-            self.publish(serialize_position(position, self.key))
+            self.publish(POSITION_LAYOUT.serialize(position, self.key))
             self.held = None
         else:
             self.held = position
 
     def _on_match(self) -> None:
         if self.matched.count and self.held is not None:
-            self.publish(serialize_position(self.held, self.key))
+            self.publish(POSITION_LAYOUT.serialize(self.held, self.key))
             self.held = None
 
 
@@ -99,9 +98,10 @@ class WorldNode(Node):
         # What each payload of the core's outbox goes out as, looked up by its type alone (no isinstance chain).
         positions = {k: pub.send for k, pub in self._positions.items()}
         feedback = {k: raw_publisher(pub) for k, pub in self._feedback.items()}
+        # Each payload's own serializer: msgs_spec.serialize's bytes, without its lookup of the payload's layout.
         self._senders = {
             Position: lambda p: positions[p.agent](p),
-            Feedback: lambda f: feedback[f.agent](serialize_feedback(f, key)),
+            Feedback: lambda f: feedback[f.agent](FEEDBACK_LAYOUT.serialize(f, key)),
         }
         self._stats = self.create_publisher(WORLD_STATS.msg_type, WORLD_STATS_TOPIC, profile(WORLD_STATS.qos))
         self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
@@ -114,7 +114,7 @@ class WorldNode(Node):
         # Every world's heartbeat, ours included: what a twin says of itself (world_node.twin)
         self._heartbeats = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, self._on_heartbeat,
                                                     profile(HEARTBEAT.reader_qos), raw=True)
-        self._senders[Heartbeat] = lambda h: self._heartbeat.publish(serialize_heartbeat(h, key))
+        self._senders[Heartbeat] = lambda h: self._heartbeat.publish(HEARTBEAT_LAYOUT.serialize(h, key))
         self._senders[WorldStats] = lambda w: self._stats.publish(
             serialize(w, key=key, stamp=self.get_clock().now().to_msg()))
         self._heartbeat_timer = self.create_timer(cfg.heartbeat_period, lambda: self._send([self.core.heartbeat()]))
