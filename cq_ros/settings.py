@@ -84,6 +84,11 @@ class Settings:
            "cell have the same unique best action (and no waiting update lands in them), since what it saw could "
            "not change what it does: it acts on Q_k there, meeting no joint state; 1 where the world is delayed "
            "(slip or start_hold above 0) unless the map or the user sets it")
+    cq_collision_conflict: int = setting(
+        0, "CQ's conflicts (ours, 0 is the paper's): 0, only the t-tests find one; 1, a reward at or below "
+           "reward_collision is one at once, since the world pays that reward for a collision only (where it is "
+           "below every other reward, as on every map shipped), and a collision rarer than about 1 in 20 visits of "
+           "a (cell, action) never lowers W2's mean enough for the t-test to see it")
     loc_range: int = setting(2, "LoC: active perception is TRUE when a peer is at most this many cells away "
                                 "(Manhattan), i.e. close enough to collide this step")
     loc_cost: float = setting(0.1, "LoC: what choosing COORDINATE costs of the learner's reward")
@@ -122,6 +127,7 @@ class Settings:
         _check(self.cq_waits_fresh in (0, 1), "cq_waits_fresh", self.cq_waits_fresh, "0 or 1")
         _check(self.cq_mark_colliders in (0, 1), "cq_mark_colliders", self.cq_mark_colliders, "0 or 1")
         _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
+        _check(self.cq_collision_conflict in (0, 1), "cq_collision_conflict", self.cq_collision_conflict, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")
@@ -171,7 +177,7 @@ UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1, "cq_l
 # is silent (several joint states met at once), the reading closest to its one Q^j per step. It sets every key
 # of UNDER_DELAYS, so a delayed world keeps the paper's CQ too.
 PAPER_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
-            "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0}
+            "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}
 
 # The presets a user names (`--preset NAME`), and the one a delayed world applies by itself.
 PRESETS = {"paper": PAPER_CQ}

@@ -215,7 +215,7 @@ def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():
 # Algorithm 2 as the paper reads, setting by setting (docs/choices.md's table says which value is the paper's):
 # written out here, not read from cq_ros.settings, so that a change there shows.
 PAPERS_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
-             "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0}
+             "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}
 
 
 @pytest.mark.parametrize("map_name", ["tunnel_to_goal_3", "warehouse_8", "warehouse_8_delayed"])
