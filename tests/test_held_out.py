@@ -107,7 +107,7 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
     shutil.copytree(out, tmp_path / "data" / "study" / "tiny")
     monkeypatch.setattr(figures, "DATA", tmp_path / "data")
     monkeypatch.setitem(figures.COLLISION_TARGETS, 4, 0.05)
-    assert "| tiny (4 AGVs, 2 units) |" in figures.study_targets()
+    assert "| tiny (4 AGVs, 2 units): cq |" in figures.study_targets()
 
     # A kept map the generator no longer makes (a generator changed since) refuses a resume, which would mix
     # units on two maps; --force starts again.
