@@ -51,6 +51,7 @@ from tqdm import tqdm
 from cq_ros.engine import Team, greedy_team, make_learners, world_seed
 from cq_ros.mapf.execute import execute
 from cq_ros.gridmap import GridMap, load_map
+from cq_ros.lab.held_out import parse_configs
 from cq_ros.lab.study import mean_interval
 from cq_ros.mapgen.warehouse import warehouse_map
 from cq_ros.mapf.planner import plan
@@ -138,15 +139,6 @@ def parse_generate(specs: list[str]) -> list[tuple[int, list[int]]]:
     return found
 
 
-def parse_variant(spec: str) -> tuple[str, str, list[str]]:
-    """"cq_old=cq:cq_w1_alone=0,cq_waits_fresh=0" -> ("cq_old", "cq", ["cq_w1_alone=0", "cq_waits_fresh=0"])."""
-    name, sep, rest = spec.partition("=")
-    algo, _, pairs = rest.partition(":")
-    if not sep or not name or not algo:
-        raise ValueError(f"--variant takes NAME=ALGO:KEY=VALUE,..., got {spec!r}")
-    return name, algo, [pair for pair in pairs.split(",") if pair]
-
-
 def held_out(args, configs: list[tuple[str, str, list[str]]], groups: list[tuple[int, list[int]]],
              seeds: list[int]) -> None:
     """The held-out protocol: every configuration on every generated map, run by run; per number of agents the
@@ -202,7 +194,7 @@ def main() -> None:
         slips = [float(s) for s in args.slips.split(",")]
         seeds = [int(s) for s in args.seeds.split(",")]
         groups = parse_generate(args.generate)
-        configs = [(a, a, []) for a in algos] + [parse_variant(v) for v in args.variant]
+        configs = [(c.name, c.algo, list(c.sets)) for c in parse_configs(algos, False, args.variant)]
         if args.variant and not groups:
             raise ValueError("--variant needs --generate")
         for agents, gen in groups:

@@ -56,13 +56,13 @@ class Settings:
            "joint state is valued as waiting, not as the free road Q_k of the same cell promises")
     cq_mark_range: int = setting(
         2, "CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict "
-           "is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is); 1 "
-           "where the world is delayed (slip or start_hold above 0) unless the map or the user sets it")
+           "is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is)")
     cq_mark_colliders: int = setting(
         0, "CQ marks joint states only with the peers that could have collided with the agent at the step of the "
            "conflict (ours; 0 is the paper's): 1, none if the agent moved (a collision leaves it in its cell), else "
-           "the peers then at most 1 cell from the cell it moved toward or from its own; 0, every peer that "
-           "cq_mark_range allows")
+           "the peers then at most 1 cell from the cell it moved toward or from its own (with cq_mark_range=2, a "
+           "peer two cells off that moved into the same cell too); 0, every peer that cq_mark_range allows; 1 where "
+           "the world is delayed (slip or start_hold above 0) unless the map or the user sets it")
     cq_all_met: int = setting(
         1, "several marked joint states of one cell met at once (three or more agents; the paper is silent): 1, "
            "the agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and "
@@ -84,6 +84,11 @@ class Settings:
            "cell have the same unique best action (and no waiting update lands in them), since what it saw could "
            "not change what it does: it acts on Q_k there, meeting no joint state; 1 where the world is delayed "
            "(slip or start_hold above 0) unless the map or the user sets it")
+    cq_collision_conflict: int = setting(
+        0, "CQ's conflicts (ours, 0 is the paper's): 0, only the t-tests find one; 1, a reward at or below "
+           "reward_collision is one at once, since the world pays that reward for a collision only (where it is "
+           "below every other reward, as on every map shipped), and a collision rarer than about 1 in 20 visits of "
+           "a (cell, action) never lowers W2's mean enough for the t-test to see it")
     loc_range: int = setting(2, "LoC: active perception is TRUE when a peer is at most this many cells away "
                                 "(Manhattan), i.e. close enough to collide this step")
     loc_cost: float = setting(0.1, "LoC: what choosing COORDINATE costs of the learner's reward")
@@ -122,6 +127,7 @@ class Settings:
         _check(self.cq_waits_fresh in (0, 1), "cq_waits_fresh", self.cq_waits_fresh, "0 or 1")
         _check(self.cq_mark_colliders in (0, 1), "cq_mark_colliders", self.cq_mark_colliders, "0 or 1")
         _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
+        _check(self.cq_collision_conflict in (0, 1), "cq_collision_conflict", self.cq_collision_conflict, "0 or 1")
         _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")
@@ -162,16 +168,17 @@ _FIELDS = {f.name: f for f in fields(Settings)}
 
 # CQ's behaviour wherever the world is delayed (slip or start_hold above 0), unless the map or the user sets
 # them: under delays a conflict is there from the first episode on, so W1 of the first rewards is no measure of
-# being alone, and a new Q^j's waits must be worth waiting; a conflict marks only the peers next to the agent,
-# and a greedy agent looks only where what it sees can change its action, since on delayed warehouses every
-# joint state is a peer asked about at each visit of its cell (docs/choices.md). Without delays, the paper's.
-UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1, "cq_look_if_decisive": 1}
+# being alone, and a new Q^j's waits must be worth waiting; a conflict marks only the peers that could have
+# collided with the agent (two AGVs two cells apart that moved into one cell among them), and a greedy agent
+# looks only where what it sees can change its action, since on delayed warehouses every joint state is a peer
+# asked about at each visit of its cell (docs/choices.md). Without delays, the paper's.
+UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_colliders": 1, "cq_look_if_decisive": 1}
 
 # Algorithm 2 as the paper reads: every choice of CQ's at the paper's value (docs/choices.md); where the paper
 # is silent (several joint states met at once), the reading closest to its one Q^j per step. It sets every key
 # of UNDER_DELAYS, so a delayed world keeps the paper's CQ too.
 PAPER_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
-            "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0}
+            "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}
 
 # The presets a user names (`--preset NAME`), and the one a delayed world applies by itself.
 PRESETS = {"paper": PAPER_CQ}

@@ -298,7 +298,7 @@ def test_experiment_with_a_preset_says_it_on_stderr_and_in_the_manifest(tmp_path
                  "--no-figures"]) == 0
     stderr = capsys.readouterr().err
     paper = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_colliders": 0, "cq_w1_alone": 0,
-             "cq_waits_fresh": 0, "cq_look_if_decisive": 0}  # cq_mark_range: the user's
+             "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}  # cq_mark_range: the user's
     assert "preset paper: " + " ".join(f"{k}={v}" for k, v in paper.items()) in stderr.splitlines()
     assert "under_delays" not in stderr
     manifest = json.loads((out / "manifest.json").read_text())
@@ -307,10 +307,10 @@ def test_experiment_with_a_preset_says_it_on_stderr_and_in_the_manifest(tmp_path
     out = tmp_path / "ours"
     assert main(["experiment", "--map", "warehouse_8_delayed", "--algo", "cq", "--runs", "1", "--episodes", "2",
                  "--set", "eval_episodes=1", "--out", str(out), "--no-figures"]) == 0
-    assert ("preset under_delays: cq_w1_alone=1 cq_waits_fresh=1 cq_mark_range=1 cq_look_if_decisive=1"
+    assert ("preset under_delays: cq_w1_alone=1 cq_waits_fresh=1 cq_mark_colliders=1 cq_look_if_decisive=1"
             in capsys.readouterr().err.splitlines())
     assert json.loads((out / "manifest.json").read_text())["presets"] == {
-        "under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1, "cq_look_if_decisive": 1}}
+        "under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_colliders": 1, "cq_look_if_decisive": 1}}
 
 
 def test_reproduce_reports_the_papers_cq_beside_ours(tmp_path):

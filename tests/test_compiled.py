@@ -114,6 +114,7 @@ def drawn_settings(draw):
         conf_drop=draw(st.sampled_from([0.0, 0.2])), conf_up=draw(st.sampled_from([0.0, 0.5])),
         cq_bootstrap_acted=draw(flag), cq_mark_range=draw(st.integers(0, 3)), cq_mark_colliders=draw(flag),
         cq_all_met=draw(flag), cq_w1_alone=draw(flag), cq_waits_fresh=draw(flag), cq_look_if_decisive=draw(flag),
+        cq_collision_conflict=draw(flag),
         near_range=draw(st.integers(1, 3)), loc_range=draw(st.integers(1, 3)),
         loc_cost=draw(st.sampled_from([0.0, 0.1, 1.0])), step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
         eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 0.9])), start_hold=hold)

@@ -197,8 +197,8 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
     settings = run_settings(gridmap, sets)
     assert (settings.slip, settings.start_hold) == (0.2, 2)
     # CQ's settings under delays, by default
-    assert (settings.cq_w1_alone, settings.cq_waits_fresh, settings.cq_mark_range, settings.cq_look_if_decisive) == (
-        1, 1, 1, 1)
+    assert (settings.cq_w1_alone, settings.cq_waits_fresh, settings.cq_mark_colliders,
+            settings.cq_look_if_decisive) == (1, 1, 1, 1)
     offline = run("cq", gridmap, settings, SEED, 0, 12)
     for name, table in (("episodes.csv", offline.episodes), ("greedy.csv", offline.greedy)):
         with open(out / name, newline="") as f:

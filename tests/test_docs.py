@@ -166,6 +166,31 @@ def test_the_choices_pages_frozen_greedy_copy_is_what_its_data_say():
     assert figures._greedy(learning)[0] == 0 < figures._greedy(frozen)[0]
 
 
+def test_the_choices_pages_tuning_table_is_what_its_study_kept():
+    """Conflicts the tests cannot see: each cell of the table is the tuning study's mean over its units."""
+    from cq_ros.lab.held_out import shown_rows, unit_values
+    from cq_ros.lab.study import makespan_ratio
+
+    folder = ROOT / "docs" / "data" / "tuning" / "merge"
+    rows = shown_rows(folder, "units.csv")
+    assert {r["generator_seed"] for r in rows} == {0, 7}  # the tuning maps, no held-out one
+    text = (ROOT / "docs" / "choices.md").read_text()
+    for config in ("cq", "cqc", "col2", "col2c"):
+        cells = []
+        for agents in (8, 12, 16):
+            mine = [r for r in rows if r["agents"] == agents]
+
+            def mean(column):
+                values = unit_values(mine, config, column)
+                return sum(values) / len(values)
+
+            makespan = makespan_ratio(unit_values(mine, config, "frozen_makespan"),
+                                      unit_values(mine, config, "planner_makespan")).mean
+            cells += [f"{mean('frozen_home'):.2f}, {makespan:.1f}",
+                      f"{mean('learning_collisions'):.3f}, {mean('learning_heard'):.1f}"]
+        assert " | " + " | ".join(cells) + " |\n" in text, (config, cells)
+
+
 def _churn(name):
     text = (ROOT / "docs" / "data" / "churn" / f"{name}.txt").read_text()
     blocks = [tuple(map(int, m)) for m in re.findall(r"^ *\d+-\d+ +(\d+) +(\d+) +\d+ ", text, flags=re.M)]

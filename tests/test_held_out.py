@@ -107,7 +107,7 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
     shutil.copytree(out, tmp_path / "data" / "study" / "tiny")
     monkeypatch.setattr(figures, "DATA", tmp_path / "data")
     monkeypatch.setitem(figures.COLLISION_TARGETS, 4, 0.05)
-    assert "| tiny (4 AGVs, 2 units) |" in figures.study_targets()
+    assert "| tiny (4 AGVs, 2 units): cq |" in figures.study_targets()
 
     # A kept map the generator no longer makes (a generator changed since) refuses a resume, which would mix
     # units on two maps; --force starts again.
@@ -118,6 +118,34 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
     assert exited.value.code == 2 and "is not the map the generator makes now" in capsys.readouterr().err
     assert main([*TINY, "--runs", "1", "--out", str(out), "--force"]) == 0
     assert len(rows_of(out / "units.csv")) == 4
+
+
+def test_a_tuning_study_plays_the_tuning_maps_and_a_variant_with_its_own_settings(tmp_path, capsys):
+    out = tmp_path / "tuning"
+    variant = "cq_col=cq:cq_collision_conflict=1,conf_down=0.1"
+    assert main([*TINY, "--runs", "1", "--tuning", "--variant", variant, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    rows = rows_of(out / "units.csv")
+    assert {(int(r["generator_seed"]), r["config"]) for r in rows} == {
+        (g, c) for g in TUNING_SEEDS for c in ("cq", "indep", "cq_col")}
+    assert text.startswith("# Tuning study") and "Generator seeds 0, 7 (the tuning seeds" in text
+    assert "Settings of cq_col: cq_collision_conflict=1 conf_down=0.1" in text and "| cq_col - cq | " in text
+    # the variant's unit is the experiment's run with its settings
+    gridmap = load_map(out / "maps" / "warehouse_4_gen7.txt")
+    settings = run_settings(gridmap, ["step_cap=60", "cq_collision_conflict=1", "conf_down=0.1", "eval_learning=0",
+                                      "eval_episodes=3"])
+    unit = next(r for r in rows if (r["generator_seed"], r["config"]) == ("7", "cq_col"))
+    assert float(unit["frozen_collisions"]) == compiled.play("cq", gridmap, settings, 0, 0, 20).greedy[
+        "collisions"].mean()
+    # the same folder as a held-out study, a third tuning map, or a bad variant: refused, naming why
+    for argv, why in (([], "another protocol (generator_seeds differ)"),
+                      (["--tuning", "--maps", "3"], "--maps takes at most 2 (the tuning generator seeds), got 3"),
+                      (["--tuning", "--variant", "x=nosuch:alpha=0.2"], "unknown algorithm 'nosuch'"),
+                      (["--tuning", "--variant", "cq=cq:alpha=0.2"], "configuration names must differ"),
+                      (["--tuning", "--variant", "a=cq:alpha=7"], "alpha")):
+        with pytest.raises(SystemExit) as exited:
+            main([*TINY, "--runs", "1", "--out", str(out), *argv])
+        assert exited.value.code == 2 and why in capsys.readouterr().err, argv
 
 
 @pytest.mark.parametrize("engine", compiled.ENGINES)

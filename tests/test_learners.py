@@ -454,6 +454,22 @@ def test_cq_mark_colliders_marks_only_the_peers_that_could_have_collided(collide
     assert found == marked
 
 
+@pytest.mark.parametrize("on", [0, 1])
+def test_cq_collision_conflict_is_a_conflict_at_the_first_collision_penalty(on):
+    """One collision at the second visit, long before W1 and W2 are full: a conflict at once under
+    cq_collision_conflict, marked with the peers where they are then; none for the t-tests (the paper's). A wall
+    bump's reward, and a step's, are none either way."""
+    learner = cq(cq_collision_conflict=on)
+    for reward in (learner.settings.reward_wall, learner.settings.reward_step):
+        step(learner, 0, ELSEWHERE, reward, 0)
+        assert conflict_at(learner) is None
+    step(learner, 0, ELSEWHERE, learner.settings.reward_collision, 0)
+    assert conflict_at(learner) == (0 if on else None)
+    assert learner.observe(0) == ((1, 2) if on else ())
+    learner.act({1: 1, 2: 5} if on else {})
+    assert set(learner.q_joint) == ({(0, 1, 1), (0, 2, 5)} if on else set())
+
+
 def test_cq_mark_colliders_marks_no_one_where_the_agent_moved():
     """A collision leaves the agent in its cell: a conflict found at a step it moved has no peer to blame."""
     for colliders, marked in ((1, set()), (0, {(0, 1, 2)})):

@@ -177,9 +177,10 @@ def test_under_delays_cq_detects_against_acting_alone_and_values_waits_afresh_un
     assert delayed.defaults["slip"] > 0 and "cq_w1_alone" not in delayed.defaults
     on = run_settings(delayed)
     assert (on.cq_w1_alone, on.cq_waits_fresh) == (1, 1)
-    assert (on.cq_mark_range, on.cq_look_if_decisive) == (1, 1)  # marking the peers next to it, looking where it helps
-    assert (Settings().cq_mark_range, Settings().cq_look_if_decisive) == (2, 0)  # which is not the defaults'
-    assert run_settings(delayed, ["cq_mark_range=2"]).cq_mark_range == 2
+    # marking the peers that could have collided with it, two cells away at most; looking where it helps
+    assert (on.cq_mark_colliders, on.cq_mark_range, on.cq_look_if_decisive) == (1, 2, 1)
+    assert (Settings().cq_mark_colliders, Settings().cq_look_if_decisive) == (0, 0)  # which is not the defaults'
+    assert run_settings(delayed, ["cq_mark_colliders=0"]).cq_mark_colliders == 0
     # a delay given by --set (or a node's parameter), on a map without one
     for delay in (["slip=0.1"], ["start_hold=3"], {"slip": 0.05}):
         s = run_settings(load_map("warehouse_8"), delay)
@@ -194,7 +195,7 @@ def test_under_delays_cq_detects_against_acting_alone_and_values_waits_afresh_un
     for name in (*PAPER_MAPS, "warehouse_8", "warehouse_16"):
         assert run_settings(load_map(name)) == Settings().with_overrides(load_map(name).defaults), name
     off = run_settings(delayed, ["slip=0"])
-    assert (off.cq_w1_alone, off.cq_waits_fresh, off.cq_mark_range, off.cq_look_if_decisive) == (0, 0, 2, 0)
+    assert (off.cq_w1_alone, off.cq_waits_fresh, off.cq_mark_colliders, off.cq_look_if_decisive) == (0, 0, 0, 0)
     # the paper's grid (cq-ros reproduce): no map defaults, the same rule
     assert run_settings(None) == Settings()
     assert (run_settings(None, ["slip=0.1"]).cq_w1_alone, run_settings(None, ["slip=0.1"]).cq_waits_fresh) == (1, 1)
@@ -215,7 +216,7 @@ def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():
 # Algorithm 2 as the paper reads, setting by setting (docs/choices.md's table says which value is the paper's):
 # written out here, not read from cq_ros.settings, so that a change there shows.
 PAPERS_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
-             "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0}
+             "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}
 
 
 @pytest.mark.parametrize("map_name", ["tunnel_to_goal_3", "warehouse_8", "warehouse_8_delayed"])
@@ -236,9 +237,9 @@ def test_the_paper_preset_is_the_papers_cq_on_every_map_delayed_or_not(map_name)
 def test_presets_say_what_they_set_and_the_user_wins_over_them():
     delayed = load_map("warehouse_8_delayed")
     settings, presets = run_settings_and_presets(delayed)
-    assert presets == {"under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_range": 1,
+    assert presets == {"under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_colliders": 1,
                                         "cq_look_if_decisive": 1}}
-    _, presets = run_settings_and_presets(delayed, ["cq_mark_range=2"])
+    _, presets = run_settings_and_presets(delayed, ["cq_mark_colliders=0"])
     assert presets == {"under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_look_if_decisive": 1}}
     assert run_settings_and_presets(load_map("warehouse_8"))[1] == {}  # no delay, no preset
     settings, presets = run_settings_and_presets(delayed, ["cq_mark_range=2"], "paper")

@@ -438,6 +438,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algos", type=_algos, default=["cq", "indep"],
                    help="comma-separated, the first the reference of differences and ratios (default cq,indep)")
     p.add_argument("--paper", action="store_true", help="add the paper's CQ (algo cq, preset paper) as cq_paper")
+    p.add_argument("--variant", action="append", default=[], metavar="NAME=ALGO:KEY=VALUE,...",
+                   help="add a configuration: an algorithm with settings of its own over the study's (repeatable)")
+    p.add_argument("--tuning", action="store_true",
+                   help="draw the maps from the tuning generator seeds (0, 7), where settings are chosen, instead of "
+                        "the held-out ones; the report says so")
     p.add_argument("--slip", type=_number(0, 1), default=0.1, metavar="P", help="the maps' slip (default 0.1)")
     p.add_argument("--curve-every", type=_positive, default=250, metavar="K",
                    help="learning episodes between the curve's points (default 250)")

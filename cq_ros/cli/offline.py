@@ -236,13 +236,14 @@ def _note(line: str) -> None:
 def study(args) -> int:
     from ..lab.held_out import parse_configs, study
 
+    configs = parse_configs(args.algos, args.paper, args.variant)
     for agents in args.agents:  # a bad setting fails before any work starts
-        run_settings(parse_map(warehouse_text(agents, slip=args.slip)), args.overrides)
+        for c in configs:
+            run_settings(parse_map(warehouse_text(agents, slip=args.slip)), [*args.overrides, *c.sets])
     # Not removed if failing: the units played so far are kept, for a rerun to resume.
-    print(study(args.out, args.agents, args.maps, args.runs, args.episodes, args.greedy_episodes,
-                parse_configs(args.algos, args.paper), args.seed, args.slip, args.overrides, args.jobs,
-                args.cluster, args.force, shlex.join(["cq-ros", *args.argv]), args.curve_every,
-                args.curve_episodes), end="")
+    print(study(args.out, args.agents, args.maps, args.runs, args.episodes, args.greedy_episodes, configs,
+                args.seed, args.slip, args.overrides, args.jobs, args.cluster, args.force,
+                shlex.join(["cq-ros", *args.argv]), args.curve_every, args.curve_episodes, args.tuning), end="")
     print(f"results: {args.out}", file=sys.stderr)
     return 0
 

@@ -68,7 +68,8 @@ class Kernel:
         self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, K.ALGO_CODES[algo],
                             st.cq_mark_range, st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met,
                             st.cq_waits_fresh, st.cq_look_if_decisive,
-                            st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE],
+                            st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE,
+                            st.cq_collision_conflict],
                            np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
                       # the world's generator as GridWorld's constructor leaves it

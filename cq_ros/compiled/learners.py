@@ -38,7 +38,7 @@ ALPHA, GAMMA, EPS0, SLIP, R_STEP, R_WALL, R_COLL, R_GOAL, CONF_INIT, CONF_UP, CO
 # ip: the int settings (ALGO: which learner, one of ALGO_CODES; RANGE: near_range, loc_range, or for JS beyond
 # any distance)
 N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, ALGO, MARK_RANGE, MARK_COLLIDERS, BOOT_ACTED, ALL_MET, \
-    WAITS_FRESH, LOOK_DECISIVE, RANGE = range(13)
+    WAITS_FRESH, LOOK_DECISIVE, RANGE, COLLISION_CONFLICT = range(14)
 INDEP, CQ, NEAR, LOC, JS, JSA = range(6)
 ALGO_CODES = {"indep": INDEP, "cq": CQ, "near": NEAR, "loc": LOC, "js": JS, "jsa": JSA}
 COORDINATE = 4  # LoC's fifth action (cq_ros.learners.loc.COORDINATE)
@@ -377,6 +377,8 @@ def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, 
     if W.add(wi, wf, k, w, pool, used, part, reward):
         conflict = (W.drop_t(wi, wf, k, w, pool, part) < -fp[T_TWO]
                     and not W.above_t(wi, wf, k, w, pool, part, reward) < -fp[T_ONE])
+    if ip[COLLISION_CONFLICT] and reward <= fp[R_COLL]:
+        conflict = True
     wt[k, W_CELL], wt[k, W_ACTION], wt[k, W_NEXT] = s, a, next_cell
     wt[k, W_DONE] = done
     wt[k, W_CONFLICT] = conflict and not done

@@ -1,7 +1,8 @@
 """`cq-ros study`: learners judged on delayed warehouses that no setting was tuned on, against the planner.
 
 Per fleet size, `maps` warehouses generated from held-out generator seeds (HELD_OUT_SEEDS; the tuning seeds,
-TUNING_SEEDS, are never among them) x `runs` runs: a unit is one map and one run, in which every configuration
+TUNING_SEEDS, are never among them; with `tuning`, from the tuning seeds instead, where settings are chosen) x
+`runs` runs: a unit is one map and one run, in which every configuration
 meets the same delays and learns for the same `episodes`. From that ONE learning run, two greedy copies play
 `greedy_episodes` episodes each: one FROZEN (`eval_learning=0`: what a deployed fleet does, the primary figure)
 and one that goes on learning (`eval_learning=1`, beside it). Every `curve_every` learning episodes a frozen greedy
@@ -29,7 +30,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -39,6 +40,7 @@ from .. import compiled
 from .. import episode as record
 from ..engine import Team, greedy_team, make_learners, world_seed
 from ..gridmap import GridMap, load_map
+from ..learners import LEARNERS
 from ..mapf.execute import execute
 from ..mapf.planner import plan
 from ..mapgen.warehouse import warehouse_text
@@ -69,11 +71,43 @@ class Config:
     name: str
     algo: str
     preset: str | None = None
+    sets: tuple[str, ...] = ()  # settings of its own ("key=value"), over the study's
+
+    def record(self) -> dict:
+        """As study.json keeps it (`sets` only where there are any, as in studies kept before variants were)."""
+        kept = {"name": self.name, "algo": self.algo, "preset": self.preset}
+        return {**kept, "sets": list(self.sets)} if self.sets else kept
+
+    @classmethod
+    def of_record(cls, record: dict) -> "Config":
+        return cls(**{**record, "sets": tuple(record.get("sets", ()))})
 
 
-def parse_configs(algos: Sequence[str], paper: bool) -> list[Config]:
-    """The learners by name, and with `paper` the paper's CQ (algo cq, preset paper) as `cq_paper`."""
-    return [Config(a, a) for a in algos] + ([Config("cq_paper", "cq", "paper")] if paper else [])
+def parse_variant(spec: str) -> Config:
+    """"cq_old=cq:cq_w1_alone=0,cq_waits_fresh=0" -> Config("cq_old", "cq", sets=("cq_w1_alone=0", ...))."""
+    name, sep, rest = spec.partition("=")
+    algo, _, pairs = rest.partition(":")
+    if not sep or not name or not algo:
+        raise ValueError(f"--variant takes NAME=ALGO:KEY=VALUE,..., got {spec!r}")
+    if algo not in LEARNERS:
+        raise ValueError(f"--variant {spec!r}: unknown algorithm {algo!r}; choose from {','.join(LEARNERS)}")
+    return Config(name, algo, sets=tuple(pair for pair in pairs.split(",") if pair))
+
+
+def parse_configs(algos: Sequence[str], paper: bool, variants: Sequence[str] = ()) -> list[Config]:
+    """The learners by name, with `paper` the paper's CQ (algo cq, preset paper) as `cq_paper`, then each variant
+    (NAME=ALGO:KEY=VALUE,...: a learner with settings of its own)."""
+    configs = [Config(a, a) for a in algos] + ([Config("cq_paper", "cq", "paper")] if paper else [])
+    configs += [parse_variant(v) for v in variants]
+    names = [c.name for c in configs]
+    if len(set(names)) < len(names):
+        raise ValueError(f"configuration names must differ, got {', '.join(names)}")
+    return configs
+
+
+def generator_seeds(tuning: bool) -> Sequence[int]:
+    """The generator seeds a study draws its maps from, in order: the tuning seeds, or the held-out ones."""
+    return TUNING_SEEDS if tuning else HELD_OUT_SEEDS
 
 
 @dataclass(frozen=True)
@@ -172,12 +206,18 @@ def generated(out: Path, agents: int, seed: int, slip: float) -> Path:
 
 
 def protocol_of(episodes: int, greedy_episodes: int, curve_every: int, curve_episodes: int, seed: int, slip: float,
-                overrides: Sequence[str], configs: Sequence[Config]) -> dict:
+                overrides: Sequence[str], configs: Sequence[Config], tuning: bool = False) -> dict:
     """What a resumed study must share with the units already played (maps, runs, sizes and configurations may
-    grow; a configuration keeps its algorithm and preset)."""
+    grow; a configuration keeps its algorithm, preset and settings). A tuning study says so (`generator_seeds`);
+    a held-out one, as every study kept before tuning studies were, has no such key."""
     return {"episodes": episodes, "greedy_episodes": greedy_episodes, "curve_every": curve_every,
             "curve_episodes": curve_episodes, "seed": seed, "slip": slip, "overrides": list(overrides),
-            "configs": {c.name: asdict(c) for c in configs}}
+            **({"generator_seeds": "tuning"} if tuning else {}),
+            "configs": {c.name: c.record() for c in configs}}
+
+
+def seeds_of(protocol: dict) -> Sequence[int]:
+    return generator_seeds(protocol.get("generator_seeds") == "tuning")
 
 
 def open_output(out: Path, protocol: dict, force: bool) -> Path:
@@ -196,7 +236,7 @@ def open_output(out: Path, protocol: dict, force: bool) -> Path:
         else:
             old = json.loads(kept.read_text())
             mine = {k: v for k, v in protocol.items() if k not in ("configs", "shown")}
-            clash = [k for k, v in mine.items() if old.get(k) != v] + [
+            clash = [k for k in {*mine, "generator_seeds"} if old.get(k) != mine.get(k)] + [
                 name for name, c in protocol["configs"].items() if old["configs"].get(name, c) != c]
             if clash:
                 raise ResultExists(f"output directory {out} holds a study of another protocol ({', '.join(clash)} "
@@ -228,14 +268,16 @@ def append_rows(path: Path, rows: list[dict]) -> None:
 def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, greedy_episodes: int,
           configs: Sequence[Config], seed: int = 0, slip: float = 0.1, overrides: Sequence[str] = (),
           workers: int | None = None, cluster: str | None = None, force: bool = False, command: str = "",
-          curve_every: int = 250, curve_episodes: int = 20) -> str:
+          curve_every: int = 250, curve_episodes: int = 20, tuning: bool = False) -> str:
     """Play the units OUT does not hold yet and write OUT (the module says what); returns the tables printed."""
-    if maps > len(HELD_OUT_SEEDS):
-        raise ValueError(f"--maps takes at most {len(HELD_OUT_SEEDS)} (the held-out generator seeds), got {maps}")
+    seeds = generator_seeds(tuning)
+    if maps > len(seeds):
+        raise ValueError(f"--maps takes at most {len(seeds)} (the {'tuning' if tuning else 'held-out'} generator "
+                         f"seeds), got {maps}")
     out = open_output(out, protocol_of(episodes, greedy_episodes, curve_every, curve_episodes, seed, slip, overrides,
-                                       configs), force)
+                                       configs, tuning), force)
     started = time.perf_counter()
-    wanted = [(a, HELD_OUT_SEEDS[i], r) for a in sizes for i in range(maps) for r in range(runs)]
+    wanted = [(a, seeds[i], r) for a in sizes for i in range(maps) for r in range(runs)]
     paths = {(a, g): generated(out, a, g, slip) for a, g in dict.fromkeys((a, g) for a, g, _ in wanted)}
     planner = planned(out, paths, runs, seed, overrides)
     done = {tuple(row[k] for k in KEY) for row in read_rows(out / "units.csv")}
@@ -244,7 +286,7 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     for (agents, g), path in paths.items():
         for c in configs:
             settings, presets[c.name] = run_settings_and_presets(
-                load_map(path), [*overrides, "eval_learning=0", f"eval_episodes={greedy_episodes}"], c.preset)
+                load_map(path), [*overrides, *c.sets, "eval_learning=0", f"eval_episodes={greedy_episodes}"], c.preset)
             units += [Unit(str(path), c.algo, r, episodes, seed, settings, c.name, agents, g, greedy_episodes,
                            curve_every, curve_episodes) for r in range(runs) if (agents, g, r, c.name) not in done]
     if len(units) < len(wanted) * len(configs):
@@ -309,8 +351,9 @@ def shown_rows(out: Path, name: str) -> list[dict]:
     (study.json's `shown`: its sizes, maps and runs); OUT may hold more, from a larger command before it. One
     row per unit and configuration (and curve point), the last written: a unit played again after a stop
     between its curve and its row (the same seeds, the same figures) counts once."""
-    shown = json.loads((out / "study.json").read_text())["shown"]
-    seeds, sizes = set(HELD_OUT_SEEDS[:shown["maps"]]), set(shown["sizes"])
+    protocol = json.loads((out / "study.json").read_text())
+    shown = protocol["shown"]
+    seeds, sizes = set(seeds_of(protocol)[:shown["maps"]]), set(shown["sizes"])
     kept: dict[tuple, dict] = {}
     for r in read_rows(out / name):
         if r["agents"] in sizes and r["generator_seed"] in seeds and r["run"] < shown["runs"]:
@@ -324,19 +367,24 @@ def report(out: Path) -> str:
     protocol = json.loads((out / "study.json").read_text())
     shown = protocol["shown"]
     sizes, maps, runs, command, presets = (shown[k] for k in ("sizes", "maps", "runs", "command", "presets"))
-    configs = [Config(**protocol["configs"][name]) for name in shown["configs"]]
+    configs = [Config.of_record(protocol["configs"][name]) for name in shown["configs"]]
     mine, curve, planner = (shown_rows(out, name) for name in ("units.csv", "curve.csv", "planner.csv"))
     seconds = sum(r["seconds"] for r in mine)
+    seeds = seeds_of(protocol)
+    where = (f"Generator seeds {', '.join(map(str, seeds[:maps]))} (the tuning seeds, where settings are chosen; "
+             "no figure here is a held-out result)" if seeds is TUNING_SEEDS else
+             f"Generator seeds {seeds[0]}-{seeds[maps - 1]} (held out; tuning seeds "
+             f"{', '.join(map(str, TUNING_SEEDS))} never)")
     lines = [
-        "# Held-out study", "", f"Command: `{command}`", "",
-        f"Generator seeds {HELD_OUT_SEEDS[0]}-{HELD_OUT_SEEDS[maps - 1]} (held out; tuning seeds "
-        f"{', '.join(map(str, TUNING_SEEDS))} never), slip {protocol['slip']:g}; learner seed {protocol['seed']}, runs "
+        f"# {'Tuning' if seeds is TUNING_SEEDS else 'Held-out'} study", "", f"Command: `{command}`", "",
+        f"{where}, slip {protocol['slip']:g}; learner seed {protocol['seed']}, runs "
         f"0-{runs - 1}; {protocol['episodes']} learning episodes per configuration, then from that run "
         f"{protocol['greedy_episodes']} greedy episodes frozen (eval_learning=0, the primary figure) and "
         f"{protocol['greedy_episodes']} learning (eval_learning=1); the curve: {protocol['curve_episodes']} frozen "
         f"greedy episodes every {protocol['curve_every']}. Units played in {seconds:.0f} s (summed over units). "
         "A unit is one map and one run; mean ± half-width of the 95% t interval over units; ratios with bootstrap "
         f"95% intervals (units resampled, seed {BOOTSTRAP_SEED}).",
+        *(f"Settings of {c.name}: {' '.join(c.sets)}" for c in configs if c.sets),
         *(f"Preset {name} for {config}: " + " ".join(f"{k}={v}" for k, v in set_.items())
           for config, applied in presets.items() for name, set_ in applied.items()),
     ]

@@ -48,6 +48,9 @@ below:
 - `cq_waits_fresh`: a new Q^j values each wait (a move into a wall) at least at one step lost plus the free
   road, since Q_k's waits hold what early exploration left, never tried again once it stops, and a Q^j copied
   from them would not wait where the joint state says it must;
+- `cq_collision_conflict`: a reward as low as the collision penalty is a conflict without the t-tests, since
+  the world pays it for a collision only, and a conflict met in fewer than about 1 in 20 visits of a (cell,
+  action) never lowers W2's mean enough for the test to fire;
 - `cq_look_if_decisive`: a greedy agent skips looking at a marked cell whose Q_k and every Q^j agree on one
   strictly best action, since whatever it saw it would do the same; a look it cannot act on is a message
   paid for nothing.
@@ -142,6 +145,8 @@ class CQLearner(Learner):
         s, a = self.s, self.a
         w = self.windows[s * N_MOVES + a]  # line 11: W1 fills first, then W2 slides; lines 12-13 once both are full
         conflict = w.add(reward) and self.test.rewards_dropped(w) and not self.test.reward_above_recent(w, reward)
+        if self.settings.cq_collision_conflict and reward <= self.settings.reward_collision:
+            conflict = True  # ours: the world's collision penalty is a conflict, however rare
         step = Step(s, list(self.keys), a, reward, next_cell, done, conflict=conflict and not done)
         if done or not self.settings.cq_bootstrap_acted:
             self._update(step)  # the paper's bootstrap, Q_k of s', is known now
