@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from cq_ros import compiled
+from cq_ros import settings as settings_module
 from cq_ros.cli.main import main
 from cq_ros.gridmap import load_map
 from cq_ros.lab.held_out import BOOTSTRAP_SEED, HELD_OUT_SEEDS, TUNING_SEEDS, show_ratio, shown_rows
@@ -86,6 +87,14 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
         main([*TINY[:6], "21", *TINY[7:], "--runs", "3", "--out", str(out)])
     assert exited.value.code == 2
     assert "another protocol (episodes differ)" in capsys.readouterr().err
+    # Code whose defaults moved since the units were played (here, CQ's under delays) is refused too: its cq
+    # units would be mixed with the kept ones under one name.
+    monkeypatch.setattr(settings_module, "UNDER_DELAYS", {**settings_module.UNDER_DELAYS, "cq_mark_colliders": 0})
+    with pytest.raises(SystemExit) as exited:
+        main([*TINY, "--runs", "3", "--out", str(out)])
+    assert exited.value.code == 2
+    assert "the settings of cq (cq_mark_colliders 1 -> 0)" in capsys.readouterr().err
+    monkeypatch.undo()
 
     # A study stopped after a unit's curve was written but before its row plays the unit again, and the curve
     # counts it once.

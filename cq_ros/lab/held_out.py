@@ -12,14 +12,15 @@ run is the one `cq-ros experiment` plays with the same seeds. The planner's plan
 delays (cq_ros.mapf.execute: execution r draws run r's delays), the yardstick of makespans. The units play
 through the lab's runner (cq_ros.lab.runner), on the compiled engine where it plays the learner.
 
-OUT keeps: units.csv (one row per unit and configuration, written as each finishes: a rerun with the same
-protocol plays only the units missing, so a study resumes, or grows by maps, runs, sizes or configurations),
-curve.csv, planner.csv (the planner's executions), study.json (the protocol a resume must match, and what the
-last command showed), maps/ and study.md, the tables (also printed; `report` makes them again from OUT): per
-size, per configuration the mean and 95% t interval over units (cq_ros.lab.study) of greedy collisions and peer
-positions heard per episode, the every-AGV-home rate, the greedy makespan over the planner's executed makespan,
-and the states at the end of learning; the paired differences from the first configuration; bootstrap intervals
-of the ratios of collisions (each / the first) and of heard (the first / each); and the curve.
+OUT keeps: units.csv (one row per unit and configuration, written as each finishes: a rerun with the same protocol
+plays only the units missing, so a study resumes, or grows by maps, runs, sizes or configurations), curve.csv,
+planner.csv (the planner's executions), study.json (the protocol a resume must match, each configuration's resolved
+settings included, and what the last command showed), maps/ and study.md, the tables (also printed; `report` makes
+them again from OUT): per size, per configuration the mean and 95% t interval over units (cq_ros.lab.study) of
+greedy collisions and peer positions heard per episode, the every-AGV-home rate, the greedy makespan over the
+planner's executed makespan, and the states at the end of learning; the paired differences from the first
+configuration; bootstrap intervals of the ratios of collisions (each / the first) and of heard (the first / each);
+and the curve.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import numpy as np
 from .. import compiled
 from .. import episode as record
 from ..engine import Team, greedy_team, make_learners, world_seed
-from ..gridmap import GridMap, load_map
+from ..gridmap import GridMap, load_map, parse_map
 from ..learners import LEARNERS
 from ..mapf.execute import execute
 from ..mapf.planner import plan
@@ -205,15 +206,35 @@ def generated(out: Path, agents: int, seed: int, slip: float) -> Path:
     return path
 
 
+def config_settings(config: Config, gridmap: GridMap, overrides: Sequence[str],
+                    greedy_episodes: int) -> tuple[Settings, dict[str, dict]]:
+    """The settings a configuration plays with on `gridmap`, and the presets that set any of them."""
+    return run_settings_and_presets(
+        gridmap, [*overrides, *config.sets, "eval_learning=0", f"eval_episodes={greedy_episodes}"], config.preset)
+
+
 def protocol_of(episodes: int, greedy_episodes: int, curve_every: int, curve_episodes: int, seed: int, slip: float,
-                overrides: Sequence[str], configs: Sequence[Config], tuning: bool = False) -> dict:
+                overrides: Sequence[str], configs: Sequence[Config], tuning: bool = False,
+                settings: dict[str, dict] | None = None) -> dict:
     """What a resumed study must share with the units already played (maps, runs, sizes and configurations may
-    grow; a configuration keeps its algorithm, preset and settings). A tuning study says so (`generator_seeds`);
-    a held-out one, as every study kept before tuning studies were, has no such key."""
+    grow; a configuration keeps its algorithm, preset and settings, and the settings they resolve to, `settings`,
+    which a change of the code's defaults moves). A tuning study says so (`generator_seeds`); a held-out one, as
+    every study kept before tuning studies were, has no such key."""
     return {"episodes": episodes, "greedy_episodes": greedy_episodes, "curve_every": curve_every,
             "curve_episodes": curve_episodes, "seed": seed, "slip": slip, "overrides": list(overrides),
             **({"generator_seeds": "tuning"} if tuning else {}),
-            "configs": {c.name: c.record() for c in configs}}
+            "configs": {c.name: c.record() for c in configs}, "settings": settings or {}}
+
+
+def settings_moved(old: dict, new: dict) -> list[str]:
+    """For each configuration both protocols resolved, the settings whose values differ, as "name (key a -> b)"."""
+    moved = []
+    for name in sorted(set(old) & set(new)):
+        keys = [k for k in sorted(set(old[name]) | set(new[name])) if old[name].get(k) != new[name].get(k)]
+        if keys:
+            moved.append(f"the settings of {name} ("
+                         + ", ".join(f"{k} {old[name].get(k)} -> {new[name].get(k)}" for k in keys) + ")")
+    return moved
 
 
 def seeds_of(protocol: dict) -> Sequence[int]:
@@ -235,13 +256,15 @@ def open_output(out: Path, protocol: dict, force: bool) -> Path:
                                "--force to overwrite")
         else:
             old = json.loads(kept.read_text())
-            mine = {k: v for k, v in protocol.items() if k not in ("configs", "shown")}
+            mine = {k: v for k, v in protocol.items() if k not in ("configs", "settings", "shown")}
             clash = [k for k in {*mine, "generator_seeds"} if old.get(k) != mine.get(k)] + [
-                name for name, c in protocol["configs"].items() if old["configs"].get(name, c) != c]
+                name for name, c in protocol["configs"].items() if old["configs"].get(name, c) != c] + settings_moved(
+                old.get("settings", {}), protocol["settings"])
             if clash:
                 raise ResultExists(f"output directory {out} holds a study of another protocol ({', '.join(clash)} "
                                    "differ); choose another or pass --force to overwrite")
-            protocol = {**old, **protocol, "configs": {**old["configs"], **protocol["configs"]}}
+            protocol = {**old, **protocol, "configs": {**old["configs"], **protocol["configs"]},
+                        "settings": {**old.get("settings", {}), **protocol["settings"]}}
     out = check_folder(out, "output directory")
     kept.write_text(json.dumps(protocol, indent=1) + "\n")
     return out
@@ -274,8 +297,12 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     if maps > len(seeds):
         raise ValueError(f"--maps takes at most {len(seeds)} (the {'tuning' if tuning else 'held-out'} generator "
                          f"seeds), got {maps}")
+    # Each configuration's settings as today's code makes them (the generated maps all carry the same `set`
+    # lines): a resume whose defaults moved since the units were played is refused, not mixed with them.
+    first = parse_map(warehouse_text(sizes[0], seed=seeds[0], slip=slip))
+    resolved = {c.name: config_settings(c, first, overrides, greedy_episodes)[0].as_dict() for c in configs}
     out = open_output(out, protocol_of(episodes, greedy_episodes, curve_every, curve_episodes, seed, slip, overrides,
-                                       configs, tuning), force)
+                                       configs, tuning, resolved), force)
     started = time.perf_counter()
     wanted = [(a, seeds[i], r) for a in sizes for i in range(maps) for r in range(runs)]
     paths = {(a, g): generated(out, a, g, slip) for a, g in dict.fromkeys((a, g) for a, g, _ in wanted)}
@@ -285,8 +312,7 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     units = []
     for (agents, g), path in paths.items():
         for c in configs:
-            settings, presets[c.name] = run_settings_and_presets(
-                load_map(path), [*overrides, *c.sets, "eval_learning=0", f"eval_episodes={greedy_episodes}"], c.preset)
+            settings, presets[c.name] = config_settings(c, load_map(path), overrides, greedy_episodes)
             units += [Unit(str(path), c.algo, r, episodes, seed, settings, c.name, agents, g, greedy_episodes,
                            curve_every, curve_episodes) for r in range(runs) if (agents, g, r, c.name) not in done]
     if len(units) < len(wanted) * len(configs):
