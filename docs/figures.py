@@ -210,7 +210,7 @@ COLLISION_TARGETS = {8: 0.05, 12: 0.1, 16: 0.2, 32: 0.2}
 
 def study_targets() -> str:
     """Each kept study's frozen greedy figures against the targets, for each of its CQ configurations (cq, and a
-    variant such as cq_merge): met or missed, from its units.csv."""
+    variant such as cq_r1): met or missed, from its units.csv."""
     from cq_ros.lab.held_out import shown_rows
 
     lines = ["| study | target | measured (frozen greedy policy) | |", "| --- | --- | --- | --- |"]

@@ -2,8 +2,8 @@
 
 Per fleet size, `maps` warehouses generated from held-out generator seeds (HELD_OUT_SEEDS; the tuning seeds,
 TUNING_SEEDS, are never among them; with `tuning`, from the tuning seeds instead, where settings are chosen) x
-`runs` runs: a unit is one map and one run, in which every configuration
-meets the same delays and learns for the same `episodes`. From that ONE learning run, two greedy copies play
+`runs` runs: a unit is one map and one run, in which every configuration meets the same delays and learns for the
+same `episodes`. From that ONE learning run, two greedy copies play
 `greedy_episodes` episodes each: one FROZEN (`eval_learning=0`: what a deployed fleet does, the primary figure)
 and one that goes on learning (`eval_learning=1`, beside it). Every `curve_every` learning episodes a frozen greedy
 copy plays `curve_episodes` episodes: the curve of greedy collisions against episodes, which shows where each
@@ -396,13 +396,14 @@ def report(out: Path) -> str:
     configs = [Config.of_record(protocol["configs"][name]) for name in shown["configs"]]
     mine, curve, planner = (shown_rows(out, name) for name in ("units.csv", "curve.csv", "planner.csv"))
     seconds = sum(r["seconds"] for r in mine)
-    seeds = seeds_of(protocol)
+    tuning = protocol.get("generator_seeds") == "tuning"
+    seeds = generator_seeds(tuning)
     where = (f"Generator seeds {', '.join(map(str, seeds[:maps]))} (the tuning seeds, where settings are chosen; "
-             "no figure here is a held-out result)" if seeds is TUNING_SEEDS else
+             "no figure here is a held-out result)" if tuning else
              f"Generator seeds {seeds[0]}-{seeds[maps - 1]} (held out; tuning seeds "
              f"{', '.join(map(str, TUNING_SEEDS))} never)")
     lines = [
-        f"# {'Tuning' if seeds is TUNING_SEEDS else 'Held-out'} study", "", f"Command: `{command}`", "",
+        f"# {'Tuning' if tuning else 'Held-out'} study", "", f"Command: `{command}`", "",
         f"{where}, slip {protocol['slip']:g}; learner seed {protocol['seed']}, runs "
         f"0-{runs - 1}; {protocol['episodes']} learning episodes per configuration, then from that run "
         f"{protocol['greedy_episodes']} greedy episodes frozen (eval_learning=0, the primary figure) and "
