@@ -5,16 +5,8 @@
 `agent_node.driver` (pure Python, unit-tested without ROS).
 """
 
-from typing import Any
+from node_runtime import lazy_node
 
 __all__ = ["AgentNode"]
 
-
-def __getattr__(name: str) -> Any:
-    """`AgentNode`, imported on first use: the node loads rclpy, and `import agent_node.driver` (the core)
-    must not."""
-    if name == "AgentNode":
-        from .node import AgentNode
-
-        return AgentNode
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_node(__name__, "AgentNode")

@@ -17,22 +17,26 @@ Checkpoints up to format 3 were pickles, which can run any code when loaded: the
 
 from __future__ import annotations
 
+import errno
 import glob
 import io
 import os
 import pickle
 import tempfile
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable
 
 import numpy as np
 
 from cq_ros.gridmap import GridMap
+from cq_ros.lab.output import os_reason
 from cq_ros.learners import Learner
 from cq_ros.learners.state import StateError, from_arrays, scalar, to_arrays
 from cq_ros.settings import Settings, SettingsError
 
-__all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "save_checkpoints", "load_checkpoint",
-           "read_checkpoint", "remove_stale_temporaries", "convert_pickle", "SUFFIX"]
+__all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "CheckpointWriter", "save_checkpoints",
+           "load_checkpoint", "read_checkpoint", "remove_stale_temporaries", "convert_pickle", "SUFFIX"]
 
 # 1-3: pickles of the learner (2: CQ learners keep `looking`; 3: settings hold cq_mark_colliders); 4: an .npz of
 # the learner's state as arrays.
@@ -78,6 +82,53 @@ def write_checkpoint(path: str | os.PathLike, data: bytes) -> None:
     except BaseException:
         os.unlink(tmp)
         raise
+
+
+class CheckpointWriter:
+    """Writes an agent node's checkpoints in order on a thread of its own: the file's fsync took longer than
+    taking the learner's state, on the path every other node of a composed process waits on.
+
+    A write that fails is logged and counted in `counters` (`checkpoint_failed.<errno>`) once it is known
+    (`count`, run on the executor's thread, which alone touches the counters): a full or read-only disk costs
+    the checkpoint, never the learning, which goes on in memory (the next save tries again)."""
+
+    def __init__(self, path: str, thread_name: str, counters: dict[str, int], log: Callable[[str], Any]):
+        self.path, self.thread_name, self.counters, self.log = path, thread_name, counters, log
+        self._pool: ThreadPoolExecutor | None = None  # made at the first save
+        self.writes: list = []  # (episode, concurrent Future) of the writes not counted yet
+
+    def save(self, episode: int, learner: Learner) -> None:
+        """Take the learner's state now (it goes on learning) and queue its write."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=self.thread_name)
+        data = checkpoint_bytes(learner, episode)
+        self.writes.append((episode, self._pool.submit(write_checkpoint, self.path, data)))
+
+    def count(self, wait: bool = False) -> bool:
+        """Count and log the failures of the writes done (with `wait`: of every write, waiting for them); True if
+        any. A failure that is not the disk's is a bug, raised here as it was when the writes were made in place."""
+        failed = False
+        while self.writes and (wait or self.writes[0][1].done()):
+            episode, write = self.writes.pop(0)
+            error = write.exception()
+            if error is None:
+                continue
+            if not isinstance(error, OSError):
+                raise error
+            failed = True
+            name = f"checkpoint_failed.{errno.errorcode.get(error.errno, 'other').lower()}"
+            self.counters[name] = self.counters.get(name, 0) + 1
+            self.log(f"checkpoint {self.path} of episode {episode} not written: {os_reason(error)}; learning goes "
+                     f"on (counted as {name})")
+        return failed
+
+    def written(self) -> bool:
+        return all(write.done() for _, write in self.writes)
+
+    def close(self) -> None:
+        """Wait for the writes in flight: a destroyed node's checkpoints are on disk, as when written in place."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
 
 
 def save_checkpoints(folder: str | os.PathLike, names: list[str], learners: list[Learner], episode: int) -> None:

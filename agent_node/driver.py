@@ -88,6 +88,7 @@ class _Driver:
         self.finished = False
         self._played = False  # a feedback played: episodes left behind since get their statistics
         self.unapplied_actions = 0  # actions sent that the world did not apply (late or lost)
+        self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph, lost samples)
         self._begin_episode()
 
     def on_heartbeat(self, msg: Any) -> Effects:
@@ -114,6 +115,7 @@ class _Driver:
         if self.peers.renewed:
             out["renewed_subscriptions"] = self.peers.renewed
         out.update(self.link.counters())
+        out.update(self.extra_counters)
         return out
 
     def _expected(self) -> tuple[int, int] | None:

@@ -74,7 +74,6 @@ class WorldLink:
         self.behind: tuple[tuple[int, int], tuple[int, int]] | None = None
         self.caught_up = 0  # times a later stamp was adopted
         self.missed_feedback = 0  # feedback never heard, as far as the stamps tell
-        self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph)
         # The earliest later feedback the world has not vouched for yet: (stamp, agent, feedback, cell, expected)
         self.held: tuple | None = None
         self.joined = False  # a feedback played or adopted: later ones are caught up to episode by episode
@@ -180,7 +179,25 @@ class WorldLink:
     def counters(self) -> dict[str, int]:
         out = {"caught_up": self.caught_up, "missed_feedback": self.missed_feedback,
                "stalls": self.patience.stalls if self.patience is not None else 0}
-        return {**{k: v for k, v in out.items() if v}, **self.extra_counters}
+        return {k: v for k, v in out.items() if v}
+
+    def giving_up(self, feedback_timeout: float) -> str:
+        """The line an agent gives up on a silent world with (its patience expired): whether the world steps
+        without it (its heartbeats still come), or is gone, or restarted as another incarnation or run."""
+        # A world restarted mid-run is another incarnation, of another run unless it was given this one's nonce:
+        # its messages are refused, never taken for the world this agent played with, so the run ends here.
+        other = self.drops["other_incarnation"] + self.drops["other_run"]
+        waited = (f"{self.patience.waited:.1f} s awake, {self.silent_for():.1f} s of wall time "
+                  f"(feedback_timeout={feedback_timeout})")
+        if self.behind is not None and not other:
+            (world_e, world_s), (e, s) = self.behind
+            return (f"no feedback taken for {waited}, while the world's heartbeats say it is at episode {world_e} "
+                    f"step {world_s} and this agent waits for episode {e} step {s}: it takes no feedback (its "
+                    "reader or executor stopped): giving up")
+        why = (f"; {other} messages came from another world incarnation or run (other_incarnation, other_run): the "
+               "world restarted (or another run's messages were replayed), and this run cannot go on with it"
+               ) if other else ""
+        return f"no valid message from the world (feedback or heartbeat) for {waited}{why}: giving up"
 
     def _drop_held(self) -> None:
         if self.held is not None:

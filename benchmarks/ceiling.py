@@ -279,7 +279,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
                 send_feedback[k](make_feedback(k))
             # One call into the executor a step, until the last action is in, as node_runtime.run spins; with
             # churn, every UNANNOUNCED_CHECK_S a waited-for position the executor was never told of is taken
-            # from its reader, as the agent node does (agent_node.node, _take_unannounced).
+            # from its reader, as the agent node does (agent_node.peer_subscriptions).
             stop_at = time.monotonic() + step_timeout_s
             while True:
                 executor.spin_until_future_complete(stepped[0], timeout_sec=UNANNOUNCED_CHECK_S if churn

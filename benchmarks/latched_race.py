@@ -5,7 +5,7 @@ What an agent node does at a conflict state, over and over: a writer holds a lat
 depth 1: msgs_spec's POSITION), a subscriber node on the same executor makes a new subscription to it from
 inside a callback and waits for the sample; then drops the subscription, and the writer moves on. Counted per
 executor: samples that did not come within `--wait` seconds (and whether they were in the reader all along,
-taken directly as AgentNode._take_unannounced takes them), and those that took over 100 ms.
+taken directly as agent_node.peer_subscriptions takes them), and those that took over 100 ms.
 
 rclpy's EventsExecutor sets the middleware's new-message callback on a subscription after the node made it;
 rmw_fastrtps (Jazzy) reads the unread count before it turns its data-available listener on, so a sample landing

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Iterable, Mapping
 
-__all__ = ["CHECK_PERIOD_S", "UNKNOWN_NODE", "GraphWatch", "watch_graph", "writers", "Matched"]
+__all__ = ["CHECK_PERIOD_S", "UNKNOWN_NODE", "GraphWatch", "watch_graph", "writers", "writers_and_namesakes", "Matched"]
 
 CHECK_PERIOD_S = 1.0  # how often a node looks at the graph
 # The name the graph gives a writer whose node it has not learnt yet (rmw_dds_common's graph cache: endpoints
@@ -73,6 +73,14 @@ class GraphWatch:
 def writers(node: Any, topic: str) -> list[tuple[str, str, Any]]:
     """(node name, namespace, endpoint gid) of each writer of `topic` (UNKNOWN_NODE for a node not learnt yet)."""
     return [(p.node_name, p.node_namespace, p.endpoint_gid) for p in node.get_publishers_info_by_topic(topic)]
+
+
+def writers_and_namesakes(node: Any, topic: str) -> tuple[list[tuple[str, str, Any]], int]:
+    """What world_node.twin reads of the graph: the writers of `topic` (when there is more than the node's own
+    one), and how many nodes bear the node's name and namespace."""
+    beating = writers(node, topic) if node.count_publishers(topic) > 1 else []
+    me = (node.get_name(), node.get_namespace())
+    return beating, sum(1 for n in node.get_node_names_and_namespaces() if tuple(n) == me)
 
 
 def watch_graph(node: Any, watch: Any, topics: list[str]) -> None:

@@ -6,9 +6,13 @@ import node_runtime.parameters, which uses `given_parameters`).
 - `raw_publisher`: rclpy 7.1.6's Publisher.publish(bytes) checks the type and takes the handle's lock at every
   call; the nodes publish serialized bytes every step and destroy their publishers only once they have
   stopped spinning, so they call what it calls, the handle's publish_raw, directly.
-- `take_now`: rclpy 7.1.6's EventsExecutor, over rmw_fastrtps (Jazzy), may never announce a latched sample
-  that landed while the subscription was being made (AgentNode._take_unannounced says when); taking it from
-  the reader is what the executor would have done.
+- `take_now`: rclpy 7.1.6's EventsExecutor learns of a message through the middleware's new-message callback,
+  which it sets on a subscription after the node made it. rmw_fastrtps (Jazzy) reads the reader's unread count
+  first and only then switches its data-available listener on: a latched sample that lands between the two is
+  never announced, and sits in the reader until the next one (a peer's next position comes only after the
+  world's step_timeout). Within one process the latched sample follows the match within a millisecond or two,
+  often inside that window (benchmarks/latched_race.py counts it). An agent node takes a position still
+  missing after a whole check period from the reader (agent_node.peer_subscriptions), as the executor would.
 - `given_parameters`: rclpy 7.1.6 lists the parameters given to a node (command line, parameters file,
   parameter_overrides) only in the node's private `_parameter_overrides`, and ignores those the node does not
   declare; node_runtime.parameters.undeclared_overrides reads them to refuse a misspelt one.

@@ -98,7 +98,7 @@ def test_a_restart_without_a_checkpoint_joins_the_world_where_it_is(system_in, r
     assert system.world.done.result() == 0 and all(a.done.result() == 0 for a in system.agents)
     assert spin_until(system.executor, lambda: len(system.world_stats) == 21, 5.0)
     assert sum(s.missed_actions for s in system.world_stats) >= 1
-    assert restarted.driver.link.caught_up == 1 and restarted.driver.drops.total == 0
+    assert restarted.core.link.caught_up == 1 and restarted.core.drops.total == 0
     assert spin_until(system.executor, lambda: {s.episode for s in system.agent_stats[2]} >= set(range(5, 21)), 5.0)
 
 
@@ -131,7 +131,7 @@ def test_a_world_restarted_mid_run_ends_the_whole_system_naming_why(system_in, r
     assert time.monotonic() - started < bound
     for agent in system.agents:
         assert agent.done.result() == 1 and "the world restarted" in agent.gave_up, agent.gave_up
-        assert agent.driver.drops["other_incarnation" if same_run else "other_run"] >= 1
+        assert agent.core.drops["other_incarnation" if same_run else "other_run"] >= 1
     assert system.world.done.result() == 1
     said = re.match(r"no action from any agent in (\d+) steps in a row, (\d+\.\d) s", system.world.core.no_progress)
     assert said and int(said[1]) >= NO_PROGRESS_STEPS and float(said[2]) >= 5.0, system.world.core.no_progress
@@ -211,8 +211,7 @@ def test_a_second_writer_of_positions_and_actions_without_the_key_is_dropped(sys
     """Another node answers for agv2 before agv2 does, and publishes agv1's position stamped with the step
     at another cell, 40 messages a second each: with the key neither steers the run."""
     # the run can end within a second: nodes look at the graph often enough to see the intruder before then
-    monkeypatch.setattr("world_node.node.CHECK_PERIOD_S", 0.05)
-    monkeypatch.setattr("agent_node.node.CHECK_PERIOD_S", 0.05)
+    monkeypatch.setattr("node_runtime.node.CHECK_PERIOD_S", 0.05)  # both nodes' graph checks
     algo, episodes = "js", 20
     system = system_in(algo, CASE[0], CASE[1], episodes, CASE[2], common_extra={"key_file": key_file})
     world = system.world
@@ -298,7 +297,7 @@ def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics
     agent = AgentNode(context=ros_context, parameter_overrides=parameters(agent_id=1))
     world = WorldNode(context=ros_context, parameter_overrides=parameters())
     try:
-        for subscriptions, counters in (([*agent._feedback, agent._heartbeat], agent.driver.counters),
+        for subscriptions, counters in (([*agent._feedback, agent._heartbeat], agent.core.counters),
                                         (list(world._actions.values()), world.core.counters)):
             assert "lost_samples" not in counters()
             for n, sub in enumerate(subscriptions, 1):
@@ -1074,7 +1073,7 @@ def test_a_far_ahead_heartbeat_by_a_key_holder_is_refused_and_real_ones_still_co
     assert len(sent) >= 2
     assert steps_and_collisions(system) == offline_steps_and_collisions(algo, case, episodes)
     for k, agent in enumerate(system.agents, 1):
-        assert agent.driver.link.beat < 2**31 - 1
+        assert agent.core.link.beat < 2**31 - 1
         assert counters(system, k)["dropped.far_ahead"] == len(sent) and "dropped.replayed" not in counters(
             system, k), counters(system, k)
 

@@ -272,6 +272,18 @@ def test_only_the_rclpy_workarounds_touch_an_rclpy_handle():
     assert handle_uses("with sub.handle:\n    pass") == [1]
 
 
+# A node is parameters, publishers, subscriptions, timers and the effects of its core carried out, as the
+# ros2/examples minimal nodes are: what grows past that belongs in the core or in node_runtime.
+NODE_MODULES = ("world_node/node.py", "agent_node/node.py")
+NODE_LINES_MAX = 150
+
+
+@pytest.mark.parametrize("path", NODE_MODULES)
+def test_a_node_module_stays_thin(path):
+    lines = len((ROOT / path).read_text(encoding="utf-8").splitlines())
+    assert lines <= NODE_LINES_MAX, f"{path}: {lines} lines, more than {NODE_LINES_MAX}"
+
+
 HEAVY = ("scipy", "matplotlib", "dask", "distributed", "rclpy", "foxglove")
 
 

@@ -165,7 +165,7 @@ def test_malformed_messages_are_counted_and_change_nothing(system_in, ros_contex
     assert {f"dropped.{k}" for k in bad_actions} <= world_counts.keys(), world_counts
     agent_counts = system.agent_stats[1][-1].counters
     assert {f"dropped.{k}" for k in bad_feedback} <= agent_counts.keys(), agent_counts
-    # agv2 was sent nothing bad: it counts no drop (a position taken unannounced, AgentNode._take_unannounced,
+    # agv2 was sent nothing bad: it counts no drop (a position taken unannounced, agent_node.peer_subscriptions,
     # is the middleware's race recovered, which this run's timing hits now and then)
     assert {k: v for k, v in system.agent_stats[2][-1].counters.items() if k != "unannounced_positions"} == {}
 
@@ -261,7 +261,7 @@ def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(syst
         team.episode()
     learner = team.learners[0]
     loaded, episode = load_checkpoint(path, "cq", gridmap, 0, settings)
-    assert system.agents[0].driver.learner.epsilon == 0.0 and loaded.epsilon == settings.epsilon
+    assert system.agents[0].core.learner.epsilon == 0.0 and loaded.epsilon == settings.epsilon
     assert episode == 29 and loaded.q_local == learner.q_local and loaded.joint_states() == learner.joint_states()
     for cell, peer in itertools.product(range(gridmap.n_cells), repeat=2):  # and it acts identically
         assert loaded.observe(cell) == learner.observe(cell)
@@ -285,13 +285,13 @@ def test_a_killed_agent_resumes_from_its_checkpoint(system_in, ros_context, tmp_
     assert spin_until(system.executor, lambda: world.core.missed_actions > 0, 5.0)  # it steps on without it
     restarted = AgentNode("agv2", context=ros_context, parameter_overrides=parameters(
         map=GRID[0], episodes=30, seed=GRID[1], algo="cq", agent_id=2, **settings, **extra[2]))
-    assert restarted.driver.learner.q_local == saved.q_local  # it starts from what it had learnt
+    assert restarted.core.learner.q_local == saved.q_local  # it starts from what it had learnt
     system.agents[1] = restarted
     system.executor.add_node(restarted)
     finish(system)
     assert sum(s.missed_actions for s in system.world_stats) >= 1
-    assert restarted.driver.skipped_steps == 0 and restarted.driver.drops.total == 0
-    assert system.agent_stats[2][-1].episode == 30 and restarted.driver.greedy  # after 30 learning, 1 greedy
+    assert restarted.core.skipped_steps == 0 and restarted.core.drops.total == 0
+    assert system.agent_stats[2][-1].episode == 30 and restarted.core.greedy  # after 30 learning, 1 greedy
 
 
 def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match(ros_context, spin_until):
@@ -306,7 +306,7 @@ def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match
         feedback = world.create_publisher(FEEDBACK.msg_type, feedback_topic(1), profile(FEEDBACK.qos))
         assert spin_until(executor, lambda: feedback.get_subscription_count() == 1, 10.0)
         feedback.publish(encode(Feedback(1, 0, 0, 0, 0, 0.0)))
-        assert spin_until(executor, lambda: agent.driver.expect == (0, 1), 10.0)  # it has answered step 0
+        assert spin_until(executor, lambda: agent.core.expect == (0, 1), 10.0)  # it has answered step 0
         received = []
         world.create_subscription(ACTION.msg_type, action_topic(1), lambda m: received.append(decode_action(m)),
                                   profile(ACTION.qos))

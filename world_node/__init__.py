@@ -5,16 +5,8 @@
 `world_node.lockstep` (pure Python, unit-tested without ROS).
 """
 
-from typing import Any
+from node_runtime import lazy_node
 
 __all__ = ["WorldNode"]
 
-
-def __getattr__(name: str) -> Any:
-    """`WorldNode`, imported on first use: the node loads rclpy, and `import world_node.lockstep` (the core)
-    must not."""
-    if name == "WorldNode":
-        from .node import WorldNode
-
-        return WorldNode
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_node(__name__, "WorldNode")

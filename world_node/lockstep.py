@@ -51,6 +51,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
+from cq_ros.engine import world_seed
 from cq_ros.gridmap import GridMap
 from node_runtime.parameters import MIN_HEARTBEAT_PERIOD, check_numbers, map_and_settings
 from cq_ros.settings import Settings
@@ -65,7 +66,7 @@ from node_runtime.patience import Patience
 
 from .twin import Identity
 
-__all__ = ["TWIN_EXIT", "NO_PROGRESS_STEPS", "WorldConfig", "world_config", "Lockstep"]
+__all__ = ["TWIN_EXIT", "NO_PROGRESS_STEPS", "WorldConfig", "world_config", "Lockstep", "world_core"]
 
 TWIN_EXIT = 3  # the world's exit code when two live nodes act as one agent (`Lockstep.twin`)
 # Steps in a row that every acting agent missed (each after a whole step_timeout) before the world gives up: no
@@ -298,3 +299,12 @@ class Lockstep:
         return WorldStats(episode=self.episode, steps=w.t, truncated=w.truncated, collisions=self.collisions,
                           missed_actions=self.missed_actions, returns=tuple(self.returns),
                           duration_s=self._clock() - self._episode_started, counters=self.counters())
+
+
+def world_core(values: Mapping[str, Any], log: Callable[[str], Any],
+               identity: Identity) -> tuple[WorldConfig, Lockstep]:
+    """The world node's configuration and core from its parameter values: its world seeded from the run's seed."""
+    cfg = world_config(values)
+    world = GridWorld(cfg.gridmap, cfg.settings, seed=world_seed(cfg.seed, cfg.run))
+    return cfg, Lockstep(world, cfg.total_episodes, cfg.step_timeout, log=log, key=cfg.key,
+                         rejoin_time=cfg.startup_timeout, identity=identity)

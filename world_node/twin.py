@@ -37,7 +37,9 @@ import time
 from dataclasses import dataclass
 from typing import Iterable
 
-from msgs_spec import INT32_MAX, Heartbeat
+from typing import Any
+
+from msgs_spec import HEARTBEAT_TOPIC, INT32_MAX, DropCounter, Heartbeat, decode_heartbeat
 from node_runtime.graph import UNKNOWN_NODE
 
 __all__ = ["Identity", "Twins"]
@@ -74,6 +76,13 @@ class Twins:
         self.fq = f"{namespace.rstrip('/')}/{name}"
         self._fresh_for = HEARD_FOR_BEATS * beat_period
         self._heard: dict[int, tuple[Heartbeat, float]] = {}  # ticket -> (its last heartbeat, when heard)
+
+    def on_heartbeat(self, msg: Any, drops: DropCounter) -> None:
+        """A message on our namespace's world/heartbeat, read without the key (a twin of another launch has a key
+        of its own); one that fails the checks is counted in `drops`."""
+        hb = drops.guard(decode_heartbeat, msg, source=HEARTBEAT_TOPIC)
+        if hb is not None:
+            self.heard(hb)
 
     def heard(self, hb: Heartbeat) -> None:
         """A heartbeat on our namespace's world/heartbeat (our own ones included: they are told apart here)."""
