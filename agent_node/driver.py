@@ -41,8 +41,8 @@ from msgs_spec import (
 
 from .effects import Effects, Finish, SaveCheckpoint, Send
 from .peer_view import PeerView
-from .reading import bounds_of, cell_of
-from .world_link import WorldLink
+from .wire_reading import bounds_of, cell_of
+from .world_link import Verdict, WorldLink
 
 __all__ = ["AgentDriver", "CentralDriver", "state_counts"]
 
@@ -208,9 +208,9 @@ class AgentDriver(_Driver):
         if cell is None:
             return []
         verdict = self.link.judge(agent, fb, cell, self.expect)
-        if verdict == "adopt":
+        if verdict is Verdict.ADOPT:
             return self._catch_up(agent, fb, cell)
-        return self._play(fb, cell) if verdict == "play" else []
+        return self._play(fb, cell) if verdict is Verdict.PLAY else []
 
     def on_position(self, peer: int, msg: Any) -> Effects:
         """A message from agv<peer>/position."""
@@ -341,9 +341,9 @@ class CentralDriver(_Driver):
                 return self._start_resync(fb)
             return []
         verdict = self.link.judge(agent, fb, cell, self.expect[agent])
-        if verdict == "adopt":
+        if verdict is Verdict.ADOPT:
             return self._catch_up(agent, fb, cell)
-        if verdict != "play":
+        if verdict is not Verdict.PLAY:
             return []
         self.link.heard()
         self._played = True

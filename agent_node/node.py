@@ -19,7 +19,7 @@ from msgs_spec import (
     agent_namespace, agent_stats_topic, feedback_topic, position_topic, serialize,
 )
 from node_runtime.held import HeldPublisher
-from node_runtime.lost import count_lost
+from node_runtime.lost_samples import count_lost
 from node_runtime.node import RunNode
 from node_runtime.patience import Patience
 from node_runtime.qos import profile

@@ -28,7 +28,7 @@ from cq_ros.gridmap import GridMap
 from msgs_spec import DropCounter, WireError, decode_position, position_topic
 
 from .effects import Effects, Renew, Subscribe, Unsubscribe
-from .reading import bounds_of, cell_of, record_sequence
+from .wire_reading import bounds_of, cell_of, record_sequence
 
 __all__ = ["AHEAD", "RENEW_AFTER_S", "PeerView"]
 

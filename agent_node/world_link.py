@@ -35,15 +35,16 @@ of making every later real one a replay.
 
 from __future__ import annotations
 
+from enum import Enum
 from typing import Any, Callable
 
 from msgs_spec import HEARTBEAT_TOPIC, DropCounter, WireError, decode_heartbeat, feedback_topic
 from node_runtime.parameters import MIN_HEARTBEAT_PERIOD
 from node_runtime.patience import Patience
 
-from .reading import record_sequence
+from .wire_reading import record_sequence
 
-__all__ = ["BEAT_SLACK", "beat_bound", "WorldLink"]
+__all__ = ["BEAT_SLACK", "beat_bound", "Verdict", "WorldLink"]
 
 BEAT_SLACK = 100  # beats a heartbeat may be ahead of the last one beside those its elapsed time allows
 
@@ -53,6 +54,14 @@ def beat_bound(seconds: float) -> int:
     at the fastest period a world takes, and BEAT_SLACK for delivery jitter (a world sends one more beat when it
     begins stepping)."""
     return BEAT_SLACK + int(seconds / MIN_HEARTBEAT_PERIOD)
+
+
+class Verdict(Enum):
+    """What a driver does with a feedback (WorldLink.judge)."""
+
+    PLAY = "play"  # the expected one: learn from it and act
+    ADOPT = "adopt"  # a later one the world vouches for: catch up to it
+    NONE = "none"  # dropped (counted), or held until the world vouches for it
 
 
 class WorldLink:
@@ -108,34 +117,34 @@ class WorldLink:
             self.heard()
         return True
 
-    def judge(self, agent: int, fb: Any, cell: int, expected: tuple[int, int] | None) -> str:
-        """'play' a feedback that is the expected one, 'adopt' a later one the world vouches for (or any, when
-        none is expected: a node resuming from its checkpoint); '' for one dropped (counted) or held until the
-        world vouches for it (`vouched`)."""
+    def judge(self, agent: int, fb: Any, cell: int, expected: tuple[int, int] | None) -> Verdict:
+        """PLAY a feedback that is the expected one, ADOPT a later one the world vouches for (or any, when none
+        is expected: a node resuming from its checkpoint); NONE for one dropped (counted) or held until the world
+        vouches for it (`vouched`)."""
         stamp = (fb.episode, fb.step)
         if self.far_ahead(agent, fb, expected):
-            return ""
+            return Verdict.NONE
         if expected is None:  # resuming (from a checkpoint): joining the world where it is, a catch-up too
             self._drop_held()
             self.joined = True
-            return "adopt"
+            return Verdict.ADOPT
         if stamp == expected:
             self._drop_held()
             self.joined = True
-            return "play"
+            return Verdict.PLAY
         if stamp < expected:
             record_sequence(self.drops, stamp, expected, feedback_topic(agent))
-            return ""
+            return Verdict.NONE
         if self.vouches_for(stamp):
             self._drop_held()
             self.joined = True
-            return "adopt"
+            return Verdict.ADOPT
         if self.held is None or stamp < self.held[0]:
             self._drop_held()
             self.held = (stamp, agent, fb, cell, expected)
         else:
             record_sequence(self.drops, stamp, expected, feedback_topic(agent))
-        return ""
+        return Verdict.NONE
 
     def far_ahead(self, agent: int, fb: Any, expected: tuple[int, int] | None) -> bool:
         """Is `fb` past the run's last episode, or more than max_catch_up episodes past `expected`? Then it is

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .doc import README_PATH, readme_generated_block, render_spec, write_readme
+from .spec_doc import README_PATH, readme_generated_block, render_spec, write_readme
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,7 +23,7 @@ from typing import Any, Callable, TextIO
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from msgs_spec import DropCounter, TopicSpec, WireError, parse_topic
-from msgs_spec.doc import to_yaml
+from msgs_spec.spec_doc import to_yaml
 from msgs_spec.viz import LOOKS, MAP, SCENE, parse_view_topic
 from node_runtime.qos import profile
 

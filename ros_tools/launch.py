@@ -16,7 +16,7 @@ publisher has matched the listener, and waits for that before it exits; only the
 says that a message will arrive). Starting everything at once (instead of the agents first) overlaps the
 interpreters' start-up.
 With `--compose` the one child is a container (ros_tools.compose) holding every node, each reading its
-system's DIR/params.yaml (which every launch writes: ros_tools.system_file) and its own launch_params.yaml;
+system's DIR/params.yaml (which every launch writes: ros_tools.params_file) and its own launch_params.yaml;
 the nodes and the protocol are the same.
 
 Parameters and key. `--set name=value` takes every Settings field and every node parameter that matters
@@ -114,7 +114,7 @@ from .launch_results import (
     EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, departures, describe_departures, write_ended_early,
     write_heard,
 )
-from .system_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
+from .params_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 
 __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN", "DOMAIN_IDS",
            "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "ResultsGone", "LaunchResult",
@@ -383,7 +383,7 @@ def node_commands(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, 
 def compose_command(nodes: dict[str, tuple[str, dict[str, Any]]], namespace: str, out: Path,
                     launch_only: frozenset[str] = LAUNCH_ONLY) -> Child:
     """Every node in one process (`python -m ros_tools.compose`), reading the system's DIR/params.yaml
-    (ros_tools.system_file) and then what is this launch's alone (`launch_only`: checkpoints, listeners, a
+    (ros_tools.params_file) and then what is this launch's alone (`launch_only`: checkpoints, listeners, a
     temporary key) from DIR/logs/launch_params.yaml, both written here."""
     system = write_system(out / SYSTEM_FILE, nodes, launch_only)
     own = {f"/**/{name}": {"ros__parameters": {k: v for k, v in values.items() if k in launch_only}}
@@ -516,7 +516,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
     With `hosts` (ros_tools.hosts, one per AGV of the map), each node runs on its own host, found by
     `discovery` ("subnet" or "static", see ros_tools.hosts.DISCOVERY); the launcher must run on the world's.
 
-    Every launch writes the system it ran to DIR/params.yaml (ros_tools.system_file). `key_file` (made by `cq-ros
+    Every launch writes the system it ran to DIR/params.yaml (ros_tools.params_file). `key_file` (made by `cq-ros
     key`) keys the run and is named there and kept; without it the launch makes a key of its own and removes
     it at the end. `view_port`: also serve the run to Foxglove there (ros_tools.view, the extra `view`).
 

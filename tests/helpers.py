@@ -289,7 +289,7 @@ def _example(spec):
     from dataclasses import replace
 
     from msgs_spec import AGENT_STATS
-    from msgs_spec.doc import EXAMPLES
+    from msgs_spec.spec_doc import EXAMPLES
 
     if spec is AGENT_STATS:
         return lambda agent: replace(EXAMPLES["agent_stats"], agent=agent, marked=())

@@ -286,7 +286,7 @@ def test_a_restarted_nodes_ghost_is_no_second_writer():
 
 
 def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics(ros_context):
-    """the lockstep subscriptions listen to the message-lost event (node_runtime.lost); a report's new
+    """the lockstep subscriptions listen to the message-lost event (node_runtime.lost_samples); a report's new
     losses go into the node's statistics as `lost_samples`. Driven through the handlers rclpy made, since
     the pip Fast DDS reports none (benchmarks/lost_samples.py)."""
     from types import SimpleNamespace

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import msgs_spec as ms
-from msgs_spec import doc
+from msgs_spec import spec_doc as doc
 from msgs_spec.auth import WORLD, RunKey
 from node_runtime.qos import profile
 
@@ -142,7 +142,7 @@ def test_readme_topic_table_parsed_independently_matches_the_spec():
 
 
 def test_msgs_spec_imports_no_project_science_or_node_code():
-    code = ("import sys, msgs_spec, msgs_spec.doc, msgs_spec.__main__\n"
+    code = ("import sys, msgs_spec, msgs_spec.spec_doc, msgs_spec.__main__\n"
             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('cq_ros', 'world_node', 'agent_node'))\n"
             "assert not bad, bad\n"
             "assert 'rclpy.node' not in sys.modules\n")

@@ -22,7 +22,7 @@ from msgs_spec import (
     position_topic,
 )
 from node_runtime.qos import profile
-from msgs_spec.doc import to_yaml
+from msgs_spec.spec_doc import to_yaml
 from helpers import alive_with, wait_until
 
 TOOL_TIMEOUT_S = 60.0  # bound on any one tool process; each takes a few seconds

@@ -19,7 +19,7 @@ from msgs_spec import (
 )
 from node_runtime.graph import writers_and_namesakes
 from node_runtime.held import HeldPublisher
-from node_runtime.lost import count_lost
+from node_runtime.lost_samples import count_lost
 from node_runtime.node import RunNode
 from node_runtime.qos import profile
 from node_runtime.rclpy_workarounds import raw_publisher

@@ -116,7 +116,7 @@ def collect(args) -> int:
 
 def _system_arguments(args) -> None:
     """A launch's map, algorithm, episodes, seed, settings, node parameters and key: from its options, or from
-    the system file --params-file names (ros_tools.system_file), which then excludes those options."""
+    the system file --params-file names (ros_tools.params_file), which then excludes those options."""
     args.node_parameters = {}
     if args.params_file is None:
         if args.map is None or args.algo is None:
@@ -124,7 +124,7 @@ def _system_arguments(args) -> None:
         args.episodes = 500 if args.episodes is None else args.episodes
         args.seed = 0 if args.seed is None else args.seed
         return
-    from ros_tools.system_file import read_system
+    from ros_tools.params_file import read_system
 
     given = [f"--{name}" for name in ("map", "algo", "episodes", "seed", "key") if getattr(args, name) is not None]
     if args.overrides:
@@ -139,7 +139,7 @@ def _system_arguments(args) -> None:
 
 
 def key(args) -> int:
-    from ros_tools.system_file import make_key
+    from ros_tools.params_file import make_key
 
     print(f"wrote {make_key(args.out)} (readable by you only): name it as key_file in a params file, or "
           "cq-ros launch --key FILE")

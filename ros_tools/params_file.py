@@ -35,7 +35,7 @@ _NODE = "/**/"
 # Parameters of one launch rather than of the system (see the module docstring).
 # run_nonce: fresh for every launch (a kept one would let a run's messages be replayed into the next)
 LAUNCH_ONLY = frozenset({"checkpoint", "min_stats_subscribers", "run_nonce"})
-_HEADER = ("# A cq_ros system in ROS 2's parameters-file layout (ros_tools/system_file.py): start it again under\n"
+_HEADER = ("# A cq_ros system in ROS 2's parameters-file layout (ros_tools/params_file.py): start it again under\n"
            "# any namespace with `cq-ros launch --params-file {name}` or by hand, e.g.\n"
            "# python -m ros_tools.compose {nodes} --ros-args -r __ns:=/NAME --params-file {name}\n")
 

@@ -1,4 +1,4 @@
-"""A system in a file (ros_tools.system_file): every launch writes params.yaml with wildcard keys; it starts the
+"""A system in a file (ros_tools.params_file): every launch writes params.yaml with wildcard keys; it starts the
 same system under another namespace, with `cq-ros launch --params-file` (the same episodes) and by hand with
 `python -m ros_tools.compose`, whose results `cq-ros collect` writes (the same again); a key made by
 `cq-ros key` is named there and kept; a file that cannot describe a system is one line naming it."""
@@ -20,7 +20,7 @@ from cq_ros.settings import run_settings
 from cq_ros.gridmap import load_map
 from helpers import alive_with, unique
 from ros_tools.launch import node_specs
-from ros_tools.system_file import SystemFileError, read_system, write_system
+from ros_tools.params_file import SystemFileError, read_system, write_system
 
 RUN_TIMEOUT_S = 120.0  # bound on one run by hand; it takes a few seconds
 
