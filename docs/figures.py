@@ -255,7 +255,39 @@ def _target_rows(folder: Path, agents: int, rows: list[dict], config: str, near:
             for target, measured, met in checks]
 
 
+def study_budget() -> str:
+    """What a longer learning budget changes, unit by unit: each pair of kept studies whose protocols differ only
+    in their episodes (the same maps, runs and seeds: the longer one's first episodes are the shorter one's), for
+    each CQ configuration in both: what the learning greedy copy hears an episode, the states at the end of
+    learning, the frozen copy's collisions; means with 95% intervals over the units, and the paired change."""
+    from cq_ros.lab.held_out import shown_rows, unit_values
+    from cq_ros.lab.study import mean_interval, paired_difference
+
+    protocols = {folder: json.loads((folder / "study.json").read_text()) for folder in study_folders()}
+    lines = ["| studies | configuration | units | learning copy heard / episode | states at the end | frozen "
+             "collisions / episode |", "| --- | --- | ---: | --- | --- | --- |"]
+    same = ("greedy_episodes", "curve_episodes", "seed", "slip", "overrides")
+    for short, long in ((a, b) for a in protocols for b in protocols
+                        if protocols[a]["episodes"] < protocols[b]["episodes"]
+                        and protocols[a]["shown"]["sizes"] == protocols[b]["shown"]["sizes"]
+                        and all(protocols[a][k] == protocols[b][k] for k in same)):
+        rows = {folder: shown_rows(folder, "units.csv") for folder in (short, long)}
+        units = sorted({(r["generator_seed"], r["run"]) for r in rows[short]}
+                       & {(r["generator_seed"], r["run"]) for r in rows[long]})
+        for config in (c for c in protocols[short]["shown"]["configs"] if c in protocols[long]["shown"]["configs"]
+                       and protocols[short]["configs"][c]["algo"] == "cq"):
+            cells = []
+            for column, digits in (("learning_heard", 1), ("states", 0), ("frozen_collisions", 3)):
+                a, b = (unit_values(rows[f], config, column, units) for f in (short, long))
+                cells.append(f"{mean_interval(a).show(digits)} -> {mean_interval(b).show(digits)} (paired "
+                             f"{paired_difference(b, a).show(digits)})")
+            lines.append(f"| {short.name} ({protocols[short]['episodes']:,} episodes) -> {long.name} "
+                         f"({protocols[long]['episodes']:,}) | {config} | {len(units)} | {' | '.join(cells)} |")
+    return "\n".join(lines) + "\n"
+
+
 FIGURES: dict[str, Callable[[], str]] = {"study": study, "study-targets": study_targets,
+                                         "study-budget": study_budget,
                                          "reproduce": reproduce, "who-listens": who_listens,
                                          "warehouses": warehouses, "delays": delays,
                                          "delays-held-out": delays_held_out,
