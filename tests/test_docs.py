@@ -48,7 +48,15 @@ def test_the_figures_stand_where_the_pages_say():
                      "churn-fast_fading": "choices.md", "bench-cluster": "cluster.md",
                      "scaling-three-runs": "warehouses.md", "yardstick": "warehouses.md",
                      "delays-say": "warehouses.md", "delays-held-out": "warehouses.md",
-                     "study": "warehouses.md", "study-targets": "warehouses.md"}
+                     "study": "warehouses.md", "study-targets": "warehouses.md", "study-budget": "warehouses.md"}
+
+
+def test_the_budget_table_pairs_each_study_with_its_longer_twin_only():
+    """8 and 8_10000 differ in their episodes alone (and so their curves' spacing); 8 and 12 in their fleet."""
+    rows = figures.study_budget().splitlines()[2:]
+    pairs = {line.split(" | ")[0].lstrip("| ") for line in rows}
+    assert pairs == {"8 (2,000 episodes) -> 8_10000 (10,000)", "12 (2,000 episodes) -> 12_10000 (10,000)"}
+    assert all(" | 100 | " in line for line in rows)  # every unit of both studies, paired
 
 
 def test_a_block_that_disagrees_with_its_data_is_found_and_rewritten():
