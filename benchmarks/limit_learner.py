@@ -39,12 +39,15 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from cq_ros.engine import Team, learner_seed, world_seed
 from cq_ros.gridmap import GridMap, load_map
 from cq_ros.lab.held_out import (
     FIGURES, HELD_OUT_SEEDS, KEY, Config, Learning, Unit, append_rows, config_settings, curve_table, generated,
     play_unit, read_rows, size_tables)
 from cq_ros.lab.study import paired_difference
+from cq_ros.learners.base import epsilon_greedy, q_update
 from cq_ros.learners.near import NearQ
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
@@ -92,17 +95,61 @@ class LimitQ(NearQ):
         return self.act_on(row)
 
 
+class LimitCQ(LimitQ):
+    """The same oracle's peers, hears the same, but in CQ's tables: a row per (cell, peer, peer's cell), a copy of
+    the cell's row when new, acted on through the elementwise minimum of the rows of the peers heard (CQ's
+    cq_all_met), the step's update made in each of them (Q_k where nobody can collide). What it learns is then
+    what CQ with perfect marks, met everywhere they matter, could learn; near's joint rows need every
+    combination of the peers heard."""
+
+    name = "limit_cq"
+
+    def act(self, peer_cells):
+        s = self.s
+        keys = [(s, j, c) for j, c in sorted(peer_cells.items()) if self.could_collide(s, j, c)]
+        self.heard += len(keys)
+        rows = [self.q_local[s]]
+        if keys:
+            self.joint_plays += 1
+            rows = []
+            for key in keys:
+                row = self.q_near.get(key)
+                if row is None:
+                    row = list(self.q_local[s])
+                    if self.learning:
+                        self.q_near[key] = row
+                rows.append(row)
+        acted = rows[0] if len(rows) == 1 else [min(q) for q in zip(*rows)]
+        last, self.waiting = self.waiting, None
+        if last is not None:
+            self._update(last, acted)
+        self.row = rows
+        self.a = epsilon_greedy(acted, self.epsilon, self.rng)
+        return self.a
+
+    def _update(self, step, next_row):
+        rows, a, reward = step
+        target = reward if next_row is None else reward + self.gamma * max(next_row)
+        for row in rows:
+            q_update(row, a, target, self.alpha)
+
+
+LEARNERS = {learner.name: learner for learner in (LimitQ, LimitCQ)}
+
+
 class LimitLearning(Learning):
-    """held_out.Learning with LimitQ learners on the reference engine: the world and learner seeds a registry
-    learner's run has (cq_ros.engine.run)."""
+    """held_out.Learning with the learners LEARNERS names (the unit's algo) on the reference engine: the world and
+    learner seeds a registry learner's run has (cq_ros.engine.run)."""
 
     def __init__(self, algo: str, gridmap: GridMap, settings: Settings, seed: int, run: int):
         self.kernel = None
+        learner = LEARNERS[algo]
         self.team = Team(GridWorld(gridmap, settings, seed=world_seed(seed, run)),
-                         [LimitQ(i, gridmap, settings, learner_seed(seed, run, i)) for i in range(gridmap.n_agents)])
+                         [learner(i, gridmap, settings, learner_seed(seed, run, i)) for i in range(gridmap.n_agents)])
 
 
-def units_of(kept: Path, out: Path, agents: int, maps: int, runs: int) -> tuple[list[Unit], dict]:
+def units_of(kept: Path, out: Path, agents: int, maps: int, runs: int, learner: str = "limit"
+             ) -> tuple[list[Unit], dict]:
     """The limit learner's units of the kept study in `kept` (map-major: the first maps' runs first), their maps
     written to OUT/maps as the study generated them, and the kept protocol."""
     protocol = json.loads((kept / "study.json").read_text())
@@ -113,18 +160,18 @@ def units_of(kept: Path, out: Path, agents: int, maps: int, runs: int) -> tuple[
         path = generated(out, agents, g, protocol["slip"])
         if path.read_text() != (kept / "maps" / path.name).read_text():
             raise SystemExit(f"{path.name}: the generator makes another map than the kept study's")
-        settings = config_settings(Config("limit", "near"), load_map(path), protocol["overrides"],
+        settings = config_settings(Config(learner, "near"), load_map(path), protocol["overrides"],
                                    protocol["greedy_episodes"])[0]
         if settings.as_dict() != protocol["settings"]["near"]:
             raise SystemExit(f"near's settings today are not those of the kept study {kept}")
-        units += [Unit(str(path), "limit", r, protocol["episodes"], protocol["seed"], settings, "limit", agents, g,
+        units += [Unit(str(path), learner, r, protocol["episodes"], protocol["seed"], settings, learner, agents, g,
                        protocol["greedy_episodes"], protocol["curve_every"], protocol["curve_episodes"])
                   for r in range(runs)]
     return units, protocol
 
 
-def play(kept: Path, out: Path, agents: int, maps: int, runs: int) -> None:
-    units, protocol = units_of(kept, out, agents, maps, runs)
+def play(kept: Path, out: Path, agents: int, maps: int, runs: int, learner: str) -> None:
+    units, protocol = units_of(kept, out, agents, maps, runs, learner)
     planner = {tuple(int(r[k]) for k in ("agents", "generator_seed", "run")): r["makespan"]
                for r in read_rows(kept / "planner.csv")}
     done = {tuple(r[k] for k in KEY) for r in read_rows(out / "units.csv")}
@@ -137,7 +184,7 @@ def play(kept: Path, out: Path, agents: int, maps: int, runs: int) -> None:
                                         for e, c, h in result["curve"]])
         append_rows(out / "units.csv", [{**key, **result["row"],
                                          "planner_makespan": planner[(u.agents, u.generator_seed, u.run)]}])
-        print(f"limit: {agents} AGVs, unit {n + 1}/{len(todo)} (map {u.generator_seed}, run {u.run}), "
+        print(f"{learner}: {agents} AGVs, unit {n + 1}/{len(todo)} (map {u.generator_seed}, run {u.run}), "
               f"{time.perf_counter() - started:.0f} s elapsed", file=sys.stderr, flush=True)
     kept_protocol = {k: protocol[k] for k in ("episodes", "greedy_episodes", "curve_every", "curve_episodes", "seed",
                                               "slip", "overrides")}
@@ -146,41 +193,47 @@ def play(kept: Path, out: Path, agents: int, maps: int, runs: int) -> None:
                                                 "study": str(study)}, indent=1) + "\n")
 
 
-def report(kept: Path, out: Path, agents: int, command: str) -> str:
-    """The study's tables over the units the limit learner played in OUT, beside cq's and near's kept rows."""
+def report(kept: Path, out: Path, agents: int, commands: list[str]) -> str:
+    """The study's tables over the units the limit learners played in OUT, beside cq's and near's kept rows."""
     mine = read_rows(out / "units.csv")
     units = {(r["generator_seed"], r["run"]) for r in mine}
+    learners = [name for name in LEARNERS if any(r["config"] == name for r in mine)]
     # one row per unit and configuration, the last written (as held_out.shown_rows keeps them)
-    rows = list({tuple(r[k] for k in KEY): r for r in mine + read_rows(kept / "units.csv")
-                 if r["config"] in (*COMPARED, "limit") and (r["generator_seed"], r["run"]) in units}.values())
+    rows = list({tuple(r[k] for k in KEY): r for r in read_rows(kept / "units.csv") + mine
+                 if r["config"] in (*COMPARED, *learners) and (r["generator_seed"], r["run"]) in units}.values())
     curve = read_rows(out / "curve.csv") + [r for r in read_rows(kept / "curve.csv") if r["config"] in COMPARED
                                             and (r["generator_seed"], r["run"]) in units]
     planner = [r for r in read_rows(kept / "planner.csv") if (r["generator_seed"], r["run"]) in units]
-    configs = [Config(c, c) for c in COMPARED] + [Config("limit", "limit")]
-    seconds = sum(r["seconds"] for r in mine)
+    configs = [Config(c, c) for c in (*COMPARED, *learners)]
     maps = sorted({g for g, _ in units})
     shown = kept.resolve().relative_to(ROOT) if kept.resolve().is_relative_to(ROOT) else kept
-    lines = [f"# The limit learner, {agents} AGVs", "", f"Command: `{command}`", "",
+    lines = [f"# The limit learner, {agents} AGVs", "", *(f"Command: `{c}`" for c in commands), "",
              f"The held-out study's units in {shown}: generator seeds {maps[0]}-{maps[-1]} ({len(maps)} maps), runs "
              f"{', '.join(map(str, sorted({r for _, r in units})))}: {len(units)} units; the study's protocol "
-             f"(its study.json). `limit` played on the reference engine in {seconds:.0f} s (summed over units); cq's "
-             f"and near's rows are the kept study's, of the same units. Mean ± half-width of the 95% t interval over "
-             "units; paired differences from cq, and below them from near."]
+             "(its study.json), on the reference engine: " + ", ".join(
+                 f"{name} {sum(r['seconds'] for r in mine if r['config'] == name):.0f} s" for name in learners)
+             + " (summed over units); cq's and near's rows are the kept study's, of the same units. Mean ± "
+             "half-width of the 95% t interval over units; paired differences from cq, and below them from near."]
     lines += size_tables(agents, rows, configs, planner)
     for copy in ("frozen", "learning"):
-        order = sorted(units)
-
-        def values(config: str, column: str) -> list[float]:
-            by_unit = {(r["generator_seed"], r["run"]): r for r in rows if r["config"] == config}
-            if column == "makespan_ratio":
-                return [by_unit[u][f"{copy}_makespan"] / by_unit[u]["planner_makespan"] for u in order]
-            return [by_unit[u][column if column == "states" else f"{copy}_{column}"] for u in order]
-
         lines += ["", f"Paired differences from near, {copy}:", "",
                   "| configuration | " + " | ".join(label for label, _, _ in FIGURES) + " |",
-                  "| --- |" + " ---: |" * len(FIGURES),
-                  "| limit - near | " + " | ".join(paired_difference(values("limit", c), values("near", c)).show(d)
-                                                    for _, c, d in FIGURES) + " |"]
+                  "| --- |" + " ---: |" * len(FIGURES)]
+        for name in learners:
+            order = sorted((r["generator_seed"], r["run"]) for r in rows if r["config"] == name)
+
+            def values(config: str, column: str) -> list[float]:
+                by_unit = {(r["generator_seed"], r["run"]): r for r in rows if r["config"] == config}
+                if column == "makespan_ratio":
+                    return [by_unit[u][f"{copy}_makespan"] / by_unit[u]["planner_makespan"] for u in order]
+                return [by_unit[u][column if column == "states" else f"{copy}_{column}"] for u in order]
+
+            lines.append(f"| {name} - near | " + " | ".join(
+                paired_difference(values(name, c), values("near", c)).show(d) for _, c, d in FIGURES) + " |")
+    # a stalled unit's greedy episodes run to the step cap, hearing at every step: the median unit beside the mean
+    lines += ["", "Median over units, frozen: " + "; ".join(
+        f"{c.name} heard/ep {np.median([r['frozen_heard'] for r in rows if r['config'] == c.name]):.1f}, makespan "
+        f"{np.median([r['frozen_makespan'] for r in rows if r['config'] == c.name]):.1f}" for c in configs) + "."]
     lines += curve_table(curve, configs)
     return "\n".join(lines) + "\n"
 
@@ -190,6 +243,7 @@ def main() -> None:
     parser.add_argument("--agents", default="8,12", help="fleet sizes, comma-separated (the kept studies')")
     parser.add_argument("--maps", type=int, default=10)
     parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--learner", choices=list(LEARNERS), default="limit")
     parser.add_argument("--study", type=Path, default=ROOT / "docs" / "data" / "study")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "data" / "limit")
     parser.add_argument("--report", action="store_true", help="write limit.md again from OUT, playing nothing")
@@ -197,11 +251,15 @@ def main() -> None:
     for agents in [int(a) for a in args.agents.split(",")]:
         kept, out = args.study / str(agents), args.out / str(agents)
         out.mkdir(parents=True, exist_ok=True)
-        command = (f"python benchmarks/limit_learner.py --agents {agents} --maps {args.maps} --runs {args.runs}")
+        kept_commands = out / "command.txt"  # the commands that played OUT's units, one a line
+        commands = kept_commands.read_text().splitlines() if kept_commands.exists() else []
         if not args.report:
-            play(kept, out, agents, args.maps, args.runs)
-            (out / "command.txt").write_text(command + "\n")
-        text = report(kept, out, agents, (out / "command.txt").read_text().strip())
+            play(kept, out, agents, args.maps, args.runs, args.learner)
+            command = (f"python benchmarks/limit_learner.py --agents {agents} --maps {args.maps} --runs {args.runs}"
+                       + ("" if args.learner == "limit" else f" --learner {args.learner}"))
+            commands = [c for c in commands if c != command] + [command]
+            kept_commands.write_text("\n".join(commands) + "\n")
+        text = report(kept, out, agents, commands)
         (out / "limit.md").write_text(text)
         print(text, flush=True)
 

@@ -74,12 +74,38 @@ def test_its_rule_is_the_worlds_one_step_collisions(name):
     assert checked > (500 if name == "warehouse" else 40)
 
 
-def test_a_unit_is_the_same_again_from_its_seed(tmp_path):
+def test_its_cq_twin_acts_on_the_least_of_the_rows_of_the_peers_that_can_collide_and_updates_each():
+    gm = parse_map(WALLED)
+    at = {cell: i for i, cell in enumerate(gm.cells)}
+    learner = limit.LimitCQ(0, gm, Settings(), seed=0)
+    s = at[0, 2]
+    learner.q_local[s] = [0.0, 1.0, 2.0, 3.0]
+    learner.observe(s)
+    learner.act({1: at[0, 4], 2: at[1, 2]})  # agent 2 can reach (0, 3); agent 3 is walled off
+    assert learner.heard == 1 and list(learner.q_near) == [(s, 1, at[0, 4])]
+    learner.learn(-1.0, s, False)
+    learner.q_near[(s, 1, at[0, 4])][:] = [5.0, 0.0, 5.0, 0.0]
+    learner.observe(s)
+    learner.epsilon = 0.0
+    peers = {1: at[0, 4], 2: at[0, 1]}  # now both can collide with it: the elementwise least of their rows
+    first = list(learner.q_near[(s, 1, at[0, 4])])
+    assert learner.act(peers) == 2  # min([5, 0, 5, 0], [0, 1, 2, 3]) = [0, 0, 2, 0]
+    assert learner.heard == 3 and set(learner.q_near) == {(s, 1, at[0, 4]), (s, 2, at[0, 1])}
+    assert learner.q_near[(s, 1, at[0, 4])] != first  # the waiting step's update landed in the row acted on
+    learner.learn(-30.0, s, False)
+    learner.observe(s)
+    learner.act(peers)
+    rows = [learner.q_near[(s, 1, at[0, 4])], learner.q_near[(s, 2, at[0, 1])]]
+    assert rows[0][2] < 5.0 and rows[1][2] < 2.0  # the collision is learnt in both rows it acted on
+
+
+@pytest.mark.parametrize("learner", ["limit", "limit_cq"])
+def test_a_unit_is_the_same_again_from_its_seed(tmp_path, learner):
     path = tmp_path / "warehouse_4_gen1001.txt"
     path.write_text(warehouse_text(4, seed=1001, slip=0.1))
     gm = parse_map(path.read_text())
-    settings = config_settings(Config("limit", "near"), gm, ["step_cap=60"], 3)[0]
-    unit = Unit(str(path), "limit", 1, 20, 0, settings, "limit", 4, 1001, 3, 10, 2)
+    settings = config_settings(Config(learner, "near"), gm, ["step_cap=60"], 3)[0]
+    unit = Unit(str(path), learner, 1, 20, 0, settings, learner, 4, 1001, 3, 10, 2)
 
     def row():
         result = play_unit({str(path): gm}, unit, lambda: None, limit.LimitLearning)
