@@ -213,7 +213,9 @@ def report(kept: Path, out: Path, agents: int, commands: list[str]) -> str:
              "(its study.json), on the reference engine: " + ", ".join(
                  f"{name} {sum(r['seconds'] for r in mine if r['config'] == name):.0f} s" for name in learners)
              + " (summed over units); cq's and near's rows are the kept study's, of the same units. Mean ± "
-             "half-width of the 95% t interval over units; paired differences from cq, and below them from near."]
+             "half-width of the 95% t interval over units; paired differences from cq, and below them from near.",
+             "Units played: " + ", ".join(f"{name} {sum(r['config'] == name for r in mine)}" for name in learners)
+             + " (a count \"of N units\" below is over all N units, whichever configuration played fewer)."]
     lines += size_tables(agents, rows, configs, planner)
     for copy in ("frozen", "learning"):
         lines += ["", f"Paired differences from near, {copy}:", "",
