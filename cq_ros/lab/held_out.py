@@ -166,11 +166,14 @@ def greedy_figures(table: np.ndarray) -> dict[str, float]:
             "heard": float(table["heard"].mean()), "makespan": float(table["steps"].mean())}
 
 
-def play_unit(maps: dict[str, GridMap], unit: Unit, on_episode: Callable[[], None]) -> dict:
+def play_unit(maps: dict[str, GridMap], unit: Unit, on_episode: Callable[[], None],
+              learning_of: Callable[..., Learning] = Learning) -> dict:
     """Learn, with the curve's frozen copies on the way, then the frozen and learning copies: the unit's figures
-    ({copy}_{figure}, states, exploring collisions, seconds) and its curve [(episode, collisions, home)]."""
+    ({copy}_{figure}, states, exploring collisions, seconds) and its curve [(episode, collisions, home)].
+    `learning_of(algo, gridmap, settings, seed, run)` makes the run (a learner outside the registry plays the
+    study's units through it: benchmarks/limit_learner.py)."""
     started = time.perf_counter()
-    learning = Learning(unit.algo, maps[unit.map_name], unit.settings, unit.seed, unit.run)
+    learning = learning_of(unit.algo, maps[unit.map_name], unit.settings, unit.seed, unit.run)
     tables, curve, done = [], [], 0
     while done < unit.episodes:
         size = min(unit.curve_every, unit.episodes - done)
