@@ -367,7 +367,8 @@ def act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, me
 
 
 @njit(cache=True, inline="always")
-def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool, used, part, row):
+def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, head, wt, wtr, wtk, ck, wi, wf, pool, used, part,
+             row):
     """CQLearner.learn (the pool has a row free: windows.room)."""
     if not ip[LEARNING]:
         return
@@ -379,6 +380,25 @@ def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, 
                     and not W.above_t(wi, wf, k, w, pool, part, reward) < -fp[T_ONE])
     if ip[COLLISION_CONFLICT] and reward <= fp[R_COLL]:
         conflict = True
+    if done or (not conflict and (not ip[BOOT_ACTED] or head[k, next_cell] < 0)):
+        # Nothing waits for the next act: the update is made now as the reference's is (at the goal, or without
+        # cq_bootstrap_acted), or, under cq_bootstrap_acted, the row it bootstraps from is already known: s' has
+        # no joint state and none can appear before the next act (only a waiting conflict marks), so that act
+        # will act on Q_k of s', which nothing changes until then (Q_k is only this learner's); and the rows
+        # acted on at s are the step's own, still kept (only a cell's own joint states are forgotten, when it is
+        # met). So the target is the one the waiting update would have had: the same float operations, without
+        # the waiting step's bookkeeping (wt, whose fields nothing reads while W_ON is 0). On warehouse_16 this
+        # is almost every step: 2026-12-06, 20 episodes, ~10% of the compiled CQ's CPU.
+        target = reward if done else reward + fp[GAMMA] * _qmax(q, k, next_cell)
+        alpha = fp[ALPHA]
+        for m in range(ag[k, NKEYS]):
+            key = ck[k, m]
+            if key < 0:
+                q[k, s, a] += alpha * (target - q[k, s, a])
+            else:
+                jsf[key, 1 + a] += alpha * (target - jsf[key, 1 + a])
+        wt[k, W_ON] = 0
+        return
     wt[k, W_CELL], wt[k, W_ACTION], wt[k, W_NEXT] = s, a, next_cell
     wt[k, W_DONE] = done
     wt[k, W_CONFLICT] = conflict and not done
@@ -771,8 +791,8 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
             if actions[k] < 0:
                 continue
             if is_cq:
-                learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, wi, wf, pool,
-                         used, part, row)
+                learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, head, wt, wtr, wtk, ck, wi, wf,
+                         pool, used, part, row)
             elif algo == NEAR or algo == JS:
                 learn_near(k, rewards[k], done[k], fp, ip, ag, q, tq, wt, wtr, wtk, ck)
             elif algo == LOC:
