@@ -23,7 +23,7 @@ from numba import njit
 from . import windows as W
 from .jit import kernel
 from .mt import randbelow, random
-from .world import reset, step
+from .world import KIND, reset, step
 
 # ag columns (CHOICE: LoC's epsilon-greedy choice among its five actions)
 S, A, LOOKING, LOOK_N, DROPPED, PLAYED, PLAYS, HEARD, ACTIVE, NKEYS, CHOICE = range(11)
@@ -367,17 +367,17 @@ def act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, me
 
 
 @njit(cache=True, inline="always")
-def learn_cq(k, reward, next_cell, done, fp, ip, ag, q, jsi, jsf, head, wt, wtr, wtk, ck, wi, wf, pool, used, part,
-             row):
-    """CQLearner.learn (the pool has a row free: windows.room)."""
+def learn_cq(k, reward, kind, next_cell, done, fp, ip, ag, q, jsi, jsf, head, wt, wtr, wtk, ck, wi, wf, pool, used,
+             part, vals, wrow, row):
+    """CQLearner.learn of `reward`, of its `kind` (windows.add; the pool has a row free: windows.room)."""
     if not ip[LEARNING]:
         return
     s, a = ag[k, S], ag[k, A]
     w = s * 4 + a
     conflict = False
-    if W.add(wi, wf, k, w, pool, used, part, reward):
-        conflict = (W.drop_t(wi, wf, k, w, pool, part) < -fp[T_TWO]
-                    and not W.above_t(wi, wf, k, w, pool, part, reward) < -fp[T_ONE])
+    if W.add(wi, wf, k, w, pool, used, part, vals, wrow, reward, kind):
+        conflict = (W.drop_t(wi, wf, k, w, pool, part, vals, wrow) < -fp[T_TWO]
+                    and not W.above_t(wi, wf, k, w, pool, part, vals, wrow, reward) < -fp[T_ONE])
     if ip[COLLISION_CONFLICT] and reward <= fp[R_COLL]:
         conflict = True
     if done or (not conflict and (not ip[BOOT_ACTED] or head[k, next_cell] < 0)):
@@ -726,7 +726,7 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
     ai, rewards, ci, clock, pair, listed = scratch
     jsi, jsf, free, meta, head, tail, n_js = js
     wt, wtr, wtk, ck, made = cq
-    wi, wf, pool, used, part = win
+    wi, wf, pool, used, part, vals, wrow = win
     tk, tq, th, tm = tab
     rw, row, actions, ep, key, trow = tmp
     n = starts.shape[0]
@@ -791,8 +791,8 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
             if actions[k] < 0:
                 continue
             if is_cq:
-                learn_cq(k, rewards[k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, head, wt, wtr, wtk, ck, wi, wf,
-                         pool, used, part, row)
+                learn_cq(k, rewards[k], ai[KIND, k], cells[k], done[k], fp, ip, ag, q, jsi, jsf, head, wt, wtr, wtk,
+                         ck, wi, wf, pool, used, part, vals, wrow, row)
             elif algo == NEAR or algo == JS:
                 learn_near(k, rewards[k], done[k], fp, ip, ag, q, tq, wt, wtr, wtk, ck)
             elif algo == LOC:
@@ -816,14 +816,14 @@ def play(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, tmp, out):
 def play_many(geo, fp, ip, world, ag, eps, q, mt, js, cq, win, tab, out):
     """`play` for every row of `out`, the pools and the table grown where it asks; the pools and the table."""
     jsi, jsf, free, meta, head, tail, n_js = js
-    wi, wf, pool, used, part = win
+    wi, wf, pool, used, part, vals, wrow = win
     tk, tq, th, tm = tab
     n = geo[1].shape[0]
     tmp = (np.array([fp[R_STEP], fp[R_WALL], fp[R_COLL], fp[R_GOAL]]), np.empty(q.shape[2]),
            np.full(n, -1, np.int64), np.zeros(6), np.empty(n + 1, np.int64), np.empty(tq.shape[1]))
     for e in range(out.shape[0]):
         while not play(geo, fp, ip, world, ag, eps, q, mt, (jsi, jsf, free, meta, head, tail, n_js), cq,
-                       (wi, wf, pool, used, part), (tk, tq, th, tm), tmp, out[e]):
+                       (wi, wf, pool, used, part, vals, wrow), (tk, tq, th, tm), tmp, out[e]):
             jsi, jsf, free = grow_pool(jsi, jsf, free, meta, n * (n - 1))
             pool = W.room(pool, used, n)
             tk, tq, th = grow_table(tk, tq, th, tm, 2 * n)
