@@ -97,8 +97,8 @@ def epsilon_greedy(row, epsilon, mt, g):
 
 @kernel
 def choose(row, epsilon, mt, g):
-    """epsilon_greedy, called: near, LoC, JS and JSA share one compilation of it (each inlining costs seconds of
-    the first compilation)."""
+    """epsilon_greedy, called: near, LoC, JS, JSA and CQ's act where it waits or looks (_act_cq) share one
+    compilation of it (each inlining costs seconds of the first compilation)."""
     return epsilon_greedy(row, epsilon, mt, g)
 
 
@@ -331,7 +331,25 @@ def _meet(k, s, fp, ip, ag, cells, jsi, jsf, head, tail, meta, free, n_js, met):
 @njit(cache=True, inline="always")
 def act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, meta, head, tail, n_js, wt, wtr, wtk,
            ck, made, row):
-    """CQLearner.act."""
+    """CQLearner.act: inline where no step waits and the agent looks at no one (then it heard no one, LOOK_N 0,
+    and acts on Q_k of s), almost every step; else called (_act_cq), which keeps the kernel's loop small."""
+    if wt[k, W_ON] or ag[k, LOOKING]:
+        return _act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, meta, head, tail, n_js, wt,
+                       wtr, wtk, ck, made, row)
+    ck[k, 0] = -1
+    ag[k, NKEYS] = 1
+    s = ag[k, S]
+    for a in range(row.shape[0]):
+        row[a] = q[k, s, a]
+    a = epsilon_greedy(row, eps[k], mt, k)
+    ag[k, A] = a
+    return a
+
+
+@kernel
+def _act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, meta, head, tail, n_js, wt, wtr, wtk,
+            ck, made, row):
+    """CQLearner.act, all of it."""
     ag[k, HEARD] += ag[k, LOOK_N]
     was_on = wt[k, W_ON]
     wt[k, W_ON] = 0
@@ -361,7 +379,7 @@ def act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, me
         _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, row, True)
         if wt[k, W_CELL] == s:  # only then may the update have changed the row acted on (Q_k[s], or Q^j of s)
             _acted_row(k, ag, ck, q, jsf, row)
-    a = epsilon_greedy(row, eps[k], mt, k)
+    a = choose(row, eps[k], mt, k)
     ag[k, A] = a
     return a
 
