@@ -417,6 +417,12 @@ def learn_cq(k, reward, kind, next_cell, done, fp, ip, ag, q, jsi, jsf, head, wt
                 jsf[key, 1 + a] += alpha * (target - jsf[key, 1 + a])
         wt[k, W_ON] = 0
         return
+    _wait(k, s, a, reward, next_cell, done, conflict, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, row)
+
+
+@kernel
+def _wait(k, s, a, reward, next_cell, done, conflict, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, ck, row):
+    """The rest of CQLearner.learn, called (rare: learn_cq's loop stays small): the step waits in wt[k]."""
     wt[k, W_CELL], wt[k, W_ACTION], wt[k, W_NEXT] = s, a, next_cell
     wt[k, W_DONE] = done
     wt[k, W_CONFLICT] = conflict and not done
