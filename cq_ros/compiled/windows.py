@@ -6,8 +6,8 @@ so a large map costs only the windows its agents visit. A sample is stored as it
 `vals`, the world's four rewards (cq_ros.compiled.world's kinds: a reward is always one of them) and any other
 value a learner handed over held (engine._take_over): the pool is an eighth of a table of floats, and so stays
 in the cache where that one did not (2026-12-06, warehouse_16, 20 episodes, 5.9 MB of floats: compiled CQ
-37.4 ns per agent-step with them, 32.2 with kinds). `fsum` is CPython's math.fsum (Shewchuk's partials and the final correct
-rounding), so the exact sums, and every decision made from them, are the reference's.
+37.4 ns per agent-step with them, 32.2 with kinds). `fsum` is CPython's math.fsum (Shewchuk's partials and
+the final correct rounding), so the exact sums, and every decision made from them, are the reference's.
 """
 
 from __future__ import annotations
