@@ -18,7 +18,7 @@ from cq_ros import engine
 from cq_ros.compiled import engine as compiled
 from cq_ros.compiled.algorithms import KERNEL_ALGORITHMS
 from cq_ros.compiled import mt
-from cq_ros.compiled.windows import fsum
+from cq_ros.compiled.windows import fsum, kinds_of
 from cq_ros.gridmap import load_map
 from cq_ros.lab.results import EPISODES, GREEDY, OBSERVE, write_results
 from cq_ros.mapgen.warehouse import warehouse_map
@@ -217,6 +217,25 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
         if algo == "cq":
             assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
+
+
+def test_windows_keep_rewards_the_world_does_not_pay_bit_for_bit():
+    """The kernel stores a window's samples as kinds (indices into the rewards it knows): a learner handed over
+    holding rewards the world here does not pay (a checkpoint of other settings) comes back with the very same
+    floats, -0.0 apart from 0.0, and its windows' sums as they were."""
+    values = np.array([-1.0, 0.0, -0.0, 0.0, 0.1, 100.0, -1.0])
+    kinds, vals = kinds_of(np.array([-1.0, -1.0, -10.0, 100.0]), values)
+    assert vals[kinds].view(np.uint64).tolist() == values.view(np.uint64).tolist()
+    assert kinds[0] == 0 and kinds[5] == 3 and len(vals) == 7
+    gm = load_map("tunnel_to_goal_3")
+    team = reference_team("cq", gm, run_settings(gm, {"window": 3}), 7, 1)
+    odd = [0.1, -0.0, 0.0, -1.0, 1e300, -0.0, 7.5]
+    for w, windows in enumerate(team.learners[0].windows[:len(odd)]):
+        for r in odd[w:]:
+            windows.add(r)
+    before = [repr([getattr(w, f) for f in w.__slots__]) for w in team.learners[0].windows]
+    back = compiled.team_of(compiled.kernel_of(team)).learners[0].windows
+    assert [repr([getattr(w, f) for f in w.__slots__]) for w in back] == before
 
 
 @pytest.mark.parametrize("algo", KERNEL_ALGORITHMS)

@@ -88,7 +88,8 @@ class Kernel:
         ck = np.full((n, 2 * n), -1, np.int64)
         self.cq = (np.zeros((n, 8), np.int64), np.zeros(n), np.full((n, 4 * n), -1, np.int64), ck,
                    np.zeros(n, np.int64))
-        self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window)
+        self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window, self.fp[[K.R_STEP, K.R_WALL, K.R_COLL,
+                                                                                  K.R_GOAL]])
         self.tab = new_table(64 if tables else 1, algo, n)
         if cq and st.cq_w1_alone:
             self._w1_alone()
@@ -251,10 +252,10 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     learner.keys = [None if key < 0 else _js_key(jsi, key) for key in kernel.cq[3][k, :ag[K.NKEYS]]]
     assert not kernel.cq[0][k, K.W_ON], "between episodes no step waits"
     learner.waiting = None
-    wi, wf, pool = kernel.win[0][k], kernel.win[1][k], kernel.win[2]
+    wi, wf, pool, vals = kernel.win[0][k], kernel.win[1][k], kernel.win[2], kernel.win[5]
     size = pool.shape[1]
     for w in np.flatnonzero(wi[:, W.BUF] >= 0):  # the windows untouched are as the learner's constructor made them
-        windows, ints, floats, buf = learner.windows[w], wi[w], wf[w], pool[wi[w, W.BUF]]
+        windows, ints, floats, buf = learner.windows[w], wi[w], wf[w], vals[pool[wi[w, W.BUF]]]
         windows.n1 = int(ints[W.N1])
         windows.w1 = buf[:windows.n1].tolist() if windows.n1 < size else []
         windows.w2 = buf[:ints[W.N2]].tolist() if windows.n1 == size else []
@@ -331,10 +332,13 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
     if rows:
         pool, used = kernel.win[2], kernel.win[3]
         pool = W.room(pool, used, len(rows))
+        kinds, vals = W.kinds_of(kernel.win[5], np.concatenate([np.asarray(samples, np.float64) for samples in rows]))
+        at = 0
         for i, samples in enumerate(rows):
-            pool[used[0] + i, :len(samples)] = samples
+            pool[used[0] + i, :len(samples)] = kinds[at:at + len(samples)]
+            at += len(samples)
         used[0] += len(rows)
-        kernel.win = (*kernel.win[:2], pool, *kernel.win[3:])
+        kernel.win = (*kernel.win[:2], pool, used, kernel.win[4], vals, kernel.win[6])
 
 
 def _slots_for(need: int) -> int:

@@ -16,8 +16,10 @@ from .jit import kernel
 from .mt import randbelow, random
 
 
-# rows of the step's per-agent scratch (`ai`) and per-cell scratch (`ci`)
-TARGET, FINAL, NEXT, BACK, FRESH, BUMPED, DELAYED, COLLIDED = range(8)
+# rows of the step's per-agent scratch (`ai`) and per-cell scratch (`ci`); KIND: which of `rw` the agent's reward
+# is (an agent at its goal, none: its reward 0.0 is learnt by no one), so that a reward window can store the kind
+TARGET, FINAL, NEXT, BACK, FRESH, BUMPED, DELAYED, COLLIDED, KIND = range(9)
+STEP, WALL, COLLISION, GOAL = range(4)  # the kinds
 STAMP, OWNER, CSTAMP, HEAD, TAIL = range(5)
 
 
@@ -25,7 +27,7 @@ def new_scratch(n: int, n_cells: int):
     """The step's scratch, so that a step allocates nothing and makes no array views (each would count a
     reference): per agent its rows `ai` (TARGET...) and the rewards; per cell its rows `ci` (STAMP...); two
     clocks; the pairs found, as a matrix and as the list that clears it."""
-    return (np.zeros((8, n), np.int64), np.zeros(n), np.zeros((5, n_cells), np.int64), np.zeros(2, np.int64),
+    return (np.zeros((9, n), np.int64), np.zeros(n), np.zeros((5, n_cells), np.int64), np.zeros(2, np.int64),
             np.zeros((n, n), np.bool_), np.zeros((2, n * (n - 1) // 2 + 1), np.int64))
 
 
@@ -141,8 +143,9 @@ def _resolve(cells, goals, ai, ci, clock, pair, listed):
 
 @njit(cache=True, inline="always")
 def step(nbr, goals, cells, done, hold, mt, actions, slip, start_hold, rw, ai, rewards, ci, clock, pair, listed):
-    """GridWorld.step_joint for `actions` (-1: no action: at the goal): the rewards into `rewards`; the colliding
-    pairs. `rw` is (step, wall, collision, goal); `ai` ... `listed` the scratch (new_scratch)."""
+    """GridWorld.step_joint for `actions` (-1: no action: at the goal): the rewards into `rewards` (their kinds
+    into ai[KIND]); the colliding pairs. `rw` is (step, wall, collision, goal); `ai` ... `listed` the scratch
+    (new_scratch)."""
     n = cells.shape[0]
     if slip or start_hold:
         for i in range(n):
@@ -171,18 +174,20 @@ def step(nbr, goals, cells, done, hold, mt, actions, slip, start_hold, rw, ai, r
             continue
         t = ai[TARGET, i]
         if ai[COLLIDED, i]:
-            rewards[i] = rw[2]
+            kind = COLLISION
         elif t == cells[i] and not ai[BUMPED, i]:
-            rewards[i] = rw[0]
+            kind = STEP
         else:
             if t == cells[i]:
-                rewards[i] = rw[1]
+                kind = WALL
             elif t == goals[i]:
-                rewards[i] = rw[3]
+                kind = GOAL
             else:
-                rewards[i] = rw[0]
+                kind = STEP
             if t == goals[i]:
                 done[i] = True
+        rewards[i] = rw[kind]
+        ai[KIND, i] = kind
     for i in range(n):
         cells[i] = ai[FINAL, i]
     return collisions
