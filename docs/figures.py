@@ -295,11 +295,13 @@ def study_budget() -> str:
 
 # Stalls (37): each variant that pays more for arriving beside the configuration it changes, and for each CQ
 # configuration the independent learners under the same rewards (their collisions over CQ's, frozen).
-STALL_PAIRS = {"tuning": {"g99": "cq", "goal100": "cq", "both": "cq", "ig99": "indep", "igoal100": "indep",
-                          "iboth": "indep"},
-               "study": {"cq_goal100": "cq", "indep_goal100": "indep"}}
-STALL_PARTNERS = {"tuning": {"cq": "indep", "g99": "ig99", "goal100": "igoal100", "both": "iboth"},
-                  "study": {"cq": "indep", "cq_goal100": "indep_goal100"}}
+STALL_PAIRS = {"tuning": {"g99": "cq", "goal50": "cq", "goal100": "cq", "both": "cq", "goal100e0": "cq",
+                          "ig99": "indep", "igoal50": "indep", "igoal100": "indep", "iboth": "indep",
+                          "igoal100e0": "indep"},
+               "study": {"cq_goal50": "cq", "cq_goal100": "cq", "indep_goal50": "indep", "indep_goal100": "indep"}}
+STALL_PARTNERS = {"tuning": {"cq": "indep", "g99": "ig99", "goal50": "igoal50", "goal100": "igoal100",
+                             "both": "iboth", "goal100e0": "igoal100e0"},
+                  "study": {"cq": "indep", "cq_goal50": "indep_goal50", "cq_goal100": "indep_goal100"}}
 
 
 def stalls(kind: str, folders: Sequence[str]) -> str:
@@ -354,7 +356,8 @@ def stalls(kind: str, folders: Sequence[str]) -> str:
 
 FIGURES: dict[str, Callable[[], str]] = {"study": study, "study-targets": study_targets,
                                          "study-budget": study_budget,
-                                         "tuning-stalls": partial(stalls, "tuning", ("tuning/stalls",)),
+                                         "tuning-stalls": partial(stalls, "tuning",
+                                                                  ("tuning/stalls", "tuning/stalls_32")),
                                          "study-stalls": partial(stalls, "study", ("study/8", "study/12",
                                                                                    "study/16")),
                                          "reproduce": reproduce, "who-listens": who_listens,
