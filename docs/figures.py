@@ -359,7 +359,7 @@ FIGURES: dict[str, Callable[[], str]] = {"study": study, "study-targets": study_
                                          "tuning-stalls": partial(stalls, "tuning",
                                                                   ("tuning/stalls", "tuning/stalls_32")),
                                          "study-stalls": partial(stalls, "study", ("study/8", "study/12",
-                                                                                   "study/16")),
+                                                                                   "study/16", "study/32")),
                                          "reproduce": reproduce, "who-listens": who_listens,
                                          "warehouses": warehouses, "delays": delays,
                                          "delays-held-out": delays_held_out,
