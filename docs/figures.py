@@ -19,7 +19,7 @@ import json
 import re
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
 
@@ -210,7 +210,8 @@ COLLISION_TARGETS = {8: 0.05, 12: 0.1, 16: 0.2, 32: 0.2}
 
 def study_targets() -> str:
     """Each kept study's frozen greedy figures against the targets, for each of its CQ configurations (cq, and a
-    variant such as cq_r1): met or missed, from its units.csv."""
+    variant such as cq_r1): met or missed, from its units.csv; the ratio of collisions against the independent
+    learners with the same settings of their own where the study played them (cq_goal100: indep_goal100)."""
     from cq_ros.lab.held_out import shown_rows
 
     lines = ["| study | target | measured (frozen greedy policy) | |", "| --- | --- | --- | --- |"]
@@ -220,18 +221,24 @@ def study_targets() -> str:
         agents = shown["sizes"][0]
         rows = [r for r in shown_rows(folder, "units.csv") if r["agents"] == agents]
         for config in (c for c in shown["configs"] if protocol["configs"][c]["algo"] == "cq"):
-            lines += _target_rows(folder, agents, rows, config, "near" in shown["configs"])
+            # the independent learners under the same settings where the study played them (a variant's rewards),
+            # else indep
+            sets = protocol["configs"][config].get("sets", [])
+            indep = next((c for c in shown["configs"] if protocol["configs"][c]["algo"] == "indep" and sets
+                          and protocol["configs"][c].get("sets", []) == sets), "indep")
+            lines += _target_rows(folder, agents, rows, config, "near" in shown["configs"], indep)
     return "\n".join(lines) + "\n"
 
 
-def _target_rows(folder: Path, agents: int, rows: list[dict], config: str, near: bool) -> list[str]:
+def _target_rows(folder: Path, agents: int, rows: list[dict], config: str, near: bool,
+                 indep: str = "indep") -> list[str]:
     from cq_ros.lab.held_out import BOOTSTRAP_SEED, unit_values
     from cq_ros.lab.study import makespan_ratio, mean_interval, ratio_interval
 
     cq = unit_values(rows, config, "frozen_collisions")
     home = unit_values(rows, config, "frozen_home")
     collisions = mean_interval(cq)
-    ratio = ratio_interval(unit_values(rows, "indep", "frozen_collisions"), cq, BOOTSTRAP_SEED)
+    ratio = ratio_interval(unit_values(rows, indep, "frozen_collisions"), cq, BOOTSTRAP_SEED)
     makespan = makespan_ratio(unit_values(rows, config, "frozen_makespan"),
                               unit_values(rows, config, "planner_makespan"))
     name = f"{folder.name} ({agents} AGVs, {len(cq)} units): {config}"
@@ -240,7 +247,7 @@ def _target_rows(folder: Path, agents: int, rows: list[dict], config: str, near:
          all(h == 1 for h in home)),
         (f"collisions at most {COLLISION_TARGETS[agents]:g} an episode", collisions.show(3),
          collisions.mean <= COLLISION_TARGETS[agents]),
-        (f"indep / {config} collisions at least 5x, bootstrap low end above 2x",
+        (f"{indep} / {config} collisions at least 5x, bootstrap low end above 2x",
          f"{ratio.mean:.2f}x ({ratio.low:.2f} to {ratio.high:.2f})", ratio.mean >= 5 and ratio.low > 2),
         ("makespan within 1.5x of the planner's executed makespan", f"{makespan.show(2)}x", makespan.mean <= 1.5),
     ]
@@ -286,8 +293,73 @@ def study_budget() -> str:
     return "\n".join(lines) + "\n"
 
 
+# Stalls (37): each variant that pays more for arriving beside the configuration it changes, and for each CQ
+# configuration the independent learners under the same rewards (their collisions over CQ's, frozen).
+STALL_PAIRS = {"tuning": {"g99": "cq", "goal50": "cq", "goal100": "cq", "both": "cq", "goal100e0": "cq",
+                          "ig99": "indep", "igoal50": "indep", "igoal100": "indep", "iboth": "indep",
+                          "igoal100e0": "indep"},
+               "study": {"cq_goal50": "cq", "cq_goal100": "cq", "indep_goal50": "indep", "indep_goal100": "indep"}}
+STALL_PARTNERS = {"tuning": {"cq": "indep", "g99": "ig99", "goal50": "igoal50", "goal100": "igoal100",
+                             "both": "iboth", "goal100e0": "igoal100e0"},
+                  "study": {"cq": "indep", "cq_goal50": "indep_goal50", "cq_goal100": "indep_goal100"}}
+
+
+def stalls(kind: str, folders: Sequence[str]) -> str:
+    """Per kept study and size, each configuration's frozen every-AGV-home rate, frozen collisions and makespan
+    over the planner's, the learning copy's collisions and heard (means with 95% t intervals over units; a
+    variant's paired difference from the configuration it changes beside it), and for CQ configurations the
+    bootstrap ratio of the independent learners' frozen collisions (same rewards) over theirs."""
+    from cq_ros.lab.held_out import BOOTSTRAP_SEED, shown_rows, unit_values
+    from cq_ros.lab.study import makespan_ratio, mean_interval, paired_difference, ratio_interval
+
+    pairs, partners = STALL_PAIRS[kind], STALL_PARTNERS[kind]
+    lines = ["| study | AGVs | units | configuration | frozen: every AGV home | collisions/ep | makespan / planner's | "
+             "learning: collisions/ep | heard/ep | frozen collisions, indep under the same rewards / it |",
+             "| --- | ---: | ---: | --- | --- | --- | --- | --- | --- | --- |"]
+    columns = (("frozen_home", 2), ("frozen_collisions", 3), ("frozen_makespan_ratio", 2),
+               ("learning_collisions", 3), ("learning_heard", 1))
+    for name in folders:
+        folder = DATA / name
+        all_rows = shown_rows(folder, "units.csv")
+        played = {r["config"] for r in all_rows}
+        for agents in sorted({r["agents"] for r in all_rows}):
+            rows = [r for r in all_rows if r["agents"] == agents]
+            for config in (c for c in [*partners, *partners.values()] if c in played):
+                base = pairs.get(config)
+                units = sorted({(r["generator_seed"], r["run"]) for r in rows if r["config"] == config})
+                if base is not None:
+                    units = sorted(set(units) & {(r["generator_seed"], r["run"]) for r in rows
+                                                 if r["config"] == base})
+                cells = []
+                for column, digits in columns:
+                    values = unit_values(rows, config, column, units)
+                    if column == "frozen_makespan_ratio":
+                        shown = makespan_ratio(unit_values(rows, config, "frozen_makespan", units),
+                                               unit_values(rows, config, "planner_makespan", units)).show(digits)
+                    else:
+                        shown = mean_interval(values).show(digits)
+                    if base is not None:
+                        diff = paired_difference(values, unit_values(rows, base, column, units)).show(digits)
+                        shown += f" (paired {'+' if not diff.startswith('-') else ''}{diff})"
+                    cells.append(shown)
+                partner = partners.get(config)
+                if partner in played:
+                    r = ratio_interval(unit_values(rows, partner, "frozen_collisions", units),
+                                       unit_values(rows, config, "frozen_collisions", units), BOOTSTRAP_SEED)
+                    cells.append(f"{partner} / {config}: {r.mean:.2f}x ({r.low:.2f} to {r.high:.2f})")
+                else:
+                    cells.append("-")
+                what = config if base is None else f"{config}, paired against {base}"
+                lines.append(f"| {Path(name).name} | {agents} | {len(units)} | {what} | {' | '.join(cells)} |")
+    return "\n".join(lines) + "\n"
+
+
 FIGURES: dict[str, Callable[[], str]] = {"study": study, "study-targets": study_targets,
                                          "study-budget": study_budget,
+                                         "tuning-stalls": partial(stalls, "tuning",
+                                                                  ("tuning/stalls", "tuning/stalls_32")),
+                                         "study-stalls": partial(stalls, "study", ("study/8", "study/12",
+                                                                                   "study/16", "study/32")),
                                          "reproduce": reproduce, "who-listens": who_listens,
                                          "warehouses": warehouses, "delays": delays,
                                          "delays-held-out": delays_held_out,

@@ -48,7 +48,8 @@ def test_the_figures_stand_where_the_pages_say():
                      "churn-fast_fading": "choices.md", "bench-cluster": "cluster.md",
                      "scaling-three-runs": "warehouses.md", "yardstick": "warehouses.md",
                      "delays-say": "warehouses.md", "delays-held-out": "warehouses.md",
-                     "study": "warehouses.md", "study-targets": "warehouses.md", "study-budget": "warehouses.md"}
+                     "study": "warehouses.md", "study-targets": "warehouses.md", "study-budget": "warehouses.md",
+                     "tuning-stalls": "choices.md", "study-stalls": "warehouses.md"}
 
 
 def test_the_budget_table_pairs_each_study_with_its_longer_twin_only():
