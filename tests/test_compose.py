@@ -179,27 +179,38 @@ def test_the_container_exits_2_with_one_line_for_bad_input(args, message):
 
 
 
-@pytest.mark.parametrize("compose", [True, False], ids=["composed", "process_per_node"])
+# (agents, generator arguments, learning episodes, composed): 3 AGVs both ways with a start hold; 32 AGVs at the
+# held-out study's slip, composed (33 processes would mostly time start-up), long enough that CQ marks joint states
+# and hears its peers (from episode 4 on this map, offline)
+DELAYED = {"3_composed": (3, {"aisles": 2, "aisle_length": 3, "slip": 0.2, "start_hold": 2}, 12, True),
+           "3_process_per_node": (3, {"aisles": 2, "aisle_length": 3, "slip": 0.2, "start_hold": 2}, 12, False),
+           "32_composed": (32, {"slip": 0.1}, 20, True)}
+
+
+@pytest.mark.parametrize("case", list(DELAYED))
 @pytest.mark.ros
 @pytest.mark.slow
-def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, compose):
+def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, case):
     """Delays come from the world's own seeded RNG (cq_ros.world, "Delays"), so a launch of a delayed warehouse
     file (its `set slip` and `set start_hold` lines) draws exactly the offline run's delays, greedy episodes
-    included."""
+    included, and CQ's agents hear the peers the offline learners hear."""
+    agents, generated, episodes, compose = DELAYED[case]
     path = tmp_path / "delayed.txt"
-    path.write_text(warehouse_text(3, aisles=2, aisle_length=3, seed=5, slip=0.2, start_hold=2))
+    path.write_text(warehouse_text(agents, seed=5, **generated))
     out, namespace = tmp_path / "result", unique("delayed")
     sets = ["eval_episodes=2", "step_cap=300", "epsilon_decay_episodes=0"]
-    done = subprocess.run(launch_command(out, namespace, str(path), "cq", 12, sets, *(["--compose"] * compose),
-                                         "--no-figures"), capture_output=True, text=True, timeout=180)
+    done = subprocess.run(launch_command(out, namespace, str(path), "cq", episodes, sets, *(["--compose"] * compose),
+                                         "--no-figures"), capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stderr
     gridmap = load_map(path)
     settings = run_settings(gridmap, sets)
-    assert (settings.slip, settings.start_hold) == (0.2, 2)
+    assert (settings.slip, settings.start_hold) == (generated["slip"], generated.get("start_hold", 0))
     # CQ's settings under delays, by default
     assert (settings.cq_w1_alone, settings.cq_waits_fresh, settings.cq_mark_colliders,
             settings.cq_look_if_decisive) == (1, 1, 1, 1)
-    offline = run("cq", gridmap, settings, SEED, 0, 12)
+    offline = run("cq", gridmap, settings, SEED, 0, episodes)
+    if agents == 32:
+        assert offline.episodes["heard"].sum() > 0
     for name, table in (("episodes.csv", offline.episodes), ("greedy.csv", offline.greedy)):
         with open(out / name, newline="") as f:
             rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"]), int(r["heard"]))
