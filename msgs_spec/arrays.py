@@ -1,33 +1,7 @@
 """The array payloads' codec (feedback, positions, actions, heartbeats): their layouts on the std_msgs
 MultiArray types, and for each the one serializer, encoder and validating decoder, with the run's MAC and seal.
-
-Array layouts (one dimension; its label lists the fields in order, so `ros2 topic echo` is self-describing):
-
-    Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated,applied"
-    Position  std_msgs/Int32MultiArray    label "agent,episode,step,row,col"
-    Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
-    Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step,stepping,started,ticket"
-
-Keyed (msgs_spec.auth): with the run's key the label ends in ",run0,run1,inc,mac0,mac1,mac2,mac3" and the
-data holds, after the fields, the seal (the run nonce's high and low 32-bit words, the sender's incarnation)
-and the MAC's four 32-bit words over the fields' and the seal's bytes (each word as int32 in an Int32 array, as
-a whole number in a Float64 one). A decoder given the key refuses any other message as `unauthenticated`, then
-a seal its RunKey does not hold as `other_run` / `other_incarnation`; one without the key accepts both forms and
-checks neither (the tools, nodes started by hand without a key). A bare key (bytes) seals with run and
-incarnation 0 and checks the MAC only.
-
-Every decoder raises only `WireError` for any input, with the first failing check in this order: type, layout,
-length, MAC then seal, numbers (finite, integer, int32 range), then the payload's own checks (its layout's
-`check`: agent id, action / cell range, episode, step). Encoders refuse what no decoder would accept (bad values,
-not context), so a sender's bug shows at the sender.
-
-Nodes publish `layout.serialize(payload, key)`: the bytes rclpy would make of `encode(payload)` (alignment zero),
-written out from CDR here without rclpy; they read with raw subscriptions, and every decoder takes a message or
-its serialized bytes alike. Bytes in one of the layout's two forms (`_Form`) are read in place: the frame
-compared, the MAC made from the hashes the node's RunKey primed, the seal compared as bytes with the one the
-key holds for its sender, the values unpacked once. Other bytes are deserialized and checked as the message
-they are, and bytes longer than the keyed form are refused from their header alone (`_oversized`): a flood's
-large junk costs what a small one does.
+msgs_spec/README.md is the reference ("The codec", "The run's key", "Validation and dropping", the generated
+layouts): the keyed form, the order of the checks, the serialized forms read in place.
 """
 
 from __future__ import annotations

@@ -1,22 +1,8 @@
 """The statistics' codec: WorldStats and AgentStats as a diagnostic_msgs/DiagnosticArray holding one
-DiagnosticStatus whose `values` are KeyValue pairs (the keys and what they hold: WORLD_STATS_KEYS,
-AGENT_STATS_KEYS); decoders check every key and value and raise only `WireError`.
-
-With the run's key the pairs end with `mac`: the run's HMAC (msgs_spec.auth) over the status name, the
-hardware id and every other pair, in order, as hex. A receiver holding the key drops statistics without a
-matching one (`unauthenticated`), so a launcher never counts a second system's episodes as its own; one
-without the key (`cq-ros collect`, `ros2 topic echo`) reads both forms, as it does the arrays.
-
-Sealed as the arrays are: a sender holding a RunKey puts its run nonce (`run`, 16 hex digits) and its
-incarnation (`inc`, 8) before the `mac`, which covers them, so a recording of an earlier run under the same key
-file is no statistic of this one. A receiver told the run (`run=`, or a RunKey's) refuses a statistic sealed
-with another, or with none, as `other_run`.
-
-Decoders take a message or its serialized bytes (a raw subscription's). Bytes are judged from their CDR header
-before they are deserialized (`_oversized`): a status count other than 1 is `wrong_layout`; more pairs than a
-statistic of the map can hold (`pairs_bound`), or more bytes than so many pairs of the longest keys and values
-take (`bytes_bound`), is `malformed`. A flood's statistics of 2,000 pairs or 500 statuses so cost a header's
-reading, not a deserialization."""
+DiagnosticStatus whose `values` are KeyValue pairs (WORLD_STATS_KEYS, AGENT_STATS_KEYS), keyed with a `mac`
+pair and sealed with `run` and `inc`; decoders take a message or its serialized bytes, judge bytes from their
+CDR header first (`_oversized`) and raise only `WireError` (msgs_spec/README.md, "The run's key",
+"Validation and dropping")."""
 
 from __future__ import annotations
 
