@@ -7,7 +7,6 @@ CDR header first (`_oversized`) and raise only `WireError` (msgs_spec/README.md,
 from __future__ import annotations
 
 import hmac
-import math
 import re
 import struct
 from typing import Any, Mapping
@@ -87,24 +86,9 @@ def _parse_int(key: str, s: str, wide: bool = False) -> int:
     if wide and len(s) > WIDE_DIGITS:
         raise WireError("out_of_range", f"{key} has {len(s)} digits, more than {WIDE_DIGITS}")
     if not _INT_RE.fullmatch(s):
-        try:  # tell a fraction or NaN apart from garbage
-            f = float(s)
-        except ValueError:
-            raise WireError("malformed", f"{key} = {s!r} is not an integer") from None
-        if not math.isfinite(f):
-            raise WireError("not_finite", f"{key} = {s!r}")
+        as_float(key, s, text=True)  # garbage is malformed, NaN not_finite; else it is a fraction
         raise WireError("not_integer", f"{key} = {s!r}")
     return as_int(key, int(s), wide=wide)
-
-
-def _parse_float(key: str, s: str) -> float:
-    try:
-        f = float(s)
-    except ValueError:
-        raise WireError("malformed", f"{key} = {s!r} is not a number") from None
-    if not math.isfinite(f):
-        raise WireError("not_finite", f"{key} = {s!r}")
-    return f
 
 
 def _parse_bool(key: str, s: str) -> bool:
@@ -339,7 +323,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
         ints[k] = _parse_int(k, _take(values, k))
         check_nonneg(k, ints[k])
     truncated = _parse_bool("truncated", _take(values, "truncated"))
-    duration = _parse_float("duration_s", _take(values, "duration_s"))
+    duration = as_float("duration_s", _take(values, "duration_s"), text=True)
     if duration < 0:
         raise WireError("out_of_range", f"duration_s = {duration}")
     found = {}
@@ -347,7 +331,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
         m = _RETURN_RE.fullmatch(key)
         if not m:
             raise WireError("malformed", f"key {key!r}, expected return.agv<k>")
-        found[int(m.group(1))] = _parse_float(key, values.pop(key))
+        found[int(m.group(1))] = as_float(key, values.pop(key), text=True)
     n = len(found)
     if n == 0 or set(found) != set(range(1, n + 1)):
         raise WireError("malformed", f"return keys for agents {sorted(found)}, expected 1..{n or 'N'}")
@@ -438,7 +422,7 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
         if not vm:
             raise WireError("malformed", f"{key} = {text!r}")
         r, c, p, pr, pc = (as_int(key, int(g)) for g in vm.groups()[:5])
-        conf = _parse_float(f"{key}.confidence", vm.group(6))
+        conf = as_float(f"{key}.confidence", vm.group(6), text=True)
         found[int(km.group(1))] = _check_marked(MarkedJointState(r, c, p, pr, pc, conf), ints["agent"],
                                                 bounds, key)
     if set(found) != set(range(len(found))):

@@ -17,6 +17,7 @@ from nav_msgs.msg import OccupancyGrid
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from .checks import check_agent, check_cell
 from .errors import WireError
 from .payloads import Bounds
 from .topics import AGENT_PREFIX, Qos, TopicSpec, _agent_id, parse_name, taking
@@ -84,8 +85,7 @@ def xy_cell(x: float, y: float, bounds: Bounds | None, what: str) -> tuple[int, 
     if col != round(col) or row != round(row):
         raise WireError("not_integer", f"{what} at ({x}, {y}) is not the centre of a cell")
     row, col = int(round(row)), int(round(col))
-    if row < 0 or col < 0 or (bounds is not None and (row >= bounds.rows or col >= bounds.cols)):
-        raise WireError("cell_out_of_range", f"{what} at cell ({row}, {col}), outside the grid")
+    check_cell(row, col, bounds, f"{what} at cell")
     return row, col
 
 
@@ -221,10 +221,7 @@ def decode_looks(msg: Any, *, bounds: Bounds | None = None, agent: int | None = 
         raise WireError("wrong_layout", f"marker ns {m.ns!r} id {m.id} type {m.type}, expected "
                                         f"'{AGENT_PREFIX}<k>/looks' 0 LINE_LIST")
     who = int(found.group(1))
-    if bounds is not None and who > bounds.n_agents:
-        raise WireError("unknown_agent", f"agent {who}, known agents 1..{bounds.n_agents}")
-    if agent is not None and who != agent:
-        raise WireError("wrong_agent", f"agent {who} on the topic of agent {agent}")
+    check_agent(who, bounds, agent)
     text = _LOOKS_TEXT.fullmatch(m.text)
     if not text:
         raise WireError("malformed", f"text {m.text!r}, expected 'episode E step S: agv<j> ...'")
