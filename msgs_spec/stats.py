@@ -269,6 +269,7 @@ def _take(values: dict[str, str], key: str) -> str:
 
 
 def _take_counters(values: dict[str, str]) -> dict[str, int]:
+    """The counters (`count.<name>`) of what is left of a status's pairs, which must be all that is left."""
     counters = {}
     for key in [k for k in values if k.startswith("count.")]:
         name = key[len("count."):]
@@ -277,12 +278,9 @@ def _take_counters(values: dict[str, str]) -> dict[str, int]:
         v = _parse_int(key, values.pop(key))
         check_nonneg(key, v)
         counters[name] = v
-    return counters
-
-
-def _no_leftovers(values: dict[str, str]) -> None:
     if values:
         raise WireError("malformed", f"unknown keys {sorted(values)}")
+    return counters
 
 
 def encode_world_stats(s: WorldStats, *, stamp: Time | None = None, key: bytes | None = None) -> DiagnosticArray:
@@ -339,7 +337,6 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
         raise WireError("unknown_agent" if n > bounds.n_agents else "malformed",
                         f"returns for {n} agents, the world has {bounds.n_agents}")
     counters = _take_counters(values)
-    _no_leftovers(values)
     check_sequence(ints["episode"], None, episode, None)
     return WorldStats(episode=ints["episode"], steps=ints["steps"], truncated=truncated,
                       collisions=ints["collisions"], missed_actions=ints["missed_actions"],
@@ -428,7 +425,6 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
     if set(found) != set(range(len(found))):
         raise WireError("malformed", f"marked indices {sorted(found)}, expected 0..{len(found) - 1}")
     counters = _take_counters(values)
-    _no_leftovers(values)
     check_sequence(ints["episode"], None, episode, None)
     return AgentStats(agent=ints["agent"], episode=ints["episode"], algorithm=algorithm,
                       joint_plays=ints["joint_plays"], heard=ints["heard"], local_states=ints["local_states"],
