@@ -284,7 +284,7 @@ def test_a_node_module_stays_thin(path):
     assert lines <= NODE_LINES_MAX, f"{path}: {lines} lines, more than {NODE_LINES_MAX}"
 
 
-# The wire contract is its payloads, layouts, topics and their codec (issue 38: 2,467 lines, one codec, one
+# The wire contract is its payloads, layouts, topics and their codec (38: 2,467 lines, then one codec, one
 # TopicSpec for every topic): what grows past this is a copy to merge, or a helper that belongs to its user.
 MSGS_SPEC_LINES_MAX = 2273
 
