@@ -13,46 +13,12 @@ See msgs_spec/README.md (its tables are generated from this code; `python -m msg
                      source=feedback_topic(k))
 """
 
+from . import codec, errors, payloads, topics
 from .auth import KeyFileError, new_key_file, read_key, write_key_file
-from .codec import (
-    ACTION_LAYOUT, AGENT_STATS_KEYS, ARRAY_LAYOUTS, FEEDBACK_LAYOUT, HEARTBEAT_LAYOUT, POSITION_LAYOUT,
-    WORLD_STATS_KEYS, WORLD_STATS_NAME, ArrayLayout, agent_stats_name, check_sequence, decode, decode_action,
-    decode_agent_stats, decode_feedback, decode_heartbeat, decode_position, decode_world_stats, encode,
-    encode_action, encode_agent_stats, encode_feedback, encode_heartbeat, encode_position, encode_world_stats,
-    serialize,
-)
-from .errors import KINDS, DropCounter, WireError
-from .payloads import (
-    ACTION_NAMES, ACTIONS, EAST, INT32_MAX, NO_ACTION, NORTH, SOUTH, WEST, Action, AgentStats, Bounds, Feedback,
-    Heartbeat, MarkedJointState, Position, WorldStats,
-)
-from .topics import (
-    ACTION, AGENT_PREFIX, AGENT_STATS, FEEDBACK, HEARTBEAT, HEARTBEAT_TOPIC, POSITION, QOS_ACTION, Qos,
-    QOS_FEEDBACK, QOS_POSITION, QOS_STATS, READER_DEPTH, TOPICS, WORLD_STATS, WORLD_STATS_TOPIC, TopicSpec,
-    action_topic, agent_namespace, agent_stats_topic, agent_topics, feedback_topic, parse_topic,
-    position_topic, qos_summary, type_name,
-)
+from .codec import *  # noqa: F403 (each module's __all__ says what it exports)
+from .errors import *  # noqa: F403
+from .payloads import *  # noqa: F403
+from .topics import *  # noqa: F403
 
-__all__ = [
-    # payloads
-    "NORTH", "EAST", "SOUTH", "WEST", "ACTIONS", "ACTION_NAMES", "NO_ACTION", "INT32_MAX",
-    "Bounds", "Feedback", "Position", "Action", "Heartbeat", "MarkedJointState", "AgentStats", "WorldStats",
-    # auth
-    "KeyFileError", "new_key_file", "read_key", "write_key_file",
-    # errors
-    "KINDS", "WireError", "DropCounter",
-    # codec
-    "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "HEARTBEAT_LAYOUT", "ARRAY_LAYOUTS",
-    "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
-    "encode", "serialize", "decode", "check_sequence", "encode_feedback", "decode_feedback", "encode_position",
-    "decode_position",
-    "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
-    "decode_world_stats",
-    "encode_agent_stats", "decode_agent_stats",
-    # topics
-    "AGENT_PREFIX", "Qos", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
-    "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "HEARTBEAT", "AGENT_STATS", "WORLD_STATS", "TOPICS",
-    "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic",
-    "action_topic",
-    "agent_stats_topic", "agent_topics", "parse_topic", "qos_summary", "type_name",
-]
+__all__ = [*payloads.__all__, "KeyFileError", "new_key_file", "read_key", "write_key_file", *errors.__all__,
+           *codec.__all__, *topics.__all__]

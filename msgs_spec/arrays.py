@@ -1,33 +1,7 @@
 """The array payloads' codec (feedback, positions, actions, heartbeats): their layouts on the std_msgs
 MultiArray types, and for each the one serializer, encoder and validating decoder, with the run's MAC and seal.
-
-Array layouts (one dimension; its label lists the fields in order, so `ros2 topic echo` is self-describing):
-
-    Feedback  std_msgs/Float64MultiArray  label "agent,episode,step,row,col,reward,done,truncated,applied"
-    Position  std_msgs/Int32MultiArray    label "agent,episode,step,row,col"
-    Action    std_msgs/Int32MultiArray    label "agent,episode,step,action"
-    Heartbeat std_msgs/Int32MultiArray    label "beat,episode,step,stepping,started,ticket"
-
-Keyed (msgs_spec.auth): with the run's key the label ends in ",run0,run1,inc,mac0,mac1,mac2,mac3" and the
-data holds, after the fields, the seal (the run nonce's high and low 32-bit words, the sender's incarnation)
-and the MAC's four 32-bit words over the fields' and the seal's bytes (each word as int32 in an Int32 array, as
-a whole number in a Float64 one). A decoder given the key refuses any other message as `unauthenticated`, then
-a seal its RunKey does not hold as `other_run` / `other_incarnation`; one without the key accepts both forms and
-checks neither (the tools, nodes started by hand without a key). A bare key (bytes) seals with run and
-incarnation 0 and checks the MAC only.
-
-Every decoder raises only `WireError` for any input, with the first failing check in this order: type, layout,
-length, MAC then seal, numbers (finite, integer, int32 range), then the payload's own checks (its layout's
-`check`: agent id, action / cell range, episode, step). Encoders refuse what no decoder would accept (bad values,
-not context), so a sender's bug shows at the sender.
-
-Nodes publish `layout.serialize(payload, key)`: the bytes rclpy would make of `encode(payload)` (alignment zero),
-written out from CDR here without rclpy; they read with raw subscriptions, and every decoder takes a message or
-its serialized bytes alike. Bytes in one of the layout's two forms (`_Form`) are read in place: the frame
-compared, the MAC made from the hashes the node's RunKey primed, the seal compared as bytes with the one the
-key holds for its sender, the values unpacked once. Other bytes are deserialized and checked as the message
-they are, and bytes longer than the keyed form are refused from their header alone (`_oversized`): a flood's
-large junk costs what a small one does.
+msgs_spec/README.md is the reference ("The codec", "The run's key", "Validation and dropping", the generated
+layouts): the keyed form, the order of the checks, the serialized forms read in place.
 """
 
 from __future__ import annotations
@@ -325,22 +299,13 @@ class ArrayLayout:
         try:
             dims = list(msg.layout.dim)
             data = list(msg.data)
-            offset = msg.layout.data_offset
+            d = dims[0] if len(dims) == 1 else MultiArrayDimension()
+            refusal = self._refusal(len(dims), d.label, d.size, d.stride, msg.layout.data_offset, len(data))
         except (AttributeError, TypeError) as e:  # a hand-built message object with broken fields
             raise WireError("malformed", f"unreadable message: {e}") from None
-        if len(dims) != 1:
-            raise WireError("wrong_layout", f"{len(dims)} dims, expected 1 labelled {self.label!r}")
-        d = dims[0]
-        keyed = d.label == self.keyed_label
-        if not keyed and d.label != self.label:
-            raise WireError("wrong_layout", f"label {d.label!r}, expected {self.label!r}")
-        _, size = self.dimension(keyed)
-        if d.size != size or d.stride != size or offset != 0:
-            raise WireError("wrong_layout", f"size {d.size} stride {d.stride} data_offset {offset}, "
-                                            f"expected {size} {size} 0")
-        if len(data) != size:
-            raise WireError("wrong_length", f"{len(data)} values, expected {size} ({d.label})")
-        form = self.forms[keyed]
+        if refusal is not None:
+            raise refusal
+        form = self.forms[d.label == self.keyed_label]
         try:
             return form.head + form.data.pack(*data)
         except struct.error as e:  # a value the wire type cannot hold
@@ -360,19 +325,22 @@ class ArrayLayout:
             if n - 1 not in (len(self.label), len(self.keyed_label)):  # not read: it may be 10 KB
                 return WireError("wrong_layout", f"a label of {n - 1} bytes, expected {self.label!r}")
             label = raw[12:12 + n - 1].decode()
-            keyed = label == self.keyed_label
-            if not keyed and label != self.label:
-                return WireError("wrong_layout", f"label {label!r}, expected {self.label!r}")
-            at = 12 + n + (4 - (12 + n)) % 4
-            size_, stride, offset, length = struct.unpack_from("<4I", raw, at)
+            return self._refusal(1, label, *struct.unpack_from("<4I", raw, 12 + n + (4 - (12 + n)) % 4))
         except (struct.error, ValueError) as e:  # UnicodeDecodeError is a ValueError
             return WireError("malformed", f"not a serialized {self.ros_type.__name__} ({len(raw)} bytes): {e}")
-        _, size = self.dimension(keyed)
-        if size_ != size or stride != size or offset != 0:
-            return WireError("wrong_layout",
-                             f"size {size_} stride {stride} data_offset {offset}, expected {size} {size} 0")
-        if length != size:
-            return WireError("wrong_length", f"{length} values, expected {size} ({label})")
+
+    def _refusal(self, dims: int, label: str, size: int, stride: int, offset: int, length: int) -> WireError | None:
+        """The refusal of an array's dimensions and length, read from a message or from its header, or None when
+        they are the layout's (plain or keyed)."""
+        if dims != 1:
+            return WireError("wrong_layout", f"{dims} dims, expected 1 labelled {self.label!r}")
+        if label != self.label and label != self.keyed_label:
+            return WireError("wrong_layout", f"label {label!r}, expected {self.label!r}")
+        _, n = self.dimension(label == self.keyed_label)
+        if size != n or stride != n or offset != 0:
+            return WireError("wrong_layout", f"size {size} stride {stride} data_offset {offset}, expected {n} {n} 0")
+        if length != n:
+            return WireError("wrong_length", f"{length} values, expected {n} ({label})")
         return None
 
     def _deserialized(self, raw: bytes) -> Any:

@@ -1,21 +1,6 @@
-"""The run's key: a keyed MAC on the messages that steer a run (feedback, positions, actions, heartbeats).
-
-The pip Fast DDS has no DDS-Security and rclpy 7.1.6's message info names no publisher, so a node cannot
-tell who wrote a message. With a per-run key, shared through a file only the user can read, it can tell
-who could not have: the codec appends HMAC-SHA256 (truncated to 128 bits, as RFC 2104 allows) over the
-payload's layout label and values, and a receiver holding the key drops any message without a matching
-one (`WireError("unauthenticated")`). The key authenticates; it does not hide (docs/ros.md, "Limits").
-
-A key file outlives a run (a kept system file, `cq-ros launch --key FILE`), so a MAC alone would let a message
-recorded in one run steer a later one. A keyed message is therefore sealed: after its fields it carries the
-run nonce (64 bits, fresh at every start) and its sender's incarnation (32 bits, fresh at every start of that
-node), and the MAC covers both. A node holds the key as a `RunKey`: what it seals with (the run, its own
-incarnation) and what it expects of each sender. The run is given (`cq-ros launch` draws one per launch and
-passes it to every node as `run_nonce`) or, when none is given, drawn by the world and learnt by an agent from
-the first sealed message of the world it hears. A receiver refuses another run (`other_run`) and, after
-the MAC, an incarnation it does not hold for that sender (`other_incarnation`): the world has one life per
-run, the first heard; an agent may restart (from its checkpoint), so its newest incarnation replaces the
-one before, which is then refused.
+"""The run's key: a keyed MAC on the messages that steer a run (feedback, positions, actions, heartbeats),
+HMAC-SHA256 truncated to 128 bits, and the seal (run nonce, sender's incarnation) that ties a keyed message to
+one run and one life of its sender. Why and what is refused: msgs_spec/README.md, "The run's key".
 """
 
 from __future__ import annotations

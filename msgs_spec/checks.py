@@ -37,10 +37,11 @@ def as_int(name: str, v: Any, *, wide: bool = False) -> int:
     return v
 
 
-def as_float(name: str, v: Any) -> float:
+def as_float(name: str, v: Any, text: bool = False) -> float:
+    """A finite float from a number, or `text` (a statistic's value) from its decimal text; else WireError."""
     if type(v) is float and math.isfinite(v):  # the common case, first
         return v
-    if isinstance(v, (str, bytes)):
+    if isinstance(v, (str, bytes)) and not text:
         raise WireError("malformed", f"{name} = {v!r} is not a number")
     try:
         f = float(v)

@@ -1,12 +1,6 @@
-"""encode(payload) -> standard ROS message; decode(message, what the receiver expects) -> payload.
-
-The entry points over every payload: the array payloads' codec is msgs_spec.arrays (each layout's serialize,
-encode and decode; the layouts, the keyed form and the serialized bytes the nodes publish are described
-there), the statistics' msgs_spec.stats, the value checks both share msgs_spec.checks. Every decoder validates
-and raises only `WireError` for any input.
-
-Statistics: diagnostic_msgs/DiagnosticArray holding one DiagnosticStatus whose `values` are KeyValue pairs.
-"""
+"""encode(payload) -> standard ROS message; decode(message, what the receiver expects) -> payload: the entry
+points over every payload (the arrays' codec is msgs_spec.arrays, the statistics' msgs_spec.stats). Every
+decoder validates and raises only `WireError` for any input."""
 
 from __future__ import annotations
 

@@ -62,26 +62,10 @@ T = TypeVar("T")
 
 
 class DropCounter:
-    """Count refused messages by kind; log the first of each kind and then every `every`-th, and a flood once.
-
-    A node keeps one per process (or per topic) and routes every decode through it::
-
-        drops = DropCounter(self.get_logger().warning, every=100)
-        ...
-        def on_action(self, msg):
-            action = drops.guard(decode_action, msg, bounds=self.bounds, agent=k,
-                                 episode=self.episode, step=self.step, source=action_topic(k))
-            if action is None:
-                return          # logged (maybe), counted, dropped
-            ...
-
-    A source that refuses `every` messages within FLOOD_WINDOW_S is flooded: one line says so, with its rate,
-    and no further line comes for it (its drops are still counted), so a flood of thousands a second costs no
-    log line each, nor one every `every`-th (`floods`: source -> the rate it was reported at). Every drop is
-    also counted by its source (`by_source`: a topic -> its drops, whatever their kind), so a node's report says
-    where junk came in.
-
-    Not thread-safe by itself: use it from one executor thread (the project uses SingleThreadedExecutor).
+    """Count refused messages by kind and by source (`by_source`); log the first of each kind and then every
+    `every`-th. A source refusing `every` messages within FLOOD_WINDOW_S is flooded: said once, with its rate
+    (`floods`), then only counted. Nodes route every decode through `guard` (msgs_spec/README.md, "Validation
+    and dropping"). Not thread-safe: use it from one executor thread (the project's SingleThreadedExecutor).
     """
 
     def __init__(self, log: Callable[[str], Any] | None = None, every: int = 100,

@@ -1,7 +1,7 @@
-"""Plain-Python payloads of the wire contract (no ROS import here).
-
-Nodes build and read these; `msgs_spec.codec` turns them into standard ROS messages and back.
-Indices: agents 1..N as in the map file; cells (row, col) from 0, row 0 at the top; episodes and steps from 0.
+"""Plain-Python payloads of the wire contract (no ROS import here): nodes build and read these, `msgs_spec.codec`
+turns them into standard ROS messages and back. What each field holds: the layouts' `meanings` (msgs_spec.arrays)
+and the statistics' keys (msgs_spec.stats), tabled in msgs_spec/README.md. Agents 1..N as in the map file; cells
+(row, col) from 0, row 0 at the top; episodes and steps from 0.
 """
 
 from __future__ import annotations
@@ -39,10 +39,7 @@ class Bounds:
 @dataclass(frozen=True, slots=True)
 class Feedback:
     """World -> one agent, once per step: the agent's observation at (episode, step) and the outcome of the
-    transition that led there. Step 0 of an episode is the start observation (reward 0.0, done False).
-    `applied` is the agent's action the world applied in that transition, or NO_ACTION when it applied none
-    (step 0; or no action came within step_timeout, and the agent stayed): an agent learns from a step only
-    when its own action was applied."""
+    transition that led there; an agent learns from a step only when its own action was `applied`."""
 
     agent: int
     episode: int
@@ -79,10 +76,8 @@ class Action:
 @dataclass(frozen=True, slots=True)
 class Heartbeat:
     """World -> agents and other worlds, every heartbeat_period whether or not anyone acts: the world is alive,
-    and collects the actions of (episode, step) (0, 0 before its first step). `beat` counts up from 1, so a
-    replayed or second world's heartbeat shows (it does not count up from the last one heard). `stepping`,
-    `started` and `ticket` say who the world is to a second world in its namespace (world_node.twin): whether it
-    has begun stepping, when it started, and a number drawn at its start that orders two started together."""
+    and collects the actions of (episode, step); `stepping`, `started` and `ticket` say who the world is to a
+    second world in its namespace (world_node.twin)."""
 
     beat: int
     episode: int
@@ -106,12 +101,8 @@ class MarkedJointState:
 
 @dataclass(frozen=True)
 class AgentStats:
-    """Agent -> tools, once per episode (published when the agent's episode ends).
-
-    Counts named `*_created`/`peer_messages` are cumulative since the node started (monotonic, like
-    Prometheus counters); `joint_plays` and `heard` are for this episode; the state counts are the sizes in use now.
-    `counters` holds any further monotonic counts, e.g. DropCounter.as_counters() -> {"dropped.stale_step": 2}.
-    """
+    """Agent -> tools, once per episode (published when the agent's episode ends). `counters` holds any further
+    monotonic counts, e.g. DropCounter.as_counters() -> {"dropped.stale_step": 2}."""
 
     agent: int
     episode: int

@@ -54,13 +54,16 @@ def _mapping(topic) -> str:
     return topic.fields if layout is None else f"data = [{', '.join(layout.fields)}] {topic.fields}"
 
 
+def _topic_table(topics: tuple, last: str) -> list[str]:
+    return _table(["topic (relative)", "type", "QoS", "publisher", "subscribers", "payload", last],
+                  [[f"`{t.pattern.replace('{agent}', '<k>')}`", f"`{t.type_name}`", qos_summary(t.qos), t.publisher,
+                    t.subscribers, f"`{t.payload.__name__}`", _mapping(t)] for t in topics])
+
+
 def render_spec() -> str:
     """The generated Markdown: topics, array layouts, statistics keys, rejection kinds, echo examples."""
     lines: list[str] = ["### Topics", ""]
-    lines += _table(
-        ["topic (relative)", "type", "QoS", "publisher", "subscribers", "payload", "field mapping"],
-        [[f"`{t.pattern.replace('{agent}', '<k>')}`", f"`{t.type_name}`", qos_summary(t.qos), t.publisher,
-          t.subscribers, f"`{t.payload.__name__}`", _mapping(t)] for t in TOPICS])
+    lines += _topic_table(TOPICS, "field mapping")
     for lay in codec.ARRAY_LAYOUTS:
         wire = "int32" if lay.ros_type.__name__.startswith("Int32") else "float64"
         lines += ["", f"### `{lay.payload.__name__}` as `std_msgs/msg/{lay.ros_type.__name__}`", "",
@@ -86,10 +89,7 @@ def render_spec() -> str:
               f"In frame `{viz.FRAME_ID}`: cell (row, col) is centred at x = col + 0.5, y = -(row + 0.5) (metres); "
               "the map is published once (latched), the markers only while someone subscribes; node "
               "parameter `markers` false turns them all off.", ""]
-    lines += _table(
-        ["topic (relative)", "type", "QoS", "publisher", "subscribers", "payload", "content"],
-        [[f"`{t.pattern.replace('{agent}', '<k>')}`", f"`{t.type_name}`", qos_summary(t.qos), t.publisher,
-          t.subscribers, f"`{t.payload.__name__}`", t.fields] for t in viz.VIEW_TOPICS])
+    lines += _topic_table(viz.VIEW_TOPICS, "content")
     lines += ["", "### What `ros2 topic echo` shows", ""]
     for t in TOPICS:
         example = EXAMPLES[t.key]

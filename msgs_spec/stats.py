@@ -1,27 +1,12 @@
 """The statistics' codec: WorldStats and AgentStats as a diagnostic_msgs/DiagnosticArray holding one
-DiagnosticStatus whose `values` are KeyValue pairs (the keys and what they hold: WORLD_STATS_KEYS,
-AGENT_STATS_KEYS); decoders check every key and value and raise only `WireError`.
-
-With the run's key the pairs end with `mac`: the run's HMAC (msgs_spec.auth) over the status name, the
-hardware id and every other pair, in order, as hex. A receiver holding the key drops statistics without a
-matching one (`unauthenticated`), so a launcher never counts a second system's episodes as its own; one
-without the key (`cq-ros collect`, `ros2 topic echo`) reads both forms, as it does the arrays.
-
-Sealed as the arrays are: a sender holding a RunKey puts its run nonce (`run`, 16 hex digits) and its
-incarnation (`inc`, 8) before the `mac`, which covers them, so a recording of an earlier run under the same key
-file is no statistic of this one. A receiver told the run (`run=`, or a RunKey's) refuses a statistic sealed
-with another, or with none, as `other_run`.
-
-Decoders take a message or its serialized bytes (a raw subscription's). Bytes are judged from their CDR header
-before they are deserialized (`_oversized`): a status count other than 1 is `wrong_layout`; more pairs than a
-statistic of the map can hold (`pairs_bound`), or more bytes than so many pairs of the longest keys and values
-take (`bytes_bound`), is `malformed`. A flood's statistics of 2,000 pairs or 500 statuses so cost a header's
-reading, not a deserialization."""
+DiagnosticStatus whose `values` are KeyValue pairs (WORLD_STATS_KEYS, AGENT_STATS_KEYS), keyed with a `mac`
+pair and sealed with `run` and `inc`; decoders take a message or its serialized bytes, judge bytes from their
+CDR header first (`_oversized`) and raise only `WireError` (msgs_spec/README.md, "The run's key",
+"Validation and dropping")."""
 
 from __future__ import annotations
 
 import hmac
-import math
 import re
 import struct
 from typing import Any, Mapping
@@ -101,24 +86,9 @@ def _parse_int(key: str, s: str, wide: bool = False) -> int:
     if wide and len(s) > WIDE_DIGITS:
         raise WireError("out_of_range", f"{key} has {len(s)} digits, more than {WIDE_DIGITS}")
     if not _INT_RE.fullmatch(s):
-        try:  # tell a fraction or NaN apart from garbage
-            f = float(s)
-        except ValueError:
-            raise WireError("malformed", f"{key} = {s!r} is not an integer") from None
-        if not math.isfinite(f):
-            raise WireError("not_finite", f"{key} = {s!r}")
+        as_float(key, s, text=True)  # garbage is malformed, NaN not_finite; else it is a fraction
         raise WireError("not_integer", f"{key} = {s!r}")
     return as_int(key, int(s), wide=wide)
-
-
-def _parse_float(key: str, s: str) -> float:
-    try:
-        f = float(s)
-    except ValueError:
-        raise WireError("malformed", f"{key} = {s!r} is not a number") from None
-    if not math.isfinite(f):
-        raise WireError("not_finite", f"{key} = {s!r}")
-    return f
 
 
 def _parse_bool(key: str, s: str) -> bool:
@@ -299,6 +269,7 @@ def _take(values: dict[str, str], key: str) -> str:
 
 
 def _take_counters(values: dict[str, str]) -> dict[str, int]:
+    """The counters (`count.<name>`) of what is left of a status's pairs, which must be all that is left."""
     counters = {}
     for key in [k for k in values if k.startswith("count.")]:
         name = key[len("count."):]
@@ -307,12 +278,9 @@ def _take_counters(values: dict[str, str]) -> dict[str, int]:
         v = _parse_int(key, values.pop(key))
         check_nonneg(key, v)
         counters[name] = v
-    return counters
-
-
-def _no_leftovers(values: dict[str, str]) -> None:
     if values:
         raise WireError("malformed", f"unknown keys {sorted(values)}")
+    return counters
 
 
 def encode_world_stats(s: WorldStats, *, stamp: Time | None = None, key: bytes | None = None) -> DiagnosticArray:
@@ -353,7 +321,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
         ints[k] = _parse_int(k, _take(values, k))
         check_nonneg(k, ints[k])
     truncated = _parse_bool("truncated", _take(values, "truncated"))
-    duration = _parse_float("duration_s", _take(values, "duration_s"))
+    duration = as_float("duration_s", _take(values, "duration_s"), text=True)
     if duration < 0:
         raise WireError("out_of_range", f"duration_s = {duration}")
     found = {}
@@ -361,7 +329,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
         m = _RETURN_RE.fullmatch(key)
         if not m:
             raise WireError("malformed", f"key {key!r}, expected return.agv<k>")
-        found[int(m.group(1))] = _parse_float(key, values.pop(key))
+        found[int(m.group(1))] = as_float(key, values.pop(key), text=True)
     n = len(found)
     if n == 0 or set(found) != set(range(1, n + 1)):
         raise WireError("malformed", f"return keys for agents {sorted(found)}, expected 1..{n or 'N'}")
@@ -369,7 +337,6 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
         raise WireError("unknown_agent" if n > bounds.n_agents else "malformed",
                         f"returns for {n} agents, the world has {bounds.n_agents}")
     counters = _take_counters(values)
-    _no_leftovers(values)
     check_sequence(ints["episode"], None, episode, None)
     return WorldStats(episode=ints["episode"], steps=ints["steps"], truncated=truncated,
                       collisions=ints["collisions"], missed_actions=ints["missed_actions"],
@@ -452,13 +419,12 @@ def decode_agent_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None, ag
         if not vm:
             raise WireError("malformed", f"{key} = {text!r}")
         r, c, p, pr, pc = (as_int(key, int(g)) for g in vm.groups()[:5])
-        conf = _parse_float(f"{key}.confidence", vm.group(6))
+        conf = as_float(f"{key}.confidence", vm.group(6), text=True)
         found[int(km.group(1))] = _check_marked(MarkedJointState(r, c, p, pr, pc, conf), ints["agent"],
                                                 bounds, key)
     if set(found) != set(range(len(found))):
         raise WireError("malformed", f"marked indices {sorted(found)}, expected 0..{len(found) - 1}")
     counters = _take_counters(values)
-    _no_leftovers(values)
     check_sequence(ints["episode"], None, episode, None)
     return AgentStats(agent=ints["agent"], episode=ints["episode"], algorithm=algorithm,
                       joint_plays=ints["joint_plays"], heard=ints["heard"], local_states=ints["local_states"],

@@ -10,9 +10,9 @@ Names are relative ("agv1/position"), so a node started with `-r __ns:=/run7` pu
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Any
+from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
 from std_msgs.msg import Float64MultiArray, Int32MultiArray
@@ -83,7 +83,8 @@ def qos_summary(qos: Qos) -> str:
 
 @dataclass(frozen=True, eq=False)
 class TopicSpec:
-    """One topic of the system. `pattern` holds '{agent}' for per-agent topics."""
+    """One topic of the system. `pattern` holds '{agent}' for per-agent topics. `decoder` takes a message and the
+    four expectations (bounds, agent, episode, step), ignoring those that do not apply to the payload."""
 
     key: str
     pattern: str
@@ -94,6 +95,8 @@ class TopicSpec:
     subscribers: str
     fields: str  # the field mapping, one line (the README gives the details; an array's fields come from its layout)
     reader_depth: int | None = None  # the nodes' subscriptions keep this many (None: as qos)
+    decoder: Callable[..., Any] = field(kw_only=True)
+    encoder: Callable[..., Any] = field(default=codec.encode, kw_only=True)
 
     @property
     def reader_qos(self) -> Qos:
@@ -121,7 +124,7 @@ class TopicSpec:
         if type(payload) is not self.payload:
             raise WireError("wrong_type", f"{self.pattern} carries {self.payload.__name__}, "
                                           f"got {type(payload).__name__}")
-        return codec.encode(payload, **kwargs)
+        return self.encoder(payload, **kwargs)
 
     def decode(self, msg: Any, *, bounds: Any = None, agent: int | None = None, episode: int | None = None,
                step: int | None = None) -> Any:
@@ -129,11 +132,17 @@ class TopicSpec:
         not apply to the payload are ignored (`step` for statistics, `agent` for world statistics)."""
         if type(msg) is not self.msg_type:
             raise WireError("wrong_type", f"{self.pattern} carries {self.type_name}, got {type(msg).__name__}")
-        return _DECODERS[self.key](msg, bounds=bounds, agent=agent, episode=episode, step=step)
+        return self.decoder(msg, bounds=bounds, agent=agent, episode=episode, step=step)
 
 
 def replace_depth(qos: Qos, depth: int) -> Qos:
     return replace(qos, depth=depth)
+
+
+def taking(decode: Callable[..., Any], *expects: str) -> Callable[..., Any]:
+    """A TopicSpec's decoder: `decode` given only the expectations it takes (statistics have no step, world
+    statistics and the heartbeat belong to no agent), as in codec.decode()."""
+    return lambda msg, **given: decode(msg, **{k: given[k] for k in expects})
 
 
 def _agent_id(agent: Any) -> int:
@@ -148,7 +157,7 @@ FEEDBACK = TopicSpec(
     "feedback", _NS + "feedback", Float64MultiArray, QOS_FEEDBACK, Feedback,
     "world", "agent k (the JSA central node: every agent's)",
     "(float64; flags 0/1; applied -1: none)",
-    READER_DEPTH,
+    READER_DEPTH, decoder=codec.decode_feedback,
 )
 POSITION = TopicSpec(
     "position", _NS + "position", Int32MultiArray, QOS_POSITION, Position,
@@ -156,47 +165,37 @@ POSITION = TopicSpec(
     "on a match)",
     "peers of k while they need k (CQ: in a conflict state; JS: always; LoC: on COORDINATE); tools",
     "(int32)",
-    READER_DEPTH,
+    READER_DEPTH, decoder=codec.decode_position,
 )
 ACTION = TopicSpec(
     "action", _NS + "action", Int32MultiArray, QOS_ACTION, Action,
     "agent k (the JSA central node: every agent's)", "world",
     "(int32; action 0..3 = N, E, S, W)",
-    READER_DEPTH,
+    READER_DEPTH, decoder=codec.decode_action,
 )
 HEARTBEAT = TopicSpec(
     "heartbeat", "world/heartbeat", Int32MultiArray, QOS_HEARTBEAT, Heartbeat,
     "world, every heartbeat_period from its start, whether or not anyone acts",
     "agents (the world is alive; where it is, to catch up without a key); tools",
     "(int32)",
-    READER_DEPTH,
+    READER_DEPTH, decoder=taking(codec.decode_heartbeat),
 )
 AGENT_STATS = TopicSpec(
     "agent_stats", _NS + "stats", DiagnosticArray, QOS_STATS, AgentStats,
     "agent k, once per episode (the JSA central node: every agent's)", "tools (echo, record, launcher)",
     "one DiagnosticStatus, name 'agv<k>/stats', values: KeyValue pairs (see below)",
+    decoder=taking(codec.decode_agent_stats, "bounds", "agent", "episode"),
 )
 WORLD_STATS = TopicSpec(
     "world_stats", "world/stats", DiagnosticArray, QOS_STATS, WorldStats,
     "world, once per episode", "tools (echo, record, launcher)",
     "one DiagnosticStatus, name 'world/stats', values: KeyValue pairs (see below)",
+    decoder=taking(codec.decode_world_stats, "bounds", "episode"),
 )
 
 TOPICS: tuple[TopicSpec, ...] = (FEEDBACK, POSITION, ACTION, HEARTBEAT, AGENT_STATS, WORLD_STATS)
 WORLD_STATS_TOPIC = WORLD_STATS.pattern
 HEARTBEAT_TOPIC = HEARTBEAT.pattern
-
-# Every decoder takes the same expectations here; those that do not apply to a payload are ignored
-# (statistics have no step; world statistics belong to no agent), as in codec.decode().
-_DECODERS = {
-    "feedback": codec.decode_feedback, "position": codec.decode_position, "action": codec.decode_action,
-    "heartbeat": lambda m, bounds=None, agent=None, episode=None, step=None: codec.decode_heartbeat(m),
-    "agent_stats": lambda m, bounds=None, agent=None, episode=None, step=None:
-        codec.decode_agent_stats(m, bounds=bounds, agent=agent, episode=episode),
-    "world_stats": lambda m, bounds=None, agent=None, episode=None, step=None:
-        codec.decode_world_stats(m, bounds=bounds, episode=episode),
-}
-
 
 # The per-agent names are asked for every message a node takes (as its drop counter's source): made once each.
 _once = lru_cache(maxsize=None, typed=True)  # typed: True is no agent id, though it hashes as 1
@@ -208,24 +207,8 @@ def agent_namespace(agent: int) -> str:
     return f"{AGENT_PREFIX}{_agent_id(agent)}"
 
 
-@_once
-def feedback_topic(agent: int) -> str:
-    return FEEDBACK.name(agent)
-
-
-@_once
-def position_topic(agent: int) -> str:
-    return POSITION.name(agent)
-
-
-@_once
-def action_topic(agent: int) -> str:
-    return ACTION.name(agent)
-
-
-@_once
-def agent_stats_topic(agent: int) -> str:
-    return AGENT_STATS.name(agent)
+feedback_topic, position_topic = _once(FEEDBACK.name), _once(POSITION.name)
+action_topic, agent_stats_topic = _once(ACTION.name), _once(AGENT_STATS.name)
 
 
 def agent_topics(n_agents: int) -> list[tuple[str, TopicSpec, int | None]]:
@@ -239,17 +222,22 @@ def agent_topics(n_agents: int) -> list[tuple[str, TopicSpec, int | None]]:
     return out
 
 
-_TOPIC_RE = re.compile(
-    rf"(?:^|/)(?:{AGENT_PREFIX}([1-9][0-9]*)/(feedback|position|action|stats)|world/(stats|heartbeat))$")
-_BY_SUFFIX = {"feedback": FEEDBACK, "position": POSITION, "action": ACTION, "stats": AGENT_STATS}
+@lru_cache(maxsize=None)
+def _pattern_re(pattern: str) -> re.Pattern:
+    """A topic pattern as a regex of its name, relative or under any namespace; agent ids from 1, no leading 0."""
+    return re.compile("(?:^|/)" + re.escape(pattern).replace(r"\{agent\}", "([1-9][0-9]*)") + "$")
+
+
+def parse_name(name: str, specs: tuple[TopicSpec, ...], what: str) -> tuple[TopicSpec, int | None]:
+    """(spec, agent) for a topic name of one of `specs`; ValueError for any other name."""
+    for spec in specs:
+        m = _pattern_re(spec.pattern).search(name)
+        if m:
+            return spec, int(m.group(1)) if spec.per_agent else None
+    raise ValueError(f"{name!r} is not a {what}")
 
 
 def parse_topic(name: str) -> tuple[TopicSpec, int | None]:
     """(spec, agent) for a project topic name, relative or fully qualified under any namespace
     ('/run7/agv2/position' -> (POSITION, 2)); ValueError for any other name."""
-    m = _TOPIC_RE.search(name)
-    if not m:
-        raise ValueError(f"{name!r} is not a cq_ros topic")
-    if m.group(1) is None:
-        return (WORLD_STATS if m.group(3) == "stats" else HEARTBEAT), None
-    return _BY_SUFFIX[m.group(2)], int(m.group(1))
+    return parse_name(name, TOPICS, "cq_ros topic")

@@ -1,23 +1,7 @@
 """The run as a viewer sees it (RViz2, Foxglove, a bag): the map, the AGVs and their goals, and whom each
 agent is looking at, as standard messages (`nav_msgs/OccupancyGrid`, `visualization_msgs/MarkerArray`), with
-validating encode/decode like the lockstep payloads' (a decoder raises only `WireError`).
-
-Geometry, in the frame `map` (FRAME_ID): a grid cell is 1 m square; cell (row, col) is centred at
-x = col + 0.5, y = -(row + 0.5), so row 0 is at the top as in the map file and the map needs no height to
-place a marker. The map is an occupancy lattice at 0.5 m: element (i, j) of a (2H+1) x (2W+1) lattice is
-cell (row, col) at (2 row + 1, 2 col + 1) and the wall (or opening) between two cells between them, exactly
-the map file's drawing; 100 is occupied (a wall, a corner beside one, a '#' square), 0 free.
-
-Markers (every one in FRAME_ID, action ADD unless said, stamped with the publisher's clock):
-
-    world/markers  ns "agv" id k      CYLINDER at agent k's cell, its colour (PALETTE[(k-1) % 10])
-                   ns "goal" id k     flat CUBE on agent k's goal, the same colour, translucent
-                   ns "label" id k    TEXT_VIEW_FACING "k" above agent k
-                   ns "step" id 0     TEXT_VIEW_FACING "episode E step S" above the map (which step this is)
-    agv<k>/looks   ns "agv<k>/looks" id 0   LINE_LIST posed at agent k's cell, a line from it (point 0, 0)
-                   to each peer it looks at (points relative to the pose), in agent k's colour, text
-                   "episode E step S: agv2 agv5" (the peers, in the order of the lines); looking at
-                   nobody: action DELETE, text "episode E step S:"
+validating encode/decode (a decoder raises only `WireError`). The geometry and the markers: msgs_spec/README.md,
+"Topics for viewers".
 """
 
 from __future__ import annotations
@@ -33,9 +17,10 @@ from nav_msgs.msg import OccupancyGrid
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from .checks import check_agent, check_cell
 from .errors import WireError
 from .payloads import Bounds
-from .topics import AGENT_PREFIX, Qos, TopicSpec, _agent_id
+from .topics import AGENT_PREFIX, Qos, TopicSpec, _agent_id, parse_name, taking
 
 __all__ = [
     "FRAME_ID", "LATTICE_RESOLUTION", "PALETTE", "OCCUPIED", "QOS_MAP", "QOS_MARKERS",
@@ -100,8 +85,7 @@ def xy_cell(x: float, y: float, bounds: Bounds | None, what: str) -> tuple[int, 
     if col != round(col) or row != round(row):
         raise WireError("not_integer", f"{what} at ({x}, {y}) is not the centre of a cell")
     row, col = int(round(row)), int(round(col))
-    if row < 0 or col < 0 or (bounds is not None and (row >= bounds.rows or col >= bounds.cols)):
-        raise WireError("cell_out_of_range", f"{what} at cell ({row}, {col}), outside the grid")
+    check_cell(row, col, bounds, f"{what} at cell")
     return row, col
 
 
@@ -237,10 +221,7 @@ def decode_looks(msg: Any, *, bounds: Bounds | None = None, agent: int | None = 
         raise WireError("wrong_layout", f"marker ns {m.ns!r} id {m.id} type {m.type}, expected "
                                         f"'{AGENT_PREFIX}<k>/looks' 0 LINE_LIST")
     who = int(found.group(1))
-    if bounds is not None and who > bounds.n_agents:
-        raise WireError("unknown_agent", f"agent {who}, known agents 1..{bounds.n_agents}")
-    if agent is not None and who != agent:
-        raise WireError("wrong_agent", f"agent {who} on the topic of agent {agent}")
+    check_agent(who, bounds, agent)
     text = _LOOKS_TEXT.fullmatch(m.text)
     if not text:
         raise WireError("malformed", f"text {m.text!r}, expected 'episode E step S: agv<j> ...'")
@@ -260,42 +241,32 @@ def decode_looks(msg: Any, *, bounds: Bounds | None = None, agent: int | None = 
 # -- topics --------------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, eq=False)
-class ViewTopic(TopicSpec):
-    """A topic for viewers: a TopicSpec whose payload is encoded and decoded here."""
-
-    def encode(self, payload: Any, **kwargs: Any) -> Any:
-        if type(payload) is not self.payload:
-            raise WireError("wrong_type", f"{self.pattern} carries {self.payload.__name__}, "
-                                          f"got {type(payload).__name__}")
-        return _ENCODERS[self.payload](payload, **kwargs)
-
-    def decode(self, msg: Any, *, bounds: Any = None, agent: int | None = None, episode: int | None = None,
-               step: int | None = None) -> Any:
-        """Decode a message of this topic; `episode` and `step` are not checked (a viewer takes any)."""
-        if self.payload is Looks:
-            return decode_looks(msg, bounds=bounds, agent=agent)
-        return decode_scene(msg, bounds=bounds) if self.payload is Scene else decode_occupancy(msg)
-
-
 _ENCODERS = {Occupancy: encode_occupancy, Scene: encode_scene, Looks: encode_looks}
 
-MAP = ViewTopic(
+
+def _encode(payload: Any, **kwargs: Any) -> Any:
+    return _ENCODERS[type(payload)](payload, **kwargs)  # looked up per call (tests count what is built)
+
+
+MAP = TopicSpec(
     "map", "world/map", OccupancyGrid, QOS_MAP, Occupancy,
     "world, once at start (latched)", "viewers (RViz2 Map display, Foxglove), tools",
     "0.5 m lattice of cells and the walls between them (0 free, 100 occupied), frame 'map'",
+    decoder=taking(decode_occupancy), encoder=_encode,
 )
-SCENE = ViewTopic(
+SCENE = TopicSpec(
     "scene", "world/markers", MarkerArray, QOS_MARKERS, Scene,
     "world, every step (only while someone subscribes)", "viewers (RViz2 MarkerArray display, Foxglove), tools",
     "markers ns agv/goal/label id k per agent, ns step id 0 with text 'episode E step S'",
+    decoder=taking(decode_scene, "bounds"), encoder=_encode,
 )
-LOOKS = ViewTopic(
+LOOKS = TopicSpec(
     "looks", AGENT_PREFIX + "{agent}/looks", MarkerArray, QOS_MARKERS, Looks,
     "agent k at each decision (the JSA central node: every agent's; only while someone subscribes)",
     "viewers, tools", "one LINE_LIST ns 'agv<k>/looks' from agent k to each peer it looks at; DELETE for none",
+    decoder=taking(decode_looks, "bounds", "agent"), encoder=_encode,  # a viewer takes any episode and step
 )
-VIEW_TOPICS: tuple[ViewTopic, ...] = (MAP, SCENE, LOOKS)
+VIEW_TOPICS: tuple[TopicSpec, ...] = (MAP, SCENE, LOOKS)
 MAP_TOPIC, SCENE_TOPIC = MAP.pattern, SCENE.pattern
 
 
@@ -303,14 +274,6 @@ def looks_topic(agent: int) -> str:
     return LOOKS.name(agent)
 
 
-_VIEW_RE = re.compile(rf"(?:^|/)(?:{AGENT_PREFIX}([1-9][0-9]*)/looks|world/(map|markers))$")
-
-
-def parse_view_topic(name: str) -> tuple[ViewTopic, int | None]:
+def parse_view_topic(name: str) -> tuple[TopicSpec, int | None]:
     """(spec, agent) for a viewer topic name, relative or under any namespace; ValueError for any other."""
-    m = _VIEW_RE.search(name)
-    if not m:
-        raise ValueError(f"{name!r} is not a cq_ros viewer topic")
-    if m.group(1) is not None:
-        return LOOKS, int(m.group(1))
-    return (MAP if m.group(2) == "map" else SCENE), None
+    return parse_name(name, VIEW_TOPICS, "cq_ros viewer topic")
