@@ -41,7 +41,7 @@ from typing import Any, Callable
 from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
 
 from .auth import MAC_WORDS, SEAL_WORDS, WORLD, RunKey, mac_of, primed
-from .checks import CONVERT, check_agent, check_cell, check_nonneg, check_sequence
+from .checks import CONVERT, check_agent, check_beat, check_cell, check_nonneg, check_sequence
 from .errors import WireError
 from .payloads import NO_ACTION, Action, Bounds, Feedback, Heartbeat, Position
 
@@ -264,8 +264,18 @@ class ArrayLayout:
     def decode_values(self, msg: Any, bounds: Bounds | None = None, agent: int | None = None,
                       episode: int | None = None, step: int | None = None,
                       key: bytes | RunKey | None = None) -> tuple:
-        """decode's field values, with every check of it (and its binding of `key`), without the payload:
-        what the world keeps of an action is its value. A message object is checked as its bytes are."""
+        """decode's field values, with every check of it (and its binding of `key`), without the payload.
+        A message object is checked as its bytes are."""
+        values, seal = self.read(msg, bounds, agent, episode, step, key)
+        if seal is not None:  # bound only by a message every check accepted
+            key.accept(*seal)
+        return values
+
+    def read(self, msg: Any, bounds: Bounds | None = None, agent: int | None = None, episode: int | None = None,
+             step: int | None = None, key: bytes | RunKey | None = None) -> tuple[tuple, tuple | None]:
+        """(decode_values's values, the seal they would bind `key` to: None when it binds nothing new), every
+        check made but the binding left to the receiver: the world binds an action's sender once its own check
+        of the step passed (world_node.lockstep), as a message every check accepted."""
         raw = msg if type(msg) is bytes else self._serialized(msg)
         plain, keyed = self.forms
         form = keyed if keyed.holds(raw) else plain if plain.holds(raw) else None
@@ -294,9 +304,7 @@ class ArrayLayout:
         if self.code == "d":
             values = self._from_floats(values) or self._typed(values)
         self.check(values, bounds, agent, episode, step)
-        if seal is not None:  # bound only by a message every check accepted
-            key.accept(*seal)
-        return values
+        return values, seal
 
     def _checking(self, key: RunKey, sender: int) -> tuple[bytes | None, tuple]:
         """(the seal `key` holds for `sender`'s messages of this layout, None while it holds no run or no
@@ -506,6 +514,6 @@ encode_heartbeat = HEARTBEAT_LAYOUT.encode
 def decode_heartbeat(msg: Any, *, after: int | None = None, key: bytes | RunKey | None = None) -> Heartbeat:
     """Heartbeat from `msg`. `after`: the last beat heard; a beat not above it is `replayed`."""
     hb = HEARTBEAT_LAYOUT.decode(msg, key=key)
-    if after is not None and hb.beat <= after:
-        raise WireError("replayed", f"beat {hb.beat}, the last one heard was {after}")
+    if after is not None:
+        check_beat(hb.beat, after)
     return hb
