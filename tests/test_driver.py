@@ -26,6 +26,7 @@ from cq_ros.world import GridWorld
 from msgs_spec import EAST, NO_ACTION, Action, AgentStats, Feedback, Heartbeat, Position, WorldStats, decode, encode
 from node_runtime.parameters import AGENT_PARAMETERS as PARAMETERS
 from world_node.lockstep import Lockstep
+from world_node.wire_reading import action_in
 
 THREE = parse_map("""agent 1: start 0,0  goal 0,3
 agent 2: start 1,0  goal 1,3
@@ -536,7 +537,7 @@ class Bus:
             receiver, topic, agent = key = self.rng.choice(ready)
             msg = self.channels[key].popleft()
             if receiver is self.core:
-                self.world_out(self.core.on_action(agent, msg))
+                self.world_out(action_in(self.core, agent, msg))
             elif topic == "feedback":
                 self.driver_out(receiver, receiver.on_feedback(agent, msg))
             else:
