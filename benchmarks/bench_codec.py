@@ -43,7 +43,7 @@ def cases() -> dict:
         "decode feedback": lambda: decode_feedback(raw[Feedback], **expect, key=agent),
         "decode position": lambda: decode_position(raw[Position], **expect, key=agent),
         "decode action": lambda: decode_action(raw[Action], **expect, key=world),
-        # the world keeps the action alone (world_node.lockstep)
+        # the values without a payload object (the world node makes its Action from them: world_node.wire_reading)
         "decode action's value": lambda: ACTION_LAYOUT.decode_values(raw[Action], bounds, 3, 5, 7, world)[3],
         "decode heartbeat": lambda: decode_heartbeat(raw[Heartbeat], after=8, key=agent),
     }
