@@ -410,3 +410,33 @@ def test_with_a_key_only_actions_carrying_its_mac_count():
     assert core.drops["unauthenticated"] == 2 and core.waiting == {1, 2}
     action_in(core, 1, encode(Action(1, 0, 0, EAST), key=key))
     assert core.waiting == {2}
+
+
+def test_a_new_incarnation_binds_only_with_an_action_of_the_step_collected():
+    """The node decodes and checks the seal (world_node.wire_reading); the core judges the step and only then
+    binds a new incarnation of the agent, as a decoder binds only with a message every check accepted: a stale
+    action of a restarted agent leaves the older incarnation's actions taken, an action of the step replaces it."""
+    from msgs_spec.auth import RunKey
+
+    secret = bytes(range(32))
+    core = Lockstep(GridWorld(CORRIDOR, Settings()), 1, 1.0, clock=Clock(), key=RunKey(secret, run=7))
+    old, new = (RunKey(secret, run=7, incarnation=life) for life in (1, 2))
+    core.begin()
+    action_in(core, 1, encode(Action(1, 0, 0, EAST), key=old))
+    action_in(core, 2, encode(Action(2, 0, 0, WEST), key=old))  # step 1 now, both still acting
+    assert core.step == 1 and core.key.held == {1: 1, 2: 1}
+    assert action_in(core, 1, encode(Action(1, 0, 0, EAST), key=new)) == []  # stale: no binding
+    assert core.drops["stale_step"] == 1 and core.key.held[1] == 1 and core.key.replaced == 0
+    action_in(core, 1, encode(Action(1, 0, 1, EAST), key=new))  # of the step: the new incarnation replaces the old
+    assert core.key.held[1] == 2 and core.key.replaced == 1 and core.waiting == {2}
+    assert action_in(core, 1, encode(Action(1, 0, 1, EAST), key=old)) == [] and core.twin is not None
+
+
+def test_the_core_takes_payloads():
+    """Lockstep sees no bytes: an Action is what it takes, and it judges the stamp itself, counting a wrong one
+    under the kind and topic a decoder would have named."""
+    core, _ = lockstep(CORRIDOR)
+    core.begin()
+    assert core.on_action(Action(1, 0, 1, EAST)) == [] and core.drops["future_step"] == 1
+    assert core.drops.by_source == {"agv1/action": 1}
+    assert core.on_action(Action(1, 0, 0, EAST)) == [] and core.waiting == {2}
