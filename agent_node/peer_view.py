@@ -25,10 +25,10 @@ from __future__ import annotations
 from typing import Iterable
 
 from cq_ros.gridmap import GridMap
-from msgs_spec import DropCounter, Position, WireError, position_topic, record_sequence
+from msgs_spec import DropCounter, Position, WireError, position_topic
 
 from .effects import Effects, Renew, Subscribe, Unsubscribe
-from .wire_reading import cell_of
+from .wire_reading import cell_of, record_sequence
 
 __all__ = ["AHEAD", "RENEW_AFTER_S", "PeerView"]
 

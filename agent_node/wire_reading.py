@@ -1,4 +1,5 @@
-"""The agent node's side of the payload boundary, and the map's reading of a cell.
+"""The agent node's side of the payload boundary; and for the drivers, the map's reading of a cell and a stamp's
+gap named as msgs_spec names it (stale_*, future_*).
 
 The node decodes each message (msgs_spec.arrays, the one codec) with what it knows before any step: the map's
 bounds, the topic's agent, and with the run's key the MAC and the seal. It hands the driver (agent_node.driver)
@@ -15,15 +16,15 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from cq_ros.gridmap import GridMap
 from msgs_spec import (
-    HEARTBEAT_TOPIC, Bounds, DropCounter, WireError, decode_feedback, decode_heartbeat, decode_position,
-    feedback_topic, position_topic,
+    HEARTBEAT_TOPIC, Bounds, DropCounter, WireError, check_sequence, decode_feedback, decode_heartbeat,
+    decode_position, feedback_topic, position_topic,
 )
 
 if TYPE_CHECKING:
     from .driver import AgentDriver, CentralDriver
     from .effects import Effects
 
-__all__ = ["bounds_of", "cell_of", "feedback_in", "position_in", "heartbeat_in"]
+__all__ = ["bounds_of", "cell_of", "record_sequence", "feedback_in", "position_in", "heartbeat_in"]
 
 
 def bounds_of(gridmap: GridMap) -> Bounds:
@@ -38,6 +39,14 @@ def cell_of(gridmap: GridMap, drops: DropCounter, row: int, col: int, source: st
         drops.record(WireError("cell_out_of_range", f"({row}, {col}) is not a cell of map {gridmap.name}"),
                      source)
         return None
+
+
+def record_sequence(drops: DropCounter, stamp: tuple[int, int], expected: tuple[int, int], source: str) -> None:
+    """Count a message stamped `stamp` where `expected` was due, as msgs_spec names the gap (stale_*, future_*)."""
+    try:
+        check_sequence(*stamp, *expected)
+    except WireError as e:
+        drops.record(e, source)
 
 
 def feedback_in(driver: AgentDriver | CentralDriver, agent: int, msg: Any) -> Effects:

@@ -16,10 +16,10 @@ See msgs_spec/README.md (its tables are generated from this code; `python -m msg
 from .auth import KeyFileError, new_key_file, read_key, write_key_file
 from .codec import (
     ACTION_LAYOUT, AGENT_STATS_KEYS, ARRAY_LAYOUTS, FEEDBACK_LAYOUT, HEARTBEAT_LAYOUT, POSITION_LAYOUT,
-    WORLD_STATS_KEYS, WORLD_STATS_NAME, ArrayLayout, agent_stats_name, check_beat, check_sequence, decode,
-    decode_action, decode_agent_stats, decode_feedback, decode_heartbeat, decode_position, decode_world_stats, encode,
+    WORLD_STATS_KEYS, WORLD_STATS_NAME, ArrayLayout, agent_stats_name, check_sequence, decode, decode_action,
+    decode_agent_stats, decode_feedback, decode_heartbeat, decode_position, decode_world_stats, encode,
     encode_action, encode_agent_stats, encode_feedback, encode_heartbeat, encode_position, encode_world_stats,
-    record_sequence, serialize,
+    serialize,
 )
 from .errors import KINDS, DropCounter, WireError
 from .payloads import (
@@ -44,8 +44,7 @@ __all__ = [
     # codec
     "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "HEARTBEAT_LAYOUT", "ARRAY_LAYOUTS",
     "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS",
-    "encode", "serialize", "decode", "check_sequence", "record_sequence", "check_beat",
-    "encode_feedback", "decode_feedback", "encode_position",
+    "encode", "serialize", "decode", "check_sequence", "encode_feedback", "decode_feedback", "encode_position",
     "decode_position",
     "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
     "decode_world_stats",

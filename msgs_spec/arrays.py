@@ -41,7 +41,7 @@ from typing import Any, Callable
 from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
 
 from .auth import MAC_WORDS, SEAL_WORDS, WORLD, RunKey, mac_of, primed
-from .checks import CONVERT, check_agent, check_beat, check_cell, check_nonneg, check_sequence
+from .checks import CONVERT, check_agent, check_cell, check_nonneg, check_sequence
 from .errors import WireError
 from .payloads import NO_ACTION, Action, Bounds, Feedback, Heartbeat, Position
 
@@ -514,6 +514,6 @@ encode_heartbeat = HEARTBEAT_LAYOUT.encode
 def decode_heartbeat(msg: Any, *, after: int | None = None, key: bytes | RunKey | None = None) -> Heartbeat:
     """Heartbeat from `msg`. `after`: the last beat heard; a beat not above it is `replayed`."""
     hb = HEARTBEAT_LAYOUT.decode(msg, key=key)
-    if after is not None:
-        check_beat(hb.beat, after)
+    if after is not None and hb.beat <= after:
+        raise WireError("replayed", f"beat {hb.beat}, the last one heard was {after}")
     return hb

@@ -1,7 +1,5 @@
 """Value checks shared by every encoder and decoder of msgs_spec: exact int32 integers, finite floats, 0/1
-flags, and the range and sequence checks that raise `WireError` with the kind a receiver counts. The sequence
-checks are the receivers' too: a node's core judges the stamps and beats of the payloads it is handed
-(`record_sequence`, `check_beat`), with the kinds a decoder given the expectation would raise."""
+flags, and the range and sequence checks that raise `WireError` with the kind a receiver counts."""
 
 from __future__ import annotations
 
@@ -9,11 +7,10 @@ import math
 import operator
 from typing import Any, Callable
 
-from .errors import DropCounter, WireError
+from .errors import WireError
 from .payloads import INT32_MAX, Bounds
 
-__all__ = ["as_int", "as_float", "as_flag", "CONVERT", "check_nonneg", "check_agent", "check_cell", "check_sequence",
-           "record_sequence", "check_beat"]
+__all__ = ["as_int", "as_float", "as_flag", "CONVERT", "check_nonneg", "check_agent", "check_cell", "check_sequence"]
 
 
 
@@ -98,18 +95,3 @@ def check_sequence(ep: int, st: int | None, episode: int | None, step: int | Non
             raise WireError("stale_step", f"episode {ep} step {st}, expected step {step}")
         if st > step:
             raise WireError("future_step", f"episode {ep} step {st}, expected step {step}")
-
-
-def record_sequence(drops: DropCounter, stamp: tuple[int, int], expected: tuple[int, int], source: str) -> None:
-    """Count a message stamped `stamp` (episode, step) where `expected` was due in `drops`, as check_sequence
-    names the gap (stale_*, future_*); nothing when they are equal."""
-    try:
-        check_sequence(*stamp, *expected)
-    except WireError as e:
-        drops.record(e, source)
-
-
-def check_beat(beat: int, after: int) -> None:
-    """WireError replayed when a heartbeat's `beat` is not above `after`, the last one heard."""
-    if beat <= after:
-        raise WireError("replayed", f"beat {beat}, the last one heard was {after}")

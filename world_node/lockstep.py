@@ -60,7 +60,7 @@ from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
     FEEDBACK_LAYOUT, NO_ACTION, POSITION_LAYOUT, Action, Bounds, DropCounter, Feedback, Heartbeat, WireError,
-    WorldStats, action_topic, agent_namespace, record_sequence,
+    WorldStats, action_topic, agent_namespace, check_sequence,
 )
 from msgs_spec.auth import RunKey
 from node_runtime.parameters import run_key_parameters
@@ -164,8 +164,10 @@ class Lockstep:
         step collected: a new incarnation of its agent binds only with an action every check accepted."""
         agent, stamp = action.agent, (action.episode, action.step)
         if stamp != (self.episode, self.world.t):
-            record_sequence(self.drops, stamp, (self.episode, self.world.t), action_topic(agent))
-            return []
+            try:  # stale_* or future_*, as the decoder would name it given the step
+                check_sequence(*stamp, self.episode, self.world.t)
+            except WireError as e:
+                return self.refused(agent, e)
         if seal is not None:
             self.key.accept(*seal)
         if agent not in self.waiting:
@@ -183,8 +185,8 @@ class Lockstep:
         return self._advance()
 
     def refused(self, agent: int, error: WireError) -> Outbox:
-        """A message on agv<agent>/action that its decode refused: counted by its kind. One of a replaced
-        incarnation of the agent means a second live node acts as it (`twin`)."""
+        """A message on agv<agent>/action refused, by its decode or for its stamp: counted by its kind. One of a
+        replaced incarnation of the agent means a second live node acts as it (`twin`)."""
         self.drops.record(error, action_topic(agent))
         if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
             self.twin = (f"two live nodes act as {agent_namespace(agent)}: actions of its replaced "
