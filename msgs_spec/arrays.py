@@ -259,23 +259,15 @@ class ArrayLayout:
                episode: int | None = None, step: int | None = None, key: bytes | RunKey | None = None) -> Any:
         """The payload of a message or its serialized bytes, every check passed (WireError otherwise).
         `agent`: the topic's agent; `episode`/`step`: what the receiver waits for (None skips a check)."""
-        return self.new(*self.decode_values(msg, bounds, agent, episode, step, key))
-
-    def decode_values(self, msg: Any, bounds: Bounds | None = None, agent: int | None = None,
-                      episode: int | None = None, step: int | None = None,
-                      key: bytes | RunKey | None = None) -> tuple:
-        """decode's field values, with every check of it (and its binding of `key`), without the payload.
-        A message object is checked as its bytes are."""
         values, seal = self.read(msg, bounds, agent, episode, step, key)
         if seal is not None:  # bound only by a message every check accepted
             key.accept(*seal)
-        return values
+        return self.new(*values)
 
     def read(self, msg: Any, bounds: Bounds | None = None, agent: int | None = None, episode: int | None = None,
              step: int | None = None, key: bytes | RunKey | None = None) -> tuple[tuple, tuple | None]:
-        """(decode_values's values, the seal they would bind `key` to: None when it binds nothing new), every
-        check made but the binding left to the receiver: the world binds an action's sender once its own check
-        of the step passed (world_node.lockstep), as a message every check accepted."""
+        """(decode's values, the seal they bind `key` to or None), every check but the binding, which the world's
+        core makes once an action is of the step it collects. A message object is checked as its bytes are."""
         raw = msg if type(msg) is bytes else self._serialized(msg)
         plain, keyed = self.forms
         form = keyed if keyed.holds(raw) else plain if plain.holds(raw) else None
