@@ -1,8 +1,10 @@
 """An agent's side of the lockstep protocol (msgs_spec/README.md, "Protocol"), without ROS.
 
-The drivers decide everything the agent node does and return it as effects for the node to carry out
-(`Subscribe`/`Unsubscribe` a peer's position topic, `Send` an Action or AgentStats, `SaveCheckpoint`,
-`Finish`), so the protocol is tested without a ROS graph (tests/test_driver.py):
+The drivers take payloads, never bytes: the node decodes each message (agent_node.wire_reading) and hands them
+its `Feedback`, `Position` or `Heartbeat`; they keep the protocol's rules (sequence, catch-up, liveness). They
+decide everything the agent node does and return it as effects for the node to carry out
+(`Subscribe`/`Unsubscribe` a peer's position topic, `Send` an Action or AgentStats, `SaveCheckpoint`, `Finish`),
+so the protocol is tested without a ROS graph (tests/test_driver.py):
 
 - `AgentDriver` runs one decentralised learner (indep, js, loc, cq) through the engine's own step functions,
   as `cq_ros.engine.Team` does: on Feedback(e, s), `step_outcome` learns from the outcome of its action of
@@ -22,7 +24,7 @@ What the two drivers do alike lives once, in their base `_Driver`: the world lin
 per-episode counters (joint plays and peer positions heard since the episode began), the AgentStats they send,
 checkpoints and the greedy switch. The pieces they share have their own modules: `effects` (what a driver
 returns), `world_link` (liveness and catching up), `peer_view` (peer subscriptions and positions), `checkpoint`,
-`reading`; `config` makes a driver from a node's parameters.
+`wire_reading`; `config` makes a driver from a node's parameters.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from typing import Any, Callable
 from cq_ros.engine import central_act, central_outcome, step_act, step_outcome
 from cq_ros.learners import Learner
 from msgs_spec import (
-    ACTION_LAYOUT, Action, AgentStats, DropCounter, MarkedJointState, WireError, agent_namespace, decode_feedback,
+    ACTION_LAYOUT, Action, AgentStats, DropCounter, Feedback, Heartbeat, MarkedJointState, Position, agent_namespace,
     feedback_topic,
 )
 
@@ -78,11 +80,12 @@ class _Driver:
         self.greedy = False  # playing the greedy episodes (self.learner is the copy at epsilon 0)
         self.checkpoint_every = checkpoint_every
         self.map = learner.map
-        self.bounds = bounds_of(self.map)
+        self.bounds = bounds_of(self.map)  # what the node decodes against (agent_node.wire_reading), as `key`
+        self.key = key  # the run's key: messages must carry its MAC and seal (None: no authentication)
         self.drops = DropCounter(log)
         self.link = WorldLink(self.drops, key, clock, last_episode=episodes + eval_episodes - 1,
                               max_catch_up=max_catch_up)
-        self.peers = PeerView(self.map, self.drops, linger, key)
+        self.peers = PeerView(self.map, self.drops, linger)
         self._clock = clock
         self._log = log or (lambda _msg: None)
         self.finished = False
@@ -91,9 +94,9 @@ class _Driver:
         self.extra_counters: dict[str, int] = {}  # counted by the node (second writers in the graph, lost samples)
         self._begin_episode()
 
-    def on_heartbeat(self, msg: Any) -> Effects:
-        """A message from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
-        held = self.link.vouched() if self.link.on_heartbeat(msg, self._expected()) else None
+    def on_heartbeat(self, hb: Heartbeat) -> Effects:
+        """A heartbeat from world/heartbeat: the world is alive, and may vouch for a later feedback held."""
+        held = self.link.vouched() if self.link.on_heartbeat(hb, self._expected()) else None
         return self._catch_up(*held) if held else []
 
     def renew_quiet(self) -> Effects:
@@ -142,18 +145,13 @@ class _Driver:
                           subscriptions_active=len(self.peers.idle), peer_messages=self.peers.messages,
                           marked=marked, counters=self.counters())
 
-    def _read_feedback(self, agent: int, msg: Any) -> tuple[Any, int | None]:
-        """(the feedback, its cell index) of a message on agv<agent>/feedback, or (None, None) for one refused
-        (logged and counted): DropCounter.guard's work, without repacking the arguments of every message."""
+    def _cell(self, fb: Feedback) -> int | None:
+        """The index of a feedback's cell; None for a '#' square (within the bounds the node decoded against),
+        logged and counted."""
         try:
-            fb = decode_feedback(msg, bounds=self.bounds, agent=agent, key=self.link.key)
-        except WireError as e:
-            self.drops.record(e, feedback_topic(agent))
-            return None, None
-        try:
-            return fb, self.map.index(fb.row, fb.col)
+            return self.map.index(fb.row, fb.col)
         except KeyError:  # cell_of records why (its topic's name made only then)
-            return fb, cell_of(self.map, self.drops, fb.row, fb.col, feedback_topic(agent))
+            return cell_of(self.map, self.drops, fb.row, fb.col, feedback_topic(fb.agent))
 
     def _after_episode(self, episode: int) -> Effects:
         """After episode `episode`: a checkpoint (of learning episodes only: every checkpoint_every and the
@@ -202,9 +200,9 @@ class AgentDriver(_Driver):
         self._acted: tuple[int, int, int] | None = None  # (episode, step, action) of the action just sent
         self._pending: tuple[int, int, tuple[int, ...]] | None = None  # (episode, step, peers) awaiting positions
 
-    def on_feedback(self, agent: int, msg: Any) -> Effects:
-        """A message from agv<agent>/feedback (the node subscribes to its own agent's only)."""
-        fb, cell = self._read_feedback(agent, msg)
+    def on_feedback(self, fb: Feedback) -> Effects:
+        """A feedback from agv<k>/feedback, k its agent (the node subscribes to its own agent's only)."""
+        agent, cell = fb.agent, self._cell(fb)
         if cell is None:
             return []
         verdict = self.link.judge(agent, fb, cell, self.expect)
@@ -212,9 +210,9 @@ class AgentDriver(_Driver):
             return self._catch_up(agent, fb, cell)
         return self._play(fb, cell) if verdict is Verdict.PLAY else []
 
-    def on_position(self, peer: int, msg: Any) -> Effects:
-        """A message from agv<peer>/position."""
-        return self._try_act() if self.peers.on_position(peer, msg) else []
+    def on_position(self, pos: Position) -> Effects:
+        """A position from agv<peer>/position, peer its agent."""
+        return self._try_act() if self.peers.on_position(pos) else []
 
     def waiting_for(self) -> set[tuple[int, int, int]]:
         """(peer, episode, step) of every position the agent waits for before it can act (none: it is not
@@ -329,9 +327,9 @@ class CentralDriver(_Driver):
         self._acted: tuple[int, int] | None = None
         self._sent: dict[int, int] = {}  # agent -> its action of the step acted at (self._acted)
 
-    def on_feedback(self, agent: int, msg: Any) -> Effects:
-        """A message from agv<agent>/feedback."""
-        fb, cell = self._read_feedback(agent, msg)
+    def on_feedback(self, fb: Feedback) -> Effects:
+        """A feedback from agv<k>/feedback, k its agent."""
+        agent, cell = fb.agent, self._cell(fb)
         if cell is None:
             return []
         if self._resync is not None:  # the positions decide; a later feedback moves the step they must show
@@ -360,9 +358,9 @@ class CentralDriver(_Driver):
             out += self._joint_step()
         return out
 
-    def on_position(self, peer: int, msg: Any) -> Effects:
-        """A message from agv<peer>/position (subscribed only while resuming)."""
-        if not self.peers.on_position(peer, msg) or self._resync is None:
+    def on_position(self, pos: Position) -> Effects:
+        """A position from agv<peer>/position, peer its agent (subscribed only while resuming)."""
+        if not self.peers.on_position(pos) or self._resync is None:
             return []
         cells = self.peers.cells_at(*self._resync, self.agents)
         if cells is None:

@@ -1,10 +1,10 @@
 """The agent node: one cq_ros learner (or, for jsa, the central learner of every AGV) on the msgs_spec topics.
 
 Thin on purpose, like the ros2/examples minimal nodes: it declares its parameters, creates the publishers and
-subscriptions msgs_spec names with msgs_spec's QoS, and hands every message to its core, the driver of
-`agent_node.driver` (made by `agent_node.config`), carrying out the effects it returns: publish, subscribe to,
-drop or renew a peer's position topic (always from inside an executor callback, as docs/design.md's field
-notes require), save a checkpoint, finish. Constructible in-process
+subscriptions msgs_spec names with msgs_spec's QoS, decodes every message (agent_node.wire_reading) and hands its
+payload to its core, the driver of `agent_node.driver` (made by `agent_node.config`), carrying out the effects it
+returns: publish, subscribe to, drop or renew a peer's position topic (always from inside an executor callback,
+as docs/design.md's field notes require), save a checkpoint, finish. Constructible in-process
 (`AgentNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding the exit code.
 """
 
@@ -30,6 +30,7 @@ from .config import agent_config, make_driver
 from .effects import Finish, Renew, SaveCheckpoint, Send, Subscribe, Unsubscribe
 from .peer_subscriptions import PeerSubscriptions
 from .viz import AgentView
+from .wire_reading import feedback_in, heartbeat_in, position_in
 
 __all__ = ["AgentNode"]
 
@@ -60,13 +61,13 @@ class AgentNode(RunNode):
         self._stats = {k: HeldPublisher(self, AGENT_STATS, agent_stats_topic(k),
                                         lambda s: serialize(s, key=cfg.key, stamp=clock.now().to_msg()),
                                         min_matched=cfg.min_stats_subscribers) for k in agents}
-        # Raw: the core decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
+        # Raw: the serialized bytes are decoded (msgs_spec.codec) without a message object built for them.
         lost = count_lost(core.extra_counters)
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k), partial(self._on_feedback, k),
                                                    profile(FEEDBACK.reader_qos), raw=True, event_callbacks=lost)
                           for k in agents]
         self._heartbeat = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
-                                                   lambda m: self._apply(core.on_heartbeat(m)),
+                                                   lambda m: self._apply(heartbeat_in(core, m)),
                                                    profile(HEARTBEAT.reader_qos), raw=True, event_callbacks=lost)
         self._peers = PeerSubscriptions(self, self._on_position, core.extra_counters)
         self._checkpoints = CheckpointWriter(cfg.checkpoint, f"{self.get_name()}_checkpoint", core.extra_counters,
@@ -87,10 +88,10 @@ class AgentNode(RunNode):
                                f"{cfg.gridmap.name}, {cfg.episodes} episodes, then {cfg.settings.eval_episodes} greedy")
 
     def _on_feedback(self, agent: int, msg: Any) -> None:
-        self._apply(self.core.on_feedback(agent, msg))
+        self._apply(feedback_in(self.core, agent, msg))
 
     def _on_position(self, peer: int, msg: Any) -> None:
-        self._apply(self.core.on_position(peer, msg))
+        self._apply(position_in(self.core, peer, msg))
 
     def _apply(self, effects: list) -> None:
         carry_out = self._carry_out

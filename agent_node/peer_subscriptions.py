@@ -27,7 +27,7 @@ class PeerSubscriptions:
 
     def subscribe(self, effect: Subscribe | Renew) -> None:
         peer = effect.peer
-        # Raw: the core decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
+        # Raw: the serialized bytes are decoded (msgs_spec.codec) without a message object built for them.
         self.subs[peer] = self.node.create_subscription(POSITION.msg_type, position_topic(peer),
                                                         partial(self.on_position, peer), profile(POSITION.reader_qos),
                                                         raw=True)

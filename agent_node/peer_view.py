@@ -22,13 +22,13 @@ position it holds, and the writer's latched history holds the newest one it sent
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+from typing import Iterable
 
 from cq_ros.gridmap import GridMap
-from msgs_spec import DropCounter, WireError, decode_position, position_topic
+from msgs_spec import DropCounter, Position, WireError, position_topic
 
 from .effects import Effects, Renew, Subscribe, Unsubscribe
-from .wire_reading import bounds_of, cell_of, record_sequence
+from .wire_reading import cell_of, record_sequence
 
 __all__ = ["AHEAD", "RENEW_AFTER_S", "PeerView"]
 
@@ -43,12 +43,10 @@ class PeerView:
     from the step the agent decides at (`floor`) on, and when to let a subscription go (after `linger`
     decision steps without need)."""
 
-    def __init__(self, gridmap: GridMap, drops: DropCounter, linger: int, key: bytes | None = None):
+    def __init__(self, gridmap: GridMap, drops: DropCounter, linger: int):
         self.map = gridmap
-        self.bounds = bounds_of(gridmap)
         self.drops = drops
         self.linger = linger
-        self.key = key
         self.idle: dict[int, int] = {}  # subscribed peer -> decision steps since it was last needed
         self.created = 0  # subscriptions created since start (communication cost)
         self.messages = 0  # position messages received since start (communication cost)
@@ -92,19 +90,19 @@ class PeerView:
             out.append(Subscribe(j))
         return out
 
-    def on_position(self, peer: int, msg: Any) -> bool:
-        """A message from agv<peer>/position; True if it was a new valid position of a subscribed peer."""
+    def delivered(self, peer: int) -> bool:
+        """A message came on agv<peer>/position (counted, valid or not: the communication cost); whether its peer
+        is subscribed, so that it is read (one delivered after the subscription was dropped is not)."""
         self.messages += 1
-        if peer not in self.idle:  # delivered after the subscription was dropped
-            return False
-        # No (episode, step) expectation: positions also arrive between two waits; the stamps are judged here.
-        # DropCounter.guard's and cell_of's work, the topic's name made only for a message refused.
-        try:
-            pos = decode_position(msg, bounds=self.bounds, agent=peer, key=self.key)
+        return peer in self.idle
+
+    def on_position(self, pos: Position) -> bool:
+        """A position of a subscribed peer (`delivered`), decoded by the node without an (episode, step)
+        expectation: positions also arrive between two waits; the stamps are judged here. True if it was a new
+        valid one."""
+        peer = pos.agent
+        try:  # cell_of's work, the topic's name made only for a position refused
             cell = self.map.index(pos.row, pos.col)
-        except WireError as e:
-            self.drops.record(e, position_topic(peer))
-            return False
         except KeyError:
             cell_of(self.map, self.drops, pos.row, pos.col, position_topic(peer))
             return False

@@ -1,14 +1,14 @@
 """The world as an agent driver knows it beyond its own feedback.
 
-Catching up (`WorldLink`). Feedback is decoded without a sequence expectation and then judged: the expected
-(episode, step) is played; an older one is dropped and counted (`stale_*`); a later one means the world
-stepped on without us (a feedback lost, a restart, a world that ran ahead): the driver adopts it, as a
-restarted agent does, counts it (`caught_up`, and `missed_feedback`: the steps it never heard) and sends the
-AgentStats of every episode it left behind. Only a later stamp the world vouches for is adopted: with the
-run's key every message is the world's; without one, the world's heartbeat must have reached that stamp
-(else a forged far-future feedback would capture the agent), so a later stamp is held until it has, and
-dropped (`future_*`) if the expected one comes first. A node started without a checkpoint file starts a
-fresh learner wherever the world is.
+Catching up (`WorldLink`). Feedback is decoded by the node without a sequence expectation
+(agent_node.wire_reading) and then judged here: the expected (episode, step) is played; an older one is dropped
+and counted (`stale_*`); a later one means the world stepped on without us (a feedback lost, a restart, a world
+that ran ahead): the driver adopts it, as a restarted agent does, counts it (`caught_up`, and `missed_feedback`:
+the steps it never heard) and sends the AgentStats of every episode it left behind. Only a later stamp the world
+vouches for is adopted: with the run's key every message is the world's; without one, the world's heartbeat must
+have reached that stamp (else a forged far-future feedback would capture the agent), so a later stamp is held
+until it has, and dropped (`future_*`) if the expected one comes first. A node started without a checkpoint file
+starts a fresh learner wherever the world is.
 
 The catch-up is bounded: a feedback past the run's last episode, or (once the agent has played) more than
 `max_catch_up` episodes past the one expected, is refused and counted (`far_ahead`), whoever vouches for it.
@@ -27,10 +27,11 @@ feedback_timeout saying so, as one that hears nothing does. The node judges the 
 time the agent itself was stopped does not count against the world, and the heartbeats waiting in its queue
 when it resumes are heard before it gives up.
 
-Heartbeat beats are bounded as feedback's catch-up is: after the first, a beat may be at most
-`beat_bound(seconds)` past the last one heard (the world beats at most 1/MIN_HEARTBEAT_PERIOD times a second),
-so a forged or corrupt far-ahead beat (2**31-1, by a key holder) is refused and counted (`far_ahead`) instead
-of making every later real one a replay.
+A heartbeat, decoded by the node, is judged here as well: a beat not above the last one heard is `replayed` (a
+replay, or a second world). Heartbeat beats are bounded as feedback's catch-up is: after the first, a beat may
+be at most `beat_bound(seconds)` past the last one heard (the world beats at most 1/MIN_HEARTBEAT_PERIOD times a
+second), so a forged or corrupt far-ahead beat (2**31-1, by a key holder) is refused and counted (`far_ahead`)
+instead of making every later real one a replay.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from __future__ import annotations
 from enum import Enum
 from typing import Any, Callable
 
-from msgs_spec import HEARTBEAT_TOPIC, DropCounter, WireError, decode_heartbeat, feedback_topic
+from msgs_spec import HEARTBEAT_TOPIC, DropCounter, Heartbeat, WireError, feedback_topic
 from node_runtime.parameters import MIN_HEARTBEAT_PERIOD
 from node_runtime.patience import Patience
 
@@ -97,11 +98,12 @@ class WorldLink:
         """Seconds since the last valid message from the world (or since the start)."""
         return self._clock() - self.last_heard
 
-    def on_heartbeat(self, msg: Any, expected: tuple[int, int] | None = None) -> bool:
-        """A message from world/heartbeat; True if it was valid and new. `expected`: the feedback the agent waits
-        for (None: any); a heartbeat of a world past it is no sign of progress."""
-        hb = self.drops.guard(decode_heartbeat, msg, after=self.beat, key=self.key, source=HEARTBEAT_TOPIC)
-        if hb is None:
+    def on_heartbeat(self, hb: Heartbeat, expected: tuple[int, int] | None = None) -> bool:
+        """A heartbeat from world/heartbeat; True if it was new (and its beat not too far ahead). `expected`: the
+        feedback the agent waits for (None: any); a heartbeat of a world past it is no sign of progress."""
+        if hb.beat <= self.beat:  # as decode_heartbeat(after=self.beat) names it
+            self.drops.record(WireError("replayed", f"beat {hb.beat}, the last one heard was {self.beat}"),
+                              HEARTBEAT_TOPIC)
             return False
         now = self._clock()
         if self.beat and hb.beat - self.beat > beat_bound(now - self.beat_at):

@@ -43,8 +43,8 @@ def cases() -> dict:
         "decode feedback": lambda: decode_feedback(raw[Feedback], **expect, key=agent),
         "decode position": lambda: decode_position(raw[Position], **expect, key=agent),
         "decode action": lambda: decode_action(raw[Action], **expect, key=world),
-        # the world keeps the action alone (world_node.lockstep)
-        "decode action's value": lambda: ACTION_LAYOUT.decode_values(raw[Action], bounds, 3, 5, 7, world)[3],
+        # the values and the seal without a payload object (the world node's read: world_node.wire_reading)
+        "decode action's value": lambda: ACTION_LAYOUT.read(raw[Action], bounds, 3, key=world)[0][3],
         "decode heartbeat": lambda: decode_heartbeat(raw[Heartbeat], after=8, key=agent),
     }
 

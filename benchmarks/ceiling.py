@@ -101,10 +101,7 @@ def ceiling(agents: int, steps: int, peers: str = "none", warmup: int = 200, ste
     checked = contract or mac_only  # every arrival checked: decoded(layout, raw, sender, receiver)
     if contract:
         def decoded(layout, raw, k, receiver):  # what a node does with each arrival: decode with every check
-            if layout is ACTION_LAYOUT:  # as the world node reads an action: its value alone
-                layout.decode_values(raw, bounds, k, 0, clock[0], keys[receiver])
-            else:
-                layout.decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=keys[receiver])
+            layout.decode(raw, bounds=bounds, agent=k, episode=0, step=clock[0], key=keys[receiver])
 
         def make_position(k):  # noqa: F811
             return POSITION_LAYOUT.serialize(POSITION_LAYOUT.new(k, 0, clock[0], 0, 0), keys[WORLD])

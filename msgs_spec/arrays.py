@@ -233,13 +233,15 @@ class ArrayLayout:
                episode: int | None = None, step: int | None = None, key: bytes | RunKey | None = None) -> Any:
         """The payload of a message or its serialized bytes, every check passed (WireError otherwise).
         `agent`: the topic's agent; `episode`/`step`: what the receiver waits for (None skips a check)."""
-        return self.new(*self.decode_values(msg, bounds, agent, episode, step, key))
+        values, seal = self.read(msg, bounds, agent, episode, step, key)
+        if seal is not None:  # bound only by a message every check accepted
+            key.accept(*seal)
+        return self.new(*values)
 
-    def decode_values(self, msg: Any, bounds: Bounds | None = None, agent: int | None = None,
-                      episode: int | None = None, step: int | None = None,
-                      key: bytes | RunKey | None = None) -> tuple:
-        """decode's field values, with every check of it (and its binding of `key`), without the payload:
-        what the world keeps of an action is its value. A message object is checked as its bytes are."""
+    def read(self, msg: Any, bounds: Bounds | None = None, agent: int | None = None, episode: int | None = None,
+             step: int | None = None, key: bytes | RunKey | None = None) -> tuple[tuple, tuple | None]:
+        """(decode's values, the seal they bind `key` to or None), every check but the binding, which the world's
+        core makes once an action is of the step it collects. A message object is checked as its bytes are."""
         raw = msg if type(msg) is bytes else self._serialized(msg)
         plain, keyed = self.forms
         form = keyed if keyed.holds(raw) else plain if plain.holds(raw) else None
@@ -268,9 +270,7 @@ class ArrayLayout:
         if self.code == "d":
             values = self._from_floats(values) or self._typed(values)
         self.check(values, bounds, agent, episode, step)
-        if seal is not None:  # bound only by a message every check accepted
-            key.accept(*seal)
-        return values
+        return values, seal
 
     def _checking(self, key: RunKey, sender: int) -> tuple[bytes | None, tuple]:
         """(the seal `key` holds for `sender`'s messages of this layout, None while it holds no run or no

@@ -17,6 +17,7 @@ from agent_node.config import agent_config, make_driver
 from agent_node.driver import AgentDriver, CentralDriver
 from agent_node.effects import Finish, Renew, SaveCheckpoint, Send, Subscribe, Unsubscribe
 from agent_node.peer_view import RENEW_AFTER_S
+from agent_node.wire_reading import feedback_in, heartbeat_in, position_in
 from cq_ros.engine import make_learner, run, world_seed
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners.base import Learner
@@ -26,6 +27,7 @@ from cq_ros.world import GridWorld
 from msgs_spec import EAST, NO_ACTION, Action, AgentStats, Feedback, Heartbeat, Position, WorldStats, decode, encode
 from node_runtime.parameters import AGENT_PARAMETERS as PARAMETERS
 from world_node.lockstep import Lockstep
+from world_node.wire_reading import action_in
 
 THREE = parse_map("""agent 1: start 0,0  goal 0,3
 agent 2: start 1,0  goal 1,3
@@ -85,18 +87,18 @@ def sent(effects, kind=Action):
 
 def test_acts_at_once_when_the_learner_needs_nobody():
     d = AgentDriver(Stub(), 1, episodes=1, linger=0)
-    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == [Send(Action(1, 0, 0, 1))]
+    assert feedback_in(d, 1, fb(1, 0, 0, 0, 0)) == [Send(Action(1, 0, 0, 1))]
     assert d.learner.calls == [("observe", 0), ("act", {})]
 
 
 def test_subscribes_to_exactly_the_named_peers_and_acts_once_their_positions_of_this_step_are_in():
     learner = Stub(needs=[(), (2,)])  # peer index 2 = agent 3
     d = AgentDriver(learner, 1, episodes=1, linger=0)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    effects = d.on_feedback(1, fb(1, 0, 1, 0, 1))
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    effects = feedback_in(d, 1, fb(1, 0, 1, 0, 1))
     assert effects == [Subscribe(3)]
-    assert d.on_position(3, pos(3, 0, 0, 2, 1)) == []  # an older step: not yet
-    assert d.on_position(3, pos(3, 0, 1, 2, 2)) == [Send(Action(1, 0, 1, 1))]
+    assert position_in(d, 3, pos(3, 0, 0, 2, 1)) == []  # an older step: not yet
+    assert position_in(d, 3, pos(3, 0, 1, 2, 2)) == [Send(Action(1, 0, 1, 1))]
     assert learner.calls[-1] == ("act", {2: THREE.index(2, 2)})
 
 
@@ -105,27 +107,27 @@ def test_a_new_subscriptions_first_position_older_than_the_step_waited_for_is_dr
     matches: a new reader may first get the last one sent before, from the latched cache. No fault; a second
     older one is."""
     d = AgentDriver(Stub(needs=[(), (2,)]), 1, episodes=1, linger=0)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    assert d.on_feedback(1, fb(1, 0, 1, 0, 1)) == [Subscribe(3)]
-    assert d.on_position(3, pos(3, 0, 0, 2, 1)) == [] and d.drops.total == 0  # the cache's, from before
-    assert d.on_position(3, pos(3, 0, 0, 2, 1)) == [] and d.drops.counts == {"stale_step": 1}
-    assert sent(d.on_position(3, pos(3, 0, 1, 2, 2))) == [Action(1, 0, 1, 1)]
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    assert feedback_in(d, 1, fb(1, 0, 1, 0, 1)) == [Subscribe(3)]
+    assert position_in(d, 3, pos(3, 0, 0, 2, 1)) == [] and d.drops.total == 0  # the cache's, from before
+    assert position_in(d, 3, pos(3, 0, 0, 2, 1)) == [] and d.drops.counts == {"stale_step": 1}
+    assert sent(position_in(d, 3, pos(3, 0, 1, 2, 2))) == [Action(1, 0, 1, 1)]
     assert d.peers.messages == 3
 
 
 def test_waits_for_every_needed_peer():
     d = AgentDriver(Stub(needs=[(1, 2)]), 1, episodes=1, linger=0)
-    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == [Subscribe(2), Subscribe(3)]
-    assert d.on_position(2, pos(2, 0, 0, 1, 0)) == []
-    assert sent(d.on_position(3, pos(3, 0, 0, 2, 0))) == [Action(1, 0, 0, 1)]
+    assert feedback_in(d, 1, fb(1, 0, 0, 0, 0)) == [Subscribe(2), Subscribe(3)]
+    assert position_in(d, 2, pos(2, 0, 0, 1, 0)) == []
+    assert sent(position_in(d, 3, pos(3, 0, 0, 2, 0))) == [Action(1, 0, 0, 1)]
 
 
 def test_positions_that_came_before_the_feedback_are_used():
     d = AgentDriver(Stub(needs=[(1,), (1,)]), 1, episodes=1, linger=5)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    d.on_position(2, pos(2, 0, 0, 1, 0))
-    d.on_position(2, pos(2, 0, 1, 1, 1))  # the kept subscription delivers step 1 before our feedback
-    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    position_in(d, 2, pos(2, 0, 0, 1, 0))
+    position_in(d, 2, pos(2, 0, 1, 1, 1))  # the kept subscription delivers step 1 before our feedback
+    assert sent(feedback_in(d, 1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
     assert d.peers.created == 1
 
 
@@ -133,11 +135,11 @@ def test_positions_that_came_before_the_feedback_are_used():
 def test_a_peer_no_longer_needed_is_dropped_after_linger_steps(linger):
     needs = [(1,)] + [()] * 5
     d = AgentDriver(Stub(needs=needs), 1, episodes=1, linger=linger)
-    effects = d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    d.on_position(2, pos(2, 0, 0, 1, 0))
+    effects = feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    position_in(d, 2, pos(2, 0, 0, 1, 0))
     dropped_at = None
     for step in range(1, 6):
-        effects = d.on_feedback(1, fb(1, 0, step, 0, 0))
+        effects = feedback_in(d, 1, fb(1, 0, step, 0, 0))
         if Unsubscribe(2) in effects:
             dropped_at = step
     assert dropped_at == linger + 1
@@ -146,9 +148,9 @@ def test_a_peer_no_longer_needed_is_dropped_after_linger_steps(linger):
 
 def test_the_end_of_an_episode_counts_as_a_step_without_need():
     d = AgentDriver(Stub(needs=[(1,)]), 1, episodes=2, linger=0)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    d.on_position(2, pos(2, 0, 0, 1, 0))
-    effects = d.on_feedback(1, fb(1, 0, 1, 0, 1, 10.0, done=True))
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    position_in(d, 2, pos(2, 0, 0, 1, 0))
+    effects = feedback_in(d, 1, fb(1, 0, 1, 0, 1, 10.0, done=True))
     assert effects[0] == Unsubscribe(2)
     [stats] = sent(effects, AgentStats)
     assert (stats.subscriptions_created, stats.subscriptions_active, stats.peer_messages) == (1, 0, 1)
@@ -157,8 +159,8 @@ def test_the_end_of_an_episode_counts_as_a_step_without_need():
 def test_learns_only_from_the_outcome_of_its_own_action():
     learner = Stub()
     d = AgentDriver(learner, 1, episodes=1, linger=0)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    d.on_feedback(1, fb(1, 0, 1, 0, 1, -1.0))
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    feedback_in(d, 1, fb(1, 0, 1, 0, 1, -1.0))
     assert ("learn", -1.0, THREE.index(0, 1), False) in learner.calls
 
 
@@ -169,9 +171,9 @@ def test_an_action_the_world_did_not_apply_is_not_learnt_and_is_counted():
     learner = Stub()
     logs = []
     d = AgentDriver(learner, 1, episodes=1, linger=0, log=logs.append)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    d.on_feedback(1, fb(1, 0, 1, 0, 1, -1.0, applied=EAST))
-    effects = d.on_feedback(1, fb(1, 0, 2, 0, 1, Settings().reward_step, applied=NO_ACTION))
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    feedback_in(d, 1, fb(1, 0, 1, 0, 1, -1.0, applied=EAST))
+    effects = feedback_in(d, 1, fb(1, 0, 2, 0, 1, Settings().reward_step, applied=NO_ACTION))
     assert sent(effects) == [Action(1, 0, 2, EAST)]
     assert [c for c in learner.calls if c[0] == "learn"] == [("learn", -1.0, THREE.index(0, 1), False)]
     assert d.counters()["unapplied_actions"] == 1 and "skipped_steps" not in d.counters()
@@ -184,11 +186,11 @@ def test_a_central_driver_learns_a_joint_action_only_as_the_world_applied_it_who
     learner.learn = lambda reward, cells, done: learnt.append((reward, cells))
     d = CentralDriver(learner, episodes=1)
     for k in (1, 2, 3):
-        joint = sent(d.on_feedback(k, fb(k, 0, 0, k - 1, 0)))
+        joint = sent(feedback_in(d, k, fb(k, 0, 0, k - 1, 0)))
     applied = {a.agent: a.action for a in joint}
-    d.on_feedback(1, fb(1, 0, 1, 0, 0, -1.0, applied=applied[1]))
-    d.on_feedback(2, fb(2, 0, 1, 1, 0, -1.0, applied=NO_ACTION))  # came late: the world stepped without it
-    assert sent(d.on_feedback(3, fb(3, 0, 1, 2, 0, -1.0, applied=applied[3])))  # it acts on
+    feedback_in(d, 1, fb(1, 0, 1, 0, 0, -1.0, applied=applied[1]))
+    feedback_in(d, 2, fb(2, 0, 1, 1, 0, -1.0, applied=NO_ACTION))  # came late: the world stepped without it
+    assert sent(feedback_in(d, 3, fb(3, 0, 1, 2, 0, -1.0, applied=applied[3])))  # it acts on
     assert learnt == [] and d.counters()["unapplied_actions"] == 1
 
 
@@ -196,8 +198,8 @@ def test_a_step_the_world_took_without_us_is_skipped_not_learnt():
     learner = Stub(needs=[(1,)])
     logs = []
     d = AgentDriver(learner, 1, episodes=1, linger=0, log=logs.append)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))  # waits for agent 2, whose position never comes
-    effects = d.on_feedback(1, fb(1, 0, 1, 0, 0))  # the world timed us out and stepped
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))  # waits for agent 2, whose position never comes
+    effects = feedback_in(d, 1, fb(1, 0, 1, 0, 0))  # the world timed us out and stepped
     assert sent(effects) == [Action(1, 0, 1, 1)]
     assert not any(c[0] == "learn" for c in learner.calls)
     assert d.skipped_steps == 1 and d.counters()["skipped_steps"] == 1 and logs
@@ -208,11 +210,11 @@ def test_a_subscription_waited_on_that_delivers_nothing_is_made_anew_then_after_
     lost the match, a new subscription is a new match. Positions flowing, nothing is renewed."""
     clock, logs = Clock(), []
     d = AgentDriver(Stub(needs=[(1,)] * 6), 1, episodes=1, linger=0, log=logs.append, clock=clock)
-    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == [Subscribe(2)]
+    assert feedback_in(d, 1, fb(1, 0, 0, 0, 0)) == [Subscribe(2)]
     assert d.renew_quiet() == []  # first seen waited for at 0.0
     clock.now = RENEW_AFTER_S - 0.01
     assert d.renew_quiet() == []
-    d.on_feedback(1, fb(1, 0, 1, 0, 0))  # the world timed us out and stepped: still waiting for agent 2
+    feedback_in(d, 1, fb(1, 0, 1, 0, 0))  # the world timed us out and stepped: still waiting for agent 2
     clock.now = RENEW_AFTER_S
     assert d.renew_quiet() == [Renew(2)] and "agv2" in logs[-1]
     clock.now = 2.9 * RENEW_AFTER_S
@@ -220,29 +222,29 @@ def test_a_subscription_waited_on_that_delivers_nothing_is_made_anew_then_after_
     clock.now = 3 * RENEW_AFTER_S
     assert d.renew_quiet() == [Renew(2)]
     # the renewed reader's first position may be the latched one from before: no fault
-    assert d.on_position(2, pos(2, 0, 0, 1, 0)) == [] and d.drops.total == 0
-    assert sent(d.on_position(2, pos(2, 0, 1, 1, 0))) == [Action(1, 0, 1, 1)]
+    assert position_in(d, 2, pos(2, 0, 0, 1, 0)) == [] and d.drops.total == 0
+    assert sent(position_in(d, 2, pos(2, 0, 1, 1, 0))) == [Action(1, 0, 1, 1)]
     assert d.counters()["renewed_subscriptions"] == 2 and d.peers.created == 3
     # positions flowing: each step's within RENEW_AFTER_S of the last, however long the run
     for step in range(2, 6):
-        d.on_feedback(1, fb(1, 0, step, 0, 0))
+        feedback_in(d, 1, fb(1, 0, step, 0, 0))
         assert d.renew_quiet() == []
         clock.now += 0.9 * RENEW_AFTER_S
         assert d.renew_quiet() == []
-        assert sent(d.on_position(2, pos(2, 0, step, 1, 0)))
+        assert sent(position_in(d, 2, pos(2, 0, step, 1, 0)))
     assert d.counters()["renewed_subscriptions"] == 2
 
 
 def test_bad_feedback_is_counted_and_dropped():
     d = AgentDriver(Stub(), 1, episodes=3, linger=0)  # episode 1 is in the run (a later one would be far_ahead)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
     nan = fb(1, 0, 1, 0, 1)
     nan.data[5] = math.nan
     for msg in (nan, fb(1, 0, 0, 0, 1), fb(1, 0, 2, 0, 1), fb(1, 1, 1, 0, 1), fb(2, 0, 1, 0, 1),
                 fb(1, 0, 1, 9, 9)):
-        assert d.on_feedback(1, msg) == []
+        assert feedback_in(d, 1, msg) == []
     # the later ones the world has not vouched for are held until the expected one comes, then dropped
-    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
+    assert sent(feedback_in(d, 1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]
     assert d.drops.counts == {"not_finite": 1, "stale_step": 1, "future_step": 1, "future_episode": 1,
                               "wrong_agent": 1, "cell_out_of_range": 1}
 
@@ -258,16 +260,16 @@ agent 2: start 1,1  goal 1,1
 +-+-+
 """)
     d = AgentDriver(Stub(needs=[(1,)], gridmap=gm), 1, episodes=1, linger=0)
-    assert d.on_feedback(1, fb(1, 0, 0, 1, 0)) == []
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    assert d.on_position(2, pos(2, 0, 0, 1, 0)) == []
+    assert feedback_in(d, 1, fb(1, 0, 0, 1, 0)) == []
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    assert position_in(d, 2, pos(2, 0, 0, 1, 0)) == []
     assert d.drops["cell_out_of_range"] == 2
 
 
 def test_resumes_at_whatever_step_the_world_is_at():
     learner = Stub()
     d = AgentDriver(learner, 1, episodes=10, linger=0, resync=True)
-    assert sent(d.on_feedback(1, fb(1, 7, 12, 0, 2, -1.0))) == [Action(1, 7, 12, 1)]
+    assert sent(feedback_in(d, 1, fb(1, 7, 12, 0, 2, -1.0))) == [Action(1, 7, 12, 1)]
     assert learner.calls[0] == ("observe", THREE.index(0, 2))  # nothing learnt: we sent no action before
     assert d.expect == (7, 13)
 
@@ -277,8 +279,8 @@ def test_episode_end_publishes_stats_checkpoints_and_finishes():
     d = AgentDriver(learner, 1, episodes=4, linger=0, checkpoint_every=2)
     kinds = []
     for e in range(4):
-        d.on_feedback(1, fb(1, e, 0, 0, 0))
-        effects = d.on_feedback(1, fb(1, e, 1, 0, 1, truncated=True))
+        feedback_in(d, 1, fb(1, e, 0, 0, 0))
+        effects = feedback_in(d, 1, fb(1, e, 1, 0, 1, truncated=True))
         kinds.append([type(x).__name__ for x in effects])
     assert kinds == [["Send"], ["Send", "SaveCheckpoint"], ["Send"], ["Send", "SaveCheckpoint", "Finish"]]
     assert d.finished and effects[1] == SaveCheckpoint(3, learner) and effects[2] == Finish()
@@ -296,7 +298,7 @@ class Counting(Stub):
 
 def play_agent_episode(d, episode):
     """Agent 1 acts at step 0; the episode is truncated at step 1."""
-    return d.on_feedback(1, fb(1, episode, 0, 0, 0)) + d.on_feedback(1, fb(1, episode, 1, 0, 1, truncated=True))
+    return feedback_in(d, 1, fb(1, episode, 0, 0, 0)) + feedback_in(d, 1, fb(1, episode, 1, 0, 1, truncated=True))
 
 
 def play_central_episode(d, episode):
@@ -304,7 +306,7 @@ def play_central_episode(d, episode):
     out = []
     for step, truncated in ((0, False), (1, True)):
         for k in (1, 2, 3):
-            out += d.on_feedback(k, fb(k, episode, step, k - 1, step, truncated=truncated))
+            out += feedback_in(d, k, fb(k, episode, step, k - 1, step, truncated=truncated))
     return out
 
 
@@ -337,9 +339,9 @@ def test_the_greedy_episodes_follow_the_last_learning_one_on_a_copy_at_epsilon_0
 def test_the_switch_to_greedy_comes_at_the_end_of_the_last_learning_episode():
     learner = Stub()
     d = AgentDriver(learner, 1, 1, eval_episodes=1, linger=0)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
     assert d.learner is learner and not d.greedy  # still learning in episode 0
-    effects = d.on_feedback(1, fb(1, 0, 1, 0, 1, truncated=True))
+    effects = feedback_in(d, 1, fb(1, 0, 1, 0, 1, truncated=True))
     assert d.greedy and d.learner.epsilon == 0.0 and Finish() not in effects
     finished = AgentDriver(Stub(), 1, 1, linger=0)  # eval_episodes 0: finished right after learning
     assert play_agent_episode(finished, 0)[-1] == Finish() and not finished.greedy
@@ -348,20 +350,20 @@ def test_the_switch_to_greedy_comes_at_the_end_of_the_last_learning_episode():
 def test_a_driver_resumed_in_the_greedy_phase_plays_greedy():
     learner = Stub()
     d = AgentDriver(learner, 1, 2, eval_episodes=3, linger=0, resync=True)
-    assert sent(d.on_feedback(1, fb(1, 3, 5, 0, 2))) == [Action(1, 3, 5, 1)]
+    assert sent(feedback_in(d, 1, fb(1, 3, 5, 0, 2))) == [Action(1, 3, 5, 1)]
     assert d.greedy and d.learner is not learner and d.learner.epsilon == 0.0
     assert learner.calls == [] and d.learner.calls == [("observe", THREE.index(0, 2)), ("act", {})]
     learning = AgentDriver(Stub(), 1, 2, eval_episodes=3, linger=0, resync=True)
-    learning.on_feedback(1, fb(1, 1, 5, 0, 2))
+    feedback_in(learning, 1, fb(1, 1, 5, 0, 2))
     assert not learning.greedy and learning.learner.epsilon == Settings().epsilon
 
 
 def test_a_central_driver_resumed_in_the_greedy_phase_plays_greedy():
     learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
     d = CentralDriver(learner, 2, eval_episodes=3, resync=True)
-    d.on_feedback(1, fb(1, 2, 4, 0, 1))
+    feedback_in(d, 1, fb(1, 2, 4, 0, 1))
     for k in (1, 2, 3):
-        effects = d.on_position(k, pos(k, 2, 4, k - 1, 1))
+        effects = position_in(d, k, pos(k, 2, 4, k - 1, 1))
     assert len(sent(effects)) == 3 and d.greedy and d.learner is not learner and d.learner.epsilon == 0.0
 
 
@@ -459,13 +461,13 @@ def test_agent_config_checks_every_parameter():
 def test_central_driver_answers_for_every_acting_agent_once_all_feedback_is_in():
     learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
     d = CentralDriver(learner, episodes=1)
-    assert d.on_feedback(1, fb(1, 0, 0, 0, 0)) == []
-    assert d.on_feedback(2, fb(2, 0, 0, 1, 0)) == []
-    actions = sent(d.on_feedback(3, fb(3, 0, 0, 2, 0)))
+    assert feedback_in(d, 1, fb(1, 0, 0, 0, 0)) == []
+    assert feedback_in(d, 2, fb(2, 0, 0, 1, 0)) == []
+    actions = sent(feedback_in(d, 3, fb(3, 0, 0, 2, 0)))
     assert [(a.agent, a.episode, a.step) for a in actions] == [(1, 0, 0), (2, 0, 0), (3, 0, 0)]
-    d.on_feedback(1, fb(1, 0, 1, 0, 1))
-    d.on_feedback(2, fb(2, 0, 1, 1, 3, 10.0, done=True))
-    actions = sent(d.on_feedback(3, fb(3, 0, 1, 2, 1)))
+    feedback_in(d, 1, fb(1, 0, 1, 0, 1))
+    feedback_in(d, 2, fb(2, 0, 1, 1, 3, 10.0, done=True))
+    actions = sent(feedback_in(d, 3, fb(3, 0, 1, 2, 1)))
     assert [a.agent for a in actions] == [1, 3]  # agent 2 is at its goal
     assert d.expect[2] == (1, 0) and d.expect[1] == (0, 2)
 
@@ -473,11 +475,11 @@ def test_central_driver_answers_for_every_acting_agent_once_all_feedback_is_in()
 def test_central_driver_resumes_from_the_positions_of_the_step_it_joins():
     learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
     d = CentralDriver(learner, episodes=5, resync=True)
-    assert d.on_feedback(3, fb(3, 2, 6, 2, 2)) == [Subscribe(1), Subscribe(2), Subscribe(3)]
-    assert d.on_feedback(1, fb(1, 2, 6, 0, 1)) == []  # the positions decide
-    assert d.on_position(1, pos(1, 2, 6, 0, 1)) == []
-    assert d.on_position(2, pos(2, 2, 6, 1, 3)) == []  # at its goal: done
-    effects = d.on_position(3, pos(3, 2, 6, 2, 2))
+    assert feedback_in(d, 3, fb(3, 2, 6, 2, 2)) == [Subscribe(1), Subscribe(2), Subscribe(3)]
+    assert feedback_in(d, 1, fb(1, 2, 6, 0, 1)) == []  # the positions decide
+    assert position_in(d, 1, pos(1, 2, 6, 0, 1)) == []
+    assert position_in(d, 2, pos(2, 2, 6, 1, 3)) == []  # at its goal: done
+    effects = position_in(d, 3, pos(3, 2, 6, 2, 2))
     assert effects[:3] == [Unsubscribe(1), Unsubscribe(2), Unsubscribe(3)]
     assert [(a.agent, a.episode, a.step) for a in sent(effects)] == [(1, 2, 6), (3, 2, 6)]
     assert d.expect == {1: (2, 7), 2: (3, 0), 3: (2, 7)}
@@ -536,11 +538,11 @@ class Bus:
             receiver, topic, agent = key = self.rng.choice(ready)
             msg = self.channels[key].popleft()
             if receiver is self.core:
-                self.world_out(self.core.on_action(agent, msg))
+                self.world_out(action_in(self.core, agent, msg))
             elif topic == "feedback":
-                self.driver_out(receiver, receiver.on_feedback(agent, msg))
+                self.driver_out(receiver, feedback_in(receiver, agent, msg))
             else:
-                self.driver_out(receiver, receiver.on_position(agent, msg))
+                self.driver_out(receiver, position_in(receiver, agent, msg))
 
 
 ALGOS = ("cq", "js", "loc", "jsa", "indep")
@@ -614,38 +616,38 @@ def beat(n, episode, step, key=None):
 def test_a_later_keyed_feedback_is_adopted_at_once_and_the_gap_counted():
     learner = Stub()
     d = AgentDriver(learner, 1, episodes=5, linger=0, key=KEY)
-    d.on_feedback(1, kfb(1, 0, 0, 0, 0))
-    d.on_feedback(1, kfb(1, 0, 1, 0, 1))  # acted at step 1; its feedback of step 2 is lost
-    assert sent(d.on_feedback(1, kfb(1, 0, 3, 0, 2))) == [Action(1, 0, 3, 1)]
+    feedback_in(d, 1, kfb(1, 0, 0, 0, 0))
+    feedback_in(d, 1, kfb(1, 0, 1, 0, 1))  # acted at step 1; its feedback of step 2 is lost
+    assert sent(feedback_in(d, 1, kfb(1, 0, 3, 0, 2))) == [Action(1, 0, 3, 1)]
     assert d.expect == (0, 4) and d.counters() == {"caught_up": 1, "missed_feedback": 1}
     assert [c for c in learner.calls if c[0] == "learn"] == [("learn", 0.0, THREE.index(0, 1), False)]
 
 
 def test_without_a_key_a_later_feedback_waits_for_the_worlds_heartbeat():
     d = AgentDriver(Stub(), 1, episodes=5, linger=0)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    assert d.on_feedback(1, fb(1, 0, 5, 0, 2)) == []  # held: a forger could have sent it
-    assert d.on_heartbeat(beat(1, 0, 4)) == []  # the world is not there yet
-    assert sent(d.on_heartbeat(beat(2, 0, 5))) == [Action(1, 0, 5, 1)]
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    assert feedback_in(d, 1, fb(1, 0, 5, 0, 2)) == []  # held: a forger could have sent it
+    assert heartbeat_in(d, beat(1, 0, 4)) == []  # the world is not there yet
+    assert sent(heartbeat_in(d, beat(2, 0, 5))) == [Action(1, 0, 5, 1)]
     assert d.counters() == {"caught_up": 1, "missed_feedback": 4}
 
 
 def test_a_forged_far_future_feedback_never_captures_an_agent_without_a_key():
     d = AgentDriver(Stub(), 1, episodes=5, linger=0)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
     for forged in (fb(1, 0, 10_000, 0, 2), fb(1, 3, 0, 0, 2)):
-        assert d.on_feedback(1, forged) == []
-    d.on_heartbeat(beat(1, 0, 1))
-    assert sent(d.on_feedback(1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]  # the world's, as expected
+        assert feedback_in(d, 1, forged) == []
+    heartbeat_in(d, beat(1, 0, 1))
+    assert sent(feedback_in(d, 1, fb(1, 0, 1, 0, 1))) == [Action(1, 0, 1, 1)]  # the world's, as expected
     assert d.drops.counts == {"future_step": 1, "future_episode": 1} and "caught_up" not in d.counters()
 
 
 def test_catching_up_across_episodes_sends_the_statistics_of_every_episode_left_behind():
     d = AgentDriver(Stub(), 1, episodes=10, linger=0, checkpoint_every=3, key=KEY)
-    d.on_feedback(1, kfb(1, 2, 0, 0, 0))  # a fresh driver joins at episode 2: nothing left behind
+    feedback_in(d, 1, kfb(1, 2, 0, 0, 0))  # a fresh driver joins at episode 2: nothing left behind
     assert d.counters() == {"caught_up": 1}
-    d.on_feedback(1, kfb(1, 2, 1, 0, 1))
-    effects = d.on_feedback(1, kfb(1, 5, 1, 0, 1))
+    feedback_in(d, 1, kfb(1, 2, 1, 0, 1))
+    effects = feedback_in(d, 1, kfb(1, 5, 1, 0, 1))
     assert [s.episode for s in sent(effects, AgentStats)] == [2, 3, 4]
     assert [e.episode for e in effects if isinstance(e, SaveCheckpoint)] == [2]
     assert sent(effects) == [Action(1, 5, 1, 1)] and d.expect == (5, 2)
@@ -655,10 +657,10 @@ def test_a_restart_from_a_checkpoint_counts_its_catch_up():
     """a node resumed from its checkpoint joins the world where it is, counted as caught_up as a
     restart without one is (it was not)."""
     d = AgentDriver(Stub(), 1, episodes=5, linger=0, resync=True)
-    assert sent(d.on_feedback(1, fb(1, 2, 7, 0, 1))) == [Action(1, 2, 7, 1)]
+    assert sent(feedback_in(d, 1, fb(1, 2, 7, 0, 1))) == [Action(1, 2, 7, 1)]
     assert d.counters() == {"caught_up": 1}
     central = CentralDriver(make_learner("jsa", THREE, Settings(), 0, 0, 0), episodes=5, resync=True)
-    central.on_feedback(3, fb(3, 2, 6, 2, 2))
+    feedback_in(central, 3, fb(3, 2, 6, 2, 2))
     assert central.counters() == {"caught_up": 1}
 
 
@@ -667,8 +669,8 @@ def test_a_restart_without_a_checkpoint_starts_a_fresh_learner_at_the_worlds_ste
     cfg = agent_config({**values, "agent_id": 1, "checkpoint": str(tmp_path / "none_yet.npz")})
     d = make_driver(cfg)
     assert d.expect == (0, 0)
-    assert d.on_feedback(1, fb(1, 7, 12, 0, 2)) == []  # held until the world's heartbeat vouches for it
-    effects = d.on_heartbeat(beat(1, 7, 12))
+    assert feedback_in(d, 1, fb(1, 7, 12, 0, 2)) == []  # held until the world's heartbeat vouches for it
+    effects = heartbeat_in(d, beat(1, 7, 12))
     assert [(a.episode, a.step) for a in sent(effects)] == [(7, 12)] and not sent(effects, AgentStats)
     assert d.expect == (7, 13) and d.link.caught_up == 1 and d.link.missed_feedback == 0
 
@@ -677,30 +679,30 @@ def test_only_valid_new_messages_from_the_world_count_as_alive():
     clock = Clock()
     d = AgentDriver(Stub(), 1, episodes=5, linger=0, key=KEY, clock=clock)
     clock.now = 10.0
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))  # no MAC
-    d.on_feedback(1, encode(Feedback(1, 0, 0, 9, 9, 0.0)))
-    d.on_heartbeat(beat(1, 0, 0))  # no MAC
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))  # no MAC
+    feedback_in(d, 1, encode(Feedback(1, 0, 0, 9, 9, 0.0)))
+    heartbeat_in(d, beat(1, 0, 0))  # no MAC
     assert d.link.silent_for() == 10.0 and d.drops["unauthenticated"] == 3
-    d.on_heartbeat(beat(1, 0, 0, key=KEY))
+    heartbeat_in(d, beat(1, 0, 0, key=KEY))
     assert d.link.silent_for() == 0.0
     clock.now = 20.0
-    d.on_heartbeat(beat(1, 0, 0, key=KEY))  # a replay
+    heartbeat_in(d, beat(1, 0, 0, key=KEY))  # a replay
     assert d.link.silent_for() == 10.0 and d.drops["replayed"] == 1
-    d.on_feedback(1, kfb(1, 0, 0, 0, 0))
+    feedback_in(d, 1, kfb(1, 0, 0, 0, 0))
     assert d.link.silent_for() == 0.0
 
 
 def test_positions_are_judged_by_their_stamp():
     d = AgentDriver(Stub(needs=[(1,), (1,)]), 1, episodes=1, linger=5)
-    d.on_feedback(1, fb(1, 0, 0, 0, 0))
-    d.on_position(2, pos(2, 0, 0, 1, 0))
-    d.on_feedback(1, fb(1, 0, 1, 0, 1))
-    assert d.on_position(2, pos(2, 0, 0, 1, 3)) == []  # stamped with the previous step: stale
+    feedback_in(d, 1, fb(1, 0, 0, 0, 0))
+    position_in(d, 2, pos(2, 0, 0, 1, 0))
+    feedback_in(d, 1, fb(1, 0, 1, 0, 1))
+    assert position_in(d, 2, pos(2, 0, 0, 1, 3)) == []  # stamped with the previous step: stale
     for step in range(2, 60):  # a burst of later positions from another writer
-        d.on_position(2, pos(2, 0, step, 1, 2))
-    effects = d.on_position(2, pos(2, 0, 1, 1, 2))  # the world's, after the burst: not pushed out
+        position_in(d, 2, pos(2, 0, step, 1, 2))
+    effects = position_in(d, 2, pos(2, 0, 1, 1, 2))  # the world's, after the burst: not pushed out
     assert sent(effects) == [Action(1, 0, 1, 1)] and d.learner.calls[-1] == ("act", {1: THREE.index(1, 2)})
-    assert d.on_position(2, pos(2, 0, 1, 1, 1)) == [] and d.drops["conflicting"] == 1  # the first writer wins
+    assert position_in(d, 2, pos(2, 0, 1, 1, 1)) == [] and d.drops["conflicting"] == 1  # the first writer wins
     assert d.drops["stale_step"] == 1 and d.drops["future_step"] == 51  # the burst beyond AHEAD stamps
 
 
@@ -708,11 +710,11 @@ def test_a_central_driver_catches_up_from_the_positions_of_the_worlds_step():
     learner = make_learner("jsa", THREE, Settings(), 0, 0, 0)
     d = CentralDriver(learner, episodes=5, key=KEY)
     for k in (1, 2, 3):
-        d.on_feedback(k, kfb(k, 0, 0, k - 1, 0))
-    effects = d.on_feedback(2, kfb(2, 0, 2, 1, 1))  # its step-1 feedback was lost
+        feedback_in(d, k, kfb(k, 0, 0, k - 1, 0))
+    effects = feedback_in(d, 2, kfb(2, 0, 2, 1, 1))  # its step-1 feedback was lost
     assert effects == [Subscribe(1), Subscribe(2), Subscribe(3)] and d.link.caught_up == 1
     for k in (1, 2, 3):
-        effects = d.on_position(k, encode(Position(k, 0, 2, k - 1, 1), key=KEY))
+        effects = position_in(d, k, encode(Position(k, 0, 2, k - 1, 1), key=KEY))
     assert [(a.agent, a.episode, a.step) for a in sent(effects)] == [(1, 0, 2), (2, 0, 2), (3, 0, 2)]
 
 

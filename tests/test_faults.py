@@ -1082,13 +1082,13 @@ def test_a_heartbeat_beat_may_jump_only_as_far_as_the_time_since_the_last_allows
     """WorldLink alone, on a clock of its own: the first beat is taken wherever it is (a world running for
     hours); then one BEAT_SLACK past the last is taken at once, one more is not, and after 2 s 200 more are."""
     from agent_node.world_link import BEAT_SLACK, WorldLink, beat_bound
-    from msgs_spec import DropCounter, serialize
+    from msgs_spec import DropCounter
 
     now = [100.0]
     link = WorldLink(DropCounter(), None, lambda: now[0])
 
     def beat(b):
-        return link.on_heartbeat(serialize(Heartbeat(b, 0, 0)))
+        return link.on_heartbeat(Heartbeat(b, 0, 0))  # as the node decodes it (agent_node.wire_reading)
     assert beat(5000) and link.beat == 5000
     assert not beat(5000 + BEAT_SLACK + 1) and link.drops["far_ahead"] == 1 and link.beat == 5000
     assert beat(5000 + BEAT_SLACK) and link.beat == 5000 + BEAT_SLACK

@@ -235,11 +235,11 @@ def test_the_cli_and_the_science_load_without_rclpy():
     assert done.stdout.strip() == "[]"
 
 
-# The cores and the contract's payloads and codec: pure Python over the messages' types, run and tested
-# without a ROS context; the nodes and node_runtime.qos are where rclpy comes in.
-ROS_FREE = ("world_node.lockstep", "agent_node.driver", "msgs_spec", "msgs_spec.payloads", "msgs_spec.codec",
-            "msgs_spec.arrays", "msgs_spec.stats", "msgs_spec.checks", "msgs_spec.errors",
-            "msgs_spec.auth", "msgs_spec.topics")
+# The cores, the nodes' decoding into their payloads, and the contract's payloads and codec: pure Python over the
+# messages' types, run and tested without a ROS context; the nodes and node_runtime.qos are where rclpy comes in.
+ROS_FREE = ("world_node.lockstep", "agent_node.driver", "world_node.wire_reading", "agent_node.wire_reading",
+            "msgs_spec", "msgs_spec.payloads", "msgs_spec.codec", "msgs_spec.arrays", "msgs_spec.stats",
+            "msgs_spec.checks", "msgs_spec.errors", "msgs_spec.auth", "msgs_spec.topics")
 
 
 def test_the_cores_and_the_contracts_codec_load_no_rclpy():

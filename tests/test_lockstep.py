@@ -19,6 +19,7 @@ from node_runtime.parameters import SETTING_NAMES
 from node_runtime.parameters import WORLD_PARAMETERS as PARAMETERS
 from world_node.lockstep import NO_PROGRESS_STEPS, Lockstep, world_config
 from world_node.twin import Identity
+from world_node.wire_reading import action_in
 
 
 class Clock:
@@ -80,8 +81,8 @@ def test_begin_publishes_every_position_before_any_feedback():
 def test_step_waits_for_every_acting_agent_then_positions_then_feedback():
     core, _ = lockstep(CORRIDOR)
     core.begin()
-    assert core.on_action(2, act(2, 0, 0, EAST)) == []  # agent 1 still missing
-    out = core.on_action(1, act(1, 0, 0, EAST))
+    assert action_in(core, 2, act(2, 0, 0, EAST)) == []  # agent 1 still missing
+    out = action_in(core, 1, act(1, 0, 0, EAST))
     assert [type(p) for p in out] == [Position, Position, Feedback, Feedback]
     assert out[2] == Feedback(1, 0, 1, 0, 1, 0.0, applied=EAST)
     assert out[3] == Feedback(2, 0, 1, 1, 2, 10.0, done=True, applied=EAST)  # at its goal: no more actions this episode
@@ -91,9 +92,9 @@ def test_step_waits_for_every_acting_agent_then_positions_then_feedback():
 def test_episode_end_sends_stats_then_the_next_episode():
     core, _ = lockstep(CORRIDOR, episodes=2)
     core.begin()
-    core.on_action(1, act(1, 0, 0, EAST))
-    core.on_action(2, act(2, 0, 0, EAST))
-    out = core.on_action(1, act(1, 0, 1, EAST))
+    action_in(core, 1, act(1, 0, 0, EAST))
+    action_in(core, 2, act(2, 0, 0, EAST))
+    out = action_in(core, 1, act(1, 0, 1, EAST))
     # positions of step 2, the last feedback (only agent 1 was acting), the stats, episode 1 from scratch
     assert [type(p) for p in out] == [Position, Position, Feedback, WorldStats, Position, Position, Feedback,
                                       Feedback]
@@ -102,17 +103,17 @@ def test_episode_end_sends_stats_then_the_next_episode():
     assert (stats.episode, stats.steps, stats.truncated, stats.collisions, stats.missed_actions,
             stats.returns) == (0, 2, False, 0, 0, (10.0, 10.0))
     assert out[6] == Feedback(1, 1, 0, 0, 0, 0.0)
-    core.on_action(1, act(1, 1, 0, EAST))
-    core.on_action(2, act(2, 1, 0, EAST))
-    out = core.on_action(1, act(1, 1, 1, EAST))
+    action_in(core, 1, act(1, 1, 0, EAST))
+    action_in(core, 2, act(2, 1, 0, EAST))
+    out = action_in(core, 1, act(1, 1, 1, EAST))
     assert isinstance(out[-1], WorldStats) and core.finished and not core.waiting
 
 
 def test_step_cap_truncates_every_acting_agent():
     core, _ = lockstep(CORRIDOR, episodes=1, settings=Settings(step_cap=1))
     core.begin()
-    core.on_action(1, act(1, 0, 0, WEST))  # a wall bump: agent 1 stays
-    out = core.on_action(2, act(2, 0, 0, WEST))
+    action_in(core, 1, act(1, 0, 0, WEST))  # a wall bump: agent 1 stays
+    out = action_in(core, 2, act(2, 0, 0, WEST))
     fb = [p for p in out if isinstance(p, Feedback)]
     assert fb == [Feedback(1, 0, 1, 0, 0, -1.0, truncated=True, applied=WEST),
                   Feedback(2, 0, 1, 1, 0, 0.0, truncated=True, applied=WEST)]
@@ -123,17 +124,17 @@ def test_timeout_lets_the_missing_agent_stay_and_counts_it():
     logs = []
     core, clock = lockstep(CORRIDOR, timeout=2.0, log=logs.append)
     core.begin()
-    core.on_action(1, act(1, 0, 0, EAST))
+    action_in(core, 1, act(1, 0, 0, EAST))
     assert ticks(core, clock, 1.9) == []  # not yet
     out = ticks(core, clock, 2.0 + core.tick_period)
     fb = {p.agent: p for p in out if isinstance(p, Feedback)}
     assert fb[2] == Feedback(2, 0, 1, 1, 1, Settings().reward_step, applied=NO_ACTION)  # stayed, bumped no wall
     assert fb[1] == Feedback(1, 0, 1, 0, 1, 0.0, applied=EAST)
     assert any("agv2" in line and "stay" in line for line in logs)
-    assert core.on_action(2, act(2, 0, 0, EAST)) == []  # the late answer is stale now
+    assert action_in(core, 2, act(2, 0, 0, EAST)) == []  # the late answer is stale now
     assert core.drops["stale_step"] == 1
-    core.on_action(1, act(1, 0, 1, EAST))
-    out = core.on_action(2, act(2, 0, 1, EAST))  # both reach their goals
+    action_in(core, 1, act(1, 0, 1, EAST))
+    out = action_in(core, 2, act(2, 0, 1, EAST))  # both reach their goals
     [stats] = [p for p in out if isinstance(p, WorldStats)]
     assert (stats.steps, stats.missed_actions, stats.returns) == (2, 1, (10.0, 10.0 + Settings().reward_step))
 
@@ -141,12 +142,12 @@ def test_timeout_lets_the_missing_agent_stay_and_counts_it():
 def test_missing_agent_blocks_its_cell_like_a_parked_one():
     core, clock = lockstep(CORRIDOR, episodes=1, timeout=1.0, settings=Settings(step_cap=2, reward_step=-0.5))
     core.begin()
-    core.on_action(2, act(2, 0, 0, NORTH))  # agent 2 to (0, 1); agent 1 misses the step
+    action_in(core, 2, act(2, 0, 0, NORTH))  # agent 2 to (0, 1); agent 1 misses the step
     past_timeout = 1.0 + 2 * core.tick_period  # judged a tick after it ran out
     fb = {p.agent: p for p in ticks(core, clock, past_timeout) if isinstance(p, Feedback)}
     assert (fb[1].row, fb[1].col, fb[1].reward) == (0, 0, -0.5)
     assert (fb[2].row, fb[2].col, fb[2].reward) == (0, 1, -0.5)
-    core.on_action(1, act(1, 0, 1, EAST))  # agent 1 into agent 2's cell, while agent 2 misses this step
+    action_in(core, 1, act(1, 0, 1, EAST))  # agent 1 into agent 2's cell, while agent 2 misses this step
     out = ticks(core, clock, clock.now + past_timeout)
     fb = {p.agent: p for p in out if isinstance(p, Feedback)}
     assert (fb[1].row, fb[1].col, fb[1].reward) == (0, 0, Settings().reward_collision)
@@ -160,8 +161,8 @@ def test_rejected_actions_are_counted_by_kind_and_change_nothing():
     logs = []
     core, _ = lockstep(CORRIDOR, log=logs.append)
     core.begin()
-    core.on_action(1, act(1, 0, 0, EAST))
-    core.on_action(2, act(2, 0, 0, WEST))
+    action_in(core, 1, act(1, 0, 0, EAST))
+    action_in(core, 2, act(2, 0, 0, WEST))
     assert (core.episode, core.step) == (0, 1)
     bad = {
         "wrong_type": Float64MultiArray(),
@@ -176,13 +177,13 @@ def test_rejected_actions_are_counted_by_kind_and_change_nothing():
         "future_episode": act(1, 1, 0, EAST),
     }
     for kind, msg in bad.items():
-        assert core.on_action(1, msg) == [], kind
+        assert action_in(core, 1, msg) == [], kind
         assert core.drops[kind] == 1, kind
     assert core.waiting == {1, 2}
-    assert core.on_action(1, act(1, 0, 1, EAST)) == []
-    assert core.on_action(1, act(1, 0, 1, WEST)) == []  # a second answer is ignored, not applied
+    assert action_in(core, 1, act(1, 0, 1, EAST)) == []
+    assert action_in(core, 1, act(1, 0, 1, WEST)) == []  # a second answer is ignored, not applied
     assert core.unexpected_actions == 1
-    out = core.on_action(2, act(2, 0, 1, EAST))
+    out = action_in(core, 2, act(2, 0, 1, EAST))
     assert Feedback(1, 0, 2, 0, 2, 10.0, done=True, applied=EAST) in out  # the first answer counted
     counters = core.counters()
     assert all(counters[f"dropped.{kind}"] == 1 for kind in bad)
@@ -193,14 +194,14 @@ def test_rejected_actions_are_counted_by_kind_and_change_nothing():
 
 def test_stale_episode_and_actions_before_begin():
     core, _ = lockstep(CORRIDOR, episodes=2)
-    assert core.on_action(1, act(1, 0, 0, EAST)) == []  # before begin: nothing is expected yet
+    assert action_in(core, 1, act(1, 0, 0, EAST)) == []  # before begin: nothing is expected yet
     assert core.drops["future_episode"] == 1
     core.begin()
-    core.on_action(1, act(1, 0, 0, EAST))
-    core.on_action(2, act(2, 0, 0, EAST))
-    core.on_action(1, act(1, 0, 1, EAST))  # episode 0 over
+    action_in(core, 1, act(1, 0, 0, EAST))
+    action_in(core, 2, act(2, 0, 0, EAST))
+    action_in(core, 1, act(1, 0, 1, EAST))  # episode 0 over
     assert core.episode == 1
-    core.on_action(1, act(1, 0, 2, EAST))
+    action_in(core, 1, act(1, 0, 2, EAST))
     assert core.drops["stale_episode"] == 1
 
 
@@ -271,7 +272,7 @@ def test_statistics_equal_the_offline_team_for_the_same_moves(map_name):
         order.shuffle(agents)  # the order actions arrive in does not matter
         out = []
         for k in agents:
-            out += core.on_action(k, act(k, core.episode, core.step, learners[k - 1].act({})))
+            out += action_in(core, k, act(k, core.episode, core.step, learners[k - 1].act({})))
     stats += [p for p in out if isinstance(p, WorldStats)]
     assert [(s.steps, s.collisions, s.truncated) for s in stats] == \
         [(e.steps, e.collisions, e.truncated) for e in expected]
@@ -327,8 +328,8 @@ def test_a_world_stopped_past_step_timeout_takes_the_actions_waiting_for_it():
     ticks(core, clock, 0.5)
     clock.now += 5.0
     assert core.on_tick() == []
-    core.on_action(1, act(1, 0, 0, EAST))
-    out = core.on_action(2, act(2, 0, 0, EAST))
+    action_in(core, 1, act(1, 0, 0, EAST))
+    out = action_in(core, 2, act(2, 0, 0, EAST))
     assert [p.applied for p in out if isinstance(p, Feedback)] == [EAST, EAST]
     assert core.missed_actions == 0 and core.counters() == {"stalls": 1}
     assert ticks(core, clock, clock.now + 1.9) == []  # the next step waits its whole step_timeout
@@ -358,7 +359,7 @@ def test_a_world_no_agent_acts_in_for_ten_steps_in_a_row_says_it_goes_nowhere():
     time_out(NO_PROGRESS_STEPS - 1)
     assert core.silent_steps == NO_PROGRESS_STEPS - 1 and core.no_progress is None
     for k in (1, 2):  # the agents act: the world is not going nowhere
-        core.on_action(k, act(k, 0, core.step, 0))
+        action_in(core, k, act(k, 0, core.step, 0))
     assert core.silent_steps == 0
     time_out(NO_PROGRESS_STEPS)
     assert core.no_progress is not None and f"no action from any agent in {NO_PROGRESS_STEPS} steps" in core.no_progress
@@ -379,7 +380,7 @@ def test_a_silent_world_waits_as_long_as_a_start_for_an_agent_to_rejoin():
     time_out(NO_PROGRESS_STEPS + 1)
     assert core.silent_steps == NO_PROGRESS_STEPS + 1 and core.no_progress is None
     for k in (1, 2):
-        core.on_action(k, act(k, 0, core.step, 0))
+        action_in(core, k, act(k, 0, core.step, 0))
     assert (core.silent_steps, core.silent_for) == (0, 0.0)
     time_out(11)
     assert core.no_progress is None and 11.0 <= core.silent_for < 12.0
@@ -394,8 +395,8 @@ def test_heartbeats_count_up_and_say_where_the_world_is_and_who_it_is():
     assert core.heartbeat() == Heartbeat(1, 0, 0, stepping=0, started=1_796_400_000, ticket=77)  # waiting
     core.begin()
     assert core.heartbeat() == Heartbeat(2, 0, 0, stepping=1, started=1_796_400_000, ticket=77)  # its first step
-    core.on_action(1, act(1, 0, 0, EAST))
-    core.on_action(2, act(2, 0, 0, EAST))
+    action_in(core, 1, act(1, 0, 0, EAST))
+    action_in(core, 2, act(2, 0, 0, EAST))
     assert core.heartbeat() == Heartbeat(3, 0, 1, stepping=1, started=1_796_400_000, ticket=77)
 
 
@@ -404,8 +405,38 @@ def test_with_a_key_only_actions_carrying_its_mac_count():
     clock = Clock()
     core = Lockstep(GridWorld(CORRIDOR, Settings()), 1, 1.0, clock=clock, key=key)
     core.begin()
-    assert core.on_action(1, act(1, 0, 0, EAST)) == []  # no MAC: a writer without the key
-    assert core.on_action(1, encode(Action(1, 0, 0, EAST), key=b"other key, same length, 32 bytes")) == []
+    assert action_in(core, 1, act(1, 0, 0, EAST)) == []  # no MAC: a writer without the key
+    assert action_in(core, 1, encode(Action(1, 0, 0, EAST), key=b"other key, same length, 32 bytes")) == []
     assert core.drops["unauthenticated"] == 2 and core.waiting == {1, 2}
-    core.on_action(1, encode(Action(1, 0, 0, EAST), key=key))
+    action_in(core, 1, encode(Action(1, 0, 0, EAST), key=key))
     assert core.waiting == {2}
+
+
+def test_a_new_incarnation_binds_only_with_an_action_of_the_step_collected():
+    """The node decodes and checks the seal (world_node.wire_reading); the core judges the step and only then
+    binds a new incarnation of the agent, as a decoder binds only with a message every check accepted: a stale
+    action of a restarted agent leaves the older incarnation's actions taken, an action of the step replaces it."""
+    from msgs_spec.auth import RunKey
+
+    secret = bytes(range(32))
+    core = Lockstep(GridWorld(CORRIDOR, Settings()), 1, 1.0, clock=Clock(), key=RunKey(secret, run=7))
+    old, new = (RunKey(secret, run=7, incarnation=life) for life in (1, 2))
+    core.begin()
+    action_in(core, 1, encode(Action(1, 0, 0, EAST), key=old))
+    action_in(core, 2, encode(Action(2, 0, 0, WEST), key=old))  # step 1 now, both still acting
+    assert core.step == 1 and core.key.held == {1: 1, 2: 1}
+    assert action_in(core, 1, encode(Action(1, 0, 0, EAST), key=new)) == []  # stale: no binding
+    assert core.drops["stale_step"] == 1 and core.key.held[1] == 1 and core.key.replaced == 0
+    action_in(core, 1, encode(Action(1, 0, 1, EAST), key=new))  # of the step: the new incarnation replaces the old
+    assert core.key.held[1] == 2 and core.key.replaced == 1 and core.waiting == {2}
+    assert action_in(core, 1, encode(Action(1, 0, 1, EAST), key=old)) == [] and core.twin is not None
+
+
+def test_the_core_takes_payloads():
+    """Lockstep sees no bytes: an Action is what it takes, and it judges the stamp itself, counting a wrong one
+    under the kind and topic a decoder would have named."""
+    core, _ = lockstep(CORRIDOR)
+    core.begin()
+    assert core.on_action(Action(1, 0, 1, EAST)) == [] and core.drops["future_step"] == 1
+    assert core.drops.by_source == {"agv1/action": 1}
+    assert core.on_action(Action(1, 0, 0, EAST)) == [] and core.waiting == {2}

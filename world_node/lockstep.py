@@ -1,9 +1,11 @@
 """The world's side of the lockstep protocol (msgs_spec/README.md, "Protocol"), without ROS.
 
 `Lockstep` owns a `cq_ros.world.GridWorld` and decides everything the world node does: which actions it
-accepts (every message is decoded here, through one `DropCounter`), when a step is complete or timed out,
-and what goes out afterwards, in protocol order (every Position, then the Feedback of the agents that were
-acting, then WorldStats when the episode is over, then the next episode's step 0). The node only moves
+accepts, when a step is complete or timed out, and what goes out afterwards, in protocol order (every
+Position, then the Feedback of the agents that were acting, then WorldStats when the episode is over, then the
+next episode's step 0). It takes payloads, never bytes: the node decodes each action (world_node.wire_reading)
+and hands it an `Action`, or the refusal to count in its one `DropCounter`; the core judges what needs its
+state, the step it collects (stale_*, future_*, counted there too) and who is asked. The node only moves
 messages between ROS and this object, so the protocol is tested without a ROS graph
 (tests/test_lockstep.py) and a run equals `cq_ros.engine.run` step for step.
 
@@ -57,8 +59,8 @@ from node_runtime.parameters import MIN_HEARTBEAT_PERIOD, check_numbers, map_and
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
-    ACTION_LAYOUT, FEEDBACK_LAYOUT, NO_ACTION, POSITION_LAYOUT, Action, Bounds, DropCounter, Feedback, Heartbeat,
-    WireError, WorldStats, action_topic, agent_namespace,
+    FEEDBACK_LAYOUT, NO_ACTION, POSITION_LAYOUT, Action, Bounds, DropCounter, Feedback, Heartbeat, WireError,
+    WorldStats, action_topic, agent_namespace, check_sequence,
 )
 from msgs_spec.auth import RunKey
 from node_runtime.parameters import run_key_parameters
@@ -112,9 +114,10 @@ class Lockstep:
     """Steps `world` once every acting agent's action for the current step is in, or the step timed out.
 
     Agents are numbered 1..N on the wire (index i of the world is agent i + 1). Call `begin()` once every
-    agent is connected, then feed it `on_action(agent, msg)` for every message on agv<k>/action and
-    `on_tick()` now and then (for the timeout); each returns what to publish, in order. `finished` turns
-    true with the last episode's WorldStats.
+    agent is connected, then for every message on agv<k>/action `on_action(action, seal)` with its decoded
+    Action or `refused(k, error)` (world_node.wire_reading.action_in does either), and `on_tick()` now and then
+    (for the timeout); each returns what to publish, in order. `finished` turns true with the last episode's
+    WorldStats.
     """
 
     def __init__(self, world: GridWorld, episodes: int, step_timeout: float, *,
@@ -155,32 +158,42 @@ class Lockstep:
         self._patience.start()  # the wait for the agents to connect was no stall
         return self._next_episode()
 
-    def on_action(self, agent: int, msg: Any) -> Outbox:
-        """A message from agv<agent>/action; the step's outcome once it was the last action missing."""
-        try:  # DropCounter.guard's work, without repacking the arguments of every action, nor an Action object
-            action = ACTION_LAYOUT.decode_values(msg, self.bounds, agent, self.episode, self.world.t, self.key)[3]
-        except WireError as e:
-            self.drops.record(e, action_topic(agent))
-            if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
-                self.twin = (f"two live nodes act as {agent_namespace(agent)}: actions of its replaced "
-                             "incarnation still come after a newer one's (a second node started with its name "
-                             "and the run's key?)")
-                self.waiting.clear()  # no step more: the node ends the run at its next tick
-            return []
+    def on_action(self, action: Action, seal: tuple | None = None) -> Outbox:
+        """An action decoded from agv<k>/action, k its agent; the step's outcome once it was the last action
+        missing. `seal`: what it binds the run's key to (msgs_spec.arrays, ArrayLayout.read), once it is of the
+        step collected: a new incarnation of its agent binds only with an action every check accepted."""
+        agent, stamp = action.agent, (action.episode, action.step)
+        if stamp != (self.episode, self.world.t):
+            try:  # stale_* or future_*, as the decoder would name it given the step
+                check_sequence(*stamp, self.episode, self.world.t)
+            except WireError as e:
+                return self.refused(agent, e)
+        if seal is not None:
+            self.key.accept(*seal)
         if agent not in self.waiting:
             self.unexpected_actions += 1
             if self.unexpected_actions == 1:  # a sender bug, not traffic: once is enough to find it
-                stamped = Action(agent, self.episode, self.world.t, action)  # as decoded: its stamp was checked
-                self._log(f"ignored {stamped}: {agent_namespace(agent)} is not acting at this step or "
+                self._log(f"ignored {action}: {agent_namespace(agent)} is not acting at this step or "
                           "has answered already (counted as ignored.unexpected_action)")
             return []
-        self._actions[agent - 1] = action
+        self._actions[agent - 1] = action.action
         self.waiting.discard(agent)
         self.quiet.pop(agent, None)
         if self.waiting:
             return []
         self.silent_steps, self.silent_for = 0, 0.0
         return self._advance()
+
+    def refused(self, agent: int, error: WireError) -> Outbox:
+        """A message on agv<agent>/action refused, by its decode or for its stamp: counted by its kind. One of a
+        replaced incarnation of the agent means a second live node acts as it (`twin`)."""
+        self.drops.record(error, action_topic(agent))
+        if self.twin is None and self.drops["other_incarnation"]:  # a replaced incarnation still acts
+            self.twin = (f"two live nodes act as {agent_namespace(agent)}: actions of its replaced "
+                         "incarnation still come after a newer one's (a second node started with its name "
+                         "and the run's key?)")
+            self.waiting.clear()  # no step more: the node ends the run at its next tick
+        return []
 
     @property
     def tick_period(self) -> float:

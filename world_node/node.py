@@ -1,9 +1,10 @@
 """The world node: a cq_ros GridWorld stepped in lockstep with the agent nodes over the msgs_spec topics.
 
 Thin on purpose, like the ros2/examples minimal nodes: it declares its parameters, creates the publishers
-and subscriptions msgs_spec names with msgs_spec's QoS, and hands every message and timer tick to its core,
-`world_node.lockstep.Lockstep`, publishing what it returns. Constructible in-process
-(`WorldNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding the exit code.
+and subscriptions msgs_spec names with msgs_spec's QoS, decodes every action (world_node.wire_reading) and
+hands it, and every timer tick, to its core, `world_node.lockstep.Lockstep`, publishing what it returns.
+Constructible in-process (`WorldNode(context=ctx, parameter_overrides=[...])`); `done` is a Future holding the
+exit code.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from node_runtime.run import when_acked
 from .lockstep import TWIN_EXIT, world_core
 from .twin import Identity, Twins
 from .viz import WorldView
+from .wire_reading import action_in, heartbeat_in
 
 __all__ = ["WorldNode"]
 
@@ -60,14 +62,15 @@ class WorldNode(RunNode):
             WorldStats: lambda w: self._stats.publish(serialize(w, key=key, stamp=self.get_clock().now().to_msg())),
         }
         self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
-        # Raw: the core decodes the serialized bytes (msgs_spec.codec), no message object is built for it.
+        # Raw: the serialized bytes are decoded (msgs_spec.codec) without a message object built for them.
         lost = count_lost(core.extra_counters)
-        self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k), partial(self._on_action, k),
+        self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k),
+                                                     lambda m, k=k: self._publish(action_in(core, k, m)),
                                                      profile(ACTION.reader_qos), raw=True, event_callbacks=lost)
                          for k in agents}
         # Every world's heartbeat, ours included: what a twin says of itself (world_node.twin)
         self._heartbeats = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
-                                                    lambda m: self.twins.on_heartbeat(m, core.drops),
+                                                    lambda m: heartbeat_in(self.twins, core.drops, m),
                                                     profile(HEARTBEAT.reader_qos), raw=True)
         self.every(cfg.heartbeat_period, lambda: self._send([core.heartbeat()]))
         self.watch([HEARTBEAT_TOPIC, WORLD_STATS_TOPIC]
@@ -107,9 +110,6 @@ class WorldNode(RunNode):
             self.get_logger().error(f"no start after startup_timeout={cfg.startup_timeout} s: still waiting for "
                                     f"{', '.join(missing)}")
             self.finish(1)
-
-    def _on_action(self, agent: int, msg: Any) -> None:
-        self._publish(self.core.on_action(agent, msg))
 
     def _tick(self) -> None:
         self._publish(self.core.on_tick())

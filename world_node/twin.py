@@ -37,9 +37,7 @@ import time
 from dataclasses import dataclass
 from typing import Iterable
 
-from typing import Any
-
-from msgs_spec import HEARTBEAT_TOPIC, INT32_MAX, DropCounter, Heartbeat, decode_heartbeat
+from msgs_spec import INT32_MAX, Heartbeat
 from node_runtime.graph import UNKNOWN_NODE
 
 __all__ = ["Identity", "Twins"]
@@ -77,15 +75,9 @@ class Twins:
         self._fresh_for = HEARD_FOR_BEATS * beat_period
         self._heard: dict[int, tuple[Heartbeat, float]] = {}  # ticket -> (its last heartbeat, when heard)
 
-    def on_heartbeat(self, msg: Any, drops: DropCounter) -> None:
-        """A message on our namespace's world/heartbeat, read without the key (a twin of another launch has a key
-        of its own); one that fails the checks is counted in `drops`."""
-        hb = drops.guard(decode_heartbeat, msg, source=HEARTBEAT_TOPIC)
-        if hb is not None:
-            self.heard(hb)
-
     def heard(self, hb: Heartbeat) -> None:
-        """A heartbeat on our namespace's world/heartbeat (our own ones included: they are told apart here)."""
+        """A heartbeat on our namespace's world/heartbeat (our own ones included: they are told apart here), decoded
+        by the node without the key (world_node.wire_reading: a twin of another launch has a key of its own)."""
         if hb.ticket == self.me.ticket and hb.started == self.me.started:
             return
         self._heard.pop(hb.ticket, None)
