@@ -39,7 +39,7 @@ from __future__ import annotations
 from enum import Enum
 from typing import Any, Callable
 
-from msgs_spec import HEARTBEAT_TOPIC, DropCounter, Heartbeat, WireError, feedback_topic
+from msgs_spec import HEARTBEAT_TOPIC, DropCounter, Heartbeat, WireError, check_beat, feedback_topic
 from node_runtime.parameters import MIN_HEARTBEAT_PERIOD
 from node_runtime.patience import Patience
 
@@ -101,9 +101,10 @@ class WorldLink:
     def on_heartbeat(self, hb: Heartbeat, expected: tuple[int, int] | None = None) -> bool:
         """A heartbeat from world/heartbeat; True if it was new (and its beat not too far ahead). `expected`: the
         feedback the agent waits for (None: any); a heartbeat of a world past it is no sign of progress."""
-        if hb.beat <= self.beat:  # as decode_heartbeat(after=self.beat) names it
-            self.drops.record(WireError("replayed", f"beat {hb.beat}, the last one heard was {self.beat}"),
-                              HEARTBEAT_TOPIC)
+        try:
+            check_beat(hb.beat, self.beat)
+        except WireError as e:
+            self.drops.record(e, HEARTBEAT_TOPIC)
             return False
         now = self._clock()
         if self.beat and hb.beat - self.beat > beat_bound(now - self.beat_at):

@@ -45,7 +45,7 @@ def cases() -> dict:
         "decode action": lambda: decode_action(raw[Action], **expect, key=world),
         # the values and the seal without a payload object (the world node's read: world_node.wire_reading)
         "decode action's value": lambda: ACTION_LAYOUT.read(raw[Action], bounds, 3, key=world)[0][3],
-        "decode heartbeat": lambda: decode_heartbeat(raw[Heartbeat], after=8, key=agent),
+        "decode heartbeat": lambda: decode_heartbeat(raw[Heartbeat], key=agent),
     }
 
 

@@ -468,12 +468,4 @@ LAYOUT_BY_WIRE = {(lay.ros_type, label): lay for lay in ARRAY_LAYOUTS for label 
 encode_feedback, decode_feedback = FEEDBACK_LAYOUT.encode, FEEDBACK_LAYOUT.decode
 encode_position, decode_position = POSITION_LAYOUT.encode, POSITION_LAYOUT.decode
 encode_action, decode_action = ACTION_LAYOUT.encode, ACTION_LAYOUT.decode
-encode_heartbeat = HEARTBEAT_LAYOUT.encode
-
-
-def decode_heartbeat(msg: Any, *, after: int | None = None, key: bytes | RunKey | None = None) -> Heartbeat:
-    """Heartbeat from `msg`. `after`: the last beat heard; a beat not above it is `replayed`."""
-    hb = HEARTBEAT_LAYOUT.decode(msg, key=key)
-    if after is not None and hb.beat <= after:
-        raise WireError("replayed", f"beat {hb.beat}, the last one heard was {after}")
-    return hb
+encode_heartbeat, decode_heartbeat = HEARTBEAT_LAYOUT.encode, HEARTBEAT_LAYOUT.decode

@@ -10,7 +10,8 @@ from typing import Any, Callable
 from .errors import WireError
 from .payloads import INT32_MAX, Bounds
 
-__all__ = ["as_int", "as_float", "as_flag", "CONVERT", "check_nonneg", "check_agent", "check_cell", "check_sequence"]
+__all__ = ["as_int", "as_float", "as_flag", "CONVERT", "check_nonneg", "check_agent", "check_cell", "check_sequence",
+           "check_beat"]
 
 
 
@@ -96,3 +97,9 @@ def check_sequence(ep: int, st: int | None, episode: int | None, step: int | Non
             raise WireError("stale_step", f"episode {ep} step {st}, expected step {step}")
         if st > step:
             raise WireError("future_step", f"episode {ep} step {st}, expected step {step}")
+
+
+def check_beat(beat: int, after: int | None) -> None:
+    """WireError replayed when `beat` is not above `after`, the last beat heard (None: not checked)."""
+    if after is not None and beat <= after:
+        raise WireError("replayed", f"beat {beat}, the last one heard was {after}")

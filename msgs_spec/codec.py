@@ -15,7 +15,7 @@ from .arrays import (
     POSITION_LAYOUT, ArrayLayout, decode_action, decode_feedback, decode_heartbeat, decode_position, encode_action,
     encode_feedback, encode_heartbeat, encode_position,
 )
-from .checks import check_sequence
+from .checks import check_beat, check_sequence
 from .errors import WireError
 from .payloads import AgentStats, Bounds, WorldStats
 from .stats import (
@@ -25,7 +25,7 @@ from .stats import (
 
 __all__ = [
     "ArrayLayout", "FEEDBACK_LAYOUT", "POSITION_LAYOUT", "ACTION_LAYOUT", "HEARTBEAT_LAYOUT", "ARRAY_LAYOUTS",
-    "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS", "check_sequence",
+    "WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS", "check_sequence", "check_beat",
     "encode_feedback", "decode_feedback", "encode_position", "decode_position",
     "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat", "encode_world_stats",
     "decode_world_stats", "encode_agent_stats", "decode_agent_stats", "encode", "serialize", "decode",

@@ -594,7 +594,7 @@ REJECTIONS = [
     ("hb-other-world", lambda: _bound_then(ms.Heartbeat(1, 0, 0), ms.Heartbeat(2, 0, 0), WORLD), "other_incarnation"),
     ("act-retired-agent", lambda: _bound_then(ms.Action(3, 2, 3, 1), ms.Action(3, 2, 3, 1), 3, retire=True),
      "other_incarnation"),
-    ("hb-replayed", lambda: ms.decode_heartbeat(ms.encode(ms.Heartbeat(5, 0, 0)), after=5), "replayed"),
+    ("hb-replayed", lambda: ms.check_beat(ms.decode_heartbeat(ms.encode(ms.Heartbeat(5, 0, 0))).beat, 5), "replayed"),
     ("hb-beat-zero", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [0, 0, 0, 1, 0, 0])), "out_of_range"),
     ("hb-stepping-two", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [1, 0, 0, 2, 0, 0])), "out_of_range"),
     ("hb-ticket-negative", lambda: ms.decode_heartbeat(_arr(ms.HEARTBEAT_LAYOUT, [1, 0, 0, 1, 0, -1])), "out_of_range"),
@@ -715,8 +715,8 @@ BYTES_REJECTIONS = [
     ("fb-other-run", lambda: dfb(_raw(FB, FB_VALUES, run=8), **FBX, key=_bound()), "other_run"),
     ("hb-other-world", lambda: ms.decode_heartbeat(_raw(ms.HEARTBEAT_LAYOUT, (1, 0, 0, 1, 0, 0), incarnation=6),
                                                    key=_bound()), "other_incarnation"),
-    ("hb-replayed", lambda: ms.decode_heartbeat(_raw(ms.HEARTBEAT_LAYOUT, (5, 0, 0, 1, 0, 0)), after=5,
-                                                key=_bound()), "replayed"),
+    ("hb-replayed", lambda: ms.check_beat(ms.decode_heartbeat(_raw(ms.HEARTBEAT_LAYOUT, (5, 0, 0, 1, 0, 0)),
+                                                              key=_bound()).beat, 5), "replayed"),
 ]
 
 
