@@ -35,8 +35,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +44,7 @@ from cq_ros.gridmap import GridMap, load_map
 from cq_ros.lab.held_out import (
     FIGURES, HELD_OUT_SEEDS, KEY, Config, Learning, Unit, append_rows, config_settings, curve_table, generated,
     play_unit, read_rows, size_tables)
+from cq_ros.lab.runner import Progress
 from cq_ros.lab.study import paired_difference
 from cq_ros.learners.base import epsilon_greedy, q_update
 from cq_ros.learners.near import NearQ
@@ -177,16 +176,23 @@ def play(kept: Path, out: Path, agents: int, maps: int, runs: int, learner: str)
                for r in read_rows(kept / "planner.csv")}
     done = {tuple(r[k] for k in KEY) for r in read_rows(out / "units.csv")}
     todo = [u for u in units if (u.agents, u.generator_seed, u.run, u.config) not in done]
-    started = time.perf_counter()
+    # a unit of 2,000 episodes takes minutes (hours at 32 AGVs): progress by the episode, as `cq-ros study` shows it
+    progress = Progress(f"{learner}: {agents} AGVs", sum(u.episodes for u in todo), len(todo))
+    played = [0]
+
+    def on_episode() -> None:
+        played[0] += 1
+        progress.update(played[0], n)
+
     for n, u in enumerate(todo):
-        result = play_unit({u.map_name: load_map(u.map_name)}, u, lambda: None, LimitLearning)
+        result = play_unit({u.map_name: load_map(u.map_name)}, u, on_episode, LimitLearning)
         key = {"agents": u.agents, "generator_seed": u.generator_seed, "run": u.run, "config": u.config}
         append_rows(out / "curve.csv", [{**key, "episode": e, "collisions": c, "home": h}
                                         for e, c, h in result["curve"]])
         append_rows(out / "units.csv", [{**key, **result["row"],
                                          "planner_makespan": planner[(u.agents, u.generator_seed, u.run)]}])
-        print(f"{learner}: {agents} AGVs, unit {n + 1}/{len(todo)} (map {u.generator_seed}, run {u.run}), "
-              f"{time.perf_counter() - started:.0f} s elapsed", file=sys.stderr, flush=True)
+        progress.update(played[0], n + 1)
+    progress.close()
     kept_protocol = {k: protocol[k] for k in ("episodes", "greedy_episodes", "curve_every", "curve_episodes", "seed",
                                               "slip", "overrides")}
     study = kept.resolve().relative_to(ROOT) if kept.resolve().is_relative_to(ROOT) else kept
