@@ -24,8 +24,6 @@ __all__ = [
     "decode_position", "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat",
 ]
 
-Check = Callable[..., None]  # (values, bounds, agent): raises the first failing check
-
 
 @dataclass(frozen=True, slots=True)
 class _Form:
@@ -98,7 +96,7 @@ class ArrayLayout:
     fields: tuple[str, ...]
     field_kinds: tuple[str, ...]  # "int" | "float" | "flag" per field
     meanings: tuple[str, ...]
-    check: Check
+    check: Callable[[tuple, Bounds | None, int | None], None]
 
     # Derived once per layout (cached_property: read on every message).
     @cached_property

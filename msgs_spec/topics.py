@@ -127,8 +127,7 @@ class TopicSpec:
 
     def decode(self, msg: Any, *, bounds: Any = None, agent: int | None = None, episode: int | None = None,
                step: int | None = None) -> Any:
-        """Decode a message received on this topic (the payload must be this topic's). Expectations that do
-        not apply to the payload are ignored (`step` for statistics, `agent` for world statistics)."""
+        """The payload of a message received on this topic; the expectations as `decoder` takes them."""
         if type(msg) is not self.msg_type:
             raise WireError("wrong_type", f"{self.pattern} carries {self.type_name}, got {type(msg).__name__}")
         return self.decoder(msg, bounds=bounds, agent=agent, episode=episode, step=step)
