@@ -251,9 +251,10 @@ class ArrayLayout:
                 held, hashes = None, primed(key, self.label)
             if not raw.endswith(self._mac.pack(*mac_of(hashes, raw[form.start:form.sealed_end]))):
                 raise WireError("unauthenticated", "the MAC does not match the run's key")
-            if type(key) is RunKey and (held is None or not raw.startswith(held, form.end)):  # not the seal held
+            if type(key) is RunKey and (held is None or not raw.startswith(held, form.end)):
+                # not the seal held: refused here, or bound by decode (key.accept) once every check passed
                 words = self._seal.unpack_from(raw, form.end)
-                seal = (int(words[0]) << 32) | int(words[1]), int(words[2]), sender  # key.accept's once all pass
+                seal = (int(words[0]) << 32) | int(words[1]), int(words[2]), sender
                 refusal = key.refusal(*seal)
                 if refusal is not None:
                     raise WireError(*refusal)
@@ -339,44 +340,48 @@ class ArrayLayout:
 # -- each payload's checks, past the numbers: the first failing one raises --------------------------------------
 
 
-def _check_counts(v: tuple) -> None:
-    """What every payload's check starts with: its episode and step (values 1 and 2) count from 0."""
-    if v[1] < 0 or v[2] < 0:
-        check_nonneg("episode", v[1])
-        check_nonneg("step", v[2])
+def _check_counts(e: int, s: int) -> None:
+    """What every payload's check starts with: its episode and step count from 0."""
+    if e < 0 or s < 0:
+        check_nonneg("episode", e)
+        check_nonneg("step", s)
 
 
 def _check_feedback(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
-    _check_counts(v)
-    check_agent(v[0], bounds, agent)
-    check_cell(v[3], v[4], bounds)
-    if v[6] and v[7]:
+    sender, e, s, row, col, _, done, truncated, applied = v
+    _check_counts(e, s)
+    check_agent(sender, bounds, agent)
+    check_cell(row, col, bounds)
+    if done and truncated:
         raise WireError("malformed", "done and truncated both set")
-    if not NO_ACTION <= v[8] <= 3:
-        raise WireError("action_out_of_range", f"applied {v[8]}, must be 0..3 or {NO_ACTION}")
+    if not NO_ACTION <= applied <= 3:
+        raise WireError("action_out_of_range", f"applied {applied}, must be 0..3 or {NO_ACTION}")
 
 
 def _check_position(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
-    _check_counts(v)
-    check_agent(v[0], bounds, agent)
-    check_cell(v[3], v[4], bounds)
+    sender, e, s, row, col = v
+    _check_counts(e, s)
+    check_agent(sender, bounds, agent)
+    check_cell(row, col, bounds)
 
 
 def _check_action(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
-    _check_counts(v)
-    check_agent(v[0], bounds, agent)
-    if not 0 <= v[3] <= 3:
-        raise WireError("action_out_of_range", f"action {v[3]}, must be 0..3")
+    sender, e, s, action = v
+    _check_counts(e, s)
+    check_agent(sender, bounds, agent)
+    if not 0 <= action <= 3:
+        raise WireError("action_out_of_range", f"action {action}, must be 0..3")
 
 
 def _check_heartbeat(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
-    _check_counts(v)
-    if v[0] < 1:
-        raise WireError("out_of_range", f"beat = {v[0]}, must be >= 1")
-    if v[3] not in (0, 1):
-        raise WireError("out_of_range", f"stepping = {v[3]}, must be 0 or 1")
-    check_nonneg("started", v[4])
-    check_nonneg("ticket", v[5])
+    beat, e, s, stepping, started, ticket = v
+    _check_counts(e, s)
+    if beat < 1:
+        raise WireError("out_of_range", f"beat = {beat}, must be >= 1")
+    if stepping not in (0, 1):
+        raise WireError("out_of_range", f"stepping = {stepping}, must be 0 or 1")
+    check_nonneg("started", started)
+    check_nonneg("ticket", ticket)
 
 
 FEEDBACK_LAYOUT = ArrayLayout(
