@@ -6,7 +6,6 @@ layouts): the keyed form, the order of the checks, the serialized forms read in 
 
 from __future__ import annotations
 
-import operator
 import struct
 from dataclasses import dataclass
 from functools import cached_property
@@ -15,7 +14,7 @@ from typing import Any, Callable
 from std_msgs.msg import Float64MultiArray, Int32MultiArray, MultiArrayDimension
 
 from .auth import MAC_WORDS, SEAL_WORDS, WORLD, RunKey, mac_of, primed
-from .checks import CONVERT, check_agent, check_cell, check_nonneg, check_sequence
+from .checks import CONVERT, check_agent, check_cell, check_nonneg, check_sequence, check_type
 from .errors import WireError
 from .payloads import NO_ACTION, Action, Bounds, Feedback, Heartbeat, Position
 
@@ -24,8 +23,6 @@ __all__ = [
     "LAYOUT_BY_PAYLOAD", "LAYOUT_BY_WIRE", "encode_feedback", "decode_feedback", "encode_position",
     "decode_position", "encode_action", "decode_action", "encode_heartbeat", "decode_heartbeat",
 ]
-
-Check = Callable[..., None]  # (values, bounds, agent, episode, step): raises the first failing check
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,16 +87,16 @@ def _compiled(name: str, source: str, **scope: Any) -> Callable[..., Any]:
 @dataclass(frozen=True, eq=False)  # a layout is itself alone: hashed as a dict key per message, by identity
 class ArrayLayout:
     """A 1-D MultiArray layout: which ROS type, which fields in which order, what each holds, and the payload's
-    own checks (`check(values, bounds, agent, episode, step)`, raising the first failing one; its values are
-    of their fields' types, whole int32 numbers, finite floats and bools). Its serialize, encode and decode are
-    the codec of its payload."""
+    own checks (`check(values, bounds, agent)`, raising the first failing one; its values are of their fields'
+    types, whole int32 numbers, finite floats and bools; `read` judges the step expected after them). Its
+    serialize, encode and decode are the codec of its payload."""
 
     payload: type
     ros_type: type
     fields: tuple[str, ...]
     field_kinds: tuple[str, ...]  # "int" | "float" | "flag" per field
     meanings: tuple[str, ...]
-    check: Check
+    check: Callable[[tuple, Bounds | None, int | None], None]
 
     # Derived once per layout (cached_property: read on every message).
     @cached_property
@@ -144,11 +141,6 @@ class ArrayLayout:
         return struct.Struct(f"<{MAC_WORDS}{'I' if self.code == 'i' else 'd'}")
 
     @cached_property
-    def _values(self) -> Callable[[Any], tuple]:
-        """payload -> its field values, in order."""
-        return operator.attrgetter(*self.fields)
-
-    @cached_property
     def _names(self) -> str:
         """The fields' values as compiled code names them: v0, v1, ..."""
         return ", ".join(f"v{i}" for i in range(self.size))
@@ -190,26 +182,21 @@ class ArrayLayout:
         """The bytes rclpy would serialize `encode(payload, key=key)` to (alignment bytes zero): the frame, the
         values, checked as a decoder checks them (WireError otherwise), then keyed the seal and the MAC over the
         values and the seal."""
-        if type(payload) is not self.payload:
-            raise WireError("wrong_type", f"expected {self.payload.__name__}, got {type(payload).__name__}")
+        if type(payload) is not self.payload:  # check_type's, inline: per message
+            check_type(payload, self.payload)
         # as nodes build them, else converted (numpy numbers, a whole float) or the numbers' own error
-        values = self._plain(payload) or self._typed(self._values(payload))
-        self.check(values, None, None, None, None)
+        values = self._plain(payload) or self._typed([getattr(payload, f) for f in self.fields])
+        self.check(values, None, None)
         packed = self._struct.pack(*values)
         if key is None:
             return self.forms[0].head + packed
-        if type(key) is RunKey:
-            seal, hashes = key.derived.get(self) or self._sealing(key)
+        if type(key) is RunKey:  # derived once per binding (RunKey.accept clears it)
+            seal, hashes = key.derived.get(self) or key.derived.setdefault(self, (key.seal(self.code),
+                                                                                  key.hashes(self.label)))
         else:
             seal, hashes = self._seal.pack(0, 0, 0), primed(key, self.label)
         body = packed + seal
         return self.forms[1].head + body + self._mac.pack(*mac_of(hashes, body))
-
-    def _sealing(self, key: RunKey) -> tuple[bytes, tuple]:
-        """(the seal, the primed HMAC hashes) of this layout's messages sent under `key`, kept in its `derived`
-        until its binding changes."""
-        got = key.derived[self] = key.seal(self.code), key.hashes(self.label)
-        return got
 
     def encode(self, payload: Any, *, key: bytes | RunKey | None = None) -> Any:
         """The message whose serialization `serialize` gives."""
@@ -265,11 +252,18 @@ class ArrayLayout:
             if not raw.endswith(self._mac.pack(*mac_of(hashes, raw[form.start:form.sealed_end]))):
                 raise WireError("unauthenticated", "the MAC does not match the run's key")
             if type(key) is RunKey and (held is None or not raw.startswith(held, form.end)):
-                seal = self._seal_of(key, raw, form.end, sender)
+                # not the seal held: refused here, or bound by decode (key.accept) once every check passed
+                words = self._seal.unpack_from(raw, form.end)
+                seal = (int(words[0]) << 32) | int(words[1]), int(words[2]), sender
+                refusal = key.refusal(*seal)
+                if refusal is not None:
+                    raise WireError(*refusal)
         values = self._struct.unpack_from(raw, form.start)
         if self.code == "d":
             values = self._from_floats(values) or self._typed(values)
-        self.check(values, bounds, agent, episode, step)
+        self.check(values, bounds, agent)
+        if episode is not None or step is not None:  # every layout's values start (agent or beat, episode, step)
+            check_sequence(values[1], values[2], episode, step)
         return values, seal
 
     def _checking(self, key: RunKey, sender: int) -> tuple[bytes | None, tuple]:
@@ -281,21 +275,10 @@ class ArrayLayout:
         got = key.derived[(self, sender)] = seal, key.hashes(self.label)
         return got
 
-    def _seal_of(self, key: RunKey, raw: bytes, at: int, sender: int) -> tuple[int, int, int]:
-        """(run, incarnation, sender) of the seal at `at` of `raw` (its MAC matched), for `key.accept` once
-        every check passed; WireError other_run / other_incarnation when `key` holds another."""
-        words = self._seal.unpack_from(raw, at)
-        run, incarnation = (int(words[0]) << 32) | int(words[1]), int(words[2])
-        refusal = key.refusal(run, incarnation, sender)
-        if refusal is not None:
-            raise WireError(*refusal)
-        return run, incarnation, sender
-
     def _serialized(self, msg: Any) -> bytes:
         """The bytes of a message object in the layout's form, once its type, layout and length are the
         layout's (WireError otherwise): then it is checked as those bytes are."""
-        if type(msg) is not self.ros_type:
-            raise WireError("wrong_type", f"expected {self.ros_type.__name__}, got {type(msg).__name__}")
+        check_type(msg, self.ros_type)
         try:
             dims = list(msg.layout.dim)
             data = list(msg.data)
@@ -357,59 +340,48 @@ class ArrayLayout:
 # -- each payload's checks, past the numbers: the first failing one raises --------------------------------------
 
 
-def _check_stamp(agent_id: int, e: int, s: int, bounds: Bounds | None, agent: int | None) -> None:
-    """The checks a stamped payload starts with: its episode and step, then its agent."""
+def _check_counts(e: int, s: int) -> None:
+    """What every payload's check starts with: its episode and step count from 0."""
     if e < 0 or s < 0:
         check_nonneg("episode", e)
         check_nonneg("step", s)
-    check_agent(agent_id, bounds, agent)
 
 
-def _check_feedback(v: tuple, bounds: Bounds | None, agent: int | None, episode: int | None,
-                    step: int | None) -> None:
-    a, e, s, row, col, _, done, truncated, applied = v
-    _check_stamp(a, e, s, bounds, agent)
+def _check_feedback(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
+    sender, e, s, row, col, _, done, truncated, applied = v
+    _check_counts(e, s)
+    check_agent(sender, bounds, agent)
     check_cell(row, col, bounds)
     if done and truncated:
         raise WireError("malformed", "done and truncated both set")
     if not NO_ACTION <= applied <= 3:
         raise WireError("action_out_of_range", f"applied {applied}, must be 0..3 or {NO_ACTION}")
-    if episode is not None or step is not None:
-        check_sequence(e, s, episode, step)
 
 
-def _check_position(v: tuple, bounds: Bounds | None, agent: int | None, episode: int | None,
-                    step: int | None) -> None:
-    a, e, s, row, col = v
-    _check_stamp(a, e, s, bounds, agent)
+def _check_position(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
+    sender, e, s, row, col = v
+    _check_counts(e, s)
+    check_agent(sender, bounds, agent)
     check_cell(row, col, bounds)
-    if episode is not None or step is not None:
-        check_sequence(e, s, episode, step)
 
 
-def _check_action(v: tuple, bounds: Bounds | None, agent: int | None, episode: int | None,
-                  step: int | None) -> None:
-    a, e, s, action = v
-    _check_stamp(a, e, s, bounds, agent)
+def _check_action(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
+    sender, e, s, action = v
+    _check_counts(e, s)
+    check_agent(sender, bounds, agent)
     if not 0 <= action <= 3:
         raise WireError("action_out_of_range", f"action {action}, must be 0..3")
-    if episode is not None or step is not None:
-        check_sequence(e, s, episode, step)
 
 
-def _check_heartbeat(v: tuple, bounds: Bounds | None, agent: int | None, episode: int | None,
-                     step: int | None) -> None:
+def _check_heartbeat(v: tuple, bounds: Bounds | None, agent: int | None) -> None:
     beat, e, s, stepping, started, ticket = v
-    if e < 0 or s < 0:
-        check_nonneg("episode", e)
-        check_nonneg("step", s)
+    _check_counts(e, s)
     if beat < 1:
         raise WireError("out_of_range", f"beat = {beat}, must be >= 1")
     if stepping not in (0, 1):
         raise WireError("out_of_range", f"stepping = {stepping}, must be 0 or 1")
     check_nonneg("started", started)
     check_nonneg("ticket", ticket)
-    check_sequence(e, s, episode, step)
 
 
 FEEDBACK_LAYOUT = ArrayLayout(

@@ -54,24 +54,23 @@ def _write_key(fd: int) -> None:
 
 def read_key(path: str | os.PathLike) -> bytes:
     """The key in `path`: hex, one line, in a file no one but its owner may read or write."""
+    name = f"parameter key_file: {os.fspath(path)!r}"
     try:
         mode = os.stat(path).st_mode
         text = Path(path).read_text(encoding="ascii").strip()
     except OSError as e:
         raise KeyFileError(f"parameter key_file: cannot read {os.fspath(path)!r}: {e.strerror}") from None
     except UnicodeDecodeError as e:
-        raise KeyFileError(f"parameter key_file: {os.fspath(path)!r} is not a key file: byte {e.start} is not "
-                           f"text (0x{e.object[e.start]:02x}); a key file is one line of hex, as `cq-ros key` "
-                           "makes it") from None
+        raise KeyFileError(f"{name} is not a key file: byte {e.start} is not text (0x{e.object[e.start]:02x}); a "
+                           "key file is one line of hex, as `cq-ros key` makes it") from None
     if mode & (stat.S_IRWXG | stat.S_IRWXO):
-        raise KeyFileError(f"parameter key_file: {os.fspath(path)!r} is accessible to others (mode "
-                        f"{stat.S_IMODE(mode):04o}); chmod 600 it")
+        raise KeyFileError(f"{name} is accessible to others (mode {stat.S_IMODE(mode):04o}); chmod 600 it")
     try:
         key = bytes.fromhex(text)
     except ValueError:
         key = b""
     if len(key) < 16:
-        raise KeyFileError(f"parameter key_file: {os.fspath(path)!r} must hold at least 16 bytes as hex")
+        raise KeyFileError(f"{name} must hold at least 16 bytes as hex")
     return key
 
 

@@ -10,9 +10,8 @@ from typing import Any, Callable
 from .errors import WireError
 from .payloads import INT32_MAX, Bounds
 
-__all__ = ["as_int", "as_float", "as_flag", "CONVERT", "check_nonneg", "check_agent", "check_cell", "check_sequence",
-           "check_beat"]
-
+__all__ = ["as_int", "as_float", "as_flag", "CONVERT", "check_type", "check_nonneg", "check_agent", "check_cell",
+           "check_sequence", "check_beat"]
 
 
 def as_int(name: str, v: Any, *, wide: bool = False) -> int:
@@ -64,6 +63,11 @@ def as_flag(name: str, v: Any) -> bool:
 
 
 CONVERT: dict[str, Callable[[str, Any], Any]] = {"int": as_int, "float": as_float, "flag": as_flag}
+
+
+def check_type(value: Any, expected: type) -> None:
+    if type(value) is not expected:
+        raise WireError("wrong_type", f"expected {expected.__name__}, got {type(value).__name__}")
 
 
 def check_nonneg(name: str, v: int) -> None:

@@ -65,8 +65,7 @@ class DropCounter:
     """Count refused messages by kind and by source (`by_source`); log the first of each kind and then every
     `every`-th. A source refusing `every` messages within FLOOD_WINDOW_S is flooded: said once, with its rate
     (`floods`), then only counted. Nodes route every decode through `guard` (msgs_spec/README.md, "Validation
-    and dropping"). Not thread-safe: use it from one executor thread (the project's SingleThreadedExecutor).
-    """
+    and dropping"). Not thread-safe: use it from one executor thread (the project's SingleThreadedExecutor)."""
 
     def __init__(self, log: Callable[[str], Any] | None = None, every: int = 100,
                  clock: Callable[[], float] = time.monotonic) -> None:
@@ -81,8 +80,7 @@ class DropCounter:
         self.by_source: dict[str, int] = {}  # source -> its drops (of any kind)
 
     def record(self, error: WireError, source: str = "") -> int:
-        """Count `error`; log it if it is the first of its kind or an every-th one, unless its source is
-        flooded (said once). Returns the kind's count."""
+        """Count `error`, logged as the class says; the count of its kind."""
         n = self._counts.get(error.kind, 0) + 1
         self._counts[error.kind] = n
         self.by_source[source] = self.by_source.get(source, 0) + 1

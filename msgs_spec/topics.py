@@ -25,8 +25,7 @@ __all__ = [
     "AGENT_PREFIX", "Qos", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
     "TopicSpec", "FEEDBACK", "POSITION", "ACTION", "HEARTBEAT", "AGENT_STATS", "WORLD_STATS", "TOPICS",
     "WORLD_STATS_TOPIC", "HEARTBEAT_TOPIC", "READER_DEPTH", "agent_namespace", "feedback_topic", "position_topic",
-    "action_topic",
-    "agent_stats_topic", "agent_topics", "parse_topic", "qos_summary", "type_name",
+    "action_topic", "agent_stats_topic", "agent_topics", "parse_topic", "qos_summary", "type_name",
 ]
 
 AGENT_PREFIX = "agv"
@@ -128,8 +127,7 @@ class TopicSpec:
 
     def decode(self, msg: Any, *, bounds: Any = None, agent: int | None = None, episode: int | None = None,
                step: int | None = None) -> Any:
-        """Decode a message received on this topic (the payload must be this topic's). Expectations that do
-        not apply to the payload are ignored (`step` for statistics, `agent` for world statistics)."""
+        """The payload of a message received on this topic; the expectations as `decoder` takes them."""
         if type(msg) is not self.msg_type:
             raise WireError("wrong_type", f"{self.pattern} carries {self.type_name}, got {type(msg).__name__}")
         return self.decoder(msg, bounds=bounds, agent=agent, episode=episode, step=step)
@@ -213,13 +211,8 @@ action_topic, agent_stats_topic = _once(ACTION.name), _once(AGENT_STATS.name)
 
 def agent_topics(n_agents: int) -> list[tuple[str, TopicSpec, int | None]]:
     """Every topic of a system of `n_agents` agents, as (relative name, spec, agent or None)."""
-    out: list[tuple[str, TopicSpec, int | None]] = []
-    for spec in TOPICS:
-        if spec.per_agent:
-            out += [(spec.name(k), spec, k) for k in range(1, n_agents + 1)]
-        else:
-            out.append((spec.name(), spec, None))
-    return out
+    return [(spec.name(k), spec, k) for spec in TOPICS
+            for k in (range(1, n_agents + 1) if spec.per_agent else (None,))]
 
 
 @lru_cache(maxsize=None)

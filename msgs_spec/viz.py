@@ -17,7 +17,7 @@ from nav_msgs.msg import OccupancyGrid
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from .checks import check_agent, check_cell
+from .checks import check_agent, check_cell, check_type
 from .errors import WireError
 from .payloads import Bounds
 from .topics import AGENT_PREFIX, Qos, TopicSpec, _agent_id, parse_name, taking
@@ -111,8 +111,7 @@ def encode_occupancy(occ: Occupancy, *, stamp: Time | None = None) -> OccupancyG
 
 
 def decode_occupancy(msg: Any) -> Occupancy:
-    if type(msg) is not OccupancyGrid:
-        raise WireError("wrong_type", f"expected OccupancyGrid, got {type(msg).__name__}")
+    check_type(msg, OccupancyGrid)
     info = msg.info
     rows, cols = info.height, info.width
     if (msg.header.frame_id != FRAME_ID or info.resolution != LATTICE_RESOLUTION or rows % 2 == 0
@@ -148,13 +147,6 @@ def _marker(ns: str, ident: int, kind: int, stamp: Time | None, xyz: tuple[float
     return m
 
 
-def _stamp(text: str, what: str) -> tuple[int, int]:
-    m = _STAMP.fullmatch(text)
-    if not m:
-        raise WireError("malformed", f"{what} text {text!r}, expected 'episode E step S'")
-    return int(m.group(1)), int(m.group(2))
-
-
 def encode_scene(scene: Scene, *, stamp: Time | None = None) -> MarkerArray:
     if len(scene.cells) != len(scene.goals) or not scene.cells:
         raise WireError("malformed", f"{len(scene.cells)} cells and {len(scene.goals)} goals")
@@ -172,8 +164,7 @@ def encode_scene(scene: Scene, *, stamp: Time | None = None) -> MarkerArray:
 
 
 def decode_scene(msg: Any, *, bounds: Bounds | None = None) -> Scene:
-    if type(msg) is not MarkerArray:
-        raise WireError("wrong_type", f"expected MarkerArray, got {type(msg).__name__}")
+    check_type(msg, MarkerArray)
     by_ns: dict[str, dict[int, Any]] = {"agv": {}, "goal": {}, "label": {}, "step": {}}
     for m in msg.markers:
         if m.ns not in by_ns or m.id in by_ns[m.ns]:
@@ -186,13 +177,12 @@ def decode_scene(msg: Any, *, bounds: Bounds | None = None) -> Scene:
                                         f"{sorted(by_ns['goal'])}: expected 1..N of each and one step marker")
     if bounds is not None and n != bounds.n_agents:
         raise WireError("unknown_agent", f"{n} agents, known agents 1..{bounds.n_agents}")
-    episode, step = _stamp(by_ns["step"][0].text, "step marker")
-
-    def cell(m: Any, what: str) -> tuple[int, int]:
-        return xy_cell(m.pose.position.x, m.pose.position.y, bounds, what)
-
-    return Scene(episode, step, tuple(cell(by_ns["agv"][k], f"agv {k}") for k in sorted(agents)),
-                 tuple(cell(by_ns["goal"][k], f"goal {k}") for k in sorted(agents)))
+    stamp = _STAMP.fullmatch(text := by_ns["step"][0].text)
+    if not stamp:
+        raise WireError("malformed", f"step marker text {text!r}, expected 'episode E step S'")
+    cells = {ns: tuple(xy_cell(m.pose.position.x, m.pose.position.y, bounds, f"{ns} {k}")
+                       for k, m in sorted(by_ns[ns].items())) for ns in ("agv", "goal")}
+    return Scene(int(stamp.group(1)), int(stamp.group(2)), cells["agv"], cells["goal"])
 
 
 def encode_looks(looks: Looks, *, stamp: Time | None = None) -> MarkerArray:
@@ -211,8 +201,7 @@ def encode_looks(looks: Looks, *, stamp: Time | None = None) -> MarkerArray:
 
 def decode_looks(msg: Any, *, bounds: Bounds | None = None, agent: int | None = None) -> Looks:
     """Looks from `msg`; `agent`: the agent whose topic it came on."""
-    if type(msg) is not MarkerArray:
-        raise WireError("wrong_type", f"expected MarkerArray, got {type(msg).__name__}")
+    check_type(msg, MarkerArray)
     if len(msg.markers) != 1:
         raise WireError("wrong_layout", f"{len(msg.markers)} markers, expected 1")
     m = msg.markers[0]
