@@ -166,26 +166,28 @@ def _fields(fields: Mapping[str, tuple[str, str]], get: Callable[[str], Any], te
 
 def _value(key: str, kind: str, v: Any, text: bool) -> Any:
     """Field `key`'s value of `kind` from a payload's `v`, or from its pair's text (`text`); a name as it is."""
+    if kind == "str":
+        return v
+    if kind == "float":
+        return as_float(key, v, text=text)
+    if kind == "bool" and not text:
+        return as_flag(key, v)
+    if kind == "bool":
+        if v not in ("true", "false"):
+            raise WireError("malformed", f"{key} = {v!r}, must be true or false")
+        return v == "true"
     wide = key in _WIDE_KEYS
-    if kind == "int" and not text:
+    if not text:
         v = as_int(key, v, wide=wide)
         if v >= _WIDE_LIMIT:
             raise WireError("out_of_range", f"{key} has more than {WIDE_DIGITS} digits")
         return v
-    if kind == "int":
-        if wide and len(v) > WIDE_DIGITS:
-            raise WireError("out_of_range", f"{key} has {len(v)} digits, more than {WIDE_DIGITS}")
-        if not _INT_RE.fullmatch(v):
-            as_float(key, v, text=True)  # garbage is malformed, NaN not_finite; else it is a fraction
-            raise WireError("not_integer", f"{key} = {v!r}")
-        return as_int(key, int(v), wide=wide)
-    if kind == "float":
-        return as_float(key, v, text=text)
-    if kind == "bool" and text:
-        if v not in ("true", "false"):
-            raise WireError("malformed", f"{key} = {v!r}, must be true or false")
-        return v == "true"
-    return as_flag(key, v) if kind == "bool" else v
+    if wide and len(v) > WIDE_DIGITS:
+        raise WireError("out_of_range", f"{key} has {len(v)} digits, more than {WIDE_DIGITS}")
+    if not _INT_RE.fullmatch(v):
+        as_float(key, v, text=True)  # garbage is malformed, NaN not_finite; else it is a fraction
+        raise WireError("not_integer", f"{key} = {v!r}")
+    return as_int(key, int(v), wide=wide)
 
 
 def _text(v: Any) -> str:
@@ -219,9 +221,10 @@ def _take_counters(values: dict[str, str]) -> dict[str, int]:
     """The counters (`count.<name>`) of what is left of a status's pairs, which must be all that is left."""
     counters = {}
     for key in [k for k in values if k.startswith("count.")]:
-        if not _NAME_RE.fullmatch(key[len("count."):]):
+        name = key[len("count."):]
+        if not _NAME_RE.fullmatch(name):
             raise WireError("malformed", f"counter key {key!r}")
-        counters[key[len("count."):]] = _count(key, values.pop(key), text=True)
+        counters[name] = _count(key, values.pop(key), text=True)
     if values:
         raise WireError("malformed", f"unknown keys {sorted(values)}")
     return counters
