@@ -19,6 +19,10 @@ ACTIONS = (NORTH, EAST, SOUTH, WEST)
 ACTION_NAMES = ("NORTH", "EAST", "SOUTH", "WEST")
 NO_ACTION = -1  # Feedback.applied when the world applied no action of this agent
 INT32_MAX = 2**31 - 1
+# An int32 in decimal in a name or a text: at most 10 digits. The patterns that read ids, cells and counts from
+# text take no more, so no text reaches int() longer than it reads (Python's int() refuses more than 4,300
+# digits with a ValueError, not a WireError).
+DIGITS, ID_DIGITS = "[0-9]{1,10}", "[1-9][0-9]{0,9}"
 
 
 @dataclass(frozen=True, slots=True)

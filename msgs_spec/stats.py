@@ -18,7 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from .auth import RunKey, mac_words, secret_of
 from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_nonneg, check_sequence
 from .errors import WireError
-from .payloads import AgentStats, Bounds, MarkedJointState, WorldStats
+from .payloads import DIGITS, INT32_MAX, AgentStats, Bounds, MarkedJointState, WorldStats
 
 __all__ = ["WORLD_STATS_NAME", "agent_stats_name", "WORLD_STATS_KEYS", "AGENT_STATS_KEYS", "COUNTERS_MAX",
            "pairs_bound", "bytes_bound", "encode_world_stats", "decode_world_stats", "encode_agent_stats",
@@ -84,7 +84,7 @@ COUNTERS_MAX = 256
 _INT_RE = re.compile(r"-?[0-9]+")
 _NAME_RE = re.compile(r"[a-z0-9_][a-z0-9_.]*")
 _ALGO_RE = re.compile(r"[a-z][a-z0-9_]*")
-_MARKED_RE = re.compile(r"cell=([0-9]+),([0-9]+) peer=agv([0-9]+) peer_cell=([0-9]+),([0-9]+) confidence=(\S+)")
+_MARKED_RE = re.compile(r"cell=({0}),({0}) peer=agv({0}) peer_cell=({0}),({0}) confidence=(\S+)".format(DIGITS))
 _RUN_RE, _INC_RE = re.compile(r"[0-9a-f]{16}"), re.compile(r"[0-9a-f]{8}")
 
 
@@ -187,6 +187,8 @@ def _value(key: str, kind: str, v: Any, text: bool) -> Any:
     if not _INT_RE.fullmatch(v):
         as_float(key, v, text=True)  # garbage is malformed, NaN not_finite; else it is a fraction
         raise WireError("not_integer", f"{key} = {v!r}")
+    if not wide and len(v) > len(str(-INT32_MAX - 1)):  # no int32 (nor text int() reads without a ValueError)
+        raise WireError("out_of_range", f"{key} has {len(v)} characters, more than any int32")
     return as_int(key, int(v), wide=wide)
 
 
@@ -324,7 +326,7 @@ def _status(msg: Any, bounds: Bounds | None, agent: bool, key: Any, run: int | N
     except (AttributeError, TypeError) as e:
         raise WireError("malformed", f"unreadable message: {e}") from None
     like = "agv<k>" if agent else "world"
-    if name != f"{hw}/stats" or not re.fullmatch(r"agv[0-9]+" if agent else "world", hw):
+    if name != f"{hw}/stats" or not re.fullmatch("agv" + DIGITS if agent else "world", hw):
         raise WireError("wrong_layout", f"status name {name!r} hardware_id {hw!r}, expected '{like}/stats' '{like}'")
     return hw, values
 

@@ -19,7 +19,7 @@ from std_msgs.msg import Float64MultiArray, Int32MultiArray
 
 from . import codec
 from .errors import WireError
-from .payloads import Action, AgentStats, Feedback, Heartbeat, Position, WorldStats
+from .payloads import ID_DIGITS, Action, AgentStats, Feedback, Heartbeat, Position, WorldStats
 
 __all__ = [
     "AGENT_PREFIX", "Qos", "QOS_FEEDBACK", "QOS_ACTION", "QOS_POSITION", "QOS_STATS",
@@ -218,7 +218,7 @@ def agent_topics(n_agents: int) -> list[tuple[str, TopicSpec, int | None]]:
 @lru_cache(maxsize=None)
 def _pattern_re(pattern: str) -> re.Pattern:
     """A topic pattern as a regex of its name, relative or under any namespace; agent ids from 1, no leading 0."""
-    return re.compile("(?:^|/)" + re.escape(pattern).replace(r"\{agent\}", "([1-9][0-9]*)") + "$")
+    return re.compile("(?:^|/)" + re.escape(pattern).replace(r"\{agent\}", "(" + ID_DIGITS + ")") + "$")
 
 
 def parse_name(name: str, specs: tuple[TopicSpec, ...], what: str) -> tuple[TopicSpec, int | None]:

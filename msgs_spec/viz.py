@@ -19,7 +19,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from .checks import check_agent, check_cell, check_type
 from .errors import WireError
-from .payloads import Bounds
+from .payloads import ID_DIGITS, Bounds
 from .topics import AGENT_PREFIX, Qos, TopicSpec, _agent_id, parse_name, taking
 
 __all__ = [
@@ -127,8 +127,8 @@ def decode_occupancy(msg: Any) -> Occupancy:
 
 # -- markers -------------------------------------------------------------------------------------------------
 
-_STAMP = re.compile(r"episode (0|[1-9][0-9]*) step (0|[1-9][0-9]*)")
-_LOOKS_TEXT = re.compile(_STAMP.pattern + r":((?: " + AGENT_PREFIX + r"[1-9][0-9]*)*)")
+_STAMP = re.compile(r"episode (0|{0}) step (0|{0})".format(ID_DIGITS))
+_LOOKS_TEXT = re.compile(_STAMP.pattern + r":((?: " + AGENT_PREFIX + ID_DIGITS + ")*)")
 
 
 def _colour(agent: int, alpha: float = 1.0) -> ColorRGBA:
@@ -205,7 +205,7 @@ def decode_looks(msg: Any, *, bounds: Bounds | None = None, agent: int | None = 
     if len(msg.markers) != 1:
         raise WireError("wrong_layout", f"{len(msg.markers)} markers, expected 1")
     m = msg.markers[0]
-    found = re.fullmatch(AGENT_PREFIX + r"([1-9][0-9]*)/looks", m.ns)
+    found = re.fullmatch(AGENT_PREFIX + f"({ID_DIGITS})/looks", m.ns)
     if not found or m.id != 0 or m.type != Marker.LINE_LIST:
         raise WireError("wrong_layout", f"marker ns {m.ns!r} id {m.id} type {m.type}, expected "
                                         f"'{AGENT_PREFIX}<k>/looks' 0 LINE_LIST")

@@ -86,9 +86,29 @@ def test_parse_topic_inverts_the_names_under_any_namespace():
         for full in (name, "/" + name, "/run7/" + name, "run7/sub/" + name):
             assert ms.parse_topic(full) == (spec, agent)
     for bad in ("agv0/position", "agv1/pose", "agv/position", "world/stat", "/rosout", "xagv1/position",
-                "agv01/action"):
+                "agv01/action", f"agv{'1' * 5000}/action"):
         with pytest.raises(ValueError):
             ms.parse_topic(bad)
+
+
+def test_viewer_decoders_refuse_numbers_longer_than_an_int32_as_wire_errors():
+    from msgs_spec import viz
+
+    huge = "1" * 5000  # longer than Python's int() reads: a ValueError, had it reached int()
+    looks = viz.encode_looks(viz.Looks(1, 0, 3, 0, 0, ((2, 0, 1),)))
+    scene = viz.encode_scene(viz.Scene(0, 3, ((0, 0), (0, 1)), ((1, 0), (1, 1))))
+    assert viz.decode_looks(looks) == viz.Looks(1, 0, 3, 0, 0, ((2, 0, 1),))
+    assert viz.decode_scene(scene) == viz.Scene(0, 3, ((0, 0), (0, 1)), ((1, 0), (1, 1)))
+    step = next(m for m in scene.markers if m.ns == "step")
+    for marker, field, text in ((looks.markers[0], "ns", f"agv{huge}/looks"),
+                                (looks.markers[0], "text", f"episode {huge} step 3: agv2"),
+                                (looks.markers[0], "text", f"episode 0 step 3: agv{huge}"),
+                                (step, "text", f"episode 0 step {huge}")):
+        kept = getattr(marker, field)
+        setattr(marker, field, text)
+        with pytest.raises(ms.WireError):
+            viz.decode_looks(looks) if marker is looks.markers[0] else viz.decode_scene(scene)
+        setattr(marker, field, kept)
 
 
 def test_qos_profiles_are_explicit_and_as_documented():
@@ -513,6 +533,13 @@ REJECTIONS = [
      "out_of_range"),  # only the state counts are wide
     ("as-too-many-digits", lambda: das(_stats(_as_values(joint_states="9" * 201), "agv1/stats", "agv1")),
      "out_of_range"),
+    # longer than Python's int() reads (4,300 digits): refused as any number too long, not a ValueError
+    ("ws-int-of-5000-digits", lambda: dws(_stats(_ws_values(steps="9" * 5000))), "out_of_range"),
+    ("as-marked-cell-of-5000-digits", lambda: das(_stats(_as_values(**{
+        "marked.0": f"cell={'1' * 5000},3 peer=agv2 peer_cell=2,4 confidence=0.5"}), "agv1/stats", "agv1")),
+     "malformed"),
+    ("as-name-of-5000-digits", lambda: das(_stats(_as_values(), f"agv{'1' * 5000}/stats", f"agv{'1' * 5000}")),
+     "wrong_layout"),
     ("as-negative-states", lambda: das(_stats(_as_values(local_states=str(-2**40)), "agv1/stats", "agv1")),
      "out_of_range"),
     ("encode-too-many-digits", lambda: ms.encode(ms.AgentStats(agent=1, episode=0, algorithm="js",
@@ -875,12 +902,14 @@ keys = st.sampled_from(["episode", "steps", "truncated", "collisions", "missed_a
                         "marked.1", "marked.x", "other"])
 vals = st.sampled_from(["0", "1", "2", "-1", "1.5", "nan", "inf", "true", "false", "cq", "",
                         "cell=0,0 peer=agv2 peer_cell=0,1 confidence=1.0",
-                        "cell=0,0 peer=agv1 peer_cell=0,1 confidence=0.5", "99999999999"]) | st.text(max_size=8)
+                        "cell=0,0 peer=agv1 peer_cell=0,1 confidence=0.5", "99999999999", "9" * 5000,
+                        f"cell={'1' * 5000},0 peer=agv2 peer_cell=0,1 confidence=1.0"]) | st.text(max_size=8)
 
 
 @settings(max_examples=400, deadline=None)
 @given(pairs=st.lists(st.tuples(keys, vals), max_size=24), name=st.sampled_from(
-    ["world/stats", "agv1/stats", "agv2/stats", "x"]), hw=st.sampled_from(["world", "agv1", "agv2", ""]),
+    ["world/stats", "agv1/stats", "agv2/stats", "x", f"agv{'1' * 5000}/stats"]),
+    hw=st.sampled_from(["world", "agv1", "agv2", "", f"agv{'1' * 5000}"]),
     n_status=st.integers(0, 2))
 def test_fuzz_stats_only_raise_wire_error(pairs, name, hw, n_status):
     msg = _stats(pairs, name, hw, n_status)
