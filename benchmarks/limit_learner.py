@@ -208,10 +208,11 @@ def report(kept: Path, out: Path, agents: int, commands: list[str]) -> str:
     # one row per unit and configuration, the last written (as held_out.shown_rows keeps them)
     rows = list({tuple(r[k] for k in KEY): r for r in read_rows(kept / "units.csv") + mine
                  if r["config"] in (*COMPARED, *learners) and (r["generator_seed"], r["run"]) in units}.values())
-    curve = read_rows(out / "curve.csv") + [r for r in read_rows(kept / "curve.csv") if r["config"] in COMPARED
+    compared = [c for c in COMPARED if any(r["config"] == c for r in rows)]  # the 32-AGV study played no near
+    curve = read_rows(out / "curve.csv") + [r for r in read_rows(kept / "curve.csv") if r["config"] in compared
                                             and (r["generator_seed"], r["run"]) in units]
     planner = [r for r in read_rows(kept / "planner.csv") if (r["generator_seed"], r["run"]) in units]
-    configs = [Config(c, c) for c in (*COMPARED, *learners)]
+    configs = [Config(c, c) for c in (*compared, *learners)]
     maps = sorted({g for g, _ in units})
     shown = kept.resolve().relative_to(ROOT) if kept.resolve().is_relative_to(ROOT) else kept
     lines = [f"# The limit learner, {agents} AGVs", "", *(f"Command: `{c}`" for c in commands), "",
@@ -219,12 +220,14 @@ def report(kept: Path, out: Path, agents: int, commands: list[str]) -> str:
              f"{', '.join(map(str, sorted({r for _, r in units})))}: {len(units)} units; the study's protocol "
              "(its study.json), on the reference engine: " + ", ".join(
                  f"{name} {sum(r['seconds'] for r in mine if r['config'] == name):.0f} s" for name in learners)
-             + " (summed over units); cq's and near's rows are the kept study's, of the same units. Mean ± "
-             "half-width of the 95% t interval over units; paired differences from cq, and below them from near.",
+             + " (summed over units); " + " and ".join(c + "'s" for c in compared)
+             + " rows are the kept study's, of the same units. "
+             "Mean ± half-width of the 95% t interval over units; paired differences from cq"
+             + (", and below them from near." if "near" in compared else "."),
              "Units played: " + ", ".join(f"{name} {sum(r['config'] == name for r in mine)}" for name in learners)
              + " (a count \"of N units\" below is over all N units, whichever configuration played fewer)."]
     lines += size_tables(agents, rows, configs, planner)
-    for copy in ("frozen", "learning"):
+    for copy in ("frozen", "learning") if "near" in compared else ():
         lines += ["", f"Paired differences from near, {copy}:", "",
                   "| configuration | " + " | ".join(label for label, _, _ in FIGURES) + " |",
                   "| --- |" + " ---: |" * len(FIGURES)]
