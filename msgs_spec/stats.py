@@ -16,7 +16,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from .auth import RunKey, mac_words, secret_of
-from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_nonneg, check_sequence
+from .checks import as_flag, as_float, as_int, check_agent, check_cell, check_nonneg, check_sequence, check_type
 from .errors import WireError
 from .payloads import DIGITS, INT32_MAX, AgentStats, Bounds, MarkedJointState, WorldStats
 
@@ -92,8 +92,7 @@ _RUN_RE, _INC_RE = re.compile(r"[0-9a-f]{16}"), re.compile(r"[0-9a-f]{8}")
 
 def encode_world_stats(s: WorldStats, *, stamp: Time | None = None, key: bytes | None = None) -> DiagnosticArray:
     """`stamp`: header time (wall clock, e.g. node.get_clock().now().to_msg()); zero if None. `key`: the run's."""
-    if type(s) is not WorldStats:
-        raise WireError("wrong_type", f"expected WorldStats, got {type(s).__name__}")
+    check_type(s, WorldStats)
     f = _fields(_WORLD_FIELDS, partial(getattr, s), text=False)
     returns = [(f"return.agv{k}", _text(as_float(f"return.agv{k}", r))) for k, r in enumerate(s.returns, 1)]
     if not returns:
@@ -122,8 +121,7 @@ def decode_world_stats(msg: DiagnosticArray, *, bounds: Bounds | None = None,
 
 
 def encode_agent_stats(s: AgentStats, *, stamp: Time | None = None, key: bytes | None = None) -> DiagnosticArray:
-    if type(s) is not AgentStats:
-        raise WireError("wrong_type", f"expected AgentStats, got {type(s).__name__}")
+    check_type(s, AgentStats)
     f = _fields(_AGENT_FIELDS, partial(getattr, s), text=False)
     marked = [_check_marked(m, f["agent"], None, f"marked.{i}") for i, m in enumerate(s.marked)]
     pairs = _pairs(f) + [(f"marked.{i}", _marked_text(m)) for i, m in enumerate(marked)]
@@ -302,8 +300,7 @@ def _status(msg: Any, bounds: Bounds | None, agent: bool, key: Any, run: int | N
     if run is None and type(key) is RunKey:
         run = key.run
     key = secret_of(key)
-    if type(msg) is not DiagnosticArray:
-        raise WireError("wrong_type", f"expected DiagnosticArray, got {type(msg).__name__}")
+    check_type(msg, DiagnosticArray)
     try:
         statuses = list(msg.status)
         if len(statuses) != 1:
