@@ -1,12 +1,9 @@
 """A publisher that holds what it is given until its writer has matched its readers, then sends it in order:
-the world's position topics and the agents' actions and statistics go out through it.
+the agents' actions and statistics go out through it.
 
 Our action and statistics topics are volatile: a message published before the match is lost, and only the
 writer's side of a match says it will arrive (a reader may see the match first, as the world's action reader
-and the launcher's statistics readers do). A position topic is latched, but most steps of a run nobody listens
-(CQ looks at a peer only in a conflict state, independent learners never), and a writer with no reader still
-pays for each publish: a position is serialized only when it goes out, and the newest one not sent goes out
-when a reader matches, so a late subscriber still gets the step it waits for.
+and the launcher's statistics readers do).
 """
 
 from __future__ import annotations
@@ -23,15 +20,14 @@ __all__ = ["HeldPublisher"]
 class HeldPublisher:
     """`publish(payload)` sends `serialize(payload)` (serialized bytes, or a message) once the writer has
     matched `min_matched` readers; before, it holds the payloads (with `latest_only`, the newest alone: a stale
-    action or position is worth nothing). Its matched events say when, at no cost per message; with
-    `ask_graph` a payload held also asks the graph, which the events may lag (worth it for a message sent once
-    an episode, not for a position sent every step)."""
+    action is worth nothing). Its matched events say when, at no cost per message; a payload held also asks
+    the graph, which the events may lag."""
 
     def __init__(self, node: Any, spec: Any, topic: str, serialize: Callable[[Any], Any], *, min_matched: int = 1,
-                 latest_only: bool = False, ask_graph: bool = True):
+                 latest_only: bool = False):
         from rclpy.event_handler import PublisherEventCallbacks
 
-        self.min_matched, self.latest_only, self.ask_graph = min_matched, latest_only, ask_graph
+        self.min_matched, self.latest_only = min_matched, latest_only
         self.serialize = serialize
         self.held: list = []  # payloads not sent yet
         self.matched = Matched(then=self.flush)
@@ -51,7 +47,7 @@ class HeldPublisher:
 
     def flush(self) -> None:
         if self.held and (self.matched.count >= self.min_matched
-                          or self.ask_graph and self.pub.get_subscription_count() >= self.min_matched):
+                          or self.pub.get_subscription_count() >= self.min_matched):
             for payload in self.held:
                 self._send(payload)
             self.held.clear()

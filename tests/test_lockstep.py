@@ -89,6 +89,20 @@ def test_step_waits_for_every_acting_agent_then_positions_then_feedback():
     assert core.waiting == {1}
 
 
+def test_only_watched_agents_positions_are_made_and_position_says_where_any_agent_is_now():
+    core, _ = lockstep(CORRIDOR)
+    assert core.position(1) is None  # no step yet
+    core.watched = (2,)
+    out = core.begin()
+    assert out[0] == Position(2, 0, 0, 1, 1) and [type(p) for p in out] == [Position, Feedback, Feedback]
+    core.watched = ()
+    action_in(core, 2, act(2, 0, 0, EAST))
+    out = action_in(core, 1, act(1, 0, 0, EAST))
+    assert [type(p) for p in out] == [Feedback, Feedback]
+    # a reader that comes is sent what a watched agent's Position of this step would have said
+    assert core.position(1) == Position(1, 0, 1, 0, 1) and core.position(2) == Position(2, 0, 1, 1, 2)
+
+
 def test_episode_end_sends_stats_then_the_next_episode():
     core, _ = lockstep(CORRIDOR, episodes=2)
     core.begin()

@@ -25,8 +25,10 @@ from cq_ros.settings import Settings, SettingsError, run_settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
     ACTION, AGENT_STATS, FEEDBACK, POSITION, WORLD_STATS, WORLD_STATS_TOPIC, Action, Feedback, action_topic,
-    agent_stats_topic, decode_action, decode_agent_stats, decode_world_stats, encode, feedback_topic,
+    agent_stats_topic, decode_action, decode_agent_stats, decode_position, decode_world_stats, encode,
+    feedback_topic, position_topic,
 )
+from msgs_spec.viz import SCENE, SCENE_TOPIC
 from node_runtime.qos import profile
 from helpers import GRID, RUN_TIMEOUT_S, System, finish, offline, offline_rows, parameters, start_system
 from world_node import WorldNode
@@ -346,6 +348,37 @@ def test_statistics_reach_a_subscriber_that_comes_after_the_run_episode_0_first(
         total = episodes + greedy
         assert spin_until(executor, lambda: all(len(h) >= total for h in heard.values()), 10.0), heard
         assert heard == {k: list(range(total)) for k in heard}
+    finally:
+        executor.shutdown()
+        for node in (world, *agents, probe):
+            node.destroy_node()
+
+
+def test_the_world_makes_a_position_only_while_someone_reads_it_and_a_reader_that_comes_gets_the_newest(
+        ros_context, spin_until):
+    """Independent learners never read a position: the world makes none (Lockstep.watched stays empty), and
+    sends none. A reader that comes once the run is over gets exactly one position, where its agent is now;
+    a viewer of the scene makes the world watch every agent."""
+    common = {"map": "grid_game_2", "episodes": 3, "seed": 1, "eval_episodes": 1}
+    world = WorldNode(context=ros_context, parameter_overrides=parameters(**common, step_timeout=30.0))
+    agents = [AgentNode(f"agv{k}", context=ros_context, parameter_overrides=parameters(
+        **common, algo="indep", agent_id=k)) for k in (1, 2)]
+    probe = rclpy.create_node("position_probe", context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (world, *agents, probe):
+        executor.add_node(node)
+    try:
+        assert spin_until(executor, lambda: world.done.done() and all(a.done.done() for a in agents), RUN_TIMEOUT_S)
+        assert world.core.watched == ()
+        heard = []
+        probe.create_subscription(POSITION.msg_type, position_topic(1), lambda m: heard.append(decode_position(m)),
+                                  profile(POSITION.qos))
+        assert spin_until(executor, lambda: heard, 10.0)
+        assert world.core.watched == (1,)
+        newest = world.core.position(1)
+        assert heard == [newest] and newest.episode == 3 and newest.step > 0
+        probe.create_subscription(SCENE.msg_type, SCENE_TOPIC, lambda m: None, profile(SCENE.qos))
+        assert spin_until(executor, lambda: world.core.watched == (1, 2), 10.0)
     finally:
         executor.shutdown()
         for node in (world, *agents, probe):

@@ -1,12 +1,12 @@
 """The world's side of the lockstep protocol (msgs_spec/README.md, "Protocol"), without ROS.
 
 `Lockstep` owns a `cq_ros.world.GridWorld` and decides everything the world node does: which actions it
-accepts, when a step is complete or timed out, and what goes out afterwards, in protocol order (every
-Position, then the Feedback of the agents that were acting, then WorldStats when the episode is over, then the
-next episode's step 0). It takes payloads, never bytes: the node decodes each action (world_node.wire_reading)
-and hands it an `Action`, or the refusal to count in its one `DropCounter`; the core judges what needs its
-state, the step it collects (stale_*, future_*, counted there too) and who is asked. The node only moves
-messages between ROS and this object, so the protocol is tested without a ROS graph
+accepts, when a step is complete or timed out, and what goes out afterwards, in protocol order (the Position
+of every agent in `watched`, then the Feedback of the agents that were acting, then WorldStats when the episode
+is over, then the next episode's step 0). It takes payloads, never bytes: the node decodes each action
+(world_node.wire_reading) and hands it an `Action`, or the refusal to count in its one `DropCounter`; the core
+judges what needs its state, the step it collects (stale_*, future_*, counted there too) and who is asked. The
+node only moves messages between ROS and this object, so the protocol is tested without a ROS graph
 (tests/test_lockstep.py) and a run equals `cq_ros.engine.run` step for step.
 
 A missing action past `step_timeout`: the agent stays where it is, for that step only, as a delayed agent
@@ -60,7 +60,7 @@ from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
 from msgs_spec import (
     FEEDBACK_LAYOUT, NO_ACTION, POSITION_LAYOUT, Action, Bounds, DropCounter, Feedback, Heartbeat, WireError,
-    WorldStats, action_topic, agent_namespace, check_sequence,
+    Position, WorldStats, action_topic, agent_namespace, check_sequence,
 )
 from msgs_spec.auth import RunKey
 from node_runtime.parameters import run_key_parameters
@@ -146,6 +146,9 @@ class Lockstep:
         self.rejoin_time = rejoin_time  # seconds of such silence before `no_progress` too
         self.silent_for = 0.0  # seconds those steps waited, awake (Patience: a stall of the node is no silence)
         self.quiet: dict[int, tuple[int, float]] = {}  # agent -> (steps in a row it missed, their seconds awake)
+        # Whose Position goes out each step: every agent's, unless the node says whom someone reads (most steps of a
+        # run nobody does, and a Position not made costs nothing); a reader that comes asks `position` for the newest.
+        self.watched: tuple[int, ...] = tuple(range(1, world.n + 1))
         self._actions: list[int | None] = []
         self._patience = Patience(step_timeout, self.tick_period, clock)  # the wait for the step's actions
 
@@ -230,6 +233,13 @@ class Lockstep:
         self.waiting.clear()
         return self._advance()
 
+    def position(self, agent: int) -> Position | None:
+        """Where `agent` is now, as its newest Position said or would have said; None before the first step."""
+        if self.episode < 0:
+            return None
+        w = self.world
+        return POSITION_LAYOUT.new(agent, self.episode, w.t, *w.map.cells[w.cells[agent - 1]])
+
     def heartbeat(self) -> Heartbeat:
         """The next heartbeat: where the world is (episode 0, step 0 before the first step), and who it is."""
         self.beats += 1
@@ -296,8 +306,8 @@ class Lockstep:
 
     def _positions(self) -> Outbox:
         w = self.world
-        episode, t, cells = self.episode, w.t, w.map.cells
-        return [POSITION_LAYOUT.new(i + 1, episode, t, *cells[c]) for i, c in enumerate(w.cells)]
+        episode, t, cells, at = self.episode, w.t, w.map.cells, w.cells
+        return [POSITION_LAYOUT.new(k, episode, t, *cells[at[k - 1]]) for k in self.watched]
 
     def _feedback(self, i: int, reward: float, cap: bool, applied: int | None = None) -> Feedback:
         """Agent i's feedback; `applied`: its action the world applied into this step (None: none came)."""

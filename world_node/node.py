@@ -14,12 +14,11 @@ from functools import partial
 from typing import Any
 
 from msgs_spec import (
-    ACTION, FEEDBACK, FEEDBACK_LAYOUT, HEARTBEAT, HEARTBEAT_LAYOUT, HEARTBEAT_TOPIC, POSITION, POSITION_LAYOUT,
-    WORLD_STATS, WORLD_STATS_TOPIC, Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace,
-    feedback_topic, position_topic, serialize,
+    ACTION, FEEDBACK, FEEDBACK_LAYOUT, HEARTBEAT, HEARTBEAT_LAYOUT, HEARTBEAT_TOPIC, WORLD_STATS, WORLD_STATS_TOPIC,
+    Feedback, Heartbeat, Position, WorldStats, action_topic, agent_namespace, feedback_topic, position_topic,
+    serialize,
 )
 from node_runtime.graph import writers_and_namesakes
-from node_runtime.held import HeldPublisher
 from node_runtime.lost_samples import count_lost
 from node_runtime.node import RunNode
 from node_runtime.qos import profile
@@ -27,6 +26,7 @@ from node_runtime.rclpy_workarounds import raw_publisher
 from node_runtime.run import when_acked
 
 from .lockstep import TWIN_EXIT, world_core
+from .positions import PositionTopics
 from .twin import Identity, Twins
 from .viz import WorldView
 from .wire_reading import action_in, heartbeat_in
@@ -47,8 +47,7 @@ class WorldNode(RunNode):
         cfg, core, key = self.config, self.core, self.config.key
         self.twins = Twins(identity, self.get_name(), self.get_namespace(), cfg.heartbeat_period)
         agents = range(1, core.world.n + 1)
-        positions = {k: HeldPublisher(self, POSITION, position_topic(k), partial(POSITION_LAYOUT.serialize, key=key),
-                                      latest_only=True, ask_graph=False).publish for k in agents}  # while listened to
+        positions = PositionTopics(self, core, key)  # made only while someone reads them
         self._feedback = {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), profile(FEEDBACK.qos))
                           for k in agents}
         feedback = {k: raw_publisher(pub) for k, pub in self._feedback.items()}
@@ -56,12 +55,12 @@ class WorldNode(RunNode):
         self._heartbeat = self.create_publisher(HEARTBEAT.msg_type, HEARTBEAT_TOPIC, profile(HEARTBEAT.qos))
         # The core's outbox by payload type, each by its layout's own serializer (no lookup of it per message)
         self._senders = {
-            Position: lambda p: positions[p.agent](p),
+            Position: positions.publish,
             Feedback: lambda f: feedback[f.agent](FEEDBACK_LAYOUT.serialize(f, key)),
             Heartbeat: lambda h: self._heartbeat.publish(HEARTBEAT_LAYOUT.serialize(h, key)),
             WorldStats: lambda w: self._stats.publish(serialize(w, key=key, stamp=self.get_clock().now().to_msg())),
         }
-        self._view = WorldView(self, cfg.gridmap) if self.get_parameter("markers").value else None
+        self._view = WorldView(self, cfg.gridmap, positions.scene) if self.get_parameter("markers").value else None
         # Raw: the serialized bytes are decoded (msgs_spec.codec) without a message object built for them.
         lost = count_lost(core.extra_counters)
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k),

@@ -19,13 +19,15 @@ __all__ = ["WorldView"]
 
 
 class WorldView:
-    def __init__(self, node: Any, gridmap: GridMap):
+    def __init__(self, node: Any, gridmap: GridMap, watchers: Matched):
+        """`watchers`: the scene's matched readers, shared with the position topics (world_node.positions: while
+        someone watches, the core makes every agent's position, which the scene shows)."""
         self.node = node
         self.n = gridmap.n_agents
         self.goals = tuple(gridmap.cells[g] for g in gridmap.goals)
         self.map = node.create_publisher(MAP.msg_type, MAP_TOPIC, profile(MAP.qos))
         self.map.publish(MAP.encode(Occupancy(lattice(gridmap)), stamp=node.get_clock().now().to_msg()))
-        self.watchers = Matched()
+        self.watchers = watchers
         self.scene = node.create_publisher(SCENE.msg_type, SCENE_TOPIC, profile(SCENE.qos),
                                            event_callbacks=PublisherEventCallbacks(matched=self.watchers))
 
