@@ -270,8 +270,7 @@ class ArrayLayout:
         """(the seal `key` holds for `sender`'s messages of this layout, None while it holds no run or no
         incarnation of it; the primed HMAC hashes), kept in the key's `derived` until its binding changes."""
         incarnation = key.held.get(sender)
-        seal = None if key.run is None or incarnation is None else \
-            self._seal.pack(key.run >> 32, key.run & 0xFFFFFFFF, incarnation)
+        seal = None if key.run is None or incarnation is None else key.seal(self.code, incarnation)
         got = key.derived[(self, sender)] = seal, key.hashes(self.label)
         return got
 

@@ -112,7 +112,7 @@ class RunKey:
     `incarnation`. Receiving: the incarnation held for each sender (WORLD, or an agent id), bound by the first
     valid message of each. The codec reads and binds it; one per node, from one executor thread."""
 
-    __slots__ = ("secret", "run", "incarnation", "held", "retired", "replaced", "_seals", "_hashes", "derived")
+    __slots__ = ("secret", "run", "incarnation", "held", "retired", "replaced", "_hashes", "derived")
 
     def __init__(self, secret: bytes, run: int | None = None, incarnation: int | None = None):
         self.secret = secret
@@ -121,7 +121,6 @@ class RunKey:
         self.held: dict[int, int] = {}  # sender -> the incarnation it speaks with now
         self.retired: dict[int, set[int]] = {}  # sender -> incarnations it spoke with before (an agent restarted)
         self.replaced = 0  # agent incarnations replaced by a newer one (restarts, or a twin)
-        self._seals: dict[str, bytes] = {}  # struct code -> the seal words as the wire holds them
         self._hashes: dict[str, tuple] = {}  # label -> (inner, outer) HMAC hashes, as primed
         # What the codec derives from the binding (the seal each sender's messages carry) to check it without
         # reading the binding again per message (msgs_spec.arrays): dropped whenever the binding changes.
@@ -131,15 +130,13 @@ class RunKey:
         run = "unbound" if self.run is None else f"{self.run:016x}"
         return f"RunKey(run={run}, incarnation={self.incarnation:08x})"
 
-    def seal(self, code: str) -> bytes:
-        """The seal words (run high, run low, incarnation) packed as the array's values are ('i' or 'd')."""
-        seal = self._seals.get(code)
-        if seal is None:
-            if self.run is None:  # an agent acts only on a sealed feedback, which binds the run first
-                raise ValueError("no run nonce yet: a node seals only after it knows its run")
-            words = (self.run >> 32, self.run & 0xFFFFFFFF, self.incarnation)
-            seal = self._seals[code] = struct.pack(f"<3{'I' if code == 'i' else 'd'}", *words)
-        return seal
+    def seal(self, code: str, incarnation: int | None = None) -> bytes:
+        """The seal's words (run high, run low, an incarnation: this node's own unless given) as an array of struct
+        code `code` holds its values ('i' as unsigned ints, or 'd')."""
+        if self.run is None:  # an agent acts only on a sealed feedback, which binds the run first
+            raise ValueError("no run nonce yet: a node seals only after it knows its run")
+        words = self.run >> 32, self.run & 0xFFFFFFFF, self.incarnation if incarnation is None else incarnation
+        return struct.pack(f"<{SEAL_WORDS}{'I' if code == 'i' else 'd'}", *words)
 
     def hashes(self, label: str) -> tuple:
         """(inner, outer) HMAC-SHA256 hashes primed for `label`, to be copied per message."""
@@ -167,7 +164,6 @@ class RunKey:
         """Bind to what an accepted message carried (refusal() was None for it)."""
         if self.run is None:
             self.run = run
-            self._seals.clear()
             self.derived.clear()
         held = self.held.get(sender)
         if held != incarnation:
