@@ -357,8 +357,9 @@ def test_statistics_reach_a_subscriber_that_comes_after_the_run_episode_0_first(
 def test_the_world_makes_a_position_only_while_someone_reads_it_and_a_reader_that_comes_gets_the_newest(
         ros_context, spin_until):
     """Independent learners never read a position: the world makes none (Lockstep.watched stays empty), and
-    sends none. A reader that comes once the run is over gets exactly one position, where its agent is now;
-    a viewer of the scene makes the world watch every agent."""
+    sends none. A reader that comes once the run is over gets exactly one position, where its agent is now; one
+    that comes after it left gets it from the latched topic, not sent again; a viewer of the scene makes the world
+    watch every agent."""
     common = {"map": "grid_game_2", "episodes": 3, "seed": 1, "eval_episodes": 1}
     world = WorldNode(context=ros_context, parameter_overrides=parameters(**common, step_timeout=30.0))
     agents = [AgentNode(f"agv{k}", context=ros_context, parameter_overrides=parameters(
@@ -370,13 +371,21 @@ def test_the_world_makes_a_position_only_while_someone_reads_it_and_a_reader_tha
     try:
         assert spin_until(executor, lambda: world.done.done() and all(a.done.done() for a in agents), RUN_TIMEOUT_S)
         assert world.core.watched == ()
-        heard = []
-        probe.create_subscription(POSITION.msg_type, position_topic(1), lambda m: heard.append(decode_position(m)),
-                                  profile(POSITION.qos))
+        heard, again, sent = [], [], []
+        reader = probe.create_subscription(POSITION.msg_type, position_topic(1),
+                                           lambda m: heard.append(decode_position(m)), profile(POSITION.qos))
         assert spin_until(executor, lambda: heard, 10.0)
         assert world.core.watched == (1,)
         newest = world.core.position(1)
         assert heard == [newest] and newest.episode == 3 and newest.step > 0
+        probe.destroy_subscription(reader)
+        assert spin_until(executor, lambda: world.core.watched == (), 10.0)
+        publish = world.positions.publish
+        world.positions.publish = lambda p: (sent.append(p), publish(p))
+        probe.create_subscription(POSITION.msg_type, position_topic(1), lambda m: again.append(decode_position(m)),
+                                  profile(POSITION.qos))
+        assert spin_until(executor, lambda: again and world.core.watched == (1,), 10.0)
+        assert again == [newest] and sent == []
         probe.create_subscription(SCENE.msg_type, SCENE_TOPIC, lambda m: None, profile(SCENE.qos))
         assert spin_until(executor, lambda: world.core.watched == (1, 2), 10.0)
     finally:

@@ -47,7 +47,7 @@ class WorldNode(RunNode):
         cfg, core, key = self.config, self.core, self.config.key
         self.twins = Twins(identity, self.get_name(), self.get_namespace(), cfg.heartbeat_period)
         agents = range(1, core.world.n + 1)
-        positions = PositionTopics(self, core, key)  # made only while someone reads them
+        self.positions = positions = PositionTopics(self, core, key)  # made only while someone reads them
         self._feedback = {k: self.create_publisher(FEEDBACK.msg_type, feedback_topic(k), profile(FEEDBACK.qos))
                           for k in agents}
         feedback = {k: raw_publisher(pub) for k, pub in self._feedback.items()}

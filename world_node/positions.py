@@ -27,6 +27,7 @@ class PositionTopics:
     def __init__(self, node: Any, core: Any, key: Any):
         self.core = core
         self.serialize = partial(POSITION_LAYOUT.serialize, key=key)
+        self.sent: dict[int, Position] = {}  # agent -> the last position that went out
         self.scene = Matched(then=self.watch)
         self.readers = {k: Matched(then=self.watch) for k in range(1, core.world.n + 1)}
         # The node destroys its publishers only after it has stopped spinning (node_runtime.rclpy_workarounds).
@@ -36,15 +37,17 @@ class PositionTopics:
         self.watch()
 
     def publish(self, position: Position) -> None:
+        self.sent[position.agent] = position
         self._raw[position.agent](self.serialize(position))
 
     def watch(self) -> None:
-        """Tell the core whose positions to make, as the matched events say now; an agent it starts to make goes
-        out at once, where it is now (the newest), for the reader that came."""
+        """Tell the core whose positions to make, as the matched events say now. An agent it starts to make goes
+        out at once where it is now, for the reader that came, unless that position went out before (the topic
+        keeps it for a new reader: sent again, a reader would hear it twice)."""
         before = set(self.core.watched)
         everyone = self.scene.count > 0
         self.core.watched = tuple(k for k, readers in self.readers.items() if everyone or readers.count)
         for k in self.core.watched:
             newest = None if k in before else self.core.position(k)
-            if newest is not None:
+            if newest is not None and newest != self.sent.get(k):
                 self.publish(newest)
