@@ -6,6 +6,7 @@ killed agent resumes from its checkpoint, and bad parameters or a missing peer e
 from __future__ import annotations
 
 import itertools
+from contextlib import contextmanager
 import os
 import subprocess
 import sys
@@ -320,6 +321,27 @@ def test_an_action_answered_before_the_world_reader_matched_is_sent_on_the_match
         world.destroy_node()
 
 
+@contextmanager
+def played_by_two(ros_context, spin_until, episodes: int, greedy: int, **agent_parameters):
+    """(world, executor, probe) once a world and two independent agents on grid_game_2 have played every episode,
+    in one executor with a probe node to subscribe from; all shut down after."""
+    common = {"map": "grid_game_2", "episodes": episodes, "seed": 1, "eval_episodes": greedy}
+    world = WorldNode(context=ros_context, parameter_overrides=parameters(**common, step_timeout=30.0))
+    agents = [AgentNode(f"agv{k}", context=ros_context, parameter_overrides=parameters(
+        **common, algo="indep", agent_id=k, **agent_parameters)) for k in (1, 2)]
+    probe = rclpy.create_node("late_probe", context=ros_context)
+    executor = SingleThreadedExecutor(context=ros_context)
+    for node in (world, *agents, probe):
+        executor.add_node(node)
+    try:
+        assert spin_until(executor, lambda: world.done.done() and all(a.done.done() for a in agents), RUN_TIMEOUT_S)
+        yield world, executor, probe
+    finally:
+        executor.shutdown()
+        for node in (world, *agents, probe):
+            node.destroy_node()
+
+
 @pytest.mark.parametrize("min_matched", [1, 0], ids=["held", "kept_by_the_writer"])
 def test_statistics_reach_a_subscriber_that_comes_after_the_run_episode_0_first(ros_context, spin_until,
                                                                                    min_matched):
@@ -327,16 +349,8 @@ def test_statistics_reach_a_subscriber_that_comes_after_the_run_episode_0_first(
     min_stats_subscribers=1 the agents held theirs until it matched; with 0 every writer sent them to no one,
     and keeps them for a reader that comes late (transient local), the world's too."""
     episodes, greedy = 4, 1
-    common = {"map": "grid_game_2", "episodes": episodes, "seed": 1, "eval_episodes": greedy}
-    world = WorldNode(context=ros_context, parameter_overrides=parameters(**common, step_timeout=30.0))
-    agents = [AgentNode(f"agv{k}", context=ros_context, parameter_overrides=parameters(
-        **common, algo="indep", agent_id=k, min_stats_subscribers=min_matched)) for k in (1, 2)]
-    probe = rclpy.create_node("late_probe", context=ros_context)
-    executor = SingleThreadedExecutor(context=ros_context)
-    for node in (world, *agents, probe):
-        executor.add_node(node)
-    try:
-        assert spin_until(executor, lambda: world.done.done() and all(a.done.done() for a in agents), RUN_TIMEOUT_S)
+    with played_by_two(ros_context, spin_until, episodes, greedy, min_stats_subscribers=min_matched) as (
+            world, executor, probe):
         assert world.done.result() == 0
         heard: dict[int, list[int]] = {0: [], 1: [], 2: []}  # 0: the world's
         for k in (1, 2):
@@ -348,10 +362,6 @@ def test_statistics_reach_a_subscriber_that_comes_after_the_run_episode_0_first(
         total = episodes + greedy
         assert spin_until(executor, lambda: all(len(h) >= total for h in heard.values()), 10.0), heard
         assert heard == {k: list(range(total)) for k in heard}
-    finally:
-        executor.shutdown()
-        for node in (world, *agents, probe):
-            node.destroy_node()
 
 
 def test_the_world_makes_a_position_only_while_someone_reads_it_and_a_reader_that_comes_gets_the_newest(
@@ -360,16 +370,7 @@ def test_the_world_makes_a_position_only_while_someone_reads_it_and_a_reader_tha
     sends none. A reader that comes once the run is over gets exactly one position, where its agent is now; one
     that comes after it left gets it from the latched topic, not sent again; a viewer of the scene makes the world
     watch every agent."""
-    common = {"map": "grid_game_2", "episodes": 3, "seed": 1, "eval_episodes": 1}
-    world = WorldNode(context=ros_context, parameter_overrides=parameters(**common, step_timeout=30.0))
-    agents = [AgentNode(f"agv{k}", context=ros_context, parameter_overrides=parameters(
-        **common, algo="indep", agent_id=k)) for k in (1, 2)]
-    probe = rclpy.create_node("position_probe", context=ros_context)
-    executor = SingleThreadedExecutor(context=ros_context)
-    for node in (world, *agents, probe):
-        executor.add_node(node)
-    try:
-        assert spin_until(executor, lambda: world.done.done() and all(a.done.done() for a in agents), RUN_TIMEOUT_S)
+    with played_by_two(ros_context, spin_until, 3, 1) as (world, executor, probe):
         assert world.core.watched == ()
         heard, again, sent = [], [], []
         reader = probe.create_subscription(POSITION.msg_type, position_topic(1),
@@ -388,10 +389,6 @@ def test_the_world_makes_a_position_only_while_someone_reads_it_and_a_reader_tha
         assert again == [newest] and sent == []
         probe.create_subscription(SCENE.msg_type, SCENE_TOPIC, lambda m: None, profile(SCENE.qos))
         assert spin_until(executor, lambda: world.core.watched == (1, 2), 10.0)
-    finally:
-        executor.shutdown()
-        for node in (world, *agents, probe):
-            node.destroy_node()
 
 
 @pytest.mark.parametrize("node_class, overrides", [
