@@ -15,7 +15,6 @@ from functools import lru_cache
 from typing import Any, Callable
 
 from diagnostic_msgs.msg import DiagnosticArray
-from std_msgs.msg import Float64MultiArray, Int32MultiArray
 
 from . import codec
 from .errors import WireError
@@ -151,33 +150,30 @@ def _agent_id(agent: Any) -> int:
 
 _NS = AGENT_PREFIX + "{agent}/"
 
-FEEDBACK = TopicSpec(
-    "feedback", _NS + "feedback", Float64MultiArray, QOS_FEEDBACK, Feedback,
-    "world", "agent k (the JSA central node: every agent's)",
-    "(float64; flags 0/1; applied -1: none)",
-    READER_DEPTH, decoder=codec.decode_feedback,
-)
-POSITION = TopicSpec(
-    "position", _NS + "position", Int32MultiArray, QOS_POSITION, Position,
+
+def _lockstep(key: str, pattern: str, qos: Qos, payload: type, publisher: str, subscribers: str, fields: str,
+              decoder: Callable[..., Any] | None = None) -> TopicSpec:
+    """A topic of the lockstep: an array payload on its layout's ROS type, decoded by its layout (unless
+    `decoder`), read READER_DEPTH deep."""
+    layout = codec.LAYOUT_BY_PAYLOAD[payload]
+    return TopicSpec(key, pattern, layout.ros_type, qos, payload, publisher, subscribers, fields, READER_DEPTH,
+                     decoder=decoder or layout.decode)
+
+
+FEEDBACK = _lockstep("feedback", _NS + "feedback", QOS_FEEDBACK, Feedback, "world",
+                     "agent k (the JSA central node: every agent's)", "(float64; flags 0/1; applied -1: none)")
+POSITION = _lockstep(
+    "position", _NS + "position", QOS_POSITION, Position,
     "world (every agent, every step, before any feedback of that step; while a reader is matched, the newest "
     "on a match)",
-    "peers of k while they need k (CQ: in a conflict state; JS: always; LoC: on COORDINATE); tools",
-    "(int32)",
-    READER_DEPTH, decoder=codec.decode_position,
-)
-ACTION = TopicSpec(
-    "action", _NS + "action", Int32MultiArray, QOS_ACTION, Action,
-    "agent k (the JSA central node: every agent's)", "world",
-    "(int32; action 0..3 = N, E, S, W)",
-    READER_DEPTH, decoder=codec.decode_action,
-)
-HEARTBEAT = TopicSpec(
-    "heartbeat", "world/heartbeat", Int32MultiArray, QOS_HEARTBEAT, Heartbeat,
+    "peers of k while they need k (CQ: in a conflict state; JS: always; LoC: on COORDINATE); tools", "(int32)")
+ACTION = _lockstep("action", _NS + "action", QOS_ACTION, Action, "agent k (the JSA central node: every agent's)",
+                   "world", "(int32; action 0..3 = N, E, S, W)")
+HEARTBEAT = _lockstep(
+    "heartbeat", "world/heartbeat", QOS_HEARTBEAT, Heartbeat,
     "world, every heartbeat_period from its start, whether or not anyone acts",
-    "agents (the world is alive; where it is, to catch up without a key); tools",
-    "(int32)",
-    READER_DEPTH, decoder=taking(codec.decode_heartbeat),
-)
+    "agents (the world is alive; where it is, to catch up without a key); tools", "(int32)",
+    decoder=taking(codec.decode_heartbeat))  # whatever a receiver expects: a heartbeat says where the world is
 AGENT_STATS = TopicSpec(
     "agent_stats", _NS + "stats", DiagnosticArray, QOS_STATS, AgentStats,
     "agent k, once per episode (the JSA central node: every agent's)", "tools (echo, record, launcher)",

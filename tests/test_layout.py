@@ -286,7 +286,7 @@ def test_a_node_module_stays_thin(path):
 
 # The wire contract is its payloads, layouts, topics and their codec (38: 2,467 lines, then one codec, one
 # TopicSpec for every topic): what grows past this is a copy to merge, or a helper that belongs to its user.
-MSGS_SPEC_LINES_MAX = 2202
+MSGS_SPEC_LINES_MAX = 2198
 
 
 def test_the_wire_contract_stays_small():
