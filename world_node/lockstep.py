@@ -305,9 +305,7 @@ class Lockstep:
         self._patience.restart()
 
     def _positions(self) -> Outbox:
-        w = self.world
-        episode, t, cells, at = self.episode, w.t, w.map.cells, w.cells
-        return [POSITION_LAYOUT.new(k, episode, t, *cells[at[k - 1]]) for k in self.watched]
+        return [self.position(k) for k in self.watched]
 
     def _feedback(self, i: int, reward: float, cap: bool, applied: int | None = None) -> Feedback:
         """Agent i's feedback; `applied`: its action the world applied into this step (None: none came)."""
