@@ -8,6 +8,8 @@ from __future__ import annotations
 from functools import partial
 from typing import Any, Callable
 
+from rclpy.event_handler import SubscriptionEventCallbacks
+
 from msgs_spec import POSITION, position_topic
 from node_runtime.qos import profile
 from node_runtime.rclpy_workarounds import take_now
@@ -15,6 +17,12 @@ from node_runtime.rclpy_workarounds import take_now
 from .effects import Renew, Subscribe, Unsubscribe
 
 __all__ = ["PeerSubscriptions"]
+
+# No event handlers: rclpy 7.1.6 gives a subscription two by default (incompatible QoS, incompatible type, each
+# logging a warning), and an agent makes and drops one at every conflict state; the two cost 110-160 us of the
+# 1.0-1.3 ms a subscription costs in CPU (benchmarks/peer_churn.py). A writer with an incompatible QoS or type on
+# a position topic is not ours, and its own process still logs the mismatch.
+_NO_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
 
 
 class PeerSubscriptions:
@@ -30,7 +38,7 @@ class PeerSubscriptions:
         # Raw: the serialized bytes are decoded (msgs_spec.codec) without a message object built for them.
         self.subs[peer] = self.node.create_subscription(POSITION.msg_type, position_topic(peer),
                                                         partial(self.on_position, peer), profile(POSITION.reader_qos),
-                                                        raw=True)
+                                                        raw=True, event_callbacks=_NO_EVENTS)
 
     def unsubscribe(self, effect: Unsubscribe | Renew) -> None:
         self.node.destroy_subscription(self.subs.pop(effect.peer))

@@ -20,6 +20,8 @@ from std_msgs.msg import Int32MultiArray, MultiArrayDimension
 
 from agent_node import AgentNode
 from agent_node.checkpoint import load_checkpoint
+from agent_node.effects import Subscribe, Unsubscribe
+from agent_node.peer_subscriptions import PeerSubscriptions
 from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, SettingsError, run_settings
@@ -240,6 +242,21 @@ def test_a_peer_subscription_that_never_matches_is_made_anew_and_the_run_stays_t
     step_timeout), so the run equals the offline engine's with no action missed, and says so in its counters."""
     for last in offline_run_of(system_in, LostFirstMatch, step_timeout=10.0):
         assert last.peer_messages > 0 and last.counters.get("renewed_subscriptions") == 1, last.counters
+
+
+def test_a_peer_subscription_carries_no_event_handler(ros_context):
+    """A CQ agent makes and drops peer subscriptions all run long: none carries rclpy's two default event
+    handlers, a tenth of a subscription's cost (agent_node.peer_subscriptions)."""
+    node = rclpy.create_node("peer_probe", context=ros_context)
+    try:
+        peers = PeerSubscriptions(node, lambda peer, raw: None, {})
+        peers.subscribe(Subscribe(2))
+        sub = peers.subs[2]
+        assert sub.topic_name == "/" + position_topic(2) and sub.raw and sub.event_handlers == []
+        peers.unsubscribe(Unsubscribe(2))
+        assert peers.subs == {} and sub not in node.subscriptions
+    finally:
+        node.destroy_node()
 
 
 def test_checkpoints_are_written_atomically_and_reload_an_identical_learner(system_in, tmp_path, spin_until,
