@@ -300,8 +300,8 @@ class ArrayLayout:
         read. None for bytes whose header is the layout's own (then only what follows can be wrong)."""
         try:
             dims, n = struct.unpack_from("<2I", raw, 4)
-            if dims != 1:
-                return WireError("wrong_layout", f"{dims} dims, expected 1 labelled {self.label!r}")
+            if dims != 1:  # refused on the count alone
+                return self._refusal(dims, "", 0, 0, 0, 0)
             if not 1 <= n <= len(raw) - 12 or raw[12 + n - 1] != 0:  # a CDR string: its length counts the NUL
                 raise ValueError(f"a label of {n} bytes")
             if n - 1 not in (len(self.label), len(self.keyed_label)):  # not read: it may be 10 KB
