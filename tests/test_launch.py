@@ -462,9 +462,11 @@ def test_a_launch_takes_its_domain_from_the_option_then_the_environment_and_draw
 @pytest.mark.ros
 def test_a_launch_runs_on_the_ros_domain_id_of_its_environment(tmp_path, ros_domain_id):
     # The session's domain (tests/conftest.py), given as a user gives theirs: ROS_DOMAIN_ID=N cq-ros launch ...
+    # No greedy episodes: after 3 learning ones, indep's greedy policy runs to the step cap (40-60 s of a suite).
     out, namespace = tmp_path / "result", unique("envdomain")
-    done = subprocess.run(launch_command(out, namespace, "grid_game_2", "indep", 3, ()), capture_output=True,
-                          text=True, timeout=LAUNCH_TIMEOUT_S, env={**os.environ, "ROS_DOMAIN_ID": str(ros_domain_id)})
+    done = subprocess.run(launch_command(out, namespace, "grid_game_2", "indep", 3, ("eval_episodes=0",)),
+                          capture_output=True, text=True, timeout=LAUNCH_TIMEOUT_S,
+                          env={**os.environ, "ROS_DOMAIN_ID": str(ros_domain_id)})
     assert done.returncode == 0, done.stderr
     assert f"ROS_DOMAIN_ID={ros_domain_id}, namespace /{namespace}" in done.stderr
     assert json.loads((out / "manifest.json").read_text())["domain_id"] == ros_domain_id
