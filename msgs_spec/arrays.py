@@ -7,7 +7,7 @@ layouts): the keyed form, the order of the checks, the serialized forms read in 
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, fields
 from functools import cached_property
 from typing import Any, Callable
 
@@ -151,13 +151,15 @@ class ArrayLayout:
 
     @cached_property
     def new(self) -> Callable[..., Any]:
-        """payload(*values), every field given in order, without the frozen dataclass's __init__ (which sets
-        each field through object.__setattr__): the same object in two thirds of the time. For values already
-        checked (the decoder's), or checked when they are serialized (the nodes' own payloads)."""
+        """payload(*values), the fields in order, those with a default optional (as the dataclass's), without its
+        __init__ (which sets each field through object.__setattr__): the same object in two thirds of the time.
+        For values already checked (the decoder's), or checked when they are serialized (the nodes' own)."""
         setters = {f"set{i}": self.payload.__dict__[name].__set__ for i, name in enumerate(self.fields)}
-        return _compiled("new", f"def new({self._names}):\n    o = make(payload)\n"
+        defaults = {f"d{i}": f.default for i, f in enumerate(fields(self.payload)) if f.default is not MISSING}
+        params = ", ".join(f"v{i}=d{i}" if f"d{i}" in defaults else f"v{i}" for i in range(self.size))
+        return _compiled("new", f"def new({params}):\n    o = make(payload)\n"
                          + "".join(f"    {set_}(o, v{i})\n" for i, set_ in enumerate(setters)) + "    return o\n",
-                         make=object.__new__, payload=self.payload, **setters)
+                         make=object.__new__, payload=self.payload, **setters, **defaults)
 
     @cached_property
     def _plain(self) -> Callable[[Any], tuple | None]:
@@ -204,8 +206,7 @@ class ArrayLayout:
         data = form.data.unpack_from(self.serialize(payload, key), form.start)
         label, size = self.dimension(key is not None)
         msg = self.ros_type()
-        msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]
-        msg.layout.data_offset = 0
+        msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=size)]  # data_offset: 0 as made
         msg.data = list(data)
         return msg
 
@@ -271,8 +272,7 @@ class ArrayLayout:
         incarnation of it; the primed HMAC hashes), kept in the key's `derived` until its binding changes."""
         incarnation = key.held.get(sender)
         seal = None if key.run is None or incarnation is None else key.seal(self.code, incarnation)
-        got = key.derived[(self, sender)] = seal, key.hashes(self.label)
-        return got
+        return key.derived.setdefault((self, sender), (seal, key.hashes(self.label)))
 
     def _serialized(self, msg: Any) -> bytes:
         """The bytes of a message object in the layout's form, once its type, layout and length are the

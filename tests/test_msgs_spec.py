@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import importlib.metadata
 import math
@@ -253,6 +254,16 @@ def test_round_trip(strategy, spec):
                            step=getattr(p, "step", 0)) == p  # uniform call for every topic
         assert type(spec.encode(p)) is spec.msg_type
     check()
+
+
+@pytest.mark.parametrize("layout", ms.ARRAY_LAYOUTS, ids=lambda layout: layout.payload.__name__)
+def test_a_layouts_constructor_makes_what_the_dataclass_makes_and_takes_its_defaults(layout):
+    """`layout.new`, the codec's and the cores' constructor: a field with a default may be left out, as the
+    dataclass allows, so that a new field with a default changes no caller (msgs_spec/README.md)."""
+    values = tuple(range(1, layout.size + 1))
+    assert layout.new(*values) == layout.payload(*values)
+    required = [f for f in dataclasses.fields(layout.payload) if f.default is dataclasses.MISSING]
+    assert layout.new(*values[:len(required)]) == layout.payload(*values[:len(required)])
 
 
 @pytest.mark.parametrize("keyed", [False, True], ids=["plain", "keyed"])
