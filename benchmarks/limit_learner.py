@@ -21,8 +21,7 @@ reference engine, through cq_ros.lab.held_out.play_unit: the study's units exact
 world delays: world_seed(seed, run)), the same protocol (read from the kept study.json) and near's settings
 (checked against the kept study's resolved ones, where it played near).
 
-    python benchmarks/limit_learner.py --agents 8,12 [--maps 10] [--runs 10] [--study docs/data/study] \
-        [--out docs/data/limit]
+    python benchmarks/limit_learner.py --agents 8,12 [--maps 10] [--runs 10] [--study DIR] [--out DIR]
 
 OUT/AGENTS keeps units.csv (the columns of the study's units.csv, config `limit`), curve.csv, limit.json (the
 protocol and the command) and limit.md: the study's tables (cq_ros.lab.held_out.size_tables) over the units the

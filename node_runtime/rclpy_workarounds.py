@@ -11,7 +11,7 @@ import node_runtime.parameters, which uses `given_parameters`).
   first and only then switches its data-available listener on: a latched sample that lands between the two is
   never announced, and sits in the reader until the next one (a peer's next position comes only after the
   world's step_timeout). Within one process the latched sample follows the match within a millisecond or two,
-  often inside that window (benchmarks/latched_race.py counts it). An agent node takes a position still
+  often inside that window. An agent node takes a position still
   missing after a whole check period from the reader (agent_node.peer_subscriptions), as the executor would.
 - `given_parameters`: rclpy 7.1.6 lists the parameters given to a node (command line, parameters file,
   parameter_overrides) only in the node's private `_parameter_overrides`, and ignores those the node does not

@@ -3,8 +3,6 @@
 plays nothing twice, and its tables are cq_ros.lab.study's arithmetic on the units it kept."""
 
 import csv
-import importlib.util
-import shutil
 from pathlib import Path
 
 import pytest
@@ -104,19 +102,11 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
     assert "1 to play" in capsys.readouterr().err
     assert len(rows_of(out / "curve.csv")) == 2 * 12 + 2 and len(shown_rows(out, "curve.csv")) == 2 * 12
 
-    # A smaller command shows only the units it asked for, in study.md and in the docs' targets table alike
-    # (docs/figures.py), though units.csv keeps the 12.
+    # A smaller command shows only the units it asked for, though units.csv keeps the 12.
     assert main([*TINY, "--runs", "1", "--out", str(out)]) == 0
     assert "## 4 AGVs: 2 units" in capsys.readouterr().out
     shown = shown_rows(out, "units.csv")
     assert len(shown) == 4 and {(r["generator_seed"], r["run"]) for r in shown} == {(1001, 0), (1002, 0)}
-    spec = importlib.util.spec_from_file_location("docs_figures", ROOT / "docs" / "figures.py")
-    figures = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(figures)
-    shutil.copytree(out, tmp_path / "data" / "study" / "tiny")
-    monkeypatch.setattr(figures, "DATA", tmp_path / "data")
-    monkeypatch.setitem(figures.COLLISION_TARGETS, 4, 0.05)
-    assert "| tiny (4 AGVs, 2 units): cq |" in figures.study_targets()
 
     # A kept map the generator no longer makes (a generator changed since) refuses a resume, which would mix
     # units on two maps; --force starts again.

@@ -1,5 +1,5 @@
 """The result files, read and written in one place: what `cq-ros experiment`, `cq-ros reproduce`, `cq-ros launch`
-and `cq-ros collect` write, and what the summary, the plots, the reproduction's report and docs/figures.py read.
+and `cq-ros collect` write, and what the summary, the plots, and the reproduction's report read.
 
 A result directory holds, for one map:
 - `episodes.csv`: one row per algorithm, run and learning episode: EPISODE_COLUMNS, the keys (map, algo, run,
@@ -258,24 +258,13 @@ class GreedyRun:
     truncated: int
 
 
-# greedy.csv as written before it held one row per greedy episode: a row per run of means. Kept result files
-# (docs/data, docs/reproduce) are in it, so the reader takes both.
-_GREEDY_MEANS_COLUMNS = ("map", "algo", "run", "episodes", "collisions", "steps", "truncated")
-
-
 def load_greedy(path: str | os.PathLike) -> list[GreedyRun]:
     """greedy.csv as one GreedyRun per (algorithm, run) with greedy episodes, in the registry's order."""
-    if _header(path) == _GREEDY_MEANS_COLUMNS:
-        with open(path, newline="", encoding="utf-8") as f:
-            found = [GreedyRun(r["algo"], int(r["run"]), int(r["episodes"]), float(r["collisions"]),
-                               float(r["steps"]), int(r["truncated"]))
-                     for r in csv.DictReader(f) if int(r["episodes"])]
-    else:
-        found = [GreedyRun(algo, int(run), columns["steps"].shape[1], float(collisions.mean()), float(steps.mean()),
-                           int(truncated.sum()))
-                 for (_, algo), columns in load_episodes(path).items()
-                 for run, (collisions, steps, truncated) in enumerate(zip(columns["collisions"], columns["steps"],
-                                                                          columns["truncated"]))]
+    found = [GreedyRun(algo, int(run), columns["steps"].shape[1], float(collisions.mean()), float(steps.mean()),
+                       int(truncated.sum()))
+             for (_, algo), columns in load_episodes(path).items()
+             for run, (collisions, steps, truncated) in enumerate(zip(columns["collisions"], columns["steps"],
+                                                                      columns["truncated"]))]
     return sorted(found, key=lambda g: (algo_sort_key(g.algo), g.run))
 
 
