@@ -1,22 +1,18 @@
-"""The limit learner (benchmarks/limit_learner.py): it hears a peer exactly where the world's rules let that peer
+"""The limit learner (cq_ros.learners.limit): it hears a peer exactly where the world's rules let that peer
 collide with it this step, and its unit of the held-out study is the same again from the same seed."""
 
-import importlib.util
 import itertools
-from pathlib import Path
 
 import pytest
 
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.lab.held_out import Config, Unit, config_settings, play_unit
+from cq_ros.lab.limit import LimitLearning
+from cq_ros.learners import limit
 from cq_ros.mapgen.warehouse import warehouse_text
 from cq_ros.settings import Settings
 from cq_ros.world import resolve_moves
 
-ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("limit_learner", ROOT / "benchmarks" / "limit_learner.py")
-limit = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(limit)
 
 # Two rows joined only at columns 3 and 4: row 0 and row 1 are walled apart under columns 0-2.
 WALLED = """\
@@ -108,7 +104,7 @@ def test_a_unit_is_the_same_again_from_its_seed(tmp_path, learner):
     unit = Unit(str(path), learner, 1, 20, 0, settings, learner, 4, 1001, 3, 10, 2)
 
     def row():
-        result = play_unit({str(path): gm}, unit, lambda: None, limit.LimitLearning)
+        result = play_unit({str(path): gm}, unit, lambda: None, LimitLearning)
         return {k: v for k, v in result["row"].items() if k != "seconds"}, result["curve"]
 
     first = row()
