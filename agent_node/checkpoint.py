@@ -22,10 +22,12 @@ import glob
 import io
 import os
 import pickle
+import stat
 import tempfile
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Callable
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -34,6 +36,7 @@ from cq_ros.lab.output import os_reason
 from cq_ros.learners import Learner
 from cq_ros.learners.state import StateError, from_arrays, scalar, to_arrays
 from cq_ros.settings import Settings, SettingsError
+from msgs_spec import INT32_MAX
 
 __all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "CheckpointWriter", "save_checkpoints",
            "load_checkpoint", "read_checkpoint", "remove_stale_temporaries", "convert_pickle", "SUFFIX"]
@@ -46,6 +49,9 @@ SUFFIX = ".npz"
 # A learner's state is megabytes (warehouse_32's CQ: 1.3 MB): a file whose members unpack to more than this is no
 # checkpoint of ours, and is refused before any of it is read into memory (a zip bomb).
 _MAX_BYTES = 4 << 30
+_MAX_MEMBERS = 256  # arrays in a file: a learner's state is a few dozen (cq_ros.learners.state)
+# The greatest episode a checkpoint may name: episodes go on the wire as int32 (msgs_spec), so no run plays more
+MAX_EPISODE = INT32_MAX
 CONVERT = "cq-ros checkpoint convert"
 
 
@@ -157,36 +163,67 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, np.ndarray]:
     pickle: with the command that converts it)."""
     where = f"parameter checkpoint: {os.fspath(path)!r}"
     try:
-        with open(path, "rb") as f:
+        with _regular_file(path, where) as f:
             head = f.read(2)
-        if head[:1] == b"\x80":  # a pickle's protocol opcode: never loaded here
-            raise SettingsError(f"{where} is a pickle (checkpoint format {_PICKLE_FORMAT} or older), which could run "
-                                f"code if loaded: if you trust it, convert it with `{CONVERT} {os.fspath(path)} "
-                                f"NEW{SUFFIX}`")
-        if head != b"PK":
-            raise SettingsError(f"{where} is not a checkpoint (an .npz file)")
-        with np.load(path, allow_pickle=False) as npz:
-            size = sum(member.file_size for member in npz.zip.infolist())
-            if size > _MAX_BYTES:
-                raise SettingsError(f"{where} unpacks to {size:,} bytes, more than a checkpoint's {_MAX_BYTES:,}")
-            return {name: npz[name] for name in npz.files}
+            f.seek(0)
+            if head[:1] == b"\x80":  # a pickle's protocol opcode: never loaded here
+                raise SettingsError(f"{where} is a pickle (checkpoint format {_PICKLE_FORMAT} or older), which could "
+                                    f"run code if loaded: if you trust it, convert it with `{CONVERT} "
+                                    f"{os.fspath(path)} NEW{SUFFIX}`")
+            if head != b"PK":
+                raise SettingsError(f"{where} is not a checkpoint (an .npz file)")
+            with np.load(f, allow_pickle=False) as npz:
+                members = npz.zip.infolist()
+                if len(members) > _MAX_MEMBERS:
+                    raise SettingsError(f"{where} holds {len(members):,} arrays, more than a checkpoint's "
+                                        f"{_MAX_MEMBERS:,}")
+                size = sum(member.file_size for member in members)
+                if size > _MAX_BYTES:
+                    raise SettingsError(f"{where} unpacks to {size:,} bytes, more than a checkpoint's {_MAX_BYTES:,}")
+                return {name: npz[name] for name in npz.files}
     except SettingsError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:  # truncated, corrupt, object arrays
         raise SettingsError(f"{where}: cannot read it: {type(e).__name__}: {e}") from None
 
 
+@contextmanager
+def _regular_file(path: str | os.PathLike, where: str) -> Iterator[io.BufferedReader]:
+    """`path` opened for reading, refused (SettingsError) unless it is a regular file. Opened without blocking
+    and looked at through its descriptor: open() of a FIFO waits for a writer, for ever, and a device (a
+    terminal, /dev/zero) never ends; what is looked at is what is read, even if the name is replaced meanwhile."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = {stat.S_IFIFO: "a FIFO", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
+                    stat.S_IFSOCK: "a socket", stat.S_IFDIR: "a folder"}.get(stat.S_IFMT(mode), "not a file")
+            raise SettingsError(f"{where} is {kind}, not a regular file: a checkpoint is a file cq-ros wrote")
+        os.set_blocking(fd, True)
+        f = os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+    with f:
+        yield f
+
+
 def load_checkpoint(path: str | os.PathLike, algo: str, gridmap: GridMap, agent: int,
-                    settings: Settings) -> tuple[Learner, int]:
+                    settings: Settings, episodes: int | None = None) -> tuple[Learner, int]:
     """(learner, last episode learnt) from a checkpoint written for this algorithm, map, agent (0-based) and
-    settings; SettingsError naming the checkpoint parameter and the field otherwise."""
+    settings; SettingsError naming the checkpoint parameter and the field otherwise. `episodes`: the learning
+    episodes of the run that wrote it, when that is known (a node restarted mid-run): a checkpoint of a later
+    episode is no checkpoint of that run."""
     where = f"parameter checkpoint: {os.fspath(path)!r}"
     arrays = read_checkpoint(path)
     try:
         fmt = scalar(arrays, "checkpoint_format", "i")
         if fmt != _CHECKPOINT_FORMAT:
             raise StateError("checkpoint_format", f"is {fmt}; this version reads format {_CHECKPOINT_FORMAT}")
-        episode = scalar(arrays, "episode", "i", 0)
+        episode = scalar(arrays, "episode", "i", 0, MAX_EPISODE)
+        if episodes is not None and episode >= episodes:
+            raise StateError("episode", f"is {episode}, beyond this run's {episodes} learning episodes "
+                                        f"(0..{episodes - 1}): not a checkpoint of this run")
         saved_map = scalar(arrays, "map", "U")
         if saved_map != gridmap.name:  # before the shapes, which would only say that less plainly
             raise StateError("map", f"is {saved_map}; this node runs map {gridmap.name}")

@@ -115,6 +115,7 @@ from .launch_results import (
     write_heard,
 )
 from .params_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
+from .restarts import Restarts, file_identity
 
 __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN", "DOMAIN_IDS",
            "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "ResultsGone", "LaunchResult",
@@ -569,8 +570,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             children = node_commands(nodes, namespace, out)
         for name in nodes:  # a fresh run: a checkpoint left by an earlier result would be resumed from
             (out / "checkpoints" / (name + CHECKPOINT_SUFFIX)).unlink(missing_ok=True)
+        started_from = {}  # node name -> the file start_from gave it (ros_tools.restarts)
         for given in start_with:
             shutil.copyfile(given, out / "checkpoints" / given.name)
+            started_from[given.stem] = file_identity(out / "checkpoints" / given.name)
         env = {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
                "PYTHONUNBUFFERED": "1", EXECUTOR_ENV: executor_name}
         listener_env: dict[str, str] = {}
@@ -613,29 +616,6 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
         return EndedEarly(f"the launcher {reason}: the run ended early after {rows.written}/{episodes} "
                           f"episodes; those rows are in {rows.path}, and {kept}")
 
-    def restart_loss(child: Child) -> str:
-        """Record the learning `child`'s restart loses, the episodes its learner had learnt past the checkpoint
-        it goes back to, and say it; LaunchError with the reason if that checkpoint cannot be loaded (the node
-        would say it only in its log)."""
-        params = nodes[child.name][1]
-        resumed = -1  # no checkpoint yet: a fresh learner
-        if os.path.exists(params["checkpoint"]):
-            try:
-                resumed = load_checkpoint(params["checkpoint"], algo, gridmap, max(params.get("agent_id", 0) - 1, 0),
-                                          settings)[1]
-            except SettingsError as e:
-                raise LaunchError(f"{child.describe_exit()} after {len(listener.world)}/{listener.episodes} "
-                                  f"episodes and cannot restart: {e}") from None
-        ids = learners if child.name == "jsa" else [params["agent_id"]]
-        # its learner had learnt at least to the checkpoint it wrote, whose statistics may not have come in yet
-        heard = max((listener.newest[k].episode for k in ids if k in listener.newest), default=-1)
-        learnt = max(min(heard, episodes - 1), resumed)
-        lost = learnt - resumed
-        listener.learning_lost.setdefault(child.name, []).append(
-            {"learnt_to": learnt, "resumed_from": resumed, "episodes": lost})
-        start = f"its checkpoint of episode {resumed}" if resumed >= 0 else "a fresh learner (no checkpoint yet)"
-        return f"it resumes from {start}: {lost} learning episode{'s'[:lost != 1]} lost"
-
     started = time.perf_counter()
 
     with StopSignals() as stop, environment(**listener_env), ros_session(
@@ -643,6 +623,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             hidden=False) as (node, executor):
         listener = StatsListener(node, gridmap, episodes + settings.eval_episodes, key=run_key,
                                  run=nodes["world"][1]["run_nonce"])
+        restarts = Restarts(nodes, algo, gridmap, settings, episodes, learners, listener, started_from, LaunchError)
         server = None
         if view_port is not None:  # a live view in Foxglove (ros_tools.view), relayed by the listener's node
             from .view import serve
@@ -665,7 +646,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                            + ", ".join(f"{c.name} pid {c.process.pid}" for c in children)
                            + f"; logs in {out / 'logs'}", file=sys.stderr)
             _watch(children, listener, executor, stop, bar, learners, rows, restart_agents, env, compose,
-                   restart_loss, list(nodes))
+                   restarts, list(nodes))
             if not spin_until(executor, lambda: listener.complete, DRAIN_S, stop):
                 if stop:
                     raise Interrupted(f"interrupted by {stop.received}")
@@ -723,21 +704,6 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             print(f"cq-ros launch: warning: {name}: checkpoint {nodes[name][1]['checkpoint']} not written: "
                   f"{failure}; learning went on", file=sys.stderr)
     return result
-
-
-def _restart(child: Child, env: dict, listener: StatsListener, learners: list[int],
-             restart_loss: Callable[[Child], str]) -> None:
-    """Start a dead agent node again (it resumes from its checkpoint), saying so and what learning that loses
-    (`restart_loss`, which raises LaunchError instead for a checkpoint it cannot resume from); its learners are
-    marked restarted in the listener (the episodes they miss meanwhile are written without them)."""
-    said = child.describe_exit()
-    loss = restart_loss(child)
-    child.restarts += 1
-    ids = learners if child.name == "jsa" else [int(child.name.removeprefix("agv"))]
-    listener.restarted.update(ids)
-    child.start(env)
-    tqdm.write(f"cq-ros launch: {said} after {len(listener.world)}/{listener.episodes} episodes: restarted it "
-               f"(restart {child.restarts}, pid {child.process.pid}); {loss}", file=sys.stderr)
 
 
 def _unstick(children: list[Child], env: dict, listener: StatsListener) -> None:
@@ -808,7 +774,7 @@ def _checkpoints(folder: Path, gridmap: GridMap, algo: str, settings: Settings) 
     paths = []
     for name, ident in agent_nodes(gridmap, algo):
         path = folder / (name + CHECKPOINT_SUFFIX)
-        if not path.is_file():
+        if not path.exists():  # a FIFO or a device is there, and refused as such by load_checkpoint
             raise ValueError(f"start_from {os.fspath(folder)!r}: no checkpoint {path.name} for node {name}")
         load_checkpoint(path, algo, gridmap, max(ident.get("agent_id", 0) - 1, 0), settings)
         paths.append(path)
@@ -840,7 +806,7 @@ def _where(listener: StatsListener, node_names: list[str]) -> str:
 
 def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: StopSignals, bar: Progress,
            learners: list[int], rows: EpisodeRows, restart_agents: int = 0, env: dict | None = None,
-           compose: bool = False, restart_loss: Callable[[Child], str] | None = None,
+           compose: bool = False, restarts: Restarts | None = None,
            node_names: tuple[str, ...] | list[str] = ()) -> None:
     """Spin the listener, writing the rows heard, until every child has exited 0; LaunchError/Interrupted as
     soon as one fails (an agent node restarted instead while `restart_agents` allows), EndedEarly as soon as a
@@ -863,7 +829,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
         failed = [c for c in children if c.exit_code not in (None, 0) and not c.hung_at_exit]
         if failed and not compose and children[0].running and failed[0] is not children[0] and \
                 sum(c.restarts for c in children) < restart_agents:
-            _restart(failed[0], env, listener, learners, restart_loss)
+            restarts.restart(failed[0], env)
             continue
         if failed:  # the episodes it counts are those whose rows it keeps (a killed agent's last never come)
             _last_rows(executor, listener, rows, stop)

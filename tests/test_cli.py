@@ -83,6 +83,12 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         # an option that would do nothing here is refused, not ignored
         (["launch", "--map", "grid_game_2", "--algo", "cq", "--discovery", "static", "--out", "X"],
          "--discovery chooses how the nodes on --hosts find each other"),
+        # a number that passes every comparison (nan) or makes every step time out: refused with the reason
+        (["record", "--out", "X", "--duration", "nan"], "--duration: must be a finite number, got nan"),
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--set", "step_timeout=0.0001", "--out", "X"],
+         "step_timeout must be at least 0.1 s, got 0.0001: an action takes longer to come whenever its agent waits"),
+        (["launch", "--map", "grid_game_2", "--algo", "cq", "--step-timeout", "0.0001", "--out", "X"],
+         "step_timeout must be at least 0.1 s"),
     ],
 )
 def test_bad_arguments_give_one_line_and_exit_2(tmp_path, args, phrase):

@@ -56,7 +56,7 @@ from typing import Any, Callable, Mapping
 from cq_ros.engine import world_seed
 from cq_ros.gridmap import GridMap
 from node_runtime.parameters import MIN_HEARTBEAT_PERIOD, check_numbers, map_and_settings
-from cq_ros.settings import Settings
+from cq_ros.settings import Settings, SettingsError
 from cq_ros.world import GridWorld
 from msgs_spec import (
     FEEDBACK_LAYOUT, NO_ACTION, POSITION_LAYOUT, Action, Bounds, DropCounter, Feedback, Heartbeat, WireError,
@@ -68,12 +68,17 @@ from node_runtime.patience import Patience
 
 from .twin import Identity
 
-__all__ = ["TWIN_EXIT", "NO_PROGRESS_STEPS", "WorldConfig", "world_config", "Lockstep", "world_core"]
+__all__ = ["TWIN_EXIT", "NO_PROGRESS_STEPS", "MIN_STEP_TIMEOUT", "WorldConfig", "world_config", "Lockstep",
+           "world_core"]
 
 TWIN_EXIT = 3  # the world's exit code when two live nodes act as one agent (`Lockstep.twin`)
 # Steps in a row that every acting agent missed (each after a whole step_timeout) before the world gives up: no
 # agent hears it (they gave up on it, or are bound to its earlier life) and the run would step on for ever.
 NO_PROGRESS_STEPS = 10
+# The least step_timeout. Below it an action is late whenever its agent's process waits for a core (tens of
+# milliseconds on a busy machine), so the world steps without it and the run leaves the offline engine's; at
+# 0.0001 s every step timed out.
+MIN_STEP_TIMEOUT = 0.1
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,10 @@ def world_config(values: Mapping[str, Any]) -> WorldConfig:
     check_numbers(values, (("episodes", 1, False), ("seed", 0, False), ("run", 0, False), ("step_timeout", 0, True),
                            ("startup_timeout", 0, True), ("min_stats_subscribers", 0, False),
                            ("heartbeat_period", MIN_HEARTBEAT_PERIOD, False)))
+    if values["step_timeout"] < MIN_STEP_TIMEOUT:
+        raise SettingsError(f"parameter step_timeout must be at least {MIN_STEP_TIMEOUT} s, got "
+                            f"{values['step_timeout']!r}: an action takes longer to come whenever its agent waits "
+                            "for a core, and the world would step without it")
     gridmap, settings = map_and_settings(values)
     return WorldConfig(gridmap, settings, values["episodes"], values["seed"], values["run"],
                        values["step_timeout"], values["startup_timeout"], values["min_stats_subscribers"],

@@ -6,6 +6,7 @@ Bad arguments print one line naming what is wrong and exit with code 2, as argpa
 from __future__ import annotations
 
 import argparse
+import math
 import multiprocessing
 import os
 import signal
@@ -103,6 +104,8 @@ def _number(low: float, high: float | None = None, kind: type = float, strict: b
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {'a whole number' if kind is int else 'a number'}, "
                                              f"got {text!r}") from None
+        if not math.isfinite(value):  # nan passes every comparison below: a duration of nan never ended
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
         if value < low or (strict and value == low) or (high is not None and value > high):
             span = f"more than {low:g}" if strict else f"at least {low:g}"
             raise argparse.ArgumentTypeError(f"must be {span}{f' and at most {high:g}' if high is not None else ''}, "

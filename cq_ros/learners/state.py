@@ -35,6 +35,7 @@ __all__ = ["STATE_FORMAT", "StateError", "from_arrays", "scalar", "to_arrays"]
 STATE_FORMAT = 1
 _RNG_WORDS = 625  # random.Random.getstate()[1]: 624 words of the Mersenne twister and its position
 _NONE = -1
+MAX_SETTINGS_CHARS = 16_384  # the settings' JSON in a checkpoint: about 600 characters today
 
 
 class StateError(ValueError):
@@ -233,12 +234,23 @@ def from_arrays(arrays: Mapping[str, np.ndarray], gridmap: GridMap, settings: Se
 
 
 def _check_settings(text: str, settings: Settings) -> None:
+    # A flat mapping of a few dozen settings is under a kilobyte: refused before parsing past that, and parsed
+    # with nesting refused, since json.loads recurses once per level and deep nesting ends in a RecursionError.
+    if len(text) > MAX_SETTINGS_CHARS:
+        raise StateError("settings", f"is {len(text):,} characters long, more than settings take "
+                                     f"({MAX_SETTINGS_CHARS:,})")
     try:
         saved = json.loads(text)
+    except RecursionError:
+        raise StateError("settings", "nested too deeply: not a mapping of settings") from None
     except ValueError as e:
         raise StateError("settings", f"not JSON: {e}") from None
     if not isinstance(saved, dict):
         raise StateError("settings", "not a mapping of settings")
+    nested = sorted(name for name, value in saved.items() if isinstance(value, (dict, list)))
+    if nested:
+        raise StateError("settings", f"{nested[0]} holds a {type(saved[nested[0]]).__name__}, where every "
+                                     "setting is a number, a string or a boolean")
     ours = settings.as_dict()
     for name in sorted(set(saved) | set(ours)):
         if saved.get(name) != ours.get(name):
