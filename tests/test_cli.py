@@ -332,3 +332,10 @@ def test_reproduce_reports_the_papers_cq_beside_ours(tmp_path):
         assert f"\n| {m} | " in section
 
 
+
+
+@pytest.mark.parametrize("module", ["cq_ros.cli", "cq_ros.cli.main"])
+def test_each_python_m_form_runs_the_command(module):
+    done = subprocess.run([sys.executable, "-m", module, "maps"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "tunnel_to_goal" in done.stdout

@@ -533,3 +533,7 @@ def _dispatch(args) -> int:
     if args.command in ("echo", "topics", "nodes", "record"):
         return ros.ros_tool(args)
     return getattr(ros, args.command)(args)
+
+
+if __name__ == "__main__":  # `python -m cq_ros.cli.main`, beside `python -m cq_ros.cli` and `cq-ros`
+    sys.exit(main())
