@@ -295,6 +295,40 @@ def test_ctrl_c_or_sigterm_on_an_experiment_before_its_results_leaves_no_folder(
     assert "Traceback" not in err and not (tmp_path / "made").exists(), err
 
 
+def test_ctrl_c_on_an_experiment_keeps_the_runs_it_finished_and_says_which_are_missing(tmp_path):
+    """Ctrl-C once run 0 of 2 has finished (its progress line says so): run 0's results, the manifest naming run
+    1 missing, exit 130; run 1, cut short, is not among them."""
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "result"
+    episodes = 600_000  # about 3 s a run on the compiled engine, so that Ctrl-C lands inside run 1
+    cmd = [sys.executable, "-m", "cq_ros.cli", "experiment", "--map", "tunnel_to_goal", "--algo", "cq", "--runs", "2",
+           "--episodes", str(episodes), "--jobs", "1", "--set", "eval_episodes=0", "--seed", "0", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        seen = []
+        for line in proc.stderr:  # bounded by the run's own length: each line comes within seconds
+            seen.append(line)
+            if "runs 1/2" in line:
+                proc.send_signal(signal.SIGINT)
+                break
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=30)
+    err = "".join(seen) + err
+    assert proc.returncode in (130, -signal.SIGINT), err
+    assert "the 1 of 2 runs that finished are kept" in err and "missing: tunnel_to_goal cq seed 0 run 1" in err, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["interrupted"] == ["tunnel_to_goal cq seed 0 run 1"]
+    rows = (out / "episodes.csv").read_text().splitlines()
+    assert len(rows) == 1 + episodes and {row.split(",")[2] for row in rows[1:]} == {"0"}
+
+
 def test_experiment_with_a_preset_says_it_on_stderr_and_in_the_manifest(tmp_path, capsys):
     """The paper's CQ by name on a delayed map: its settings in the manifest's `presets` and on stderr, and no
     `under_delays` (the paper's preset sets every setting that one would)."""

@@ -308,3 +308,25 @@ def test_figures_need_a_map_name_when_the_data_holds_several(tmp_path):
     assert plots.plot_collisions(data, tmp_path / "c.png", map_name="beta", smooth=10).exists()
     with pytest.raises(ValueError, match="joint plays"):
         plots.plot_joint_plays({("alpha", "js"): hand_made("js")}, tmp_path / "j.png")
+
+
+def test_the_state_space_of_a_fleet_too_large_for_a_float_is_drawn_and_labelled(tmp_path):
+    # 1,092 cells and 128 agents: a joint state count of 389 digits, which matplotlib's floats cannot hold
+    data = load_episodes(write_result(tmp_path / "result") / "episodes.csv")
+    path = plots.plot_state_space(data, tmp_path / "state_space.png", 1092, 128, "fake", 10)
+    assert png_size(path)[0] >= 700
+    assert plots._count(1092**128) == "7.81e+388" and plots._count(3025**2) == "9,150,625"
+
+
+def test_a_figure_that_cannot_be_drawn_is_skipped_in_one_line_and_the_others_drawn(tmp_path, monkeypatch, capsys):
+    directory = write_result(tmp_path / "result")
+
+    def broken(*args, **kwargs):
+        raise OverflowError("int too large to convert to float")
+
+    monkeypatch.setattr(plots, "plot_state_space", broken)
+    paths = plots.write_figures(directory, map_loader=lambda name: FakeMap(name=name))
+    assert "state_space.png" not in {p.name for p in paths} and "steps.png" in {p.name for p in paths}
+    [line] = capsys.readouterr().err.splitlines()
+    assert line == f"figure state_space.png of {directory} skipped: OverflowError: int too large to convert to float"
+    assert (directory / "episodes.csv").exists() and (directory / "manifest.json").exists()

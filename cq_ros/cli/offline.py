@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..gridmap import available_maps, load_map, parse_map
 from ..lab.output import check_parent, removed_if_failing
+from ..lab.results import MANIFEST
 from ..mapgen.warehouse import warehouse_text
 from ..settings import Settings, run_settings, run_settings_and_presets
 
@@ -52,10 +53,15 @@ def experiment(args) -> int:
     settings, presets = run_settings_and_presets(load_map(args.map), args.overrides, args.preset)
     for name, changed in presets.items():
         print(f"preset {name}: " + " ".join(f"{k}={v}" for k, v in changed.items()), file=sys.stderr)
-    with removed_if_failing(args.out):  # results are written at the end: a run cut short leaves no folder
+    # A run cut short before any finished leaves no folder; the runs finished when Ctrl-C came are kept.
+    with removed_if_failing(args.out, unless=lambda: (args.out / MANIFEST).exists()):
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
-                         workers=args.jobs, force=args.force, figures=args.figures, cluster=args.cluster,
+                         workers=args.jobs, force=args.force, figures=False, cluster=args.cluster,
                          engine=args.engine, presets=presets)
+    if args.figures:  # after the results, which no figure can cost
+        from ..lab.plots import write_figures
+
+        write_figures(out)
     print_summary(out)
     print(f"results: {out}")
     return 0

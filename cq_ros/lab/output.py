@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -57,14 +58,15 @@ def made_by(folder: str | os.PathLike) -> Path | None:
 
 
 @contextmanager
-def removed_if_failing(folder: str | os.PathLike):
-    """Removes what making `folder` made (see `made_by`, taken on entry) if the body raises, Ctrl-C included: a
-    command that fails before its results leaves no empty or half-made folder for its rerun to refuse."""
+def removed_if_failing(folder: str | os.PathLike, unless: Callable[[], bool] = lambda: False):
+    """Removes what making `folder` made (see `made_by`, taken on entry) if the body raises, Ctrl-C included,
+    unless `unless()` says it holds results by then: a command that fails before its results leaves no empty or
+    half-made folder for its rerun to refuse."""
     made = made_by(folder)
     try:
         yield
     except BaseException:
-        if made is not None:
+        if made is not None and not unless():
             shutil.rmtree(made, ignore_errors=True)
         raise
 

@@ -12,7 +12,10 @@ Agg whatever backend the caller has chosen, and leaves no global figure state be
 
 from __future__ import annotations
 
+import math
+
 import os
+import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -209,17 +212,21 @@ def plot_state_space(
     chosen = {algo: runs["states"] / n_agents for algo, runs in by_algo.items() if algo in STATE_SPACE_ALGOS}
     if not chosen:
         raise ValueError(f"{name}: no algorithm of {', '.join(STATE_SPACE_ALGOS)} to draw the state space of")
-    local, joint = n_cells, n_cells**n_agents
+    local, joint = n_cells, n_cells**n_agents  # an int of any size: 1,092 cells and 128 agents overflow a float
     fig = Figure(figsize=_SIZE, dpi=DPI, layout="constrained")
-    if joint > 2 * max(local, *(values.max() for values in chosen.values())):
+    if joint > 2 * max(local, *(float(values.max()) for values in chosen.values())):
+        # The joint line on an axis of its own, placed at its logarithm (exact for any int) and labelled with
+        # the count: the band above the break shows where the line is, not a scale.
         upper, lower = fig.subplots(2, 1, sharex=True, height_ratios=(1, 4))
         _broken_axis(upper, lower)
-        upper.set_ylim(0.9 * joint, 1.1 * joint)
-        upper.set_yticks([joint], [_count(joint)])
+        at = math.log10(joint)
+        upper.set_ylim(at - 0.05, at + 0.05)
+        upper.set_yticks([at], [_count(joint)])
         upper.grid(True, alpha=0.3)
     else:
         upper = lower = fig.add_subplot()
-    joint_line = upper.axhline(joint, color="black", lw=1.2, ls="--",
+        at = joint
+    joint_line = upper.axhline(at, color="black", lw=1.2, ls="--",
                                label=f"joint state space (JS, JSA): {n_cells}^{n_agents} = {_count(joint)}")
     lower.axhline(local, color="black", lw=1.2, ls=":", label=f"local state space (Indep): {_count(local)}")
     _curves(lower, chosen, smooth)
@@ -236,7 +243,13 @@ def plot_state_space(
 
 
 def _count(n: int) -> str:
-    return f"{n:,}" if n < 10**7 else f"{n:.2e}"
+    """n in full below 10^7, else as 1.23e+45; past a float's range from its logarithm, which any int has."""
+    if n < 10**7:
+        return f"{n:,}"
+    if n < 10**300:
+        return f"{n:.2e}"
+    exponent = math.log10(n)
+    return f"{10 ** (exponent % 1):.2f}e+{math.floor(exponent)}"
 
 
 def _broken_axis(upper: Axes, lower: Axes) -> None:
@@ -367,21 +380,35 @@ def write_figures(
     observations = load_observations(observe_path) if observe_path.exists() else None
     map_loader = map_loader or _manifest_map_loader(manifest)
     maps = by_map(data)
-    written = []
+    written: list[Path] = []
+
+    def draw(what: str, make: Callable[[], Path | list[Path]]) -> None:
+        # A figure that cannot be drawn costs that figure, never the results written before it.
+        try:
+            made = make()
+        except Exception as e:  # whatever a figure raises, the other figures and the results stand
+            print(f"figure {what} of {result_dir} skipped: {type(e).__name__}: {e}", file=sys.stderr)
+            return
+        written.extend(made if isinstance(made, list) else [made])
+
     for name, by_algo in maps.items():
         prefix = f"{name}_" if len(maps) > 1 else ""
         window = smooth or max(1, next(iter(by_algo.values()))["collisions"].shape[1] // 100)
-        written.append(plot_collisions(data, result_dir / f"{prefix}collisions.png", name, window))
-        written.append(plot_collisions(data, result_dir / f"{prefix}collisions_log.png", name, window, log=True))
+        draw(f"{prefix}collisions.png",
+             lambda: plot_collisions(data, result_dir / f"{prefix}collisions.png", name, window))
+        draw(f"{prefix}collisions_log.png",
+             lambda: plot_collisions(data, result_dir / f"{prefix}collisions_log.png", name, window, log=True))
         if any(algo in JOINT_PLAY_ALGOS for algo in by_algo):
-            written.append(plot_joint_plays(data, result_dir / f"{prefix}joint_plays.png", name, window))
+            draw(f"{prefix}joint_plays.png",
+                 lambda: plot_joint_plays(data, result_dir / f"{prefix}joint_plays.png", name, window))
         if any(algo in STATE_SPACE_ALGOS for algo in by_algo):
-            n_cells, n_agents = _map_sizes(name, manifest, map_loader)
-            out = result_dir / f"{prefix}state_space.png"
-            written.append(plot_state_space(data, out, n_cells, n_agents, name, window))
+            draw(f"{prefix}state_space.png",
+                 lambda: plot_state_space(data, result_dir / f"{prefix}state_space.png",
+                                          *_map_sizes(name, manifest, map_loader), name, window))
         if observations is not None:
-            written.extend(_observe_maps(observations, name, by_algo, map_loader, result_dir, prefix))
-        written.append(plot_steps(data, result_dir / f"{prefix}steps.png", name, window))
+            draw(f"{prefix}observe_map.png",
+                 lambda: _observe_maps(observations, name, by_algo, map_loader, result_dir, prefix))
+        draw(f"{prefix}steps.png", lambda: plot_steps(data, result_dir / f"{prefix}steps.png", name, window))
     return written
 
 

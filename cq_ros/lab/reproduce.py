@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from .experiment import Job, run_jobs
+from .experiment import Job, keep_interrupted, run_jobs
 from ..gridmap import load_map
 from ..learners import ALGORITHMS
 from ..settings import PRESETS, Settings
@@ -102,35 +102,18 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
     paper = papers_cq(settings)
     jobs += [Job(m, "cq", r, episodes, seeds[0], paper, engine) for m in PAPER_MAPS for r in range(runs)]
     jobs = list(dict.fromkeys(jobs))  # the "defaults" variant is the grid's own CQ runs on the sweep map
-    results, executed_on = run_jobs(jobs, workers, label="reproduce", cluster=cluster)
-    wall = time.perf_counter() - started
+    done: dict = {}
 
-    for sd in seeds:
-        for where, grid_settings in grids.items():
-            for m in PAPER_MAPS:
-                gridmap = load_map(m)
-                mine = [results[j] for j in jobs if (j.map_name, j.seed, j.settings) == (m, sd, grid_settings)]
-                folder = seed_dir(out, seeds, sd) / where / m
-                folder.mkdir(parents=True, exist_ok=True)
-                write_results(folder, gridmap, mine,
-                              manifest_for(gridmap, ALGORITHMS, runs, episodes, sd, grid_settings, wall, executed_on,
-                                           engine=engines_of(mine)))
-    for v in variants:
-        changed = settings.with_overrides(v.changes)
-        mine = [results[j] for j in jobs
-                if (j.map_name, j.seed, j.settings, j.algo) == (SWEEP_MAP, seeds[0], changed, "cq")]
-        where = out / "sweep" / v.name
-        where.mkdir(parents=True, exist_ok=True)
-        write_results(where, load_map(SWEEP_MAP), mine, manifest_for(load_map(SWEEP_MAP), ["cq"], runs, episodes,
-                                                                     seeds[0], changed, wall, executed_on,
-                                                                     variant=v.name, engine=engines_of(mine)))
-    for m in PAPER_MAPS:
-        mine = [results[j] for j in jobs if (j.map_name, j.seed, j.settings, j.algo) == (m, seeds[0], paper, "cq")]
-        where = out / PAPER_CQ_DIR / m
-        where.mkdir(parents=True, exist_ok=True)
-        write_results(where, load_map(m), mine, manifest_for(load_map(m), ["cq"], runs, episodes, seeds[0], paper,
-                                                             wall, executed_on, presets={"paper": PRESETS["paper"]},
-                                                             engine=engines_of(mine)))
+    def write(results: dict, executed_on: dict | None, **extra) -> None:
+        _write_grid(out, results, jobs, seeds, grids, variants, paper, runs, episodes, settings,
+                    time.perf_counter() - started, executed_on, extra)
+
+    try:
+        results, executed_on = run_jobs(jobs, workers, label="reproduce", cluster=cluster, done=done)
+    except KeyboardInterrupt:
+        keep_interrupted(out, jobs, done, lambda missing: write(done, None, interrupted=missing))
+        raise
+    write(results, executed_on)
     if figures:
         from .plots import write_figures
 
@@ -142,6 +125,32 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
     report.write_text(render_report(out, runs, episodes, seeds, settings, variants, time.perf_counter() - started,
                                     executed_on, command))
     return report
+
+
+def _write_grid(out: Path, results: dict, jobs: list, seeds: Sequence[int], grids: dict, variants: list,
+                paper: Settings, runs: int, episodes: int, settings: Settings, wall: float, executed_on: dict | None,
+                extra: dict) -> None:
+    """Every folder of the grid with the results it has (after Ctrl-C, those of the runs that finished: a folder
+    none of whose runs did is not made); `extra` joins each manifest."""
+    def put(folder: Path, map_name: str, algos, seed: int, grid_settings: Settings, **more) -> None:
+        mine = [results[j] for j in jobs if j in results and (j.map_name, j.seed, j.settings) == (map_name, seed,
+                                                                                                   grid_settings)
+                and j.algo in algos]
+        if mine:
+            folder.mkdir(parents=True, exist_ok=True)
+            gridmap = load_map(map_name)
+            write_results(folder, gridmap, mine, manifest_for(gridmap, algos, runs, episodes, seed, grid_settings,
+                                                              wall, executed_on, engine=engines_of(mine), **more,
+                                                              **extra))
+
+    for sd in seeds:
+        for where, grid_settings in grids.items():
+            for m in PAPER_MAPS:
+                put(seed_dir(out, seeds, sd) / where / m, m, ALGORITHMS, sd, grid_settings)
+    for v in variants:
+        put(out / "sweep" / v.name, SWEEP_MAP, ["cq"], seeds[0], settings.with_overrides(v.changes), variant=v.name)
+    for m in PAPER_MAPS:
+        put(out / PAPER_CQ_DIR / m, m, ["cq"], seeds[0], paper, presets={"paper": PRESETS["paper"]})
 
 
 # --- the report ------------------------------------------------------------------------------------------

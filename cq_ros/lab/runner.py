@@ -48,7 +48,8 @@ def describe(run: Run) -> str:
 
 class Progress:
     """Episodes and runs done, with the rate and the time left, on stderr: a tqdm bar on a terminal;
-    elsewhere (a log, CI, a pipe) a plain line at the start, then every `interval` seconds, and at the end."""
+    elsewhere (a log, CI, a pipe) a plain line at the start, then every `interval` seconds and as a run finishes
+    (at most once a second), and at the end."""
 
     def __init__(self, label: str, episodes: int, runs: int, interval: float = 30.0):
         self.label, self.episodes, self.runs, self.interval = label, episodes, runs, interval
@@ -63,8 +64,10 @@ class Progress:
         if self.tty:
             self.bar.set_postfix_str(f"runs {runs_done}/{self.runs}", refresh=False)
             self.bar.update(episodes_done - self.done)
-        self.done, self.runs_done = episodes_done, runs_done
-        if not self.tty and time.monotonic() - self.shown_at >= self.interval:
+        finished, self.done, self.runs_done = runs_done > self.runs_done, episodes_done, runs_done
+        since = time.monotonic() - self.shown_at
+        # a run finished is news (what Ctrl-C would keep), shown at most once a second
+        if not self.tty and (since >= self.interval or (finished and since >= 1.0)):
             self._line()
 
     def close(self) -> None:
