@@ -120,6 +120,17 @@ def resolve_moves(cells: list[int], targets: list[int], goals: tuple[int, ...]) 
     return final, pairs
 
 
+def checked_seed(seed):
+    """`seed` if it is None or a whole number of at least 0, as every seed of a run is (numpy's SeedSequence, which
+    the engine seeds learners with, takes no other); ValueError naming it otherwise (random.Random would take a
+    string, a float or a negative number and play another run than the same seed elsewhere)."""
+    if seed is None or (isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0):
+        return seed
+    if hasattr(seed, "__index__") and not isinstance(seed, bool) and seed.__index__() >= 0:  # numpy's integers
+        return seed.__index__()
+    raise ValueError(f"a seed is a whole number of at least 0, got {seed!r}")
+
+
 class GridWorld:
     """A GridMap with agents on it, stepped jointly; agents are indexed 0..n-1 (named agv1..agvN)."""
 
@@ -131,7 +142,7 @@ class GridWorld:
         self.start_hold = settings.start_hold
         self.n = gridmap.n_agents
         self.agents = [f"agv{i + 1}" for i in range(self.n)]
-        self._rng = random.Random(seed)
+        self._rng = random.Random(checked_seed(seed))
         self.cells: list[int] = []
         self.done: list[bool] = []
         self.t = 0
@@ -241,7 +252,7 @@ class GridWorld:
     def reset(self, seed: int | None = None) -> tuple[dict, dict]:
         """Observations (each agent's own cell index) and infos, for the agents still acting."""
         if seed is not None:
-            self._rng.seed(seed)
+            self._rng.seed(checked_seed(seed))
         self.reset_joint()
         live = self.live_agents()
         return {a: self.cells[i] for a, i in live}, {a: {} for a, _ in live}

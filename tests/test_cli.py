@@ -373,3 +373,19 @@ def test_each_python_m_form_runs_the_command(module):
     done = subprocess.run([sys.executable, "-m", module, "maps"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "tunnel_to_goal" in done.stdout
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["experiment", "--map", "tunnel_to_goal", "--algo", "cq,cq", "--out", "x"], "an algorithm is given twice"),
+    (["experiment", "--map", "tunnel_to_goal", "--out", ""], "--out: expected a path, got an empty one"),
+    (["experiment", "--map", "tunnel_to_goal", "--out", "", "--force"], "--out: expected a path"),
+    (["render", "--map", "tunnel_to_goal", "--dpi", "100000", "--out", "x.gif"], "--dpi: must be more than 0"),
+    (["plan", "--map", "warehouse_8", "--time-limit", "nan"], "--time-limit: must be a finite number"),
+])
+def test_a_bad_argument_is_one_line_and_exit_2(argv, says, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exited:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exited.value.code == 2 and says in err and len(err.strip().splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []  # nothing written, the current directory least of all

@@ -210,3 +210,21 @@ def test_rgb_array_is_the_animations_picture():
 def test_without_settings_the_env_takes_the_maps_defaults():
     assert GridWorldEnv("warehouse_8").world.rewards.step == -1.0  # warehouse_8's `set reward_step=-1`
     assert GridWorldEnv("warehouse_8", Settings()).world.rewards.step == 0.0
+
+
+@pytest.mark.parametrize("make, error, says", [
+    (lambda: GridWorldEnv(None), TypeError, "GridWorldEnv takes a map"),
+    (lambda: GridWorldEnv("tunnel_to_goal", settings=["alpha=nan"]), ValueError, "alpha must be in"),
+    (lambda: GridWorldEnv("tunnel_to_goal").step([0, 0]), TypeError, "step\\(\\) takes a dict of actions"),
+    (lambda: GridWorldEnv("tunnel_to_goal").reset(seed=-1), ValueError, "a seed is a whole number of at least 0"),
+    (lambda: GridWorldEnv("tunnel_to_goal").reset(seed="abc"), ValueError, "a seed is a whole number"),
+    (lambda: GridWorldEnv("tunnel_to_goal").reset(seed=1.5), ValueError, "a seed is a whole number"),
+])
+def test_a_wrong_argument_is_refused_saying_what_is_wrong(make, error, says):
+    with pytest.raises(error, match=says):
+        make()
+
+
+def test_settings_may_be_given_as_overrides_of_the_maps():
+    env = GridWorldEnv("warehouse_8", settings={"reward_wall": -2})
+    assert env.world.rewards.wall == -2 and env.world.rewards.step == -1  # the map's own reward_step kept

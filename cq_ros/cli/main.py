@@ -75,7 +75,19 @@ def _algos(text: str) -> list[str]:
     if unknown or not algos:
         what = ", ".join(unknown) if unknown else repr(text)
         raise argparse.ArgumentTypeError(f"unknown algorithm {what}; choose from {','.join(LEARNERS)}")
+    if len(set(algos)) != len(algos):  # twice the same runs, and a result folder that holds them once
+        raise argparse.ArgumentTypeError(f"an algorithm is given twice in {text!r}")
     return algos
+
+
+MAX_DPI = 600
+
+
+def _path(text: str) -> Path:
+    """A path that names something: '' would be the current directory (`--out '' --force` wrote results there)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a path, got an empty one")
+    return Path(text)
 
 
 def _sizes(text: str) -> list[int]:
@@ -179,13 +191,13 @@ def _add_ros_parsers(sub) -> None:
                                                 "--params-file)")
     p.add_argument("--algo", type=_algo, default=None, help=f"one of {','.join(ALGORITHMS)} (required unless "
                                                              "--params-file)")
-    p.add_argument("--out", type=Path, required=True, help="result directory (node logs in its logs/; the "
+    p.add_argument("--out", type=_path, required=True, help="result directory (node logs in its logs/; the "
                                                            "system it ran in its params.yaml)")
-    p.add_argument("--params-file", type=Path, default=None, metavar="FILE",
+    p.add_argument("--params-file", type=_path, default=None, metavar="FILE",
                    help="start the system a params.yaml describes (as every launch writes it: map, algorithm, "
                         "episodes, seed, settings and node parameters, under any namespace) instead of --map, "
                         "--algo, --episodes, --seed, --set")
-    p.add_argument("--key", type=Path, default=None, metavar="FILE",
+    p.add_argument("--key", type=_path, default=None, metavar="FILE",
                    help="key the run with this key file (made by `cq-ros key`), named in params.yaml and kept "
                         "(default: a key of the launch's own, in a file without a name)")
     p.add_argument("--restart-agents", type=_number(0, 1000, kind=int), default=0, metavar="N",
@@ -223,7 +235,7 @@ def _add_ros_parsers(sub) -> None:
 
     p = sub.add_parser("collect", help="listen to a system started by hand (its statistics) and write what a "
                                        "launch writes: episodes.csv, greedy.csv, observe.csv, manifest.json")
-    p.add_argument("--out", type=Path, required=True, help="result directory")
+    p.add_argument("--out", type=_path, required=True, help="result directory")
     p.add_argument("--namespace", default=None, help="the system's namespace (default: the one system on the domain)")
     p.add_argument("--wait", type=_seconds, default=60.0, metavar="S",
                    help="seconds to look for the system before giving up (default 60)")
@@ -246,12 +258,12 @@ def _add_ros_parsers(sub) -> None:
                            description="Unpickle OLD and write it as the .npz checkpoint NEW. Unpickling runs "
                                        "whatever code the file holds: run it only on a checkpoint you trust (one your "
                                        "own cq-ros wrote).")
-    p.add_argument("old", type=Path, metavar="OLD", help="a pickled checkpoint (.pkl) you trust")
-    p.add_argument("new", type=Path, metavar="NEW", help="the .npz checkpoint to write (never overwritten)")
+    p.add_argument("old", type=_path, metavar="OLD", help="a pickled checkpoint (.pkl) you trust")
+    p.add_argument("new", type=_path, metavar="NEW", help="the .npz checkpoint to write (never overwritten)")
 
     p = sub.add_parser("key", help="make a key file for a system kept in a parameters file (its key_file; "
                                    "cq-ros launch --key FILE)")
-    p.add_argument("--out", type=Path, required=True, metavar="FILE", help="the key file to make (mode 0600; "
+    p.add_argument("--out", type=_path, required=True, metavar="FILE", help="the key file to make (mode 0600; "
                                                                             "never overwritten)")
 
     p = sub.add_parser("hosts", help="make or remove hosts for --hosts: network namespaces joined by a bridge, "
@@ -281,7 +293,7 @@ def _add_ros_parsers(sub) -> None:
         _add_domain_option(p)
 
     p = sub.add_parser("record", help="record topics to a rosbag2 file (default: every cq_ros topic)")
-    p.add_argument("--out", type=Path, required=True, help="bag directory to create")
+    p.add_argument("--out", type=_path, required=True, help="bag directory to create")
     p.add_argument("--topics", nargs="+", default=None, metavar="TOPIC", help="record these topics only")
     p.add_argument("--duration", type=_seconds, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--count", type=_positive, default=None, metavar="N", help="stop after N messages")
@@ -294,10 +306,10 @@ def _add_ros_parsers(sub) -> None:
     p = sub.add_parser("render", help="draw one episode as an animated GIF (or MP4 where ffmpeg is installed): "
                                       "the map, the AGVs, their goals and whom each agent looks at; from the "
                                       "offline engine (--map, --algo) or from a bag of `cq-ros record` (--bag)")
-    p.add_argument("--out", type=Path, required=True, help="the animation to write: NAME.gif, or NAME.mp4 (ffmpeg)")
+    p.add_argument("--out", type=_path, required=True, help="the animation to write: NAME.gif, or NAME.mp4 (ffmpeg)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--map", help="run the offline engine on this map (a shipped name or a path)")
-    source.add_argument("--bag", type=Path, help="a rosbag2 directory recorded by `cq-ros record`")
+    source.add_argument("--bag", type=_path, help="a rosbag2 directory recorded by `cq-ros record`")
     # None until given, so that a bag can refuse them: their defaults are the engine's (_render)
     p.add_argument("--algo", type=_algo, default=None, help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
     p.add_argument("--episodes", type=_episodes, default=None, help="with --map: episodes to learn (default 100)")
@@ -309,8 +321,9 @@ def _add_ros_parsers(sub) -> None:
                    help="with --map: draw the greedy policy's first episode after the learning ones, not a "
                         "learning episode")
     p.add_argument("--fps", type=_seconds, default=4.0, help="frames (steps) per second (default 4)")
-    p.add_argument("--dpi", type=_positive, default=None,
-                   help="pixels an inch of the picture, a cell being 0.6 in (default 72); fewer make a smaller file")
+    p.add_argument("--dpi", type=_number(0, MAX_DPI, strict=True), default=None,
+                   help=f"pixels an inch of the picture, a cell being 0.6 in (default 72, at most {MAX_DPI}: a "
+                        "warehouse at more takes gigabytes); fewer make a smaller file")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="with --map: change a setting (repeatable)")
     _add_engine_option(p)
@@ -344,7 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="delays: the map's default `slip` (a move fails with probability P; default 0)")
     p.add_argument("--start-hold", type=_number(0, None, int), default=0, metavar="H",
                    help="delays: the map's default `start_hold` (each AGV waits 0..H steps at its dock; default 0)")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
+    p.add_argument("--out", type=_path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
     what = ("a warehouse on a plain cell grid in MovingAI's .map and .scen form, blocks of shelves between "
             "two-cell corridors with docking floor left and right, 160 x 62 cells by default "
@@ -358,7 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shelf-cols", type=_side, default=DEFAULT_SHELF_COLS, metavar="C",
                    help=f"shelves in a row, each 10 cells long, 2-cell corridors between "
                         f"(default {DEFAULT_SHELF_COLS})")
-    p.add_argument("--out", type=Path, required=True, metavar="STEM", help="write STEM.map and STEM.scen")
+    p.add_argument("--out", type=_path, required=True, metavar="STEM", help="write STEM.map and STEM.scen")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
 
     p = sub.add_parser("import", help="convert a map from another format into ours (print it, or write it with --out)")
@@ -367,19 +380,19 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Convert a MovingAI grid (. G passable, @ O T blocked; S and W rejected) and, "
                          "with --scen, its first N tasks (x the column, y the row, 0-based from the top left) into "
                          "our map format (cq_ros.mapgen.movingai). A fault is one line naming the file and line.")
-    p.add_argument("map", type=Path, metavar="MAP.map", help="a MovingAI map file")
-    p.add_argument("--scen", type=Path, default=None, metavar="FILE.scen",
+    p.add_argument("map", type=_path, metavar="MAP.map", help="a MovingAI map file")
+    p.add_argument("--scen", type=_path, default=None, metavar="FILE.scen",
                    help="a MovingAI scenario: its first --agents tasks become the agents (default: none, the "
                         "drawing only, to which agent lines must be added)")
     p.add_argument("--agents", type=_agents, default=None, metavar="N", help="with --scen: the tasks to take")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE", help="write the map here (default: print it)")
+    p.add_argument("--out", type=_path, default=None, metavar="FILE", help="write the map here (default: print it)")
     p.add_argument("--force", action="store_true", help="overwrite an existing FILE")
 
     p = sub.add_parser("experiment", help="run algorithms on one map offline and write results and figures")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
     p.add_argument("--algo", type=_algos, default=list(ALGORITHMS),
                    help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five)")
-    p.add_argument("--out", type=Path, required=True, help="result directory")
+    p.add_argument("--out", type=_path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
     p.add_argument("--preset", choices=list(PRESETS), default=None,
                    help="a named configuration over the map's settings, under --set: paper, CQ as Algorithm 2 "
@@ -420,7 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="change a setting of the executions' world (repeatable); `cq-ros settings` lists them")
 
     p = sub.add_parser("reproduce", help="the paper's grid (4 maps x 5 algorithms), figures and REPORT.md")
-    p.add_argument("--out", type=Path, required=True, help="result directory")
+    p.add_argument("--out", type=_path, required=True, help="result directory")
     _add_run_options(p, runs=10, episodes=10_000)
     p.add_argument("--no-sweep", dest="sweep", action="store_false", help="skip the settings sweep")
     p.add_argument("--seeds", type=_seeds, default=None, metavar="S,S,...",
@@ -451,7 +464,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="learning episodes between the curve's points (default 250)")
     p.add_argument("--curve-episodes", type=_positive, default=20, metavar="C",
                    help="frozen greedy episodes per point of the curve (default 20)")
-    p.add_argument("--out", type=Path, required=True,
+    p.add_argument("--out", type=_path, required=True,
                    help="result directory (study.md, units.csv, curve.csv, planner.csv, maps/); resumed if it holds "
                         "a study of the same protocol")
     _add_run_options(p, runs=10, episodes=2000)

@@ -34,6 +34,8 @@ The dynamics are cq_ros.world.GridWorld's; this class only adds spaces and Petti
 from __future__ import annotations
 
 import functools
+import os
+from collections.abc import Mapping
 
 import numpy as np
 from gymnasium import spaces
@@ -51,15 +53,21 @@ class GridWorldEnv(ParallelEnv):
 
     def __init__(self, gridmap: GridMap | str, settings: Settings | None = None, observation: str = "local",
                  render_mode: str | None = None, encoding: str = "index", agents_stay: bool = False):
-        """Without `settings`, the map's (`cq_ros.settings.run_settings`)."""
+        """`settings`: a Settings, or None for the map's (`cq_ros.settings.run_settings`), or overrides of those
+        (["alpha=0.2"] or {"alpha": 0.2}), checked as `--set` is."""
         if observation not in ("local", "joint"):
             raise ValueError(f"observation must be 'local' or 'joint', got {observation!r}")
         if encoding not in ENCODINGS:
             raise ValueError(f"encoding must be one of {ENCODINGS}, got {encoding!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
-        gridmap = load_map(gridmap) if isinstance(gridmap, str) else gridmap
-        self.world = GridWorld(gridmap, run_settings(gridmap) if settings is None else settings)
+        if isinstance(gridmap, (str, os.PathLike)):
+            gridmap = load_map(gridmap)
+        if not isinstance(gridmap, GridMap):
+            raise TypeError(f"GridWorldEnv takes a map (a name, a path or a GridMap), got {gridmap!r}")
+        if not isinstance(settings, Settings):  # None, or overrides: ["alpha=0.2"] or {"alpha": 0.2}, checked
+            settings = run_settings(gridmap, settings or ())
+        self.world = GridWorld(gridmap, settings)
         self.observation = observation
         self.encoding = encoding
         self.agents_stay = agents_stay
@@ -117,6 +125,8 @@ class GridWorldEnv(ParallelEnv):
         return self._observe(self.agents), infos
 
     def step(self, actions: dict):
+        if not isinstance(actions, Mapping):
+            raise TypeError(f"step() takes a dict of actions {{agent: action}}, got {actions!r}")
         if self._ended is not None:
             raise RuntimeError(f"step() after the episode ended ({self._ended}): call reset() first")
         for agent, action in actions.items():
