@@ -21,7 +21,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
 __all__ = ["ToolError", "StopSignals", "environment", "environment_domain", "ros_session", "spin_until", "settle",
-           "graph_now", "find_system", "WORLD", "FIND_S", "QUIET_S", "SETTLE_S"]
+           "graph_now", "others_in", "find_system", "WORLD", "FIND_S", "QUIET_S", "SETTLE_S"]
 
 # How long to look for the system's nodes by default: a node process takes seconds to start on 2 busy cores.
 FIND_S = 60.0
@@ -139,8 +139,8 @@ def graph_now(node: Any) -> tuple[frozenset, frozenset]:
 def settle(node: Any, executor: Any, stop: StopSignals | None = None, bound_s: float = SETTLE_S,
            quiet_s: float = QUIET_S, look: Callable[[Any], Any] = graph_now) -> bool:
     """Spin until what `look` sees of the graph has not changed for `quiet_s`, at most `bound_s` (or a stop
-    signal); True if it settled. rclpy has no graph event to wait on (rclpy issue 929), so the graph is looked
-    at between spins."""
+    signal); True if it settled. rclpy 7.1.6 has no graph event to wait on (its own wait_for_node polls too),
+    so the graph is looked at between spins."""
     seen, since = look(node), time.monotonic()
 
     def quiet() -> bool:
@@ -151,6 +151,19 @@ def settle(node: Any, executor: Any, stop: StopSignals | None = None, bound_s: f
         return time.monotonic() - since >= quiet_s
 
     return spin_until(executor, quiet, bound_s, stop)
+
+
+def others_in(node: Any, executor: Any, namespace: str, stop: StopSignals | None = None) -> list[str]:
+    """The nodes in `namespace` ('/name') beside `node` once discovery has settled there, sorted: a system
+    running in it (its namesake of `node` included, as a second launcher's listener)."""
+    def there(n: Any) -> list[str]:
+        return sorted(name for name, ns in n.get_node_names_and_namespaces() if ns == namespace)
+
+    settle(node, executor, stop, look=there)
+    found = there(node)
+    if node.get_namespace() == namespace and node.get_name() in found:
+        found.remove(node.get_name())  # ourselves, once
+    return found
 
 
 def find_system(node: Any, executor: Any, namespace: str | None, stop: StopSignals,
