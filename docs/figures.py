@@ -53,7 +53,8 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 
 def who_listens() -> str:
-    """Peer messages and subscriptions per launch: a row per folder of docs/data/who_listens/, each what
+    """Peer messages delivered (the manifests kept before `peer_deliveries` call them peer_messages) and
+    subscriptions per launch: a row per folder of docs/data/who_listens/, each what
     `cq-ros launch` wrote there (manifest.json, episodes.csv, greedy.csv) and load.json, the machine's
     1-minute load average before and after it."""
     from cq_ros.lab.results import load_greedy
@@ -66,12 +67,13 @@ def who_listens() -> str:
         greedy = round(sum(g.steps * g.episodes for g in load_greedy(folder / "greedy.csv")))
         agents = manifest["communication"].values()
         runs.append((manifest["map"], manifest["algos"][0], manifest["peer_linger_steps"], learning,
-                     sum(a["peer_messages"] for a in agents), sum(a["subscriptions_created"] for a in agents),
+                     sum(a.get("peer_deliveries", a["peer_messages"]) for a in agents),
+                     sum(a["subscriptions_created"] for a in agents),
                      (learning + greedy) / manifest["world"]["stepping_s"], " ".join(manifest["command"][1:])))
         loads += [load["before"], load["after"]]
         dates.add(manifest["finished_at"][:10])
         machine.add(f"{manifest['versions']['cores']}-core {manifest['versions']['machine']}")
-    lines = ["| map | algo | peer_linger_steps | learning steps | peer messages received | subscriptions made "
+    lines = ["| map | algo | peer_linger_steps | learning steps | peer positions delivered | subscriptions made "
              "| steps/s | command |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |"]
     for map_name, algo, linger, steps, messages, subscriptions, rate, command in runs:
         lines.append(f"| {map_name} | {algo} | {linger} | {steps:,} | {messages:,} | {subscriptions:,} | {rate:,.0f} "

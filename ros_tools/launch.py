@@ -836,7 +836,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
         if len(listener.world) != bar.shown:
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
-                       sum(s.peer_messages for s in latest))
+                       sum(listener.heard[k] for k in learners))
         bar.within(lambda: _where(listener, node_names))
         if not compose:
             _unstick(children, env, listener)

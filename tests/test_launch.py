@@ -103,6 +103,9 @@ def test_a_launch_gives_exactly_the_offline_engines_episodes(launched, map_name,
     assert all(node["exit_code"] == 0 for node in manifest["nodes"].values())
     assert set(manifest["nodes"]) == {"world", *learners}
     assert manifest["world"]["missed_actions"] == 0
+    # the peer messages are one figure: the positions the learners' decisions took in, as the engine counts them
+    assert sum(c["peer_messages"] for c in manifest["communication"].values()) == \
+        offline.episodes["heard"].sum() + offline.greedy["heard"].sum()
     for node in manifest["nodes"]:
         assert (out / "logs" / f"{node}.log").exists()
     for png in ("collisions.png", "steps.png"):
@@ -126,7 +129,8 @@ def test_a_launch_started_from_an_offline_runs_checkpoints_goes_on_as_that_run(t
     team.world = GridWorld(gridmap, settings, seed=world_seed(SEED, 0))  # a fresh world, as the launch's
     offline = table(team.episode() for _ in range(15))
     np.testing.assert_array_equal(result.episodes, offline)
-    assert sum(c["peer_messages"] for c in result.manifest["communication"].values()) > 0
+    # composed too, the peer messages are the positions the learners took in, as the engine counts them
+    assert sum(c["peer_messages"] for c in result.manifest["communication"].values()) == offline["heard"].sum() > 0
 
 
 @pytest.mark.ros
@@ -178,7 +182,7 @@ def test_a_launch_ends_with_the_summary_the_greedy_policy_and_the_communication_
     assert re.search(rf"greedy policy, cq, 1 run x {len(greedy)} episodes: {collisions:.2f} "
                      rf"collisions/ep, {steps:.1f} steps/ep", stdout)
     for node, cost in communication.items():
-        assert (f"{node}: {cost['peer_messages']} peer position messages, "
+        assert (f"{node}: {cost['peer_messages']} peer position messages ({cost['peer_deliveries']} delivered), "
                 f"{cost['subscriptions_created']} subscriptions created") in stdout
 
 
