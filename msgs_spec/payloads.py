@@ -117,7 +117,7 @@ class AgentStats:
     joint_states: int = 0  # joint states in use (CQ: marked joint states; JS: all joint states seen)
     subscriptions_created: int = 0  # peer position subscriptions created since start (communication cost)
     subscriptions_active: int = 0  # peer position subscriptions alive now
-    peer_messages: int = 0  # peer position messages received since start (communication cost)
+    peer_messages: int = 0  # peer position messages delivered since start (the cost is `heard`, what it used)
     marked: tuple[MarkedJointState, ...] = ()
     counters: Mapping[str, int] = field(default_factory=dict)
 

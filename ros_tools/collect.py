@@ -129,7 +129,7 @@ def _listen(node: Any, executor: Any, stop: StopSignals, out: Path, force: bool,
                 last = time.monotonic()
                 latest = [listener.newest[k] for k in learners if k in listener.newest]
                 bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
-                           sum(s.peer_messages for s in latest))
+                           sum(listener.heard[k] for k in learners))
                 if 0 not in listener.world:
                     raise CollectError(f"the first statistics heard are of episode {min(listener.world)}: the "
                                        "run started before collect; give its nodes -p min_stats_subscribers:=1 "

@@ -27,13 +27,14 @@ from msgs_spec.spec_doc import to_yaml
 from msgs_spec.viz import LOOKS, MAP, SCENE, parse_view_topic
 from node_runtime.qos import profile
 
-from .session import StopSignals, ToolError, environment_domain, ros_session, spin_until
+from .session import SETTLE_S, StopSignals, ToolError, environment_domain, ros_session, settle, spin_until
 
 __all__ = [
     "DISCOVERY_S", "STORAGES", "compatible_qos", "message_class", "echo", "topics", "nodes", "record", "read_view_bag",
 ]
 
-# A new process shows up in the graph 0.05-2.8 s after it starts (docs/design.md, field notes): the default wait.
+# A new process shows up in the graph 0.05-2.8 s after it starts (docs/design.md, field notes): how long echo
+# waits for its topic to appear by default (it ends as soon as the topic is there).
 DISCOVERY_S = 3.0
 GRAPH_POLL_S = 0.25  # how often record looks for new topics, and echo for its topic
 STORAGES = ("mcap", "sqlite3")
@@ -178,9 +179,10 @@ def echo(topic: str, *, count: int | None = None, timeout_s: float | None = None
 
 
 def _look(wait_s: float | None, domain_id: int | None, what: Callable[[Any], list[str]]) -> list[str]:
-    """Spin `wait_s` (None: DISCOVERY_S) so discovery can finish (Ctrl-C cuts it short), then ask the graph."""
+    """Ask the graph once discovery has settled (session.settle: no change for QUIET_S), waiting at most `wait_s`
+    (None: SETTLE_S; Ctrl-C cuts it short)."""
     with StopSignals() as stop, ros_session("cq_ros_graph", domain_id=domain_id) as (node, executor):
-        spin_until(executor, lambda: False, DISCOVERY_S if wait_s is None else wait_s, stop)
+        settle(node, executor, stop, SETTLE_S if wait_s is None else wait_s)
         return what(node)
 
 

@@ -65,8 +65,9 @@ Ends. Every end writes manifest.json: `ended` says how (finished, degraded, node
 disk, incomplete: a node hung or statistics never came), the one-line reason and the exit status, beside each
 node's counters: those of the report it printed at its exit (node_runtime.report: what it counted after its
 last statistics too, by topic), else, for a node killed by SIGKILL, its last statistics' (`counters_as_of`;
-ros_tools.launch_results); only a launch whose world refused at its start (a second system here) leaves
-nothing but its line. The exit
+ros_tools.launch_results); only a launch that refused at its start (a second system here: one its launcher
+found in the namespace it was given, once discovery had settled there, or its world's twin) leaves nothing but
+its line. The exit
 status tells a clean run (`EXIT_CLEAN`, 0) from one that played every episode but left the offline engine's
 behaviour somewhere (`EXIT_DEGRADED`, 3: a missed or unapplied action, a feedback never heard; the summary
 says how many episodes that touched), a launch that failed or ended early (1) and one interrupted (130).
@@ -108,7 +109,7 @@ from node_runtime.report import read_reports
 from node_runtime.run import EXECUTOR_ENV, executor_kind
 from world_node.lockstep import TWIN_EXIT as WORLD_TWIN, world_config
 
-from .session import StopSignals, ToolError, environment, environment_domain, ros_session, spin_until
+from .session import StopSignals, ToolError, environment, environment_domain, others_in, ros_session, spin_until
 from .hosts import Hosts
 from .launch_results import (
     EpisodeRows, LaunchResult, StatsListener, checkpoint_failures, departures, describe_departures, write_ended_early,
@@ -118,9 +119,9 @@ from .params_file import LAUNCH_ONLY, SYSTEM_FILE, write_system
 from .restarts import Restarts, file_identity
 
 __all__ = ["EXIT_CLEAN", "EXIT_FAILED", "EXIT_DEGRADED", "EXIT_INTERRUPTED", "WORLD_TWIN", "DOMAIN_IDS",
-           "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "EndedEarly", "ResultsGone", "LaunchResult",
-           "Child", "split_sets", "agent_nodes", "node_specs", "node_commands", "compose_command", "check_hosts",
-           "run_domain", "launch", "StatsListener", "Progress", "write_heard"]
+           "BENCH_DOMAINS", "SETTABLE", "LaunchError", "Interrupted", "NamespaceTaken", "EndedEarly", "ResultsGone",
+           "LaunchResult", "Child", "split_sets", "agent_nodes", "node_specs", "node_commands", "compose_command",
+           "check_hosts", "run_domain", "launch", "StatsListener", "Progress", "write_heard"]
 
 # The launch's exit status (`cq-ros launch`): every episode played as the offline engine plays it; a launch that
 # failed or ended early; every episode played, but some step not as offline (a missed or unapplied action, a
@@ -163,6 +164,10 @@ class Interrupted(LaunchError):
     """Ctrl-C or SIGTERM to the launcher; every child was stopped."""
 
     exit_status = EXIT_INTERRUPTED
+
+
+class NamespaceTaken(LaunchError):
+    """A system already runs in the namespace given: the launch refuses before any process starts."""
 
 
 class EndedEarly(LaunchError):
@@ -538,6 +543,7 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                        **({} if peer_linger_steps is None else {"peer_linger_steps": peer_linger_steps}),
                        **({} if markers else {"markers": False}), **(node_parameters or {})}
     _check_node_parameters(map_name, algo, settings, node_parameters)
+    drawn = namespace is None  # then the launch's own: no system can be in it yet
     given = namespace if namespace is not None else f"cq_{secrets.token_hex(4)}"
     namespace = given.removeprefix("/")  # "/demo" and "demo" name one namespace, as they do for ROS
     if not NAMESPACE.fullmatch(namespace):
@@ -639,6 +645,14 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
             tqdm.write(f"cq-ros launch: Foxglove view on ws://127.0.0.1:{server.port}", file=sys.stderr)
         bar = Progress(f"{gridmap.name} {algo}", listener.episodes, episodes, progress)
         try:
+            # A world started in a running system's namespace began stepping that system's agents before it
+            # heard the other world, and yielded episodes later ("a second system started together with this
+            # one"): the launch looks first, once discovery has settled there.
+            running = [] if drawn else others_in(node, executor, f"/{namespace}", stop)
+            if running:
+                raise NamespaceTaken(f"namespace /{namespace} on ROS_DOMAIN_ID {domain_id} already holds a running "
+                                     f"system (nodes {', '.join(running)}): refusing to start; give this launch "
+                                     "another --namespace or --domain-id")
             for child in children:
                 child.start(env)
             if progress:
@@ -663,10 +677,10 @@ def launch(map_name: str, algo: str, episodes: int, seed: int, out: str | os.Pat
                 raise ResultsGone(f"{e}: the run stopped after {rows.written}/{episodes} episodes; stopped "
                                   f"{', '.join(stopping) or 'nothing'}") from None
             stopped = f"; stopped {', '.join(stopping)}" if stopping else ""
-            # A node that refused (exit 2: a second system here) before any row of this run leaves nothing worth
-            # keeping, and the line says why; a node that crashed or was stopped leaves its log to read, and the
+            # A launch or node that refused (a second system here) before any row of this run leaves nothing
+            # worth keeping, and the line says why; a node that crashed or was stopped leaves its log to read, and the
             # manifest says how the run ended, with the counters of each node.
-            refused = any(c.exit_code == 2 for c in children)
+            refused = isinstance(e, NamespaceTaken) or any(c.exit_code == 2 for c in children)
             if rows.written == 0 and refused and made is not None:
                 rows.free()
                 _remove(made)
@@ -822,7 +836,7 @@ def _watch(children: list[Child], listener: StatsListener, executor: Any, stop: 
         if len(listener.world) != bar.shown:
             latest = [listener.newest[k] for k in learners if k in listener.newest]
             bar.update(len(listener.world), listener.collisions, sum(s.joint_states for s in latest),
-                       sum(s.peer_messages for s in latest))
+                       sum(listener.heard[k] for k in learners))
         bar.within(lambda: _where(listener, node_names))
         if not compose:
             _unstick(children, env, listener)

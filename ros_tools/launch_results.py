@@ -43,7 +43,8 @@ from node_runtime.rclpy_workarounds import take_now
 from node_runtime.report import rates
 
 __all__ = ["RESERVE_NAME", "RESERVE_BYTES", "DEPARTURES", "StatsListener", "EpisodeRows", "LaunchResult", "write_heard",
-           "write_ended_early", "checkpoint_failures", "departures", "describe_departures", "counted"]
+           "write_ended_early", "checkpoint_failures", "departures", "describe_departures", "counted", "COMMUNICATION",
+           "cost"]
 
 RESERVE_NAME = ".reserve"  # in the result directory while the launch runs
 RESERVE_BYTES = 64 * 1024  # room for the manifest (a few KiB) once the disk is full
@@ -100,6 +101,9 @@ class StatsListener:
         self.collisions = 0  # over the episodes heard so far, for the progress display
         self.agents: dict[int, dict[int, AgentStats]] = {k: {} for k in range(1, gridmap.n_agents + 1)}
         self.newest: dict[int, AgentStats] = {}  # each agent's statistics of its latest episode so far
+        # each agent's peer messages: the positions its decisions took in (`heard`, cq_ros.episode), summed over
+        # the episodes heard; the cost the offline engine counts too (COMMUNICATION says why not the deliveries)
+        self.heard: dict[int, int] = {k: 0 for k in self.agents}
         self.conflicts: dict[str, list[int]] = {}  # topic -> episodes of which a statistic disagreed with the first
         # Learners whose node the launch restarted: an episode of theirs never heard before a later one is one
         # they were away for (a node sends its statistics in order, and resumes where the world is).
@@ -166,6 +170,7 @@ class StatsListener:
         stats = self.drops.guard(decode_agent_stats, msg, bounds=self.bounds, agent=agent, key=self.key,
                                  run=self.run, source=agent_stats_topic(agent))
         if stats is not None and self._first(self.agents[agent], stats, agent_stats_topic(agent)):
+            self.heard[agent] += stats.heard
             if agent not in self.newest or stats.episode > self.newest[agent].episode:
                 self.newest[agent] = stats
 
@@ -410,9 +415,9 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
     manifest = manifest_for(
         gridmap, [algo], 1, episodes, seed, settings, wall, **run_info, nodes=nodes,
         communication={name: {"subscriptions_created": s.subscriptions_created,
-                              "subscriptions_active": s.subscriptions_active,
-                              "peer_messages": s.peer_messages, **counted(name, s, reports)}
-                       for name, s in zip(learner_nodes, final)},
+                              "subscriptions_active": s.subscriptions_active, **cost(listener, k),
+                              **counted(name, s, reports)}
+                       for name, k, s in zip(learner_nodes, learners, final)},
         world={"missed_actions": sum(w.missed_actions for w in world), **counted("world", world[-1], reports),
                "stepping_s": round(sum(w.duration_s for w in world), 3)},
         launcher=listener.launcher_counts(),
@@ -420,6 +425,20 @@ def write_heard(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int
         **listener.restarts())
     write_results(out, gridmap, [RunResult(algo, 0, table, kept, greedy)], manifest, episodes_written=episodes_written)
     return LaunchResult(out, table, greedy, manifest)
+
+
+# What an agent's peer messages are, in the manifest's `communication`: `peer_messages`, the peer positions its
+# decisions took in, one per peer it looked at per decision step (the `heard` column of episodes.csv and
+# greedy.csv, summed over its episodes): the cost the offline engine counts, so one figure offline, composed and
+# a process per node. `peer_deliveries` is what its peer subscriptions were delivered, which depends on the
+# middleware's timing, so on the mode: a new subscription's first sample is the latched position of an earlier
+# step, a lingering one takes positions nobody decides on, a renewed one is delivered again (docs/ros.md).
+COMMUNICATION = ("peer_messages", "peer_deliveries")
+
+
+def cost(listener: StatsListener, agent: int) -> dict[str, int]:
+    """`agent`'s peer messages (COMMUNICATION) as the listener heard them."""
+    return dict(zip(COMMUNICATION, (listener.heard[agent], listener.newest[agent].peer_messages)))
 
 
 def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, seed: int, settings: Settings,
@@ -438,8 +457,7 @@ def write_ended_early(out: Path, gridmap: GridMap, algo: str, episodes: int, see
                  "world": {"missed_actions": sum(w.missed_actions for w in world),
                            **counted("world", world[-1] if world else None, reports)},
                  "communication": {name: {"episodes_heard": len(listener.agents[k]),
-                                          **({"peer_messages": listener.newest[k].peer_messages}
-                                             if k in listener.newest else {}),
+                                          **(cost(listener, k) if k in listener.newest else {}),
                                           **counted(name, listener.newest.get(k), reports)}
                                    for name, k in zip(learner_nodes or [], learners)
                                    if k in listener.newest or name in reports},

@@ -1,6 +1,7 @@
 """What every ROS tool of ours stands on: its own rclpy Context and node (`ros_session`), environment variables
 rcl reads at init (`environment`), Ctrl-C and SIGTERM as a flag a loop checks (`StopSignals`), bounded spinning
-(`spin_until`), and finding a running system on the graph (`find_system`). The user commands (commands.py,
+(`spin_until`), waiting for discovery to settle (`settle`), and finding a running system on the graph
+(`find_system`). The user commands (commands.py,
 launch.py, collect.py, view.py) import it; it imports none of them.
 """
 
@@ -19,12 +20,17 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-__all__ = ["ToolError", "StopSignals", "environment", "environment_domain", "ros_session", "spin_until", "find_system",
-           "WORLD", "FIND_S"]
+__all__ = ["ToolError", "StopSignals", "environment", "environment_domain", "ros_session", "spin_until", "settle",
+           "graph_now", "others_in", "find_system", "WORLD", "FIND_S", "QUIET_S", "SETTLE_S"]
 
 # How long to look for the system's nodes by default: a node process takes seconds to start on 2 busy cores.
 FIND_S = 60.0
 WORLD = "world"
+# Discovery has settled once the graph has not changed for QUIET_S, looked at for SETTLE_S at the most. A node
+# process shows up 0.05-2.8 s after it starts (docs/design.md, field notes), and the nodes of a launch started
+# together come one after another over seconds: `cq-ros topics` with a fixed 3 s listed 9 of a fresh launch's 16
+# topics. Ours shows up at once, and those already running within a few hundred milliseconds.
+QUIET_S, SETTLE_S = 1.5, 15.0
 _AGENT_NODE = re.compile(r"agv[1-9][0-9]*|jsa")
 
 
@@ -124,6 +130,42 @@ def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeo
     return True
 
 
+def graph_now(node: Any) -> tuple[frozenset, frozenset]:
+    """What a change of the graph is seen in: its nodes (name, namespace) and its topics with their types."""
+    return (frozenset(map(tuple, node.get_node_names_and_namespaces())),
+            frozenset((name, tuple(types)) for name, types in node.get_topic_names_and_types()))
+
+
+def settle(node: Any, executor: Any, stop: StopSignals | None = None, bound_s: float = SETTLE_S,
+           quiet_s: float = QUIET_S, look: Callable[[Any], Any] = graph_now) -> bool:
+    """Spin until what `look` sees of the graph has not changed for `quiet_s`, at most `bound_s` (or a stop
+    signal); True if it settled. rclpy 7.1.6 has no graph event to wait on (its own wait_for_node polls too),
+    so the graph is looked at between spins."""
+    seen, since = look(node), time.monotonic()
+
+    def quiet() -> bool:
+        nonlocal seen, since
+        now = look(node)
+        if now != seen:
+            seen, since = now, time.monotonic()
+        return time.monotonic() - since >= quiet_s
+
+    return spin_until(executor, quiet, bound_s, stop)
+
+
+def others_in(node: Any, executor: Any, namespace: str, stop: StopSignals | None = None) -> list[str]:
+    """The nodes in `namespace` ('/name') beside `node` once discovery has settled there, sorted: a system
+    running in it (its namesake of `node` included, as a second launcher's listener)."""
+    def there(n: Any) -> list[str]:
+        return sorted(name for name, ns in n.get_node_names_and_namespaces() if ns == namespace)
+
+    settle(node, executor, stop, look=there)
+    found = there(node)
+    if node.get_namespace() == namespace and node.get_name() in found:
+        found.remove(node.get_name())  # ourselves, once
+    return found
+
+
 def find_system(node: Any, executor: Any, namespace: str | None, stop: StopSignals,
                 wait_s: float = FIND_S) -> tuple[str, list[str]]:
     """(namespace, agent node names) of the one system on the graph (its `world` node's namespace), or of the
@@ -139,9 +181,10 @@ def find_system(node: Any, executor: Any, namespace: str | None, stop: StopSigna
                 found[ns].append(name)
         return {ns: agents for ns, agents in found.items() if namespace is None or ns == namespace}
 
-    # Settle: a system's agent nodes may be discovered after its world.
-    spin_until(executor, lambda: any(systems().values()), wait_s, stop)
-    spin_until(executor, lambda: False, 0.5, stop)
+    # Then settled: a system's agent nodes may be discovered after its world.
+    deadline = time.monotonic() + wait_s
+    if spin_until(executor, lambda: any(systems().values()), wait_s, stop):
+        settle(node, executor, stop, min(SETTLE_S, max(0.0, deadline - time.monotonic())))
     found = systems()
     if not found or not any(found.values()):
         where = f"namespace {namespace}" if namespace else "this domain"

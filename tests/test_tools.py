@@ -160,6 +160,37 @@ def test_topics_and_nodes_list_the_live_graph(talker):
     assert "/_cq_ros" not in nodes.stdout  # the tool's own node is hidden
 
 
+def test_topics_waits_for_discovery_to_settle_and_lists_topics_that_come_one_after_another(ros_context):
+    """Topics that appear one every 0.3 s for 4.5 s after the tool has joined the graph, as a launch's nodes
+    come up one after another: every one is listed (a fixed 3 s listed 9 of a fresh launch's 16 topics), and
+    the tool ends once the graph is quiet, well before its bound."""
+    namespace = f"/settle_{uuid.uuid4().hex[:8]}"
+    node = rclpy.create_node("late", namespace=namespace, context=ros_context)
+    tool = subprocess.Popen([sys.executable, "-m", "cq_ros.cli", "topics", "--wait", "40"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        def joined() -> bool:  # the tool's own (hidden) node, once it has begun looking
+            return any(name.startswith(f"_cq_ros_graph_{tool.pid}") for name, _ in node.get_node_names_and_namespaces())
+
+        wait_until(joined, TOOL_TIMEOUT_S, "the tool's node in the graph", ended=lambda: tool.poll() is not None)
+        started = time.monotonic()
+        made = []
+        for i in range(15):
+            made.append(node.create_publisher(POSITION.msg_type, f"late_{i}", profile(POSITION.qos)))
+            time.sleep(0.3)  # the pace at which topics come: the stimulus, not a wait for anything
+        out, err = tool.communicate(timeout=TOOL_TIMEOUT_S)
+        took = time.monotonic() - started
+    finally:
+        if tool.poll() is None:
+            tool.kill()
+            tool.wait()
+        node.destroy_node()
+    assert tool.returncode == 0, err
+    listed = out.splitlines()
+    assert [f"{namespace}/late_{i}" for i in range(15) if f"{namespace}/late_{i}" not in listed] == []
+    assert took < 30, took  # settled, not the 40 s bound
+
+
 def _read_bag(path):
     """{topic: (type, offered QoS profiles, [raw messages])} through rosbags' reader."""
     from rosbags.rosbag2 import Reader

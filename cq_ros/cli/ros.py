@@ -71,7 +71,7 @@ def launch(args) -> int:
         return code
     print_summary(result.out)
     for node, cost in result.manifest["communication"].items():
-        print(f"{node}: {cost['peer_messages']} peer position messages, "
+        print(f"{node}: {cost['peer_messages']} peer position messages ({cost['peer_deliveries']} delivered), "
               f"{cost['subscriptions_created']} subscriptions created")
     print(f"results: {result.out}")
     ended = result.manifest["ended"]
