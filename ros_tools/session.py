@@ -154,10 +154,12 @@ def settle(node: Any, executor: Any, stop: StopSignals | None = None, bound_s: f
 
 
 def others_in(node: Any, executor: Any, namespace: str, stop: StopSignals | None = None) -> list[str]:
-    """The nodes in `namespace` ('/name') beside `node` once discovery has settled there, sorted: a system
-    running in it (its namesake of `node` included, as a second launcher's listener)."""
+    """The nodes of a system in `namespace` ('/name') beside `node` once discovery has settled there, sorted:
+    a world, agents, or a namesake of `node` (a second launcher's listener). Other nodes there (a monitor, a
+    recorder) are no system and do not count."""
     def there(n: Any) -> list[str]:
-        return sorted(name for name, ns in n.get_node_names_and_namespaces() if ns == namespace)
+        return sorted(name for name, ns in n.get_node_names_and_namespaces() if ns == namespace
+                      and (name in (WORLD, node.get_name()) or _AGENT_NODE.fullmatch(name)))
 
     settle(node, executor, stop, look=there)
     found = there(node)

@@ -958,9 +958,13 @@ def test_statistics_of_this_run_that_disagree_are_a_conflict_named_never_a_repla
     pub = system.add(rclpy.create_node("holder", context=ros_context)).create_publisher(
         WORLD_STATS.msg_type, WORLD_STATS_TOPIC, profile(WORLD_STATS.qos))
     forged = WorldStats(0, 99, True, 7, 0, (-99.0, -99.0), 1.0)
+    # the listener matched before the forgery is sent, and nothing spun yet: the world cannot have played episode
+    # 0, whose statistic would otherwise come first while discovery of the holder's writer is under way
+    wait_until(lambda: pub.get_subscription_count() >= 1, 30.0, "the probe's reader of world/stats")
+    listener = _listener(system, ros_context, key=holder.secret, run=run)
+    wait_until(lambda: pub.get_subscription_count() >= 2, 30.0, "the listener's reader of world/stats")
     for _ in range(2):
         pub.publish(serialize(forged, key=holder))
-    listener = _listener(system, ros_context, key=holder.secret, run=run)
     assert spin_until(system.executor, lambda: 0 in listener.world, RUN_TIMEOUT_S)
     assert listener.world[0] == forged  # heard first: the world had not played episode 0 yet
     finish(system)

@@ -331,7 +331,7 @@ def test_a_second_launch_in_a_running_systems_namespace_refuses_before_it_plays(
         code = _wait(first, namespace)
     assert second.returncode == 1, second.stderr
     assert re.fullmatch(rf"cq-ros launch: error: namespace /{namespace} on ROS_DOMAIN_ID {ros_domain_id} already "
-                        r"holds a running system \(nodes (\w+, )*world(, \w+)*\): refusing to start; give this launch "
+                        r"holds a running system \(nodes \w+(, \w+)*\): refusing to start; give this launch "
                         rf"another --namespace or --domain-id; {re.escape(str(other))} removed\n", second.stderr), \
         second.stderr
     assert not other.exists()
