@@ -19,7 +19,6 @@ from msgs_spec import (
     agent_namespace, agent_stats_topic, feedback_topic, position_topic, serialize,
 )
 from node_runtime.held import HeldPublisher
-from node_runtime.lost_samples import count_lost
 from node_runtime.node import RunNode
 from node_runtime.patience import Patience
 from node_runtime.qos import profile
@@ -62,13 +61,12 @@ class AgentNode(RunNode):
                                         lambda s: serialize(s, key=cfg.key, stamp=clock.now().to_msg()),
                                         min_matched=cfg.min_stats_subscribers) for k in agents}
         # Raw: the serialized bytes are decoded (msgs_spec.codec) without a message object built for them.
-        lost = count_lost(core.extra_counters)
         self._feedback = [self.create_subscription(FEEDBACK.msg_type, feedback_topic(k), partial(self._on_feedback, k),
-                                                   profile(FEEDBACK.reader_qos), raw=True, event_callbacks=lost)
+                                                   profile(FEEDBACK.reader_qos), raw=True)
                           for k in agents]
         self._heartbeat = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
                                                    lambda m: self._apply(heartbeat_in(core, m)),
-                                                   profile(HEARTBEAT.reader_qos), raw=True, event_callbacks=lost)
+                                                   profile(HEARTBEAT.reader_qos), raw=True)
         self._peers = PeerSubscriptions(self, self._on_position, core.extra_counters)
         self._checkpoints = CheckpointWriter(cfg.checkpoint, f"{self.get_name()}_checkpoint", core.extra_counters,
                                              self.get_logger().error)

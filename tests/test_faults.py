@@ -285,31 +285,6 @@ def test_a_restarted_nodes_ghost_is_no_second_writer():
     assert "(/run/agv1, /run/intruder)" in logs[-1]
 
 
-def test_samples_the_middleware_reports_lost_are_counted_in_the_nodes_statistics(ros_context):
-    """the lockstep subscriptions listen to the message-lost event (node_runtime.lost_samples); a report's new
-    losses go into the node's statistics as `lost_samples`. Driven through the handlers rclpy made, since
-    the pip Fast DDS reports none (benchmarks/lost_samples.py)."""
-    from types import SimpleNamespace
-
-    from rclpy.event_handler import QoSSubscriptionEventType
-
-    lost_event = QoSSubscriptionEventType.RCL_SUBSCRIPTION_MESSAGE_LOST
-    agent = AgentNode(context=ros_context, parameter_overrides=parameters(agent_id=1))
-    world = WorldNode(context=ros_context, parameter_overrides=parameters())
-    try:
-        for subscriptions, counters in (([*agent._feedback, agent._heartbeat], agent.core.counters),
-                                        (list(world._actions.values()), world.core.counters)):
-            assert "lost_samples" not in counters()
-            for n, sub in enumerate(subscriptions, 1):
-                handlers = [h for h in sub.event_handlers if h.event_type == lost_event]
-                assert len(handlers) == 1, sub.topic
-                handlers[0].callback(SimpleNamespace(total_count=2 * n, total_count_change=2))
-            assert counters()["lost_samples"] == 2 * len(subscriptions)
-    finally:
-        agent.destroy_node()
-        world.destroy_node()
-
-
 def test_stale_temporary_checkpoint_files_are_removed_at_start(ros_context, tmp_path):
     (tmp_path / "agv1.npz.x1y2z3.tmp").write_bytes(b"a save killed mid-write")
     node = AgentNode(context=ros_context, parameter_overrides=parameters(
@@ -408,7 +383,7 @@ def read_rows(path) -> list[tuple[int, int, bool]]:
     # past it, 3 s against 4 s, one answer came really late now and then on a busy machine)
     ("world", ("step_timeout=8.0",), 3, 5.0),
     # an agent, stopped past its own feedback_timeout (the heartbeats sent to it while stopped are lost past
-    # about a second, counted as lost_samples; it hears the next ones). Under the whole suite a loaded machine
+    # about a second; it hears the next ones). Under the whole suite a loaded machine
     # has kept a node from hearing the world for 2.2 s (a timeout of 2 s ended the other agent) and, once a
     # stopped agent resumed, for 3.3 s of awake time (a timeout of 3 s ended it), hence 6 s here; the world
     # waits for the stopped agent's action through the stall and that silence, hence 20 s
@@ -1222,3 +1197,33 @@ def test_a_40000_message_junk_flood_on_every_topic_leaves_a_launch_the_offline_r
     for log in (out / "logs").glob("*.log"):
         said = re.findall(r"a flood of refused messages on (\S+):", text_of(log))
         assert len(said) == len(set(said)), (log.name, said)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_burst_of_junk_on_every_topic_as_fast_as_one_writer_sends_never_ends_a_launch(tmp_path, ros_domain_id):
+    """40,000 junk messages without the key sent at once, as fast as one process can, to every topic of a 2-agent
+    keyed `cq-ros launch` once it steps: whatever the readers' queues evict, the run goes on once the burst is over
+    and finishes clean (exit 0, every episode). Nodes that listened to the middleware's message-lost event stopped
+    for good in such a burst (a node's executor never ran again; the world ended the run for want of actions)."""
+    from helpers import Flood
+
+    out, namespace, err = tmp_path / "result", unique("burst"), tmp_path / "stderr.txt"
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, "tunnel_to_goal", "cq", FLOOD_EPISODES,
+                                                   FLOOD_SETTINGS, "--no-figures"),
+                                    stdout=subprocess.DEVNULL, stderr=stderr)
+    flood = Flood(namespace, 2, seed=2, domain_id=ros_domain_id)
+    try:
+        wait_for_line(out / "logs" / "world.log", "stepping", LAUNCH_TIMEOUT_S, launcher, detail=err)
+        wait_until(lambda: flood.matched(FLOOD_READERS), LAUNCH_TIMEOUT_S, "every reader of the burst",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+        flood.send(FLOOD_MESSAGES)
+        code = launcher.wait(LAUNCH_TIMEOUT_S * 3)
+    finally:
+        flood.close()
+        stop_launcher(launcher)
+    assert code == 0, text_of(err)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["ended"]["how"] == "finished" and rows_written(out / "episodes.csv") == FLOOD_EPISODES
+    assert sum(manifest["world"]["dropped_on"].values()) > 0

@@ -19,7 +19,6 @@ from msgs_spec import (
     serialize,
 )
 from node_runtime.graph import writers_and_namesakes
-from node_runtime.lost_samples import count_lost
 from node_runtime.node import RunNode
 from node_runtime.qos import profile
 from node_runtime.rclpy_workarounds import raw_publisher
@@ -62,10 +61,9 @@ class WorldNode(RunNode):
         }
         self._view = WorldView(self, cfg.gridmap, positions.scene) if self.get_parameter("markers").value else None
         # Raw: the serialized bytes are decoded (msgs_spec.codec) without a message object built for them.
-        lost = count_lost(core.extra_counters)
         self._actions = {k: self.create_subscription(ACTION.msg_type, action_topic(k),
                                                      lambda m, k=k: self._publish(action_in(core, k, m)),
-                                                     profile(ACTION.reader_qos), raw=True, event_callbacks=lost)
+                                                     profile(ACTION.reader_qos), raw=True)
                          for k in agents}
         # Every world's heartbeat, ours included: what a twin says of itself (world_node.twin)
         self._heartbeats = self.create_subscription(HEARTBEAT.msg_type, HEARTBEAT_TOPIC,
