@@ -41,7 +41,7 @@ from msgs_spec import INT32_MAX
 __all__ = ["save_checkpoint", "checkpoint_bytes", "write_checkpoint", "CheckpointWriter", "save_checkpoints",
            "load_checkpoint", "read_checkpoint", "remove_stale_temporaries", "convert_pickle", "SUFFIX"]
 
-# 1-3: pickles of the learner (2: CQ learners keep `looking`; 3: settings hold cq_mark_colliders); 4: an .npz of
+# 1-3: pickles of the learner (2: CQ learners keep `looking`; 3: settings held cq_mark_colliders); 4: an .npz of
 # the learner's state as arrays.
 _CHECKPOINT_FORMAT = 4
 _PICKLE_FORMAT = 3  # the last pickled format, the one `convert_pickle` reads

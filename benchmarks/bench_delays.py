@@ -34,7 +34,7 @@ runs):
 - states: the states the learners condition on at the end of learning (local plus joint, summed over them).
 
     python benchmarks/bench_delays.py --generate 8:101,102 [--generate 12:103] [--gen-slip 0.1]
-        [--algos cq,indep] [--variant cq_old=cq:cq_w1_alone=0,cq_waits_fresh=0] [--seeds 0] [--runs 3]
+        [--algos cq,cq_paper,indep] [--variant cq_a2=cq:alpha=0.2] [--seeds 0] [--runs 3]
         [--episodes 2000] [--jobs 2]
 """
 
@@ -194,7 +194,7 @@ def main() -> None:
         slips = [float(s) for s in args.slips.split(",")]
         seeds = [int(s) for s in args.seeds.split(",")]
         groups = parse_generate(args.generate)
-        configs = [(c.name, c.algo, list(c.sets)) for c in parse_configs(algos, False, args.variant)]
+        configs = [(c.name, c.algo, list(c.sets)) for c in parse_configs(algos, args.variant)]
         if args.variant and not groups:
             raise ValueError("--variant needs --generate")
         for agents, gen in groups:

@@ -4,10 +4,10 @@ leanest numba kernel of the same rules and learning dynamics we could write, not
 
 What `lean_run` drops against cq_ros.compiled: CPython's Mersenne Twister streams (numba's own generator, one
 stream), exact sums (no math.fsum: the windows keep plain running sums), collisions counted as agents collided
-over two (not distinct pairs), delays (slip, start_hold), greedy episodes, and every cq_* choice but the maps'
-defaults: CQ's update is made at once with the paper's bootstrap (Q_k of s'; cq_bootstrap_acted's waiting for the
-row acted on at s' is dropped), a conflict marks the peers within cq_mark_range of the cell at once (the update
-lands in the rows made new, as the reference's does), every joint state met is acted on (the elementwise
+over two (not distinct pairs), delays (slip, start_hold), greedy episodes, and most rules of our CQ: the update is
+made at once with the paper's bootstrap (Q_k of s'; our waiting for the row acted on at s' is dropped), a
+conflict marks the peers within MARK_RANGE cells of the cell at once (the update lands in the rows made new, as
+the reference's does), every joint state met is acted on (the elementwise
 minimum), and a cell keeps at most `SLOTS` joint states, in dense arrays (agent, cell, slot) rather than a pool
 of linked lists.
 """
@@ -23,6 +23,7 @@ from cq_ros.compiled.jit import kernel
 from cq_ros.compiled.world import new_scratch, reset, step
 
 SLOTS = 8  # joint states a cell keeps at most in the lean kernel
+MARK_RANGE = 2  # a conflict marks the peers this close: those our CQ could blame (cq.CQLearner._marks)
 
 
 @kernel
@@ -266,7 +267,7 @@ def lean_run(algo: str, gridmap, settings, episodes: int, seed: int = 0) -> np.n
     fp = np.array([st.alpha, st.gamma, st.epsilon, st.reward_step, st.reward_wall, st.reward_collision,
                    st.reward_goal, st.conf_init, st.conf_up, st.conf_down, st.conf_max, st.conf_drop, test.t_two,
                    test.t_one])
-    ip = np.array([algo == "cq", st.step_cap, st.epsilon_decay_episodes, st.window, st.cq_mark_range], np.int64)
+    ip = np.array([algo == "cq", st.step_cap, st.epsilon_decay_episodes, st.window, MARK_RANGE], np.int64)
     out = np.zeros((episodes, 2), np.int64)
     _lean(np.array(gridmap.neighbours, np.int64), np.array(gridmap.starts, np.int64),
           np.array(gridmap.goals, np.int64), np.array(rows, np.int64), np.array(cols, np.int64), fp, ip, episodes,

@@ -3,9 +3,8 @@ them, our choices where it does not (docs/choices.md), each written into every r
 
 `Settings.with_overrides(["alpha=0.2", ...])` is how the CLI's `--set key=value` and the nodes'
 parameters reach it, so a bad key or value is reported the same way everywhere. `run_settings` is the one
-place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- a preset the
-user names (PRESETS: `paper`, Algorithm 2 as the paper reads) <- the user's, and where the world is then delayed,
-CQ's settings for delays (UNDER_DELAYS, the preset `under_delays`) that none of them set.
+place the settings of a run are made: Settings() <- the map's own defaults (its `set` lines) <- the user's.
+No setting changes which algorithm a name plays: the two CQs are two learners (cq_ros.learners).
 """
 
 from __future__ import annotations
@@ -49,46 +48,6 @@ class Settings:
     conf_down: float = setting(0.02, "CQ's confidence fall when its local state is met without the joint state")
     conf_max: float = setting(10.0, "CQ's highest confidence in a joint state")
     conf_drop: float = setting(0.0, "a marked joint state whose confidence falls below this is dropped")
-    cq_bootstrap_acted: int = setting(
-        1, "CQ's bootstrap (ours; 0 is the paper's): 0, every update bootstraps from Q_k of the next cell, since "
-           "the agent cannot know yet whether it will act on a joint state there; 1, the update waits one step "
-           "and bootstraps from the row the agent then acts on (Q^j where a joint state is met), so waiting in a "
-           "joint state is valued as waiting, not as the free road Q_k of the same cell promises")
-    cq_mark_range: int = setting(
-        2, "CQ marks joint states only with the peers at most this many cells away (Manhattan) when a conflict "
-           "is detected; 0 marks every peer, as the paper does (which, with two agents, is the one peer there is)")
-    cq_mark_colliders: int = setting(
-        0, "CQ marks joint states only with the peers that could have collided with the agent at the step of the "
-           "conflict (ours; 0 is the paper's): 1, none if the agent moved (a collision leaves it in its cell), else "
-           "the peers then at most 1 cell from the cell it moved toward or from its own (with cq_mark_range=2, a "
-           "peer two cells off that moved into the same cell too); 0, every peer that cq_mark_range allows; 1 where "
-           "the world is delayed (slip or start_hold above 0) unless the map or the user sets it")
-    cq_all_met: int = setting(
-        1, "several marked joint states of one cell met at once (three or more agents; the paper is silent): 1, "
-           "the agent acts on the elementwise minimum of their Q^j rows and updates each; 0, it acts on and "
-           "updates the most confident alone, which is blind to the peers the others name")
-    cq_w1_alone: int = setting(
-        0, "CQ's W1 (ours, 0 is the paper's): 0, the first N rewards of each (cell, action); 1, the rewards of "
-           "acting alone there (the world's reward for the move with nobody else, a share slip of them delayed), "
-           "so that a conflict present from the start, as under delays, shows as a drop; 1 where the world is "
-           "delayed (slip or start_hold above 0) unless the map or the user sets it")
-    cq_waits_fresh: int = setting(
-        0, "CQ's new joint states (ours, 0 is the paper's): 0, a new Q^j is a copy of Q_k; 1, in the copy each wait "
-           "(a move into a wall, which leaves the agent in its cell) is worth at least one step lost plus the free "
-           "road, reward_wall + gamma * max Q_k of the cell, since Q_k's waits hold what early exploration left "
-           "and, never tried again once exploration stops, would keep the agent from waiting where it must; 1 where "
-           "the world is delayed (slip or start_hold above 0) unless the map or the user sets it")
-    cq_look_if_decisive: int = setting(
-        0, "CQ's looks when greedy (ours, 0 is the paper's): 0, at a cell with marked joint states the agent looks "
-           "at every peer they name, every step; 1, at epsilon 0 it does not look where Q_k and every Q^j of the "
-           "cell have the same unique best action (and no waiting update lands in them), since what it saw could "
-           "not change what it does: it acts on Q_k there, meeting no joint state; 1 where the world is delayed "
-           "(slip or start_hold above 0) unless the map or the user sets it")
-    cq_collision_conflict: int = setting(
-        0, "CQ's conflicts (ours, 0 is the paper's): 0, only the t-tests find one; 1, a reward at or below "
-           "reward_collision is one at once, since the world pays that reward for a collision only (where it is "
-           "below every other reward, as on every map shipped), and a collision rarer than about 1 in 20 visits of "
-           "a (cell, action) never lowers W2's mean enough for the t-test to see it")
     loc_range: int = setting(2, "LoC: active perception is TRUE when a peer is at most this many cells away "
                                 "(Manhattan), i.e. close enough to collide this step")
     loc_cost: float = setting(0.1, "LoC: what choosing COORDINATE costs of the learner's reward")
@@ -121,14 +80,6 @@ class Settings:
                "not negative")
         _check(self.conf_drop < self.conf_init <= self.conf_max, "conf_drop < conf_init <= conf_max",
                (self.conf_drop, self.conf_init, self.conf_max), "ordered")
-        _check(self.cq_bootstrap_acted in (0, 1), "cq_bootstrap_acted", self.cq_bootstrap_acted, "0 or 1")
-        _check(self.cq_all_met in (0, 1), "cq_all_met", self.cq_all_met, "0 or 1")
-        _check(self.cq_w1_alone in (0, 1), "cq_w1_alone", self.cq_w1_alone, "0 or 1")
-        _check(self.cq_waits_fresh in (0, 1), "cq_waits_fresh", self.cq_waits_fresh, "0 or 1")
-        _check(self.cq_mark_colliders in (0, 1), "cq_mark_colliders", self.cq_mark_colliders, "0 or 1")
-        _check(self.cq_look_if_decisive in (0, 1), "cq_look_if_decisive", self.cq_look_if_decisive, "0 or 1")
-        _check(self.cq_collision_conflict in (0, 1), "cq_collision_conflict", self.cq_collision_conflict, "0 or 1")
-        _check(self.cq_mark_range >= 0, "cq_mark_range", self.cq_mark_range, "at least 0")
         _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
         _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
@@ -166,50 +117,12 @@ class Settings:
 _FIELDS = {f.name: f for f in fields(Settings)}
 
 
-# CQ's behaviour wherever the world is delayed (slip or start_hold above 0), unless the map or the user sets
-# them: under delays a conflict is there from the first episode on, so W1 of the first rewards is no measure of
-# being alone, and a new Q^j's waits must be worth waiting; a conflict marks only the peers that could have
-# collided with the agent (two AGVs two cells apart that moved into one cell among them), and a greedy agent
-# looks only where what it sees can change its action, since on delayed warehouses every joint state is a peer
-# asked about at each visit of its cell (docs/choices.md). Without delays, the paper's.
-UNDER_DELAYS = {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_colliders": 1, "cq_look_if_decisive": 1}
-
-# Algorithm 2 as the paper reads: every choice of CQ's at the paper's value (docs/choices.md); where the paper
-# is silent (several joint states met at once), the reading closest to its one Q^j per step. It sets every key
-# of UNDER_DELAYS, so a delayed world keeps the paper's CQ too.
-PAPER_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
-            "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}
-
-# The presets a user names (`--preset NAME`), and the one a delayed world applies by itself.
-PRESETS = {"paper": PAPER_CQ}
-DELAYED = "under_delays"
-
-
-def run_settings(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = (),
-                 preset: str | None = None) -> Settings:
-    """The settings of a run on `gridmap` (run_settings_and_presets says how they are made)."""
-    return run_settings_and_presets(gridmap, overrides, preset)[0]
-
-
-def run_settings_and_presets(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = (),
-                             preset: str | None = None) -> tuple[Settings, dict[str, dict[str, Any]]]:
+def run_settings(gridmap: "GridMap | None", overrides: list[str] | Mapping[str, Any] = ()) -> Settings:
     """The settings of a run on `gridmap` (None: maps without defaults of their own, as the paper's grid): the
-    defaults, then the map's (its `set` lines), then the preset named `preset` (PRESETS), then `overrides`
-    (`key=value` strings, or a dict such as a node's parameters that were given); where the result has a delay,
-    UNDER_DELAYS for those of them none of these sets. Beside them, {preset name: the settings it set}, for each
-    preset that set any (the user's, and `under_delays`): what a run's manifest and `cq-ros experiment` report."""
+    defaults, then the map's (its `set` lines), then `overrides` (`key=value` strings, or a dict such as a
+    node's parameters that were given)."""
     given = dict(overrides) if isinstance(overrides, Mapping) else dict(split_pair(p) for p in overrides)
-    if preset is not None and preset not in PRESETS:
-        raise SettingsError(f"unknown preset {preset!r}; presets are: {', '.join(PRESETS)}")
-    named = {k: v for k, v in PRESETS.get(preset, {}).items() if k not in given}
-    chosen = {**(gridmap.defaults if gridmap is not None else {}), **named, **given}
-    settings = Settings().with_overrides(chosen)
-    applied = {preset: named} if named else {}
-    if settings.slip > 0 or settings.start_hold > 0:
-        delayed = {k: v for k, v in UNDER_DELAYS.items() if k not in chosen}
-        settings = settings.with_overrides(delayed)
-        applied.update({DELAYED: delayed} if delayed else {})
-    return settings, applied
+    return Settings().with_overrides({**(gridmap.defaults if gridmap is not None else {}), **given})
 
 
 def split_pair(pair: str) -> tuple[str, str]:

@@ -5,6 +5,8 @@
 - `wait_for_line`, `launch_command`, `read_episodes`, `unique`, `alive_with`: a launch as a process, and what
   it leaves behind.
 - `System`, `start_system`, `finish`, `offline_rows`: a world and its agents in this process, on one executor.
+- `with_rules`, `ours_without`, `run_as`: the paper's CQ with one rule of ours, ours without one, and a run of
+  such a learner, so that a test shows what one rule does.
 """
 
 from __future__ import annotations
@@ -28,6 +30,42 @@ SEED = 1  # the launches' seed
 RUN_TIMEOUT_S = 300.0  # a bound for any one in-process system run; they take seconds (a minute at load 18)
 # The in-process runs' grid_game_2 case: a window CQ fills within a few dozen episodes, and a few greedy episodes.
 GRID = ("grid_game_2", 1, (("window", 5), ("eval_episodes", 3)))
+
+
+# Each rule of our CQ as the methods of cq.CQLearner it puts in place of the paper's (cq_paper.CQPaperLearner).
+OUR_RULES = {"w1_alone": ("_start_windows",), "look_if_decisive": ("_looks",), "all_met": ("_acted_on",),
+             "bootstrap_acted": ("_bootstraps_from_next_act", "_bootstrap"), "mark_colliders": ("_marks",),
+             "waits_fresh": ("_new_row",)}
+
+
+def with_rules(*rules):
+    """The paper's CQ with these rules of ours (with none, the paper's learner itself)."""
+    from cq_ros.learners.cq import CQLearner
+    from cq_ros.learners.cq_paper import CQPaperLearner
+
+    if not rules:
+        return CQPaperLearner
+    return type("CQWith", (CQPaperLearner,), {m: getattr(CQLearner, m) for r in rules for m in OUR_RULES[r]})
+
+
+def ours_without(rule):
+    """Our CQ with the paper's reading of `rule`."""
+    from cq_ros.learners.cq import CQLearner
+    from cq_ros.learners.cq_paper import CQPaperLearner
+
+    return type("CQWithout", (CQLearner,), {m: getattr(CQPaperLearner, m) for m in OUR_RULES[rule]})
+
+
+def run_as(learner_class, gridmap, settings, seed: int, run_index: int, episodes: int) -> np.ndarray:
+    """The learning episodes (cq_ros.episode's table) of a run as cq_ros.engine.run plays `cq`, with every
+    learner made a `learner_class` once made (a rule of ours taken away or given alone)."""
+    from cq_ros import engine
+
+    learners = engine.make_learners("cq", gridmap, settings, seed, run_index)
+    for learner in learners:
+        learner.__class__ = learner_class
+    team = engine.Team(engine.GridWorld(gridmap, settings, seed=engine.world_seed(seed, run_index)), learners)
+    return engine.record.table(team.episode() for _ in range(episodes))
 
 
 class WaitTimeout(AssertionError):

@@ -79,7 +79,6 @@ def test_show_says_which_agents_an_early_arrival_can_wall_in(tmp_path, capsys):
         (["study", "--agents", "8,0", "--out", "X"], "--agents: must be at least 1"),
         (["study", "--agents", "8", "--set", "slp=0.1", "--out", "X"], "unknown setting 'slp'"),
         (["study", "--agents", "8", "--maps", "101", "--out", "X"], "--maps takes at most 100"),
-        (["experiment", "--map", "grid_game_2", "--preset", "papers", "--out", "X"], "--preset: invalid choice"),
         # an option that would do nothing here is refused, not ignored
         (["launch", "--map", "grid_game_2", "--algo", "cq", "--discovery", "static", "--out", "X"],
          "--discovery chooses how the nodes on --hosts find each other"),
@@ -329,40 +328,17 @@ def test_ctrl_c_on_an_experiment_keeps_the_runs_it_finished_and_says_which_are_m
     assert len(rows) == 1 + episodes and {row.split(",")[2] for row in rows[1:]} == {"0"}
 
 
-def test_experiment_with_a_preset_says_it_on_stderr_and_in_the_manifest(tmp_path, capsys):
-    """The paper's CQ by name on a delayed map: its settings in the manifest's `presets` and on stderr, and no
-    `under_delays` (the paper's preset sets every setting that one would)."""
-    out = tmp_path / "paper"
-    assert main(["experiment", "--map", "warehouse_8_delayed", "--algo", "cq", "--runs", "1", "--episodes", "2",
-                 "--set", "eval_episodes=1", "--set", "cq_mark_range=3", "--preset", "paper", "--out", str(out),
-                 "--no-figures"]) == 0
-    stderr = capsys.readouterr().err
-    paper = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_colliders": 0, "cq_w1_alone": 0,
-             "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}  # cq_mark_range: the user's
-    assert "preset paper: " + " ".join(f"{k}={v}" for k, v in paper.items()) in stderr.splitlines()
-    assert "under_delays" not in stderr
-    manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["presets"] == {"paper": paper}
-    assert manifest["settings"]["cq_mark_range"] == 3 and manifest["settings"]["cq_w1_alone"] == 0
-    out = tmp_path / "ours"
-    assert main(["experiment", "--map", "warehouse_8_delayed", "--algo", "cq", "--runs", "1", "--episodes", "2",
-                 "--set", "eval_episodes=1", "--out", str(out), "--no-figures"]) == 0
-    assert ("preset under_delays: cq_w1_alone=1 cq_waits_fresh=1 cq_mark_colliders=1 cq_look_if_decisive=1"
-            in capsys.readouterr().err.splitlines())
-    assert json.loads((out / "manifest.json").read_text())["presets"] == {
-        "under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_colliders": 1, "cq_look_if_decisive": 1}}
-
-
 def test_reproduce_reports_the_papers_cq_beside_ours(tmp_path):
+    """The paper's grid plays cq_paper; ours, cq, is played beside it on the four maps and reported so."""
     assert main(["reproduce", "--out", str(tmp_path / "r"), "--runs", "1", "--episodes", "10", "--no-sweep",
-                 "--set", "step_cap=50", "--set", "cq_mark_range=3"]) == 0
+                 "--set", "step_cap=50"]) == 0
     report = (tmp_path / "r" / "REPORT.md").read_text()
     section = report.split("## The paper's CQ beside ours (seed 0, epsilon 0.1 fixed (the paper's))\n")[1]
     for m in ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr"):
-        manifest = json.loads((tmp_path / "r" / "paper_cq" / m / "manifest.json").read_text())
+        grid = json.loads((tmp_path / "r" / m / "manifest.json").read_text())
+        assert "cq_paper" in grid["algos"] and "cq" not in grid["algos"]
+        manifest = json.loads((tmp_path / "r" / "ours" / m / "manifest.json").read_text())
         assert manifest["algos"] == ["cq"] and manifest["settings"]["step_cap"] == 50
-        assert manifest["settings"]["cq_mark_range"] == 0 and manifest["settings"]["cq_bootstrap_acted"] == 0
-        assert manifest["presets"]["paper"]["cq_all_met"] == 0
         assert f"\n| {m} | " in section
 
 

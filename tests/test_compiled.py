@@ -78,7 +78,7 @@ def test_paper_maps_byte_identical_result_files(algo, map_name, episodes, eval_l
         write_results(tmp_path / name, gm, [result], {})
         written[name] = [(tmp_path / name / f).read_bytes() for f in (EPISODES, GREEDY, OBSERVE)]
     assert written["compiled"] == written["reference"]
-    if algo == "cq" and map_name == "tunnel_to_goal_3":
+    if algo in compiled.CQS and map_name == "tunnel_to_goal_3":
         assert ours.joint_states, "a CQ run that marks nothing compares too little"
 
 
@@ -112,9 +112,6 @@ def drawn_settings(draw):
         gamma=draw(st.sampled_from([0.0, 0.9])), reward_step=draw(st.sampled_from([0.0, -1.0, -0.1])),
         conf_init=draw(st.sampled_from([0.3, 1.0])), conf_down=draw(st.sampled_from([0.02, 0.3])),
         conf_drop=draw(st.sampled_from([0.0, 0.2])), conf_up=draw(st.sampled_from([0.0, 0.5])),
-        cq_bootstrap_acted=draw(flag), cq_mark_range=draw(st.integers(0, 3)), cq_mark_colliders=draw(flag),
-        cq_all_met=draw(flag), cq_w1_alone=draw(flag), cq_waits_fresh=draw(flag), cq_look_if_decisive=draw(flag),
-        cq_collision_conflict=draw(flag),
         near_range=draw(st.integers(1, 3)), loc_range=draw(st.integers(1, 3)),
         loc_cost=draw(st.sampled_from([0.0, 0.1, 1.0])), step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
         eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 0.9])), start_hold=hold)
@@ -126,14 +123,14 @@ def test_random_maps_seeds_and_settings(gm, s, algo, seed, run_index):
     assert_twins(*both(algo, gm, s, seed, run_index, episodes=25))
 
 
-@given(drawn_settings(), st.integers(0, 2**32))
+@given(drawn_settings(), st.sampled_from(compiled.CQS), st.integers(0, 2**32))
 @settings(max_examples=12, deadline=None)
-def test_three_agents_in_the_tunnel_with_drawn_settings(s, seed):
-    """CQ's settings drawn at random, where three agents meet often enough to mark, meet and forget."""
+def test_three_agents_in_the_tunnel_with_drawn_settings(s, algo, seed):
+    """Either CQ's settings drawn at random, where three agents meet often enough to mark, meet and forget."""
     import dataclasses
 
     s = dataclasses.replace(s, step_cap=200, window=max(s.window, 4))
-    assert_twins(*both("cq", load_map("tunnel_to_goal_3"), s, seed, 0, episodes=60))
+    assert_twins(*both(algo, load_map("tunnel_to_goal_3"), s, seed, 0, episodes=60))
 
 
 def reference_team(algo, gm, s, seed, run_index):
@@ -153,8 +150,8 @@ def assert_same_tables(ours, theirs):
 
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
-    ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_all_met": 0}),
-    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
+    ("cq_paper", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5}),
+    ("cq_paper", "tunnel_to_goal", {"epsilon_decay_episodes": 150}),
     ("near", "tunnel_to_goal_3", {}), ("loc", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2}),
     ("js", "tunnel_to_goal_3", {"eval_learning": 1}), ("jsa", "tunnel_to_goal_3", {"slip": 0.1})])
 def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, overrides):
@@ -169,7 +166,7 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
     assert first.tobytes() == engine.record.table(reference.episode() for _ in range(150)).tobytes()
     for ours, theirs in zip(team.learners, reference.learners):
         assert_same_tables(ours, theirs)
-        if algo == "cq":
+        if algo in compiled.CQS:
             assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
             for a, b in zip(ours.windows, theirs.windows):
@@ -182,8 +179,8 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
 
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
-    ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5, "cq_w1_alone": 1}),
-    ("cq", "tunnel_to_goal", {"cq_bootstrap_acted": 0, "epsilon_decay_episodes": 150}),
+    ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5}),
+    ("cq_paper", "tunnel_to_goal", {"epsilon_decay_episodes": 150}),
     ("near", "tunnel_to_goal_3", {"slip": 0.1}), ("loc", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150}),
     ("js", "tunnel_to_goal", {"start_hold": 2}), ("jsa", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150})])
 def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, overrides, tmp_path):
@@ -203,7 +200,7 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
     loaded = [load_checkpoint(tmp_path / f"agv{k}.npz", algo, gm, k, s)[0] for k in range(len(team.learners))]
     kernel = compiled.kernel_of(engine.Team(copy.deepcopy(team.world), loaded))
     direct = compiled.kernel_of(copy.deepcopy(team))
-    if algo == "cq":
+    if algo in compiled.CQS:
         theirs = [(k, *js) for k, learner in enumerate(team.learners) for js in learner.joint_states()]
         assert theirs, "a CQ run that marks nothing compares too little"
         assert kernel.joint_states() == theirs
@@ -214,7 +211,7 @@ def test_a_run_learnt_by_the_reference_goes_on_in_the_kernel(algo, map_name, ove
     assert direct.play(60).tobytes() == played.tobytes()
     for ours, theirs in zip(compiled.team_of(kernel).learners, team.learners):
         assert_same_tables(ours, theirs)
-        if algo == "cq":
+        if algo in compiled.CQS:
             assert list(ours.q_joint.items()) == list(theirs.q_joint.items())
             assert (ours.confidence, ours.marked, ours.watch) == (theirs.confidence, theirs.marked, theirs.watch)
 

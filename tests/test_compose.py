@@ -27,7 +27,7 @@ from msgs_spec import AGENT_STATS, WORLD_STATS, WORLD_STATS_TOPIC, agent_stats_t
     decode_world_stats
 from node_runtime.qos import profile
 from node_runtime.run import make_executor, spin_nodes
-from helpers import SEED, alive_with, launch_command, spin_until, unique, wait_for_line
+from helpers import SEED, alive_with, launch_command, ours_without, run_as, spin_until, unique, wait_for_line
 from ros_tools.compose import make_nodes
 from ros_tools.launch import compose_command, node_specs
 
@@ -205,9 +205,6 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, case):
     gridmap = load_map(path)
     settings = run_settings(gridmap, sets)
     assert (settings.slip, settings.start_hold) == (generated["slip"], generated.get("start_hold", 0))
-    # CQ's settings under delays, by default
-    assert (settings.cq_w1_alone, settings.cq_waits_fresh, settings.cq_mark_colliders,
-            settings.cq_look_if_decisive) == (1, 1, 1, 1)
     offline = run("cq", gridmap, settings, SEED, 0, episodes)
     if agents == 32:
         assert offline.episodes["heard"].sum() > 0
@@ -223,22 +220,21 @@ def test_a_delayed_warehouse_launch_equals_the_offline_run(tmp_path, case):
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_launch_where_cq_looks_only_where_it_is_decisive_equals_the_offline_run(tmp_path):
-    """cq_look_if_decisive decides in observe() whether to look, so a CQ agent node subscribes to what its
-    learner asks for and a composed launch plays the offline run, episode by episode; exploration ends at
-    episode 20 of 60, so the setting acts (the offline run's joint plays differ from the default's)."""
+    """Our CQ decides in observe() whether to look (not where looking cannot change its greedy action), so a CQ
+    agent node subscribes to what its learner asks for and a composed launch plays the offline run, episode by
+    episode; exploration ends at episode 20 of 60, so the rule acts (the offline run's joint plays differ from
+    those of ours looking always)."""
     path = tmp_path / "delayed.txt"
     path.write_text(warehouse_text(3, aisles=2, aisle_length=3, seed=5, slip=0.2))
     out = tmp_path / "result"
-    sets = ["eval_episodes=2", "step_cap=300", "epsilon_decay_episodes=20", "window=10", "conf_down=0.1",
-            "cq_look_if_decisive=1"]
+    sets = ["eval_episodes=2", "step_cap=300", "epsilon_decay_episodes=20", "window=10", "conf_down=0.1"]
     command = launch_command(out, unique("decisive"), str(path), "cq", 60, sets, "--compose", "--no-figures")
     done = subprocess.run(command, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr
     gridmap = load_map(path)
     offline = run("cq", gridmap, run_settings(gridmap, sets), SEED, 0, 60)
-    # on a delayed map cq_look_if_decisive=1 is CQ's default: looking always must be asked for
-    looking_always = run("cq", gridmap, run_settings(gridmap, [*sets[:-1], "cq_look_if_decisive=0"]), SEED, 0, 60)
-    assert offline.episodes["joint_plays"].sum() != looking_always.episodes["joint_plays"].sum()
+    looking_always = run_as(ours_without("look_if_decisive"), gridmap, run_settings(gridmap, sets), SEED, 0, 60)
+    assert offline.episodes["joint_plays"].sum() != looking_always["joint_plays"].sum()
     assert offline.episodes["heard"].sum() > 0
     with open(out / "episodes.csv", newline="") as f:
         rows = [(int(r["steps"]), int(r["collisions"]), int(r["joint_plays"]), int(r["heard"]))

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from cq_ros import compiled
-from cq_ros import settings as settings_module
+from cq_ros.lab import held_out as held_out_module
 from cq_ros.cli.main import main
 from cq_ros.gridmap import load_map
 from cq_ros.lab.held_out import BOOTSTRAP_SEED, HELD_OUT_SEEDS, TUNING_SEEDS, show_ratio, shown_rows
@@ -85,13 +85,14 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
         main([*TINY[:6], "21", *TINY[7:], "--runs", "3", "--out", str(out)])
     assert exited.value.code == 2
     assert "another protocol (episodes differ)" in capsys.readouterr().err
-    # Code whose defaults moved since the units were played (here, CQ's under delays) is refused too: its cq
+    # Code whose defaults moved since the units were played (here, a confidence fall) is refused too: its cq
     # units would be mixed with the kept ones under one name.
-    monkeypatch.setattr(settings_module, "UNDER_DELAYS", {**settings_module.UNDER_DELAYS, "cq_mark_colliders": 0})
+    real = held_out_module.run_settings
+    monkeypatch.setattr(held_out_module, "run_settings", lambda gm, given=(): real(gm, ["conf_down=0.05", *given]))
     with pytest.raises(SystemExit) as exited:
         main([*TINY, "--runs", "3", "--out", str(out)])
     assert exited.value.code == 2
-    assert "the settings of cq (cq_mark_colliders 1 -> 0)" in capsys.readouterr().err
+    assert "the settings of cq (conf_down 0.02 -> 0.05)" in capsys.readouterr().err
     monkeypatch.undo()
 
     # A study stopped after a unit's curve was written but before its row plays the unit again, and the curve
@@ -121,17 +122,17 @@ def test_a_tiny_study_resumes_and_its_tables_are_the_units_arithmetic(tmp_path, 
 
 def test_a_tuning_study_plays_the_tuning_maps_and_a_variant_with_its_own_settings(tmp_path, capsys):
     out = tmp_path / "tuning"
-    variant = "cq_col=cq:cq_collision_conflict=1,conf_down=0.1"
+    variant = "cq_col=cq:conf_down=0.1,window=7"
     assert main([*TINY, "--runs", "1", "--tuning", "--variant", variant, "--out", str(out)]) == 0
     text = capsys.readouterr().out
     rows = rows_of(out / "units.csv")
     assert {(int(r["generator_seed"]), r["config"]) for r in rows} == {
         (g, c) for g in TUNING_SEEDS for c in ("cq", "indep", "cq_col")}
     assert text.startswith("# Tuning study") and "Generator seeds 0, 7 (the tuning seeds" in text
-    assert "Settings of cq_col: cq_collision_conflict=1 conf_down=0.1" in text and "| cq_col - cq | " in text
+    assert "Settings of cq_col: conf_down=0.1 window=7" in text and "| cq_col - cq | " in text
     # the variant's unit is the experiment's run with its settings
     gridmap = load_map(out / "maps" / "warehouse_4_gen7.txt")
-    settings = run_settings(gridmap, ["step_cap=60", "cq_collision_conflict=1", "conf_down=0.1", "eval_learning=0",
+    settings = run_settings(gridmap, ["step_cap=60", "conf_down=0.1", "window=7", "eval_learning=0",
                                       "eval_episodes=3"])
     unit = next(r for r in rows if (r["generator_seed"], r["config"]) == ("7", "cq_col"))
     assert float(unit["frozen_collisions"]) == compiled.play("cq", gridmap, settings, 0, 0, 20).greedy[

@@ -6,7 +6,6 @@ A step, as the engine drives it: `need = observe(cell)`, `act({j: cell_j for j i
 tests make the preferred action strictly best where they need to know it.
 """
 
-import dataclasses
 import math
 import pickle
 import random
@@ -21,7 +20,8 @@ from cq_ros.episode import COLUMNS
 from cq_ros.gridmap import load_map, parse_map
 from cq_ros.learners import ALGORITHMS, LEARNERS, decode_joint_action
 from cq_ros.learners.base import N_MOVES
-from cq_ros.learners.cq import CQLearner, Step
+from cq_ros.learners.cq import CQLearner
+from cq_ros.learners.cq_paper import CQPaperLearner, Step
 from cq_ros.learners.indep import IndependentQ
 from cq_ros.learners.js import JointStateQ
 from cq_ros.learners.jsa import MAX_AGENTS, JointStateActionQ
@@ -29,6 +29,7 @@ from cq_ros.learners.loc import COORDINATE, LearningOfCoordination
 from cq_ros.learners.near import NearQ
 from cq_ros.settings import Settings
 from cq_ros.world import GridWorld
+from helpers import OUR_RULES, ours_without, run_as, with_rules
 
 NORTH, EAST, SOUTH, WEST = range(4)
 GREEDY = dict(epsilon=0.0)
@@ -50,11 +51,10 @@ ROW3 = make_map(6, ((0, 0), (0, 5)), ((0, 3), (0, 0)), ((0, 5), (0, 1)))
 ROW2 = make_map(6, ((0, 0), (0, 5)), ((0, 5), (0, 0)))
 
 
-PAPER_CQ = dict(cq_bootstrap_acted=0, cq_mark_range=0, cq_all_met=0)  # the paper's rules (or our first reading)
-
-
 def cq(gridmap=ROW3, **overrides):
-    learner = CQLearner(0, gridmap, Settings(**{**GREEDY, "window": 5, **PAPER_CQ, **overrides}), seed=1)
+    """The paper's CQ on `gridmap`, with each rule of ours named cq_<rule>=1 in `overrides`."""
+    rules = [r for r in OUR_RULES if overrides.pop(f"cq_{r}", 0)]
+    learner = with_rules(*rules)(0, gridmap, Settings(**{**GREEDY, "window": 5, **overrides}), seed=1)
     learner.q_local[0] = [-100.0, 5.0, -100.0, -100.0]  # at cell 0 the greedy move is EAST
     return learner
 
@@ -195,12 +195,12 @@ def test_cq_marking_an_existing_joint_state_keeps_its_table():
 
 
 def test_cq_joint_update_bootstraps_from_q_local_of_the_next_cell():
-    s = Settings(**GREEDY, window=5, **PAPER_CQ)
+    s = Settings(**GREEDY, window=5)
     learner = cq_with_conflict()
     learner.observe(1)
     learner.act({1: 1, 2: 3})  # marks (0, 1, 1) and (0, 2, 3)
     learner.learn(0.0, 0, False)
-    learner._mark(1, {1: 2, 2: 4})  # a joint state at the next cell too, with a large Q^j
+    learner._mark(1, {1: 2, 2: 4}, None)  # a joint state at the next cell too, with a large Q^j
     for js in learner.marked[1]:
         learner.q_joint[js] = [100.0] * 4
     learner.q_local[1] = [1.0, 2.0, 3.0, 4.0]
@@ -273,8 +273,8 @@ def test_cq_all_met_acts_on_the_most_wary_of_the_joint_states_met_and_updates_ea
     learner.learn(-1.0, 1, True)
     assert learner.q_joint[(0, 1, 1)][WEST] == pytest.approx(1.0 + s.alpha * (-1.0 - 1.0))
     assert learner.q_joint[(0, 2, 3)][WEST] == pytest.approx(0.0 + s.alpha * (-1.0 - 0.0))
-    # the rule of 0: the most confident alone, blind to peer 2
-    learner.settings = Settings(**GREEDY, window=5, cq_all_met=0)
+    # the paper's reading: the most confident alone, blind to peer 2
+    learner.__class__ = CQPaperLearner
     learner.observe(0)
     assert learner.act({1: 1, 2: 3}) == EAST
 
@@ -376,7 +376,7 @@ def test_cq_look_if_decisive_looks_when_a_waiting_update_lands_in_the_cell():
 
 @pytest.mark.parametrize("map_name", ["tunnel_to_goal", "grid_game_2"])
 def test_cq_look_if_decisive_changes_no_greedy_action_of_a_frozen_copy(map_name):
-    """A frozen greedy copy of a trained team plays the same steps with the setting on as off, hearing less.
+    """A frozen greedy copy of a trained team plays the same steps with the rule as without, hearing less.
     (On these two runs, skipping a look where Q_k alone is decisive, whatever the Q^j say, changes the steps.)"""
     gm = load_map(map_name)
     settings = Settings(slip=0.1, eval_learning=0, step_cap=400)
@@ -388,7 +388,7 @@ def test_cq_look_if_decisive_changes_no_greedy_action_of_a_frozen_copy(map_name)
     for look in (0, 1):
         greedy = engine.greedy_team(team)
         for learner in greedy.learners:
-            learner.settings = Settings(slip=0.1, eval_learning=0, step_cap=400, cq_look_if_decisive=look)
+            learner.__class__ = CQLearner if look else ours_without("look_if_decisive")
         actions, inner = [], greedy.choose
         greedy.choose = lambda: actions.append(tuple(inner())) or actions[-1]
         episodes = [greedy.episode() for _ in range(5)]
@@ -402,27 +402,19 @@ def test_cq_look_if_decisive_changes_no_greedy_action_of_a_frozen_copy(map_name)
 @pytest.mark.slow
 def test_cq_look_if_decisive_run_is_reproducible():
     gm = load_map("tunnel_to_goal_3")
-    on = Settings(slip=0.1, epsilon_decay_episodes=100, step_cap=400, eval_episodes=3, cq_look_if_decisive=1)
-    first = engine.run("cq", gm, on, seed=2, run_index=1, episodes=200)
-    again = engine.run("cq", gm, on, seed=2, run_index=1, episodes=200)
-    off = engine.run("cq", gm, dataclasses.replace(on, cq_look_if_decisive=0), seed=2, run_index=1, episodes=200)
+    on = Settings(slip=0.1, epsilon_decay_episodes=100, step_cap=400, eval_episodes=3)
+    first = engine.run("cq", gm, on, seed=0, run_index=1, episodes=200)
+    again = engine.run("cq", gm, on, seed=0, run_index=1, episodes=200)
+    off = run_as(ours_without("look_if_decisive"), gm, on, 0, 1, 200)
     assert np.array_equal(first.episodes, again.episodes) and np.array_equal(first.greedy, again.greedy)
     assert first.joint_states == again.joint_states
-    # the setting acts once epsilon is 0 (episode 100 on): fewer plays on joint states than the default's
-    assert np.array_equal(first.episodes[:100], off.episodes[:100])
-    assert first.episodes["joint_plays"][100:].sum() < off.episodes["joint_plays"][100:].sum()
+    # the rule acts once epsilon is 0 (episode 100 on): fewer plays on joint states than without it
+    assert np.array_equal(first.episodes[:100], off[:100])
+    assert first.episodes["joint_plays"][100:].sum() < off["joint_plays"][100:].sum()
 
 
-def test_cq_mark_range_marks_only_the_peers_near_the_conflict():
-    learner = cq_with_conflict(cq_mark_range=2)
-    assert learner.observe(0) == (1, 2)  # it must look at everyone to know who is near
-    learner.act({1: 2, 2: 5})  # peer 1 two cells from cell 0, peer 2 five
-    assert set(learner.q_joint) == {(0, 1, 2)}
-    assert learner.watch == {0: (1,)}
-
-
-def test_cq_mark_range_0_marks_every_peer_as_the_paper():
-    learner = cq_with_conflict(cq_mark_range=0)
+def test_cq_paper_marks_every_peer():
+    learner = cq_with_conflict()
     learner.observe(0)
     learner.act({1: 2, 2: 5})
     assert set(learner.q_joint) == {(0, 1, 2), (0, 2, 5)}
@@ -444,52 +436,35 @@ def cq_conflict_at(cell, moved=False, **overrides):
 def test_cq_mark_colliders_marks_only_the_peers_that_could_have_collided(colliders, marked):
     """At cell 2 moving EAST (toward cell 3), an agent that stayed can have collided with a peer within 1 cell of
     cell 3 (cell 4: both moved into 3) or of cell 2 (cell 1: the peer ran into it); not with one at cell 0, two
-    cells behind it, which cq_mark_range=2 alone marks. Two peers, each met where one of them is."""
+    cells behind it, which the paper marks too. Two peers, each met where one of them is."""
     found = set()
     for peer_cells in ({1: 4, 2: 1}, {1: 4, 2: 0}):
-        learner = cq_conflict_at(2, cq_mark_range=2, cq_mark_colliders=colliders)
+        learner = cq_conflict_at(2, cq_mark_colliders=colliders)
         learner.observe(2)
         learner.act(peer_cells)
         found |= set(learner.q_joint)
     assert found == marked
 
 
-@pytest.mark.parametrize("on", [0, 1])
-def test_cq_collision_conflict_is_a_conflict_at_the_first_collision_penalty(on):
-    """One collision at the second visit, long before W1 and W2 are full: a conflict at once under
-    cq_collision_conflict, marked with the peers where they are then; none for the t-tests (the paper's). A wall
-    bump's reward, and a step's, are none either way."""
-    learner = cq(cq_collision_conflict=on)
-    for reward in (learner.settings.reward_wall, learner.settings.reward_step):
-        step(learner, 0, ELSEWHERE, reward, 0)
-        assert conflict_at(learner) is None
-    step(learner, 0, ELSEWHERE, learner.settings.reward_collision, 0)
-    assert conflict_at(learner) == (0 if on else None)
-    assert learner.observe(0) == ((1, 2) if on else ())
-    learner.act({1: 1, 2: 5} if on else {})
-    assert set(learner.q_joint) == ({(0, 1, 1), (0, 2, 5)} if on else set())
-
-
 def test_cq_mark_colliders_marks_no_one_where_the_agent_moved():
     """A collision leaves the agent in its cell: a conflict found at a step it moved has no peer to blame."""
-    for colliders, marked in ((1, set()), (0, {(0, 1, 2)})):
-        learner = cq_conflict_at(0, moved=True, cq_mark_range=2, cq_mark_colliders=colliders)
-        assert learner.observe(1) == (1, 2)  # it must look at everyone to mark, as without the setting
+    for colliders, marked in ((1, set()), (0, {(0, 1, 2), (0, 2, 5)})):
+        learner = cq_conflict_at(0, moved=True, cq_mark_colliders=colliders)
+        assert learner.observe(1) == (1, 2)  # it must look at everyone to mark, as without the rule
         learner.act({1: 2, 2: 5})
-        assert set(learner.q_joint) == marked and learner.watch == ({0: (1,)} if marked else {})
+        assert set(learner.q_joint) == marked and learner.watch == ({0: (1, 2)} if marked else {})
 
 
-@pytest.mark.parametrize("bootstrap_acted", [0, 1])
+@pytest.mark.parametrize("algo", ["cq_paper", "cq"])
 @pytest.mark.slow
-def test_cq_greedy_deadlock_on_the_tunnel_is_the_papers_bootstrap(bootstrap_acted):
+def test_cq_greedy_deadlock_on_the_tunnel_is_the_papers(algo):
     """A regression test on the one run in ten (seed 0, run 6, 10,000 episodes) whose greedy policy the
-    paper's bootstrap leaves stuck at the step cap on tunnel_to_goal; with ours the same run gets both
-    agents home. Both halves are asserted, so the test shows it can tell the two rules apart."""
+    paper's CQ leaves stuck at the step cap on tunnel_to_goal; ours gets both agents home in the same run.
+    Both halves are asserted, so the test shows it can tell the two apart."""
     gm = load_map("tunnel_to_goal")
-    settings = Settings(eval_episodes=2, step_cap=300, cq_bootstrap_acted=bootstrap_acted)
-    result = engine.run("cq", gm, settings, seed=0, run_index=6, episodes=10_000)
+    result = engine.run(algo, gm, Settings(eval_episodes=2, step_cap=300), seed=0, run_index=6, episodes=10_000)
     stuck = result.greedy["truncated"].any()
-    assert stuck == (bootstrap_acted == 0)
+    assert stuck == (algo == "cq_paper")
     if not stuck:
         assert not result.greedy["collisions"].any() and result.greedy["steps"].max() <= 20
 
@@ -1052,7 +1027,7 @@ def test_make_learners_unknown_algorithm_names_the_algorithms():
 
 def test_make_learners_one_per_agent_or_one_central():
     gm = load_map("tunnel_to_goal")
-    assert set(ALGORITHMS) == {"indep", "js", "jsa", "loc", "cq"}
+    assert set(ALGORITHMS) == {"indep", "js", "jsa", "loc", "cq_paper"}
     for algo in ALGORITHMS:
         learners = make_learners(algo, gm, Settings(), seed=0, run=0)
         assert all(isinstance(learner, LEARNERS[algo]) for learner in learners)
@@ -1092,14 +1067,14 @@ def test_near_finishes_a_steps_update_from_the_next_state_it_sees():
 
 def test_cq_w1_alone_holds_what_acting_alone_earns_a_share_slip_delayed():
     st = dict(GREEDY, window=10, slip=0.2, reward_step=-1.0, reward_wall=-2.0, reward_goal=7.0)
-    learner = CQLearner(0, ROW2, Settings(**st, cq_w1_alone=1), seed=1)
+    learner = with_rules("w1_alone")(0, ROW2, Settings(**st), seed=1)
     west_of_0, east_of_0, into_goal = learner.windows[0 * 4 + WEST], learner.windows[0 * 4 + EAST], \
         learner.windows[4 * 4 + EAST]
     assert all(w.n1 == 10 for w in learner.windows)  # W1 full from the start
     assert west_of_0.sum1 == 2 * -1.0 + 8 * -2.0  # a bump, 2 of 10 delayed
     assert east_of_0.sum1 == 10 * -1.0
     assert into_goal.sum1 == 2 * -1.0 + 8 * 7.0  # cell 4 -> 5, agent 0's goal
-    plain = CQLearner(0, ROW2, Settings(**st), seed=1)
+    plain = CQPaperLearner(0, ROW2, Settings(**st), seed=1)
     assert all(w.n1 == 0 for w in plain.windows)
 
 
@@ -1138,11 +1113,11 @@ def test_cq_waits_fresh_a_new_joint_states_waits_are_never_below_the_floor():
     gm = make_map(3, ((0, 0), (1, 2)), ((1, 2), (0, 0)), height=2)
     rng = random.Random(5)
     for _ in range(200):
-        learner = CQLearner(0, gm, Settings(cq_waits_fresh=1, cq_mark_range=0, gamma=0.9, reward_wall=-2.0), seed=1)
+        learner = with_rules("waits_fresh")(0, gm, Settings(gamma=0.9, reward_wall=-2.0), seed=1)
         s = rng.randrange(gm.n_cells)
         q_k = [rng.uniform(-30.0, 10.0) for _ in range(N_MOVES)]
         learner.q_local[s] = list(q_k)
-        (js,) = learner._mark(s, {1: rng.randrange(gm.n_cells)})
+        (js,) = learner._mark(s, {1: rng.randrange(gm.n_cells)}, None)
         floor = -2.0 + 0.9 * max(q_k)
         for a, to in enumerate(gm.neighbours[s]):
             row = learner.q_joint[js]

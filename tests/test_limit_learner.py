@@ -100,7 +100,7 @@ def test_a_unit_is_the_same_again_from_its_seed(tmp_path, learner):
     path = tmp_path / "warehouse_4_gen1001.txt"
     path.write_text(warehouse_text(4, seed=1001, slip=0.1))
     gm = parse_map(path.read_text())
-    settings = config_settings(Config(learner, "near"), gm, ["step_cap=60"], 3)[0]
+    settings = config_settings(Config(learner, "near"), gm, ["step_cap=60"], 3)
     unit = Unit(str(path), learner, 1, 20, 0, settings, learner, 4, 1001, 3, 10, 2)
 
     def row():

@@ -296,8 +296,11 @@ def test_a_killed_agent_resumes_from_its_checkpoint(system_in, ros_context, tmp_
     settings = {**dict(GRID[2]), "eval_episodes": 1, "step_cap": 300}
     system = system_in("cq", *GRID[:2], 30, settings, world_extra={"step_timeout": 0.5}, agent_extra=extra)
     world, agent2 = system.world, system.agents[1]
-    assert spin_until(system.executor, lambda: world.core.episode >= 12, RUN_TIMEOUT_S)
-    system.executor.remove_node(agent2)  # killed, a moment after its checkpoint of episode 9
+    # killed in episode 12, a while after its checkpoint of episode 9, once its statistics of the episodes it
+    # finished are out (those a restarted agent cannot send again)
+    assert spin_until(system.executor, lambda: world.core.episode >= 12 and len(system.agent_stats[2]) >= 12,
+                      RUN_TIMEOUT_S)
+    system.executor.remove_node(agent2)
     agent2.destroy_node()
     saved, saved_episode = load_checkpoint(path, "cq", load_map(GRID[0]), 1,
                                           run_settings(load_map(GRID[0]), settings))

@@ -19,6 +19,7 @@ from cq_ros.lab.reproduce import (
     over_seeds,
     entrance_share,
     settled_at,
+    CQ,
     sooner_than_cq,
     as_command,
     states_in_parts,
@@ -41,7 +42,7 @@ def collisions_until(episode: int | None, after: float = 0.0, runs: int = 3) -> 
 
 def grid(cq: int | None, others: dict[str, int | None], cq_after: float = 0.0) -> dict:
     """Every paper map alike: CQ calm from `cq`, each baseline from its episode in `others` (default never)."""
-    return {(m, a): collisions_until(cq, cq_after) if a == "cq" else collisions_until(others.get(a))
+    return {(m, a): collisions_until(cq, cq_after) if a == CQ else collisions_until(others.get(a))
             for m in PAPER_MAPS for a in ALGORITHMS}
 
 
@@ -61,7 +62,7 @@ def test_claim_2_fails_naming_each_baseline_calm_before_cq():
 
 def test_claim_2_fails_when_a_baseline_is_calm_and_cq_never_is():
     data = grid(200, {"js": 300})
-    data[("isr", "cq")] = collisions_until(None)
+    data[("isr", CQ)] = collisions_until(None)
     settled = settled_at(data, 0.05)
     assert not claim_collision_free(settled)
     assert [(algo, m, mine) for algo, m, _, mine in sooner_than_cq(settled)] == [("js", "isr", None)]
@@ -80,7 +81,7 @@ def write_observations(out, cells_and_confidence):
         w = csv.writer(f)
         w.writerow(OBSERVE_COLUMNS)
         for (row, col), conf in cells_and_confidence:
-            w.writerow(("tunnel_to_goal_3", "cq", 0, 1, row, col, 2, row + 1, col, conf))
+            w.writerow(("tunnel_to_goal_3", CQ, 0, 1, row, col, 2, row + 1, col, conf))
 
 
 def test_claim_6_share_of_joint_states_at_the_tunnel_entrance(tmp_path):
@@ -97,18 +98,18 @@ def at_2000(collisions: dict[str, float], steps: dict[str, float]) -> dict:
     """tunnel_to_goal_3 runs of 2000 episodes with these collisions and steps per episode throughout."""
     return {("tunnel_to_goal_3", a): {"collisions": np.full((2, 2000), collisions[a]),
                                       "steps": np.full((2, 2000), steps[a])}
-            for a in ("js", "jsa", "cq")}
+            for a in ("js", "jsa", CQ)}
 
 
 def test_claim_4_is_judged_on_collisions_as_fig_3_plots_them_with_steps_beside():
-    long_routes = {"js": 21.3, "jsa": 23.2, "cq": 15.3}
+    long_routes = {"js": 21.3, "jsa": 23.2, CQ: 15.3}
     # Far longer routes but fewer collisions than CQ: not poor on Fig. 3's measure.
-    fewer = _claim_joint_learners_slow(at_2000({"js": 0.01, "jsa": 0.02, "cq": 0.1}, long_routes))
+    fewer = _claim_joint_learners_slow(at_2000({"js": 0.01, "jsa": 0.02, CQ: 0.1}, long_routes))
     assert "**does not hold**" in fewer and "js 0.010 (21.3 steps)" in fewer
     # One of the two colliding less than CQ is enough for the claim to fail.
-    assert "**does not hold**" in _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.05, "cq": 0.1}, long_routes))
-    more = _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.2, "cq": 0.1}, {a: 15.0 for a in long_routes}))
-    assert "**holds**" in more and "cq 0.100 (15.0 steps)" in more
+    assert "**does not hold**" in _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.05, CQ: 0.1}, long_routes))
+    more = _claim_joint_learners_slow(at_2000({"js": 0.3, "jsa": 0.2, CQ: 0.1}, {a: 15.0 for a in long_routes}))
+    assert "**holds**" in more and f"{CQ} 0.100 (15.0 steps)" in more
 
 
 def test_a_crossing_is_quoted_as_a_range_over_seeds_naming_those_where_it_never_comes():

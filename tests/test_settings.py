@@ -8,7 +8,7 @@ import pytest
 
 from cq_ros.lab.results import manifest_for
 from cq_ros.gridmap import load_map, parse_map
-from cq_ros.settings import Settings, SettingsError, run_settings, run_settings_and_presets
+from cq_ros.settings import Settings, SettingsError, run_settings
 
 FIELDS = [f.name for f in dataclasses.fields(Settings)]
 INT_FIELDS = [f.name for f in dataclasses.fields(Settings) if f.type in ("int", int)]
@@ -172,33 +172,17 @@ def test_run_settings_puts_the_maps_defaults_under_the_users_overrides():
 PAPER_MAPS = ("grid_game_2", "tunnel_to_goal", "tunnel_to_goal_3", "isr", "cit", "cmu")
 
 
-def test_under_delays_cq_detects_against_acting_alone_and_values_waits_afresh_unless_told_otherwise():
-    delayed = load_map("warehouse_8_delayed")
-    assert delayed.defaults["slip"] > 0 and "cq_w1_alone" not in delayed.defaults
-    on = run_settings(delayed)
-    assert (on.cq_w1_alone, on.cq_waits_fresh) == (1, 1)
-    # marking the peers that could have collided with it, two cells away at most; looking where it helps
-    assert (on.cq_mark_colliders, on.cq_mark_range, on.cq_look_if_decisive) == (1, 2, 1)
-    assert (Settings().cq_mark_colliders, Settings().cq_look_if_decisive) == (0, 0)  # which is not the defaults'
-    assert run_settings(delayed, ["cq_mark_colliders=0"]).cq_mark_colliders == 0
-    # a delay given by --set (or a node's parameter), on a map without one
-    for delay in (["slip=0.1"], ["start_hold=3"], {"slip": 0.05}):
-        s = run_settings(load_map("warehouse_8"), delay)
-        assert (s.cq_w1_alone, s.cq_waits_fresh) == (1, 1), delay
-    # an explicit value wins, from the user or the map's own set lines
-    assert run_settings(delayed, ["cq_w1_alone=0"]).cq_w1_alone == 0
-    assert run_settings(delayed, ["cq_w1_alone=0"]).cq_waits_fresh == 1
-    assert run_settings(delayed, {"cq_waits_fresh": 0}).cq_waits_fresh == 0
-    own = parse_map("agent 1: start 0,0  goal 0,1\nset slip=0.1\nset cq_waits_fresh=0\n+-+-+\n|. .|\n+-+-+\n")
-    assert (run_settings(own).cq_w1_alone, run_settings(own).cq_waits_fresh) == (1, 0)
-    # no delay, no change: the paper's maps, the undelayed warehouses, a delayed map whose delay is taken away
-    for name in (*PAPER_MAPS, "warehouse_8", "warehouse_16"):
+def test_a_runs_settings_are_the_defaults_the_maps_then_the_users_and_no_map_changes_an_algorithm():
+    """A delayed map brings its own set lines and nothing else: which CQ plays is its name (cq or cq_paper),
+    never a setting; the switches that once chose CQ's rules are unknown settings."""
+    for name in (*PAPER_MAPS, "warehouse_8", "warehouse_8_delayed"):
         assert run_settings(load_map(name)) == Settings().with_overrides(load_map(name).defaults), name
-    off = run_settings(delayed, ["slip=0"])
-    assert (off.cq_w1_alone, off.cq_waits_fresh, off.cq_mark_colliders, off.cq_look_if_decisive) == (0, 0, 0, 0)
-    # the paper's grid (cq-ros reproduce): no map defaults, the same rule
+    delayed = load_map("warehouse_8_delayed")
+    assert run_settings(delayed, ["slip=0.2", "window=9"]) == Settings().with_overrides(
+        {**delayed.defaults, "slip": 0.2, "window": 9})
     assert run_settings(None) == Settings()
-    assert (run_settings(None, ["slip=0.1"]).cq_w1_alone, run_settings(None, ["slip=0.1"]).cq_waits_fresh) == (1, 1)
+    with pytest.raises(SettingsError, match="unknown setting 'cq_w1_alone'"):
+        run_settings(delayed, ["cq_w1_alone=0"])
 
 
 def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():
@@ -213,37 +197,3 @@ def test_every_setting_is_described_once_for_the_cli_the_nodes_and_the_docs():
         Settings.describe("no_such_setting")
 
 
-# Algorithm 2 as the paper reads, setting by setting (docs/choices.md's table says which value is the paper's):
-# written out here, not read from cq_ros.settings, so that a change there shows.
-PAPERS_CQ = {"cq_bootstrap_acted": 0, "cq_all_met": 0, "cq_mark_range": 0, "cq_mark_colliders": 0,
-             "cq_w1_alone": 0, "cq_waits_fresh": 0, "cq_look_if_decisive": 0, "cq_collision_conflict": 0}
-
-
-@pytest.mark.parametrize("map_name", ["tunnel_to_goal_3", "warehouse_8", "warehouse_8_delayed"])
-def test_the_paper_preset_is_the_papers_cq_on_every_map_delayed_or_not(map_name):
-    gridmap = load_map(map_name)
-    settings, presets = run_settings_and_presets(gridmap, [], "paper")
-    assert {k: getattr(settings, k) for k in PAPERS_CQ} == PAPERS_CQ
-    assert set(PAPERS_CQ) == {f for f in FIELDS if f.startswith("cq_")}  # no cq_ choice left out
-    # every other setting is the run's without the preset (the map's own, its delays)
-    plain = run_settings(gridmap)
-    assert {k: v for k, v in settings.as_dict().items() if k not in PAPERS_CQ} == \
-        {k: v for k, v in plain.as_dict().items() if k not in PAPERS_CQ}
-    # the manifest's record: the preset's settings; under delays it leaves nothing to `under_delays`
-    assert presets == {"paper": PAPERS_CQ}
-    assert run_settings(gridmap, [], "paper") == settings
-
-
-def test_presets_say_what_they_set_and_the_user_wins_over_them():
-    delayed = load_map("warehouse_8_delayed")
-    settings, presets = run_settings_and_presets(delayed)
-    assert presets == {"under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_mark_colliders": 1,
-                                        "cq_look_if_decisive": 1}}
-    _, presets = run_settings_and_presets(delayed, ["cq_mark_colliders=0"])
-    assert presets == {"under_delays": {"cq_w1_alone": 1, "cq_waits_fresh": 1, "cq_look_if_decisive": 1}}
-    assert run_settings_and_presets(load_map("warehouse_8"))[1] == {}  # no delay, no preset
-    settings, presets = run_settings_and_presets(delayed, ["cq_mark_range=2"], "paper")
-    assert settings.cq_mark_range == 2 and settings.cq_w1_alone == 0
-    assert presets == {"paper": {k: v for k, v in PAPERS_CQ.items() if k != "cq_mark_range"}}
-    with pytest.raises(SettingsError, match="unknown preset 'papers'; presets are: paper"):
-        run_settings(delayed, [], "papers")

@@ -19,10 +19,10 @@ from ..compiled import ENGINES
 from ..gridmap import MapError
 from ..lab.cluster import ClusterError, scheduler_address
 from ..lab.runner import RunFailed
-from ..learners import ALGORITHMS, LEARNERS
+from ..learners import DEFAULT_ALGORITHMS, LEARNERS
 from ..mapgen.shelves import DEFAULT_SHELF_COLS, DEFAULT_SHELF_ROWS
 from ..mapgen.warehouse import DEFAULT_AISLE_LENGTH
-from ..settings import PRESETS, SettingsError
+from ..settings import SettingsError
 from .pipe import reader_may_leave
 
 
@@ -127,8 +127,8 @@ def _number(low: float, high: float | None = None, kind: type = float, strict: b
 
 
 def _algo(text: str) -> str:
-    if text not in ALGORITHMS:
-        raise argparse.ArgumentTypeError(f"unknown algorithm {text!r}; choose one of {','.join(ALGORITHMS)}")
+    if text not in LEARNERS:
+        raise argparse.ArgumentTypeError(f"unknown algorithm {text!r}; choose one of {','.join(LEARNERS)}")
     return text
 
 
@@ -189,7 +189,7 @@ def _add_ros_parsers(sub) -> None:
                               "(`ended`).")
     p.add_argument("--map", default=None, help="a shipped map name or a path to a map file (required unless "
                                                 "--params-file)")
-    p.add_argument("--algo", type=_algo, default=None, help=f"one of {','.join(ALGORITHMS)} (required unless "
+    p.add_argument("--algo", type=_algo, default=None, help=f"one of {','.join(LEARNERS)} (required unless "
                                                              "--params-file)")
     p.add_argument("--out", type=_path, required=True, help="result directory (node logs in its logs/; the "
                                                            "system it ran in its params.yaml)")
@@ -311,7 +311,7 @@ def _add_ros_parsers(sub) -> None:
     source.add_argument("--map", help="run the offline engine on this map (a shipped name or a path)")
     source.add_argument("--bag", type=_path, help="a rosbag2 directory recorded by `cq-ros record`")
     # None until given, so that a bag can refuse them: their defaults are the engine's (_render)
-    p.add_argument("--algo", type=_algo, default=None, help=f"with --map: one of {','.join(ALGORITHMS)} (default cq)")
+    p.add_argument("--algo", type=_algo, default=None, help=f"with --map: one of {','.join(LEARNERS)} (default cq)")
     p.add_argument("--episodes", type=_episodes, default=None, help="with --map: episodes to learn (default 100)")
     p.add_argument("--seed", type=_seed, default=None, help="with --map: master seed (default 0)")
     p.add_argument("--episode", type=_number(0, kind=int), default=None, metavar="E",
@@ -390,14 +390,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("experiment", help="run algorithms on one map offline and write results and figures")
     p.add_argument("--map", required=True, help="a shipped map name or a path to a map file")
-    p.add_argument("--algo", type=_algos, default=list(ALGORITHMS),
-                   help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five)")
+    p.add_argument("--algo", type=_algos, default=list(DEFAULT_ALGORITHMS),
+                   help=f"comma-separated, from {','.join(LEARNERS)} (default: the paper's five and ours, "
+                        f"{','.join(DEFAULT_ALGORITHMS)})")
     p.add_argument("--out", type=_path, required=True, help="result directory")
     p.add_argument("--no-figures", dest="figures", action="store_false", help="write the tables only")
-    p.add_argument("--preset", choices=list(PRESETS), default=None,
-                   help="a named configuration over the map's settings, under --set: paper, CQ as Algorithm 2 "
-                        "reads (every cq_* choice at the paper's value, also under delays). The presets that "
-                        "set anything are printed on stderr and listed in the manifest (`presets`)")
     _add_run_options(p, runs=10, episodes=10_000)
 
     p = sub.add_parser("plan", help="plan every AGV's route centrally under the world's rules (the yardstick "
@@ -453,7 +450,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="greedy episodes per unit and copy (default 100)")
     p.add_argument("--algos", type=_algos, default=["cq", "indep"],
                    help="comma-separated, the first the reference of differences and ratios (default cq,indep)")
-    p.add_argument("--paper", action="store_true", help="add the paper's CQ (algo cq, preset paper) as cq_paper")
     p.add_argument("--variant", action="append", default=[], metavar="NAME=ALGO:KEY=VALUE,...",
                    help="add a configuration: an algorithm with settings of its own over the study's (repeatable)")
     p.add_argument("--tuning", action="store_true",

@@ -14,7 +14,7 @@ from ..gridmap import available_maps, load_map, parse_map
 from ..lab.output import check_parent, removed_if_failing
 from ..lab.results import MANIFEST
 from ..mapgen.warehouse import warehouse_text
-from ..settings import Settings, run_settings, run_settings_and_presets
+from ..settings import Settings, run_settings
 
 
 def maps(args) -> int:
@@ -50,14 +50,12 @@ def experiment(args) -> int:
     from ..lab.experiment import experiment
 
     # The map is read first: a bad map fails before any work starts, and its defaults join the settings.
-    settings, presets = run_settings_and_presets(load_map(args.map), args.overrides, args.preset)
-    for name, changed in presets.items():
-        print(f"preset {name}: " + " ".join(f"{k}={v}" for k, v in changed.items()), file=sys.stderr)
+    settings = run_settings(load_map(args.map), args.overrides)
     # A run cut short before any finished leaves no folder; the runs finished when Ctrl-C came are kept.
     with removed_if_failing(args.out, unless=lambda: (args.out / MANIFEST).exists()):
         out = experiment(args.map, args.algo, args.runs, args.episodes, args.seed, args.out, settings,
                          workers=args.jobs, force=args.force, figures=False, cluster=args.cluster,
-                         engine=args.engine, presets=presets)
+                         engine=args.engine)
     if args.figures:  # after the results, which no figure can cost
         from ..lab.plots import write_figures
 
@@ -70,7 +68,7 @@ def experiment(args) -> int:
 def reproduce(args) -> int:
     from ..lab.reproduce import reproduce
 
-    # The paper's maps carry no defaults of their own; a delay given by --set brings CQ's settings under delays.
+    # The paper's maps carry no defaults of their own.
     report = reproduce(args.out, args.runs, args.episodes, args.seeds or args.seed,
                        run_settings(None, args.overrides), workers=args.jobs, force=args.force,
                        sweep=args.sweep, cluster=args.cluster, engine=args.engine,
@@ -242,7 +240,7 @@ def _note(line: str) -> None:
 def study(args) -> int:
     from ..lab.held_out import parse_configs, study
 
-    configs = parse_configs(args.algos, args.paper, args.variant)
+    configs = parse_configs(args.algos, args.variant)
     for agents in args.agents:  # a bad setting fails before any work starts
         for c in configs:
             run_settings(parse_map(warehouse_text(agents, slip=args.slip)), [*args.overrides, *c.sets])

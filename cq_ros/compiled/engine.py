@@ -32,6 +32,7 @@ from .world import new_scratch
 # the learners whose states with peers live in the kernel's table (cq_ros.compiled.learners), by the attribute
 # holding them in the reference learner
 TABLES = {"near": "q_near", "loc": "q_coord", "js": "q_joint", "jsa": "q_joint"}
+CQS = ("cq", "cq_paper")  # the learners whose joint states live in the kernel's pool: ours and the paper's
 _EVERYWHERE = np.iinfo(np.int64).max  # the range of JS and JSA: every peer is seen
 
 
@@ -53,7 +54,7 @@ class Kernel:
             raise ValueError(f"jsa supports at most {MAX_AGENTS} agents (4^n joint actions), "
                              f"the map has {gridmap.n_agents}")
         self.algo, self.map, self.settings, self.seed, self.run_index = algo, gridmap, settings, seed, run_index
-        st, cq, tables = settings, algo == "cq", algo in TABLES
+        st, cq, tables = settings, algo in CQS, algo in TABLES
         n, c = gridmap.n_agents, gridmap.n_cells
         rows, cols = zip(*gridmap.cells)
         self.geo = (np.array(gridmap.neighbours, np.int64), np.array(gridmap.starts, np.int64),
@@ -66,10 +67,8 @@ class Kernel:
                             # table holds it
                             float((1 if algo == "jsa" else n) * c ** n) if algo in ("js", "jsa") else 0.0])
         self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, K.ALGO_CODES[algo],
-                            st.cq_mark_range, st.cq_mark_colliders, st.cq_bootstrap_acted, st.cq_all_met,
-                            st.cq_waits_fresh, st.cq_look_if_decisive,
-                            st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE,
-                            st.cq_collision_conflict],
+                            algo == "cq",
+                            st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE],
                            np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
                       # the world's generator as GridWorld's constructor leaves it
@@ -91,11 +90,11 @@ class Kernel:
         self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window, self.fp[[K.R_STEP, K.R_WALL, K.R_COLL,
                                                                                   K.R_GOAL]])
         self.tab = new_table(64 if tables else 1, algo, n)
-        if cq and st.cq_w1_alone:
+        if algo == "cq":
             self._w1_alone()
 
     def _w1_alone(self) -> None:
-        """W1 of every window full of what acting alone earns (cq_w1_alone), as CQLearner's constructor fills it:
+        """W1 of every window full of what acting alone earns, as CQLearner's constructor fills it:
         the sums of rewards_alone's list, one per kind of move (a wall, the goal, a step)."""
         wi, wf = self.win[0], self.win[1]
         nbr, goals = self.geo[0], self.geo[2]
@@ -235,7 +234,7 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
         mine = np.flatnonzero(tk[:used, 0] == k)
         setattr(learner, TABLES[kernel.algo], {_state_key(tk[i], k, learner.joint_state): tq[i].tolist()
                                                       for i in mine})
-    if kernel.algo != "cq":
+    if kernel.algo not in CQS:
         return
     jsi, jsf = kernel.js[0], kernel.js[1]
     learner.dropped_updates = int(ag[K.DROPPED])
@@ -302,7 +301,7 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
             tq[tm[0]] = row
             tm[0] += 1
         kernel.js[6][k] = len(table)
-    if kernel.algo != "cq":
+    if kernel.algo not in CQS:
         return
     ag[K.DROPPED], ag[K.LOOKING] = learner.dropped_updates, learner.looking
     jsi, jsf = kernel.js[0], kernel.js[1]
@@ -358,7 +357,7 @@ def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     kernel = Kernel(algo, team.world.map, learners[0].settings, seed, run_index)
     kernel.ip[K.LEARNING] = int(learners[0].learning)
     kernel.world[3][0] = state_of(team.world._rng)
-    if algo == "cq":
+    if algo in CQS:
         total = sum(len(learner.q_joint) for learner in learners)
         cap = _slots_for(total + len(learners) ** 2)
         jsi, jsf, free, meta, head, tail, n_js = (np.full((cap, 7), -1, np.int64), np.zeros((cap, 5)),

@@ -35,12 +35,11 @@ W_ON, W_CELL, W_ACTION, W_NEXT, W_DONE, W_CONFLICT, W_LEARNT, W_NKEYS = range(8)
 # fp: the float settings
 ALPHA, GAMMA, EPS0, SLIP, R_STEP, R_WALL, R_COLL, R_GOAL, CONF_INIT, CONF_UP, CONF_DOWN, CONF_MAX, CONF_DROP, \
     T_TWO, T_ONE, LOC_COST, JS_STATES = range(17)
-# ip: the int settings (ALGO: which learner, one of ALGO_CODES; RANGE: near_range, loc_range, or for JS beyond
-# any distance)
-N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, ALGO, MARK_RANGE, MARK_COLLIDERS, BOOT_ACTED, ALL_MET, \
-    WAITS_FRESH, LOOK_DECISIVE, RANGE, COLLISION_CONFLICT = range(14)
+# ip: the int settings (ALGO: which learner, one of ALGO_CODES; OURS: CQ plays our rules, cq.CQLearner's, else
+# the paper's, cq_paper.CQPaperLearner's; RANGE: near_range, loc_range, or for JS beyond any distance)
+N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, ALGO, OURS, RANGE = range(8)
 INDEP, CQ, NEAR, LOC, JS, JSA = range(6)
-ALGO_CODES = {"indep": INDEP, "cq": CQ, "near": NEAR, "loc": LOC, "js": JS, "jsa": JSA}
+ALGO_CODES = {"indep": INDEP, "cq": CQ, "cq_paper": CQ, "near": NEAR, "loc": LOC, "js": JS, "jsa": JSA}
 COORDINATE = 4  # LoC's fifth action (cq_ros.learners.loc.COORDINATE)
 # meta: the pool's free slots, the next creation number
 FREE, SEQ = 0, 1
@@ -147,7 +146,7 @@ def _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, next_row, has_next):
     reward = wtr[k]
     if wt[k, W_DONE]:
         target = reward
-    elif ip[BOOT_ACTED] and has_next:
+    elif ip[OURS] and has_next:
         target = reward + fp[GAMMA] * _max(next_row)
     else:
         target = reward + fp[GAMMA] * _qmax(q, k, wt[k, W_NEXT])
@@ -221,7 +220,7 @@ def observe_cq(k, cell, n, ip, ag, eps, q, jsi, jsf, head, wt):
         ag[k, LOOKING] = 1
         ag[k, LOOK_N] = n - 1
         return
-    looking = head[k, cell] >= 0 and not (ip[LOOK_DECISIVE] and _decisive(k, cell, eps, q, jsi, jsf, head, wt))
+    looking = head[k, cell] >= 0 and not (ip[OURS] and _decisive(k, cell, eps, q, jsi, jsf, head, wt))
     ag[k, LOOKING] = looking
     ag[k, LOOK_N] = _peers_named(k, cell, jsi, head) if looking else 0
 
@@ -249,15 +248,12 @@ def _mark(k, s, nbr, rows, cols, fp, ip, cells, q, jsi, jsf, head, tail, meta, f
     """CQLearner._mark of cell s for the step in wt[k]: the slots made new into `made`; how many. The pool has
     a free slot for each peer (grow_pool)."""
     n = cells.shape[0]
-    near = ip[MARK_RANGE]
     count = 0
     for j in range(n):
         if j == k:
             continue
         pc = cells[j]
-        if near and _distance(rows, cols, s, pc) > near:
-            continue
-        if ip[MARK_COLLIDERS]:  # _could_collide
+        if ip[OURS]:  # CQLearner._marks
             if wt[k, W_NEXT] != wt[k, W_CELL]:
                 continue
             toward = nbr[wt[k, W_CELL], wt[k, W_ACTION]]
@@ -275,7 +271,7 @@ def _mark(k, s, nbr, rows, cols, fp, ip, cells, q, jsi, jsf, head, tail, meta, f
         slot = free[meta[FREE]]
         for a in range(q.shape[2]):
             jsf[slot, 1 + a] = q[k, s, a]
-        if ip[WAITS_FRESH]:  # _new_row
+        if ip[OURS]:  # CQLearner._new_row
             floor = fp[R_WALL] + fp[GAMMA] * _qmax(q, k, s)
             for a in range(q.shape[2]):
                 if nbr[s, a] == s and floor > jsf[slot, 1 + a]:
@@ -370,7 +366,7 @@ def _act_cq(k, nbr, rows, cols, fp, ip, ag, eps, q, mt, cells, jsi, jsf, free, m
         ck[k, 0] = -1
         ag[k, NKEYS] = 1
     else:
-        keep = count if ip[ALL_MET] else 1
+        keep = count if ip[OURS] else 1
         for m in range(keep):
             ck[k, m] = made[m]
         ag[k, NKEYS] = keep
@@ -396,11 +392,9 @@ def learn_cq(k, reward, kind, next_cell, done, fp, ip, ag, q, jsi, jsf, head, wt
     if W.add(wi, wf, k, w, pool, used, part, vals, wrow, reward, kind):
         conflict = (W.drop_t(wi, wf, k, w, pool, part, vals, wrow) < -fp[T_TWO]
                     and not W.above_t(wi, wf, k, w, pool, part, vals, wrow, reward) < -fp[T_ONE])
-    if ip[COLLISION_CONFLICT] and reward <= fp[R_COLL]:
-        conflict = True
-    if done or (not conflict and (not ip[BOOT_ACTED] or head[k, next_cell] < 0)):
-        # Nothing waits for the next act: the update is made now as the reference's is (at the goal, or without
-        # cq_bootstrap_acted), or, under cq_bootstrap_acted, the row it bootstraps from is already known: s' has
+    if done or (not conflict and (not ip[OURS] or head[k, next_cell] < 0)):
+        # Nothing waits for the next act: the update is made now as the reference's is (at the goal, or in the
+        # paper's CQ), or, in ours, the row it bootstraps from is already known: s' has
         # no joint state and none can appear before the next act (only a waiting conflict marks), so that act
         # will act on Q_k of s', which nothing changes until then (Q_k is only this learner's); and the rows
         # acted on at s are the step's own, still kept (only a cell's own joint states are forgotten, when it is
@@ -433,7 +427,7 @@ def _wait(k, s, a, reward, next_cell, done, conflict, fp, ip, ag, q, jsi, jsf, w
         wtk[k, 2 * m] = ck[k, m]
         wtk[k, 2 * m + 1] = jsi[ck[k, m], JS_SEQ] if ck[k, m] >= 0 else -1
     wt[k, W_NKEYS] = nkeys
-    if done or not ip[BOOT_ACTED]:
+    if done or not ip[OURS]:
         _update(k, fp, ip, ag, q, jsi, jsf, wt, wtr, wtk, row, False)
         wt[k, W_LEARNT] = 1
     wt[k, W_ON] = wt[k, W_CONFLICT] or not wt[k, W_LEARNT]

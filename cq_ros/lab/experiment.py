@@ -17,7 +17,7 @@ from ..engine import RunResult
 from ..gridmap import GridMap, load_map
 from .results import engines_of, manifest_for, prepare_output, write_results
 from .runner import run_all
-from ..settings import Settings, run_settings_and_presets
+from ..settings import Settings, run_settings
 
 
 @dataclass(frozen=True)
@@ -68,15 +68,13 @@ def keep_interrupted(out: Path, jobs: list[Job], done: dict[Job, RunResult],
 
 def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: int, out: Path,
                settings: Settings | None = None, workers: int | None = None, force: bool = False,
-               figures: bool = True, cluster: str | None = None, engine: str = "compiled",
-               presets: dict | None = None) -> Path:
+               figures: bool = True, cluster: str | None = None, engine: str = "compiled") -> Path:
     """Run every algorithm on one map and write the result directory; returns it. Without `settings`, the
     run's are the map's (`cq_ros.settings.run_settings`). The runs go to `workers` local processes, or to the
-    Dask scheduler at `cluster`, and play on `engine` (cq_ros.compiled.play). The manifest's `presets`: the
-    settings each preset set (`presets`, or without `settings` those of the map's own delays)."""
+    Dask scheduler at `cluster`, and play on `engine` (cq_ros.compiled.play)."""
     gridmap = load_map(map_name)
     if settings is None:
-        settings, presets = run_settings_and_presets(gridmap)
+        settings = run_settings(gridmap)
     out = prepare_output(out, force)
     started = time.perf_counter()
     jobs = [Job(str(map_name), a, r, episodes, seed, settings, engine) for a in algos for r in range(runs)]
@@ -84,7 +82,7 @@ def experiment(map_name: str, algos: list[str], runs: int, episodes: int, seed: 
     def write(results: list[RunResult], executed_on: dict | None, **extra) -> None:
         write_results(out, gridmap, results,
                       manifest_for(gridmap, algos, runs, episodes, seed, settings, time.perf_counter() - started,
-                                   executed_on, engine=engines_of(results), presets=presets or {}, **extra))
+                                   executed_on, engine=engines_of(results), **extra))
 
     done: dict[Job, RunResult] = {}
     try:

@@ -45,7 +45,7 @@ from ..learners import LEARNERS
 from ..mapf.execute import execute
 from ..mapf.planner import plan
 from ..mapgen.warehouse import warehouse_text
-from ..settings import Settings, run_settings_and_presets
+from ..settings import Settings, run_settings
 from ..world import GridWorld
 from .output import check_folder
 from .results import ResultExists
@@ -71,12 +71,11 @@ PLANNER = ("makespan", "collisions", "messages", "home")
 class Config:
     name: str
     algo: str
-    preset: str | None = None
     sets: tuple[str, ...] = ()  # settings of its own ("key=value"), over the study's
 
     def record(self) -> dict:
         """As study.json keeps it (`sets` only where there are any, as in studies kept before variants were)."""
-        kept = {"name": self.name, "algo": self.algo, "preset": self.preset}
+        kept = {"name": self.name, "algo": self.algo}
         return {**kept, "sets": list(self.sets)} if self.sets else kept
 
     @classmethod
@@ -85,7 +84,7 @@ class Config:
 
 
 def parse_variant(spec: str) -> Config:
-    """"cq_old=cq:cq_w1_alone=0,cq_waits_fresh=0" -> Config("cq_old", "cq", sets=("cq_w1_alone=0", ...))."""
+    """"cq_a2=cq:alpha=0.2,gamma=0.95" -> Config("cq_a2", "cq", sets=("alpha=0.2", "gamma=0.95"))."""
     name, sep, rest = spec.partition("=")
     algo, _, pairs = rest.partition(":")
     if not sep or not name or not algo:
@@ -95,10 +94,9 @@ def parse_variant(spec: str) -> Config:
     return Config(name, algo, sets=tuple(pair for pair in pairs.split(",") if pair))
 
 
-def parse_configs(algos: Sequence[str], paper: bool, variants: Sequence[str] = ()) -> list[Config]:
-    """The learners by name, with `paper` the paper's CQ (algo cq, preset paper) as `cq_paper`, then each variant
-    (NAME=ALGO:KEY=VALUE,...: a learner with settings of its own)."""
-    configs = [Config(a, a) for a in algos] + ([Config("cq_paper", "cq", "paper")] if paper else [])
+def parse_configs(algos: Sequence[str], variants: Sequence[str] = ()) -> list[Config]:
+    """The learners by name, then each variant (NAME=ALGO:KEY=VALUE,...: a learner with settings of its own)."""
+    configs = [Config(a, a) for a in algos]
     configs += [parse_variant(v) for v in variants]
     names = [c.name for c in configs]
     if len(set(names)) < len(names):
@@ -210,17 +208,16 @@ def generated(out: Path, agents: int, seed: int, slip: float) -> Path:
 
 
 def config_settings(config: Config, gridmap: GridMap, overrides: Sequence[str],
-                    greedy_episodes: int) -> tuple[Settings, dict[str, dict]]:
-    """The settings a configuration plays with on `gridmap`, and the presets that set any of them."""
-    return run_settings_and_presets(
-        gridmap, [*overrides, *config.sets, "eval_learning=0", f"eval_episodes={greedy_episodes}"], config.preset)
+                    greedy_episodes: int) -> Settings:
+    """The settings a configuration plays with on `gridmap`."""
+    return run_settings(gridmap, [*overrides, *config.sets, "eval_learning=0", f"eval_episodes={greedy_episodes}"])
 
 
 def protocol_of(episodes: int, greedy_episodes: int, curve_every: int, curve_episodes: int, seed: int, slip: float,
                 overrides: Sequence[str], configs: Sequence[Config], tuning: bool = False,
                 settings: dict[str, dict] | None = None) -> dict:
     """What a resumed study must share with the units already played (maps, runs, sizes and configurations may
-    grow; a configuration keeps its algorithm, preset and settings, and the settings they resolve to, `settings`,
+    grow; a configuration keeps its algorithm and settings, and the settings they resolve to, `settings`,
     which a change of the code's defaults moves). A tuning study says so (`generator_seeds`); a held-out one, as
     every study kept before tuning studies were, has no such key."""
     return {"episodes": episodes, "greedy_episodes": greedy_episodes, "curve_every": curve_every,
@@ -303,7 +300,7 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     # Each configuration's settings as today's code makes them (the generated maps all carry the same `set`
     # lines): a resume whose defaults moved since the units were played is refused, not mixed with them.
     first = parse_map(warehouse_text(sizes[0], seed=seeds[0], slip=slip))
-    resolved = {c.name: config_settings(c, first, overrides, greedy_episodes)[0].as_dict() for c in configs}
+    resolved = {c.name: config_settings(c, first, overrides, greedy_episodes).as_dict() for c in configs}
     out = open_output(out, protocol_of(episodes, greedy_episodes, curve_every, curve_episodes, seed, slip, overrides,
                                        configs, tuning, resolved), force)
     started = time.perf_counter()
@@ -311,11 +308,10 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     paths = {(a, g): generated(out, a, g, slip) for a, g in dict.fromkeys((a, g) for a, g, _ in wanted)}
     planner = planned(out, paths, runs, seed, overrides)
     done = {tuple(row[k] for k in KEY) for row in read_rows(out / "units.csv")}
-    presets: dict[str, dict] = {}
     units = []
     for (agents, g), path in paths.items():
         for c in configs:
-            settings, presets[c.name] = config_settings(c, load_map(path), overrides, greedy_episodes)
+            settings = config_settings(c, load_map(path), overrides, greedy_episodes)
             units += [Unit(str(path), c.algo, r, episodes, seed, settings, c.name, agents, g, greedy_episodes,
                            curve_every, curve_episodes) for r in range(runs) if (agents, g, r, c.name) not in done]
     if len(units) < len(wanted) * len(configs):
@@ -343,7 +339,7 @@ def study(out: Path, sizes: Sequence[int], maps: int, runs: int, episodes: int, 
     run_all(units, partial(play_unit, loaded), workers, cluster, label="study units", on_result=keep)
     kept = json.loads((out / "study.json").read_text())
     kept["shown"] = {"sizes": list(sizes), "maps": maps, "runs": runs, "configs": [c.name for c in configs],
-                     "command": command, "presets": presets}
+                     "command": command}
     (out / "study.json").write_text(json.dumps(kept, indent=1) + "\n")
     text = report(out)
     (out / "study.md").write_text(text)
@@ -361,7 +357,7 @@ def planned(out: Path, paths: dict[tuple[int, int], Path], runs: int, seed: int,
         print(f"study: planning {paths[(agents, g)].name} ({n + 1}/{len(missing)})", file=sys.stderr, flush=True)
         gridmap = load_map(paths[(agents, g)])
         the_plan = plan(gridmap)
-        settings: Settings = run_settings_and_presets(gridmap, overrides)[0]
+        settings: Settings = run_settings(gridmap, overrides)
         new = []
         for r in range(runs):
             if (agents, g, r) in found:
@@ -395,7 +391,7 @@ def report(out: Path) -> str:
     asked for (study.json's `shown`), so that a page can show a kept study as the command printed it."""
     protocol = json.loads((out / "study.json").read_text())
     shown = protocol["shown"]
-    sizes, maps, runs, command, presets = (shown[k] for k in ("sizes", "maps", "runs", "command", "presets"))
+    sizes, maps, runs, command = (shown[k] for k in ("sizes", "maps", "runs", "command"))
     configs = [Config.of_record(protocol["configs"][name]) for name in shown["configs"]]
     mine, curve, planner = (shown_rows(out, name) for name in ("units.csv", "curve.csv", "planner.csv"))
     seconds = sum(r["seconds"] for r in mine)
@@ -415,8 +411,6 @@ def report(out: Path) -> str:
         "A unit is one map and one run; mean ± half-width of the 95% t interval over units; ratios with bootstrap "
         f"95% intervals (units resampled, seed {BOOTSTRAP_SEED}).",
         *(f"Settings of {c.name}: {' '.join(c.sets)}" for c in configs if c.sets),
-        *(f"Preset {name} for {config}: " + " ".join(f"{k}={v}" for k, v in set_.items())
-          for config, applied in presets.items() for name, set_ in applied.items()),
     ]
     for agents in sizes:
         lines += size_tables(agents, [r for r in mine if r["agents"] == agents], configs,

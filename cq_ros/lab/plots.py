@@ -34,8 +34,8 @@ from .results import EPISODES, OBSERVE, Episodes, Observation, Runs, load_episod
 from .summary import by_map, moving_average, observation_strength
 
 DPI = 150
-JOINT_PLAY_ALGOS = ("loc", "cq")  # the learners that decide where to use global information
-STATE_SPACE_ALGOS = ("cq",)  # the learners whose state space grows and shrinks
+JOINT_PLAY_ALGOS = ("loc", "cq_paper", "cq")  # the learners that decide where to use global information
+STATE_SPACE_ALGOS = ("cq_paper", "cq")  # the learners whose state space grows and shrinks
 
 _LABELS = {a.name: a.label for a in REGISTRY}
 _COLOURS = {a.name: a.colour for a in REGISTRY}
@@ -439,7 +439,7 @@ def _observe_maps(
     prefix: str,
 ) -> list[Path]:
     # CQ is drawn even when it kept no joint state at all: an empty map is the finding (the paper's Fig. 4d).
-    algos = {obs.algo for obs in observations if obs.map == name} | ({"cq"} & set(by_algo))
+    algos = {obs.algo for obs in observations if obs.map == name} | (set(STATE_SPACE_ALGOS) & set(by_algo))
     if not algos:
         return []
     gridmap = map_loader(name)

@@ -1,6 +1,6 @@
 """`cq-ros reproduce`: the paper's grid (its four maps x five algorithms), its figures, the same grid with
-exploration that stops, a settings sweep, the paper's CQ (the preset `paper`: Algorithm 2 as the paper reads)
-beside ours on the four maps, and REPORT.md, in which every claim of the paper's section 4 is checked against the
+exploration that stops, a settings sweep, and our CQ (`cq`) beside the paper's (`cq_paper`, the grid's) on the
+four maps, and REPORT.md, in which every claim of the paper's section 4 is checked against the
 numbers measured.
 
 The verdicts are computed, not written: a claim that does not reproduce says so, with its figure. So is
@@ -23,7 +23,7 @@ from typing import NamedTuple
 from .experiment import Job, keep_interrupted, run_jobs
 from ..gridmap import load_map
 from ..learners import ALGORITHMS
-from ..settings import PRESETS, Settings
+from ..settings import Settings
 from .results import (EPISODES, GREEDY, OBSERVE, GreedyRun, load_episodes, load_greedy, load_observations,
                       engines_of, manifest_for, prepare_output, versions, write_results)
 from .summary import Metrics, compute_metrics, settled_episode, summary_table
@@ -37,7 +37,8 @@ THRESHOLDS = (0.05, 0.1)
 # every algorithm alike) keeps such runs to seconds; those episodes count as truncated.
 DECAY_STEP_CAP = 500
 IN_SHORT = "## In short"
-PAPER_CQ_DIR = "paper_cq"  # the paper's CQ (preset `paper`) on the four maps, first seed, fixed exploration
+CQ = "cq_paper"  # the CQ of the paper's grid, whose claims are checked
+OURS, OURS_DIR = "cq", "ours"  # our CQ beside it on the four maps, first seed, fixed exploration
 MIN_SEEDS = 3  # a crossing episode is quoted only as a range over at least this many seeds
 
 
@@ -62,11 +63,6 @@ def sweep_variants(base: Settings) -> list[Variant]:
         Variant("confidence_fading", "joint states fade fast (conf_up 0.1, conf_max 1)",
                 {"conf_up": 0.1, "conf_max": 1.0}),
     ]
-
-
-def papers_cq(settings: Settings) -> Settings:
-    """The grid's settings with CQ as the paper reads it (the preset `paper`), whatever the grid's cq_* are."""
-    return settings.with_overrides(PRESETS["paper"])
 
 
 def decaying(settings: Settings, episodes: int) -> Settings:
@@ -97,15 +93,14 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
             for a in ALGORITHMS for r in range(runs)]
     variants = sweep_variants(settings) if sweep else []
     for v in variants:
-        jobs += [Job(SWEEP_MAP, "cq", r, episodes, seeds[0], settings.with_overrides(v.changes), engine)
+        jobs += [Job(SWEEP_MAP, CQ, r, episodes, seeds[0], settings.with_overrides(v.changes), engine)
                  for r in range(runs)]
-    paper = papers_cq(settings)
-    jobs += [Job(m, "cq", r, episodes, seeds[0], paper, engine) for m in PAPER_MAPS for r in range(runs)]
+    jobs += [Job(m, OURS, r, episodes, seeds[0], settings, engine) for m in PAPER_MAPS for r in range(runs)]
     jobs = list(dict.fromkeys(jobs))  # the "defaults" variant is the grid's own CQ runs on the sweep map
     done: dict = {}
 
     def write(results: dict, executed_on: dict | None, **extra) -> None:
-        _write_grid(out, results, jobs, seeds, grids, variants, paper, runs, episodes, settings,
+        _write_grid(out, results, jobs, seeds, grids, variants, runs, episodes, settings,
                     time.perf_counter() - started, executed_on, extra)
 
     try:
@@ -128,7 +123,7 @@ def reproduce(out: Path, runs: int = 10, episodes: int = 10_000, seed: int | Seq
 
 
 def _write_grid(out: Path, results: dict, jobs: list, seeds: Sequence[int], grids: dict, variants: list,
-                paper: Settings, runs: int, episodes: int, settings: Settings, wall: float, executed_on: dict | None,
+                runs: int, episodes: int, settings: Settings, wall: float, executed_on: dict | None,
                 extra: dict) -> None:
     """Every folder of the grid with the results it has (after Ctrl-C, those of the runs that finished: a folder
     none of whose runs did is not made); `extra` joins each manifest."""
@@ -148,9 +143,9 @@ def _write_grid(out: Path, results: dict, jobs: list, seeds: Sequence[int], grid
             for m in PAPER_MAPS:
                 put(seed_dir(out, seeds, sd) / where / m, m, ALGORITHMS, sd, grid_settings)
     for v in variants:
-        put(out / "sweep" / v.name, SWEEP_MAP, ["cq"], seeds[0], settings.with_overrides(v.changes), variant=v.name)
+        put(out / "sweep" / v.name, SWEEP_MAP, [CQ], seeds[0], settings.with_overrides(v.changes), variant=v.name)
     for m in PAPER_MAPS:
-        put(out / PAPER_CQ_DIR / m, m, ["cq"], seeds[0], paper, presets={"paper": PRESETS["paper"]})
+        put(out / OURS_DIR / m, m, [OURS], seeds[0], settings)
 
 
 # --- the report ------------------------------------------------------------------------------------------
@@ -290,14 +285,14 @@ def settled_at(data, threshold: float) -> dict[tuple[str, str], int | None]:
 
 def claim_collision_free(settled: dict[tuple[str, str], int | None]) -> bool:
     """Claim 1: CQ's average settles on every paper map."""
-    return all(settled[(m, "cq")] is not None for m in PAPER_MAPS)
+    return all(settled[(m, CQ)] is not None for m in PAPER_MAPS)
 
 
 def sooner_than_cq(settled: dict[tuple[str, str], int | None]) -> list[tuple[str, str, int, int | None]]:
     """Claim 2 fails for each (algo, map, its episode, CQ's) where a baseline settles before CQ does."""
-    return [(algo, m, settled[(m, algo)], settled[(m, "cq")]) for m in PAPER_MAPS for algo in ALGORITHMS
-            if algo != "cq" and settled[(m, algo)] is not None
-            and (settled[(m, "cq")] is None or settled[(m, algo)] < settled[(m, "cq")])]
+    return [(algo, m, settled[(m, algo)], settled[(m, CQ)]) for m in PAPER_MAPS for algo in ALGORITHMS
+            if algo != CQ and settled[(m, algo)] is not None
+            and (settled[(m, CQ)] is None or settled[(m, algo)] < settled[(m, CQ)])]
 
 
 def _changes(settings: Settings) -> str:
@@ -311,7 +306,7 @@ def _verdict(ok: bool) -> str:
 
 def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: dict, seeds: Sequence[int]) -> list[str]:
     lines = []
-    cq = {m: metrics[(m, "cq")] for m in PAPER_MAPS}
+    cq = {m: metrics[(m, CQ)] for m in PAPER_MAPS}
     # per (regime, threshold): one {(map, algo): episode} per seed
     settled = {(name, t): [settled_at(d, t) for d in per_seed]
                for name, per_seed in regimes.items() for t in THRESHOLDS}
@@ -325,16 +320,16 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
     for (name, t), per_seed in settled.items():
         lines.append(f"   - {name}, below {t:g}: " + (not_judged if few else
                      f"{_at_seeds([claim_collision_free(s) for s in per_seed])}. CQ from, over {_seed_list(seeds)}: "
-                     + "; ".join(f"{m} {over_seeds([s[(m, 'cq')] for s in per_seed], seeds)}"
+                     + "; ".join(f"{m} {over_seeds([s[(m, CQ)] for s in per_seed], seeds)}"
                                  for m in PAPER_MAPS) + "."))
     greedy = {m: _greedy(out / m) for m in PAPER_MAPS}
-    if all("cq" in g for g in greedy.values()):
-        ok = all(g["cq"].collisions == 0 and g["cq"].stuck == 0 for g in greedy.values())
+    if all(CQ in g for g in greedy.values()):
+        ok = all(g[CQ].collisions == 0 and g[CQ].stuck == 0 for g in greedy.values())
         lines.append("   - The policy CQ has learnt, played greedily (epsilon 0) at the end, collision-free and "
                      f"reaching the goals: {_verdict(ok)}. Collisions/episode (steps/episode, runs stuck until the "
-                     "step cap), mean over runs: " + "; ".join(f"{m} {_g(g['cq'])}" for m, g in greedy.items())
+                     "step cap), mean over runs: " + "; ".join(f"{m} {_g(g[CQ])}" for m, g in greedy.items())
                      + ". The other algorithms, greedy: "
-                     + "; ".join(f"{m}: " + ", ".join(f"{a} {_g(v)}" for a, v in g.items() if a != "cq")
+                     + "; ".join(f"{m}: " + ", ".join(f"{a} {_g(v)}" for a, v in g.items() if a != CQ)
                                  for m, g in greedy.items()) + ".")
 
     lines.append("2. *CQ reaches that sooner than every baseline* (on every map, no baseline settles before CQ).")
@@ -359,7 +354,7 @@ def _claims(out: Path, data, metrics: dict[tuple[str, str], Metrics], regimes: d
 
     lines.append(_claim_joint_learners_slow(data))
 
-    states = data[("tunnel_to_goal_3", "cq")]["states"] / 2  # two agents: per agent
+    states = data[("tunnel_to_goal_3", CQ)]["states"] / 2  # two agents: per agent
     n_cells = load_map("tunnel_to_goal_3").n_cells
     peak = float(states.mean(axis=0).max())
     lines.append(f"5. *CQ's state space on TunnelToGoal_3 stays far below {n_cells ** 2}*: "
@@ -394,7 +389,7 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
     n_cells = load_map("tunnel_to_goal_3").n_cells
     share, _ = entrance_share(out)
     lines = [f"- **CQ's state space.** On tunnel_to_goal_3 each CQ "
-             f"agent ends with {states_in_parts(metrics[('tunnel_to_goal_3', 'cq')].final_states / 2, n_cells)}, "
+             f"agent ends with {states_in_parts(metrics[('tunnel_to_goal_3', CQ)].final_states / 2, n_cells)}, "
              "against "
              f"{metrics[('tunnel_to_goal_3', 'js')].final_states / 2:,.0f} for each JS agent and "
              f"{metrics[('tunnel_to_goal_3', 'jsa')].final_states:,.0f} for JSA; {share:.0%} of the confidence of "
@@ -404,33 +399,33 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
     lines.append("- **Independent learners**, last 10% of episodes: "
                  + ", ".join(f"{m} {v:.2f}" for m, v in indep.items()) + " collisions per episode (claim 3)."
                  + ("" if at is None else " **After 2000 episodes on tunnel_to_goal_3** (episodes 1901-2000) JS "
-                    f"collides {at['js'][0]:.3f} times per episode, JSA {at['jsa'][0]:.3f} and CQ {at['cq'][0]:.3f} "
-                    f"(in {at['js'][1]:.1f}, {at['jsa'][1]:.1f} and {at['cq'][1]:.1f} steps): claim 4, judged on "
+                    f"collides {at['js'][0]:.3f} times per episode, JSA {at['jsa'][0]:.3f} and CQ {at[CQ][0]:.3f} "
+                    f"(in {at['js'][1]:.1f}, {at['jsa'][1]:.1f} and {at[CQ][1]:.1f} steps): claim 4, judged on "
                     f"collisions as Fig. 3 plots them, {'holds' if joint_learners_slow(at) else 'does not hold'}."))
     for name, per_seed in regimes.items():
         lines.append(_regime_finding(name, per_seed, seeds))
     greedy = {m: _greedy_runs(out / m) for m in PAPER_MAPS}
-    if all("cq" in g for g in greedy.values()):
-        stuck = {m: sum(r.truncated > 0 for r in g["cq"]) for m, g in greedy.items()}
+    if all(CQ in g for g in greedy.values()):
+        stuck = {m: sum(r.truncated > 0 for r in g[CQ]) for m, g in greedy.items()}
         ending = {m: {a: [r.steps for r in runs if not r.truncated] for a, runs in g.items()}
                   for m, g in greedy.items()}
-        shortest = {m: min(((sum(v) / len(v), a) for a, v in e.items() if a != "cq" and v), default=None)
+        shortest = {m: min(((sum(v) / len(v), a) for a, v in e.items() if a != CQ and v), default=None)
                     for m, e in ending.items()}
-        worst = {m: max(r.collisions for r in g["cq"]) for m, g in greedy.items()}
+        worst = {m: max(r.collisions for r in g[CQ]) for m, g in greedy.items()}
         lines.append(
             "- **CQ's learnt policy, played greedily** (epsilon 0) at the end, "
             + ("never collides, in any run on any of the four maps" if not any(worst.values()) else
                "collides at most " + ", ".join(f"{v:.2f} times per episode on {m}" for m, v in worst.items()))
             + "; "
-            + (", ".join(f"{n} of its {len(greedy[m]['cq'])} runs on {m}" for m, n in stuck.items() if n)
+            + (", ".join(f"{n} of its {len(greedy[m][CQ])} runs on {m}" for m, n in stuck.items() if n)
                + " loop until the step cap (exploration breaks such a loop)"
                if any(stuck.values()) else "no run loops until the step cap")
             + ". Over the runs that reach the goals, steps per episode: "
-            + "; ".join(f"{m} CQ {sum(e['cq']) / len(e['cq']):.1f}"
+            + "; ".join(f"{m} CQ {sum(e[CQ]) / len(e[CQ]):.1f}"
                         + ("" if shortest[m] is None
                            else f", the shortest baseline {shortest[m][1]} {shortest[m][0]:.1f}")
-                        for m, e in ending.items() if e["cq"]) + ".")
-    isr = metrics[("isr", "cq")]
+                        for m, e in ending.items() if e[CQ]) + ".")
+    isr = metrics[("isr", CQ)]
     lines.append(f"- **On isr CQ plays joint** {isr.joint_plays_tail:.1f} times per episode in the last 10% "
                  f"(claim 7): in our reconstruction of the map, the agents swap places through a one-lane corridor.")
     if variants:
@@ -446,7 +441,7 @@ def in_short(out: Path, data, regimes: dict, seeds: Sequence[int], variants: lis
 def _regime_finding(name: str, per_seed: list, seeds: Sequence[int]) -> str:
     """One exploration regime: CQ's collisions at the end and, over at least MIN_SEEDS seeds, when the averages
     settle and claims 1 and 2."""
-    tails = [m.collisions_tail for d in per_seed for m in compute_metrics(d) if m.algo == "cq"]
+    tails = [m.collisions_tail for d in per_seed for m in compute_metrics(d) if m.algo == CQ]
     text = (f"- **With {name}**, CQ collides {min(tails):.2f}-{max(tails):.2f} times per episode in the last 10% of "
             f"episodes (the four maps, {_seed_list(seeds)})")
     if len(seeds) < MIN_SEEDS:
@@ -458,7 +453,7 @@ def _regime_finding(name: str, per_seed: list, seeds: Sequence[int]) -> str:
                          key=lambda k: (PAPER_MAPS.index(k[0]), k[1]))  # a set's order varies by process
     joint = _span([s[(m, a)] for s in first for m in PAPER_MAPS for a in ("js", "jsa")])
     return (text + ". Its 100-episode average settles "
-            + "; ".join(f"below {t:g}: " + ", ".join(f"{m} {over_seeds([s[(m, 'cq')] for s in per], seeds)}"
+            + "; ".join(f"below {t:g}: " + ", ".join(f"{m} {over_seeds([s[(m, CQ)] for s in per], seeds)}"
                                                    for m in PAPER_MAPS) for t, per in settled.items())
             + f". JS and JSA settle below {THRESHOLDS[0]:g} "
             + ("on no map at any seed" if joint == "never" else f"at {joint}"
@@ -513,16 +508,16 @@ def _g(v: _GreedyMean) -> str:
 
 def _at_2000(data) -> dict[str, tuple[float, float]] | None:
     """{algo: (collisions, steps) per episode over episodes 1901-2000} on TunnelToGoal_3 for JS, JSA and CQ."""
-    if data[("tunnel_to_goal_3", "cq")]["steps"].shape[1] < 2000:
+    if data[("tunnel_to_goal_3", CQ)]["steps"].shape[1] < 2000:
         return None
-    late = {algo: data[("tunnel_to_goal_3", algo)] for algo in ("js", "jsa", "cq")}
+    late = {algo: data[("tunnel_to_goal_3", algo)] for algo in ("js", "jsa", CQ)}
     return {algo: (float(d["collisions"][:, 1900:2000].mean()), float(d["steps"][:, 1900:2000].mean()))
             for algo, d in late.items()}
 
 
 def joint_learners_slow(at: dict[str, tuple[float, float]]) -> bool:
     """Claim 4, judged as Fig. 3 plots it: JS and JSA both collide more than CQ in episodes 1901-2000."""
-    return all(at[a][0] > at["cq"][0] for a in ("js", "jsa"))
+    return all(at[a][0] > at[CQ][0] for a in ("js", "jsa"))
 
 
 def _claim_joint_learners_slow(data) -> str:
@@ -549,7 +544,7 @@ def entrance_share(out: Path) -> tuple[float, list[tuple[tuple[int, int], float]
     """The share of the confidence of CQ's joint states kept on TunnelToGoal_3 that lies within 2 cells of the
     tunnel entrance, and the five cells with most."""
     gridmap = load_map("tunnel_to_goal_3")
-    kept = [o for o in load_observations(out / "tunnel_to_goal_3" / OBSERVE) if o.algo == "cq"]
+    kept = [o for o in load_observations(out / "tunnel_to_goal_3" / OBSERVE) if o.algo == CQ]
     weight: dict[tuple[int, int], float] = {}
     for o in kept:
         weight[(o.row, o.col)] = weight.get((o.row, o.col), 0.0) + o.confidence
@@ -583,19 +578,19 @@ def _sweep_section(out: Path, variants: list[Variant]) -> list[str]:
 
 
 def _papers_cq_section(out: Path, data, seeds: Sequence[int]) -> list[str]:
-    """Ours against the paper's CQ (the preset `paper`) on the four maps, the first seed, fixed exploration."""
-    ours = {x.map: x for x in compute_metrics(data) if x.algo == "cq"}
+    """Ours against the paper's CQ on the four maps, the first seed, fixed exploration."""
+    theirs_of = {x.map: x for x in compute_metrics(data) if x.algo == CQ}
     lines = [f"## The paper's CQ beside ours ({_seed_list(seeds[:1])}, {exploration(Settings())})", "",
-             "The preset `paper` (`cq-ros experiment --algo cq --preset paper`): every cq_* choice at the paper's "
-             "value (docs/choices.md). Ours / the paper's:", "",
+             f"`{OURS}` (our rules, docs/choices.md) / `{CQ}` (Algorithm 2 as the paper reads):", "",
              "| map | collisions/ep (last 10%) | final states | joint plays/ep (last 10%) | greedy collisions/ep "
              "(steps/ep) |", "|---|---:|---:|---:|---:|"]
     for m in PAPER_MAPS:
-        (theirs,) = compute_metrics(load_episodes(out / PAPER_CQ_DIR / m / EPISODES))
-        greedy = (_greedy(out / m).get("cq"), _greedy(out / PAPER_CQ_DIR / m).get("cq"))
-        lines.append(f"| {m} | {ours[m].collisions_tail:.3f} / {theirs.collisions_tail:.3f} "
-                     f"| {ours[m].final_states:.1f} / {theirs.final_states:.1f} "
-                     f"| {ours[m].joint_plays_tail:.2f} / {theirs.joint_plays_tail:.2f} | "
+        (ours,) = compute_metrics(load_episodes(out / OURS_DIR / m / EPISODES))
+        theirs = theirs_of[m]
+        greedy = (_greedy(out / OURS_DIR / m).get(OURS), _greedy(out / m).get(CQ))
+        lines.append(f"| {m} | {ours.collisions_tail:.3f} / {theirs.collisions_tail:.3f} "
+                     f"| {ours.final_states:.1f} / {theirs.final_states:.1f} "
+                     f"| {ours.joint_plays_tail:.2f} / {theirs.joint_plays_tail:.2f} | "
                      + (" / ".join(_g(g) for g in greedy) if all(greedy) else "not played") + " |")
     return lines
 

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 from .base import Learner
 from .cq import CQLearner
+from .cq_paper import CQPaperLearner
 from .indep import IndependentQ
 from .js import JointStateQ
 from .jsa import JointStateActionQ, decode_joint_action
@@ -18,7 +19,7 @@ class Algorithm:
     learner: type[Learner]
     label: str  # in figures and tables
     colour: str  # in figures: a hex colour (matplotlib's tab10), so the science imports no plotting code
-    paper: bool  # one of the paper's five: the default of `cq-ros experiment` and the reproduction's grid
+    paper: bool  # one of the paper's five: the reproduction's grid
 
     @property
     def central(self) -> bool:
@@ -26,18 +27,21 @@ class Algorithm:
         return self.learner.central
 
 
-# In order: the paper's five in its order (baselines first, CQ last), then what goes beyond it.
+# In order: the paper's five in its order (baselines first, its CQ last), then ours and what goes beyond it.
 REGISTRY: tuple[Algorithm, ...] = (
     Algorithm("indep", IndependentQ, "Indep", "#7f7f7f", paper=True),
     Algorithm("js", JointStateQ, "JS", "#ff7f0e", paper=True),
     Algorithm("jsa", JointStateActionQ, "JSA", "#9467bd", paper=True),
     Algorithm("loc", LearningOfCoordination, "LoC", "#2ca02c", paper=True),
-    Algorithm("cq", CQLearner, "CQ", "#1f77b4", paper=True),
+    Algorithm("cq_paper", CQPaperLearner, "CQ (paper)", "#17becf", paper=True),
+    Algorithm("cq", CQLearner, "CQ", "#1f77b4", paper=False),
     Algorithm("near", NearQ, "Near", "#8c564b", paper=False),
 )
 assert all(a.name == a.learner.name for a in REGISTRY), "an algorithm's name is its learner's"
 
 ALGORITHMS = tuple(a.name for a in REGISTRY if a.paper)
+# `cq-ros experiment`'s default: the paper's five and our CQ
+DEFAULT_ALGORITHMS = (*ALGORITHMS, "cq")
 LEARNERS: dict[str, type[Learner]] = {a.name: a.learner for a in REGISTRY}
 _BY_NAME = {a.name: a for a in REGISTRY}
 
@@ -55,5 +59,5 @@ def algo_sort_key(name: str) -> tuple[int, str]:
     return (order.index(name) if name in order else len(order), name)
 
 
-__all__ = ["ALGORITHMS", "Algorithm", "LEARNERS", "Learner", "REGISTRY", "algo_sort_key", "algorithm",
-           "decode_joint_action"]
+__all__ = ["ALGORITHMS", "DEFAULT_ALGORITHMS", "Algorithm", "LEARNERS", "Learner", "REGISTRY", "algo_sort_key",
+           "algorithm", "decode_joint_action"]

@@ -65,10 +65,10 @@ class LimitQ(NearQ):
 
 class LimitCQ(LimitQ):
     """The same oracle's peers, hears the same, but in CQ's tables: a row per (cell, peer, peer's cell), a copy of
-    the cell's row when new, acted on through the elementwise minimum of the rows of the peers heard (CQ's
-    cq_all_met), the step's update made in each of them (Q_k where nobody can collide). What it learns is then
-    what CQ with perfect marks, met everywhere they matter, could learn; near's joint rows need every
-    combination of the peers heard."""
+    the cell's row when new, acted on through the elementwise minimum of the rows of the peers heard (our CQ's
+    rule for several joint states met), the step's update made in each of them (Q_k where nobody can collide).
+    What it learns is then what CQ with perfect marks, met everywhere they matter, could learn; near's joint
+    rows need every combination of the peers heard."""
 
     name = "limit_cq"
 

@@ -27,7 +27,7 @@ from ..gridmap import GridMap
 from ..settings import Settings
 from . import LEARNERS
 from .base import N_MOVES, Learner
-from .cq import CQLearner, Step
+from .cq_paper import CQPaperLearner, Step
 from .next_state import NextStateLearner
 
 __all__ = ["STATE_FORMAT", "StateError", "from_arrays", "scalar", "to_arrays"]
@@ -59,6 +59,7 @@ def _tables(algo: str, n_agents: int) -> list[tuple[str, str, int]]:
         "js": [("q_joint", "joint", N_MOVES)],
         "jsa": [("q_joint", "joint", N_MOVES ** n_agents)],
         "cq": [("q_local", "cells", N_MOVES), ("q_joint", "cq", N_MOVES)],
+        "cq_paper": [("q_local", "cells", N_MOVES), ("q_joint", "cq", N_MOVES)],
     }[algo]
 
 
@@ -103,14 +104,14 @@ def to_arrays(learner: Learner) -> dict[str, np.ndarray]:
         out[f"{name}.keys"] = np.array([_encode_key(kind, k, learner.n_agents) for k in table],
                                        dtype=np.int64).reshape(len(table), _key_columns(kind, learner.n_agents))
         out[f"{name}.rows"] = np.array(list(table.values()), dtype=np.float64).reshape(-1, width)
-    if isinstance(learner, CQLearner):
+    if isinstance(learner, CQPaperLearner):
         out.update(_cq_arrays(learner))
     elif isinstance(learner, NextStateLearner):
         out.update(_next_state_arrays(learner))
     return out
 
 
-def _cq_arrays(learner: CQLearner) -> dict[str, np.ndarray]:
+def _cq_arrays(learner: CQPaperLearner) -> dict[str, np.ndarray]:
     size = learner.settings.window
     windows = learner.windows
     pad = [0.0] * size
@@ -226,7 +227,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray], gridmap: GridMap, settings: Se
             setattr(learner, name, _field(arrays, name, "f", (cells, width)).tolist())
         else:
             setattr(learner, name, _table(arrays, name, kind, width, learner))
-    if isinstance(learner, CQLearner):
+    if isinstance(learner, CQPaperLearner):
         _restore_cq(arrays, learner)
     elif isinstance(learner, NextStateLearner):
         _restore_next_state(arrays, learner)
@@ -280,7 +281,7 @@ def _table(arrays, name: str, kind: str, width: int, learner: Learner) -> dict:
     return table
 
 
-def _restore_cq(arrays, learner: CQLearner) -> None:
+def _restore_cq(arrays, learner: CQPaperLearner) -> None:
     size, count = learner.settings.window, learner.n_cells * N_MOVES
     confidence = _field(arrays, "confidence", "f", (len(learner.q_joint),))
     learner.confidence = dict(zip(learner.q_joint, confidence.tolist()))
