@@ -1203,8 +1203,9 @@ def test_a_40000_message_junk_flood_on_every_topic_leaves_a_launch_the_offline_r
 @pytest.mark.slow
 def test_a_burst_of_junk_on_every_topic_as_fast_as_one_writer_sends_never_ends_a_launch(tmp_path, ros_domain_id):
     """40,000 junk messages without the key sent at once, as fast as one process can, to every topic of a 2-agent
-    keyed `cq-ros launch` once it steps: the run goes on once the burst is over and finishes clean (exit 0). Nodes that listened to the middleware's message-lost event stopped
-    for good in such a burst (a node's executor never ran again; the world ended the run for want of actions).
+    keyed `cq-ros launch` once it steps: the run goes on once the burst is over and finishes clean (exit 0). Nodes
+    that listened to the middleware's message-lost event stopped for good in such a burst (a node's executor never
+    ran again; the world ended the run for want of actions).
     The run is the offline one: no reader, 1000 deep, fell so far behind as to lose a message of the run."""
     from cq_ros.engine import run
     from cq_ros.gridmap import load_map
