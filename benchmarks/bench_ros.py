@@ -46,7 +46,9 @@ from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.gridmap import load_map
 from cq_ros.settings import Settings, run_settings
 from cq_ros.world import GridWorld
-from ros_tools.launch import LaunchError, agent_nodes, launch
+from ros_tools.launch import launch
+from ros_tools.launch_end import LaunchError
+from ros_tools.launch_nodes import agent_nodes
 
 
 ROUND_TRIP_REPEATS = 3

@@ -6,7 +6,7 @@ agent node for their parameters over ROS's parameter services (map, episodes, se
 algorithm), then listens to world/stats and every agv<k>/stats with the launcher's own StatsListener until
 every episode is in (the world's `run_nonce`, when it was given one, is the only run whose statistics count:
 a recording of an earlier run is `dropped.other_run`; conflicting ones are named, as a launch names them),
-and writes through the launcher's writer (ros_tools.launch.write_heard). A statistics
+and writes through the launcher's writer (ros_tools.launch_results.write_heard). A statistics
 writer keeps its last 1000 for a reader that comes late; to be sure of every episode, start collect before
 the run's first step, e.g. with -p min_stats_subscribers:=1 on the nodes, which then wait for it (the world
 before its first step, an agent before it sends its statistics).
@@ -29,7 +29,10 @@ from node_runtime.parameters import SETTING_NAMES
 from cq_ros.settings import run_settings
 
 from .session import FIND_S, WORLD, StopSignals, ToolError, environment_domain, find_system, ros_session, spin_until
-from .launch import Interrupted, LaunchError, Progress, StatsListener, agent_nodes, write_heard
+from .launch_end import Interrupted, LaunchError
+from .launch_nodes import agent_nodes
+from .launch_results import StatsListener, write_heard
+from .progress import Progress
 
 __all__ = ["CollectError", "collect"]
 

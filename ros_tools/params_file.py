@@ -45,7 +45,7 @@ class SystemFileError(ValueError):
 
 
 def system_params(nodes: dict[str, tuple[str, dict[str, Any]]], launch_only: frozenset[str] = LAUNCH_ONLY) -> dict:
-    """The ROS parameters-file dict of `nodes` (name -> (module, parameters), as ros_tools.launch.node_specs
+    """The ROS parameters-file dict of `nodes` (name -> (module, parameters), as ros_tools.launch_nodes.node_specs
     makes them) without the parameters in `launch_only`: what all nodes share under `/**`, the rest under
     `/**/<name>`."""
     own = {name: {k: v for k, v in params.items() if k not in launch_only} for name, (_, params) in nodes.items()}

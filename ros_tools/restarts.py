@@ -37,7 +37,7 @@ def file_identity(path: str | os.PathLike) -> tuple[int, int, int] | None:
 
 class Restarts:
     """The restarts of one launch's agent nodes. `nodes`: node name -> (module, parameters), as
-    ros_tools.launch.node_specs; `started_from`: node name -> file_identity of the checkpoint copied in from
+    ros_tools.launch_nodes.node_specs; `started_from`: node name -> file_identity of the checkpoint copied in from
     `start_from`; `learners`: the launch's learner ids. `error` is the exception a checkpoint that cannot be
     resumed from raises (LaunchError: the caller's)."""
 

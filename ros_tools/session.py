@@ -2,7 +2,7 @@
 rcl reads at init (`environment`), Ctrl-C and SIGTERM as a flag a loop checks (`StopSignals`), bounded spinning
 (`spin_until`), waiting for discovery to settle (`settle`), and finding a running system on the graph
 (`find_system`). The user commands (commands.py,
-launch.py, collect.py, view.py) import it; it imports none of them.
+launch.py and its parts, collect.py, view.py) import it; it imports none of them.
 """
 
 from __future__ import annotations

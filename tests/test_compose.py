@@ -29,7 +29,7 @@ from node_runtime.qos import profile
 from node_runtime.run import make_executor, spin_nodes
 from helpers import SEED, alive_with, launch_command, ours_without, run_as, spin_until, unique, wait_for_line
 from ros_tools.compose import make_nodes
-from ros_tools.launch import compose_command, node_specs
+from ros_tools.launch_nodes import compose_command, node_specs
 
 RUN_TIMEOUT_S = 60.0  # a bound for one composed run; each below takes a second or two
 # Short runs: on grid_game_2 CQ marks joint states (and so subscribes to its peer) within 30 episodes;

@@ -28,7 +28,8 @@ from helpers import SEED, WaitTimeout, alive_with, launch_command, read_episodes
 from agent_node.checkpoint import save_checkpoints
 from cq_ros.engine import Team, make_learners, world_seed
 from cq_ros.world import GridWorld
-from ros_tools.launch import DOMAIN_IDS, agent_nodes, launch, node_commands, node_specs, run_domain
+from ros_tools.launch import DOMAIN_IDS, launch, run_domain
+from ros_tools.launch_nodes import agent_nodes, node_commands, node_specs
 
 LAUNCH_TIMEOUT_S = 120.0  # bound on one launch; each below takes about 10 s on 2 busy cores
 # (map, algorithm) -> (episodes, settings): short episodes on tunnel_to_goal (early ones wander for
@@ -158,7 +159,7 @@ def test_a_launch_on_a_copied_map_file_with_a_namespace_written_as_ros_writes_it
 
 
 def test_progress_lines_say_greedy_for_the_episodes_after_the_learning_ones(capsys):
-    from ros_tools.launch import Progress
+    from ros_tools.progress import Progress
 
     bar = Progress("tunnel_to_goal cq", episodes=6, learning=4, enabled=True)  # stderr is not a terminal here
     for done in range(1, 7):
@@ -457,17 +458,18 @@ def test_a_node_still_a_process_after_its_report_is_stopped_once_every_episode_i
     process 90 s later, and the launch waited for it. A node that has reported is stopped EXIT_HANG_S later and
     counts as done; one that has not reported is left to the launch's other rules."""
     from node_runtime.report import report_line
-    from ros_tools import launch as launcher
+    from ros_tools import launch_watch
+    from ros_tools.children import Child
 
-    monkeypatch.setattr(launcher, "EXIT_HANG_S", 0.2)
+    monkeypatch.setattr(launch_watch, "EXIT_HANG_S", 0.2)
     report = report_line({"node": "world", "counters": {}, "dropped_on": {}, "floods": {}})
-    hung = launcher.Child("world", ["sh", "-c", f"echo '{report}'; exec sleep 60"], tmp_path / "world.log")
-    busy = launcher.Child("agv1", ["sh", "-c", "echo working; exec sleep 60"], tmp_path / "agv1.log")
+    hung = Child("world", ["sh", "-c", f"echo '{report}'; exec sleep 60"], tmp_path / "world.log")
+    busy = Child("agv1", ["sh", "-c", "echo working; exec sleep 60"], tmp_path / "agv1.log")
     for child in (hung, busy):
         child.start(dict(os.environ))
     try:
         wait_until(lambda: hung.reports() and busy.said_anything(), 30, "the children never wrote")
-        wait_until(lambda: launcher._stop_hung_at_exit([c for c in (hung, busy) if c.running]) or not hung.running,
+        wait_until(lambda: launch_watch._stop_hung_at_exit([c for c in (hung, busy) if c.running]) or not hung.running,
                    30, "the reported node was never stopped")
         assert hung.hung_at_exit and hung.exit_code == -signal.SIGKILL
         assert busy.running and not busy.hung_at_exit

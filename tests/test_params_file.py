@@ -19,7 +19,7 @@ from cq_ros.cli.main import main
 from cq_ros.settings import run_settings
 from cq_ros.gridmap import load_map
 from helpers import alive_with, unique
-from ros_tools.launch import node_specs
+from ros_tools.launch_nodes import node_specs
 from ros_tools.params_file import SystemFileError, read_system, write_system
 
 RUN_TIMEOUT_S = 120.0  # bound on one run by hand; it takes a few seconds

@@ -11,12 +11,16 @@ from types import SimpleNamespace
 
 import pytest
 
-import ros_tools.launch as launch_module
+import ros_tools.launch_watch as launch_watch
+import ros_tools.progress as progress
 from cq_ros.gridmap import load_map
 from cq_ros.settings import run_settings
 from helpers import alive_with, unique, wait_until
 from node_runtime.parameters import AGENT_PARAMETERS
-from ros_tools.launch import STARTUP_TIMEOUT_S, Child, Progress, launch, node_specs, startup_wait
+from ros_tools.children import Child
+from ros_tools.launch import launch
+from ros_tools.launch_nodes import STARTUP_TIMEOUT_S, node_specs, startup_wait
+from ros_tools.progress import Progress
 
 
 def _specs(map_name: str, tmp_path: Path, **node_parameters):
@@ -36,7 +40,7 @@ def test_start_up_waits_grow_with_the_fleet_and_stay_as_they_were_on_a_small_one
 
 
 def test_an_agent_that_said_nothing_in_its_start_is_started_again_twice_at_most(tmp_path, monkeypatch):
-    monkeypatch.setattr(launch_module, "NODE_UP_S", 0.0)
+    monkeypatch.setattr(launch_watch, "NODE_UP_S", 0.0)
     sleeper = [sys.executable, "-c", "import time; time.sleep(60)"]
     talker = [sys.executable, "-c", "import time; print('up', flush=True); time.sleep(60)"]
     children = [Child(name, command, tmp_path / f"{name}.log")
@@ -50,10 +54,10 @@ def test_an_agent_that_said_nothing_in_its_start_is_started_again_twice_at_most(
         pids = []
         for _ in range(3):
             pids.append(children[1].process.pid)
-            launch_module._unstick(children, {}, waiting)
+            launch_watch._unstick(children, {}, waiting)
         assert children[1].stuck_starts == 2 and len(set(pids)) == 3 and children[1].running
         assert children[0].process.pid == world_pid and children[2].process.pid == talker_pid  # left alone
-        launch_module._unstick(children, {}, SimpleNamespace(world={0: object()}, at=(1, 0)))  # stepping: no more
+        launch_watch._unstick(children, {}, SimpleNamespace(world={0: object()}, at=(1, 0)))  # stepping: no more
         assert children[1].stuck_starts == 2
     finally:
         for child in children:
@@ -63,7 +67,7 @@ def test_an_agent_that_said_nothing_in_its_start_is_started_again_twice_at_most(
 
 
 def test_between_episodes_the_progress_says_where_the_run_is(capsys, monkeypatch):
-    monkeypatch.setattr(launch_module, "STATUS_S", 0.0)
+    monkeypatch.setattr(progress, "STATUS_S", 0.0)
     bar = Progress("warehouse_32 cq", 21, 1, True)
     bar.within(lambda: "starting: 12/33 nodes up")
     bar.within(lambda: "episode 0, step 40")
@@ -74,7 +78,7 @@ def test_between_episodes_the_progress_says_where_the_run_is(capsys, monkeypatch
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_launch_shows_its_start_and_its_steps_before_its_first_episode_ends(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(launch_module, "STATUS_S", 0.2)
+    monkeypatch.setattr(progress, "STATUS_S", 0.2)
     namespace = unique("progress")
     # One long first episode (agents that know nothing wander tunnel_to_goal: 1,144 steps at seed 3), and the
     # world's heartbeat, which says where it is, every 0.1 s.

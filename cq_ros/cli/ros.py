@@ -39,7 +39,8 @@ def hosts(args) -> int:
 
 def launch(args) -> int:
     from ros_tools.hosts import HostsError, check_can_make_hosts, find_hosts
-    from ros_tools.launch import check_hosts, launch, split_sets
+    from ros_tools.launch import check_hosts, launch
+    from ros_tools.launch_nodes import split_sets
 
     _system_arguments(args)
     if args.discovery is not None and args.hosts is None:  # one process on this host discovers nothing
@@ -90,7 +91,7 @@ def checkpoint(args) -> int:
 def _ended(command: str, run: Callable[[], Any]) -> tuple[Any, int]:
     """(run()'s result, 0), or (None, exit code) after one line: 130 interrupted, 1 the run failed (the error's
     `exit_status`)."""
-    from ros_tools.launch import Interrupted, LaunchError
+    from ros_tools.launch_end import Interrupted, LaunchError
 
     try:
         return run(), 0
