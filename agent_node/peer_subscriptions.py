@@ -20,7 +20,7 @@ __all__ = ["PeerSubscriptions"]
 
 # No event handlers: rclpy 7.1.6 gives a subscription two by default (incompatible QoS, incompatible type, each
 # logging a warning), and an agent makes and drops one at every conflict state; the two cost 110-160 us of the
-# 1.0-1.3 ms a subscription costs in CPU (benchmarks/peer_churn.py). A writer with an incompatible QoS or type on
+# 1.0-1.3 ms a subscription costs in CPU (docs/ros.md). A writer with an incompatible QoS or type on
 # a position topic is not ours, and its own process still logs the mismatch.
 _NO_EVENTS = SubscriptionEventCallbacks(use_default_callbacks=False)
 

@@ -20,7 +20,8 @@ import errno
 import io
 import json
 import os
-from dataclasses import dataclass
+import hashlib
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Any, Mapping
@@ -105,6 +106,9 @@ class StatsListener:
         # the episodes heard; the cost the offline engine counts too (COMMUNICATION says why not the deliveries)
         self.heard: dict[int, int] = {k: 0 for k in self.agents}
         self.conflicts: dict[str, list[int]] = {}  # topic -> episodes of which a statistic disagreed with the first
+        # topic -> episode -> a digest of the first statistic heard: what a later one is compared with, once the
+        # kept statistic has been slimmed (`settle`)
+        self._digests: dict[str, dict[int, bytes]] = {}
         # Learners whose node the launch restarted: an episode of theirs never heard before a later one is one
         # they were away for (a node sends its statistics in order, and resumes where the world is).
         self.restarted: set[int] = set()
@@ -177,14 +181,31 @@ class StatsListener:
     def _first(self, heard: dict[int, Any], stats: Any, topic: str) -> bool:
         """Keep `stats` if it is the first heard of its episode; one that differs from the first is a conflict
         (the same one again, a resend, is nothing)."""
-        kept = heard.setdefault(stats.episode, stats)
-        if kept is stats:
+        digests = self._digests.setdefault(topic, {})
+        digest = hashlib.blake2b(repr(stats).encode(), digest_size=16).digest()
+        kept = digests.setdefault(stats.episode, digest)
+        if stats.episode not in heard:
+            heard[stats.episode] = stats
             return True
-        if kept != stats:
+        if kept != digest:
             self.drops.record(WireError("conflicting", f"episode {stats.episode} statistics unlike the first heard "
                                                        "of it (kept)"), topic)
             self.conflicts.setdefault(topic, []).append(stats.episode)
         return False
+
+    def settle(self, episode: int) -> None:
+        """Slim the statistics of `episode`, whose row is written and which no file reads whole again: what the
+        departures and sums read stays (the world's figures, the learners' DEPARTURES counters); the marked joint
+        states and the other counters go, so that a long run keeps a few hundred bytes an episode, not kilobytes
+        (a CQ agent's marked joint states are in each of its statistics)."""
+        w = self.world.get(episode)
+        if w is not None:
+            self.world[episode] = replace(w, counters={})
+        for got in self.agents.values():
+            a = got.get(episode)
+            if a is not None:
+                got[episode] = replace(a, marked=(), counters={k: a.counters[k] for k in DEPARTURES
+                                                               if k in a.counters})
 
     def named_conflicts(self) -> dict[str, str]:
         """topic -> the episodes of which it carried conflicting statistics, as ranges ('3, 5-7')."""
@@ -300,6 +321,8 @@ class EpisodeRows:
                 self.free()
                 return
             self.written += 1
+            if self.written >= 2:  # the newest row's statistics stay whole: the last heard, if the run ends now
+                listener.settle(self.written - 2)
 
     def _in_place(self) -> bool:
         """Whether the file written is still the one at its path."""

@@ -1110,6 +1110,28 @@ FLOOD_READERS = {"agv1/action": 1, "agv2/action": 1, "agv1/feedback": 1, "agv2/f
                  "world/stats": 1, "agv1/stats": 1, "agv2/stats": 1}
 
 
+def flooded_launch(tmp_path, name: str, sets, seed: int, domain_id: int):
+    """A 2-agent keyed `cq-ros launch` of tunnel_to_goal (CQ, FLOOD_EPISODES, `sets`) and a Flood (seed `seed`)
+    on its namespace, once the launch steps and every reader of the flood has matched: (launcher, flood, results
+    folder, stderr file)."""
+    from helpers import Flood
+
+    out, namespace, err = tmp_path / "result", unique(name), tmp_path / "stderr.txt"
+    with open(err, "wb") as stderr:
+        launcher = subprocess.Popen(launch_command(out, namespace, "tunnel_to_goal", "cq", FLOOD_EPISODES, sets,
+                                                   "--no-figures"), stdout=subprocess.DEVNULL, stderr=stderr)
+    flood = Flood(namespace, 2, seed=seed, domain_id=domain_id)
+    try:
+        wait_for_line(out / "logs" / "world.log", "stepping", LAUNCH_TIMEOUT_S, launcher, detail=err)
+        wait_until(lambda: flood.matched(FLOOD_READERS), LAUNCH_TIMEOUT_S, "every reader of the flood",
+                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
+    except BaseException:
+        flood.close()
+        stop_launcher(launcher)
+        raise
+    return launcher, flood, out, err
+
+
 def rows_written(path) -> int:
     try:
         return max(path.read_bytes().count(b"\n") - 1, 0)
@@ -1129,19 +1151,10 @@ def test_a_40000_message_junk_flood_on_every_topic_leaves_a_launch_the_offline_r
     from cq_ros.engine import run
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
-    from helpers import Flood
 
-    out, namespace, err = tmp_path / "result", unique("flood"), tmp_path / "stderr.txt"
-    with open(err, "wb") as stderr:
-        launcher = subprocess.Popen(launch_command(out, namespace, "tunnel_to_goal", "cq", FLOOD_EPISODES,
-                                                   FLOOD_SETTINGS, "--no-figures"),
-                                    stdout=subprocess.DEVNULL, stderr=stderr)
-    flood = Flood(namespace, 2, seed=1, domain_id=ros_domain_id)
+    launcher, flood, out, err = flooded_launch(tmp_path, "flood", FLOOD_SETTINGS, 1, ros_domain_id)
     started = None
     try:
-        wait_for_line(out / "logs" / "world.log", "stepping", LAUNCH_TIMEOUT_S, launcher, detail=err)
-        wait_until(lambda: flood.matched(FLOOD_READERS), LAUNCH_TIMEOUT_S, "every reader of the flood",
-                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
         started = time.monotonic()
         spread = FLOOD_EPISODES * 3 // 5
 
@@ -1210,21 +1223,12 @@ def test_a_burst_of_junk_on_every_topic_as_fast_as_one_writer_sends_never_ends_a
     from cq_ros.engine import run
     from cq_ros.gridmap import load_map
     from cq_ros.settings import Settings
-    from helpers import Flood
 
     # a step's action that comes past step_timeout is missed by design (docs/faults.md): on 2 cores shared by
     # three such launches an action took over 2 s to be read in the burst, so the wait here is long
-    sets = (*FLOOD_SETTINGS, "step_timeout=20.0")
-    out, namespace, err = tmp_path / "result", unique("burst"), tmp_path / "stderr.txt"
-    with open(err, "wb") as stderr:
-        launcher = subprocess.Popen(launch_command(out, namespace, "tunnel_to_goal", "cq", FLOOD_EPISODES,
-                                                   sets, "--no-figures"),
-                                    stdout=subprocess.DEVNULL, stderr=stderr)
-    flood = Flood(namespace, 2, seed=2, domain_id=ros_domain_id)
+    launcher, flood, out, err = flooded_launch(tmp_path, "burst", (*FLOOD_SETTINGS, "step_timeout=20.0"), 2,
+                                               ros_domain_id)
     try:
-        wait_for_line(out / "logs" / "world.log", "stepping", LAUNCH_TIMEOUT_S, launcher, detail=err)
-        wait_until(lambda: flood.matched(FLOOD_READERS), LAUNCH_TIMEOUT_S, "every reader of the burst",
-                   ended=lambda: launcher.poll() is not None, detail=lambda: text_of(err))
         flood.send(FLOOD_MESSAGES)
         code = launcher.wait(LAUNCH_TIMEOUT_S * 3)
     finally:
