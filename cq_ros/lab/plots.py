@@ -366,12 +366,12 @@ def write_figures(
 
     Reads ``episodes.csv``, ``manifest.json`` and, if present, ``observe.csv``. Writes collisions.png
     (linear axis), collisions_log.png (linear-then-log axis), steps.png, joint_plays.png (if LoC or CQ ran),
-    state_space.png (if CQ ran) and observe_map.png (if the directory has an observe.csv; other algorithms found
-    there get observe_map_<algo>.png). A directory holding several maps gets one set per map, each file name
-    prefixed with ``<map>_``. ``smooth`` is the moving-average window of the per-episode curves, by default 1% of
-    the episodes. ``map_loader`` turns a map name into a GridMap, for the observe map and for maps the manifest does
-    not describe; by default the manifest's map is read from the file it was read from (``map_source``), any other
-    by name.
+    state_space.png (if CQ ran) and observe_map.png (if the directory has an observe.csv: our CQ's, else the
+    paper's; other algorithms found there get observe_map_<algo>.png). A directory holding several maps gets one
+    set per map, each file name prefixed with ``<map>_``. ``smooth`` is the moving-average window of the
+    per-episode curves, by default 1% of the episodes. ``map_loader`` turns a map name into a GridMap, for the
+    observe map and for maps the manifest does not describe; by default the manifest's map is read from the file
+    it was read from (``map_source``), any other by name.
     """
     result_dir = Path(result_dir)
     data = load_episodes(result_dir / EPISODES)
@@ -443,8 +443,9 @@ def _observe_maps(
     if not algos:
         return []
     gridmap = map_loader(name)
+    main = next((a for a in reversed(STATE_SPACE_ALGOS) if a in algos), None)  # ours, else the paper's CQ
     return [
         plot_observe_map([obs for obs in observations if obs.map == name and obs.algo == algo], gridmap,
-                         result_dir / f"{prefix}observe_map{'' if algo == 'cq' else '_' + algo}.png", algo)
+                         result_dir / f"{prefix}observe_map{'' if algo == main else '_' + algo}.png", algo)
         for algo in sorted(algos)
     ]
