@@ -243,7 +243,7 @@ class GridWorld:
     def over(self) -> bool:
         """The episode-over rule, its one home: every agent at its goal, or `step_cap` steps played. The engine,
         the world node's lockstep, the PettingZoo env and the plan executor ask it; the compiled engine
-        (cq_ros/compiled/learners.py, numba) keeps a twin that tests/test_compiled.py's byte-identical runs
+        (cq_ros/compiled/episode.py, numba) keeps a twin that tests/test_compiled.py's byte-identical runs
         hold to it."""
         return self.finished or self.capped
 

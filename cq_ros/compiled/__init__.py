@@ -49,12 +49,12 @@ def prepare() -> bool:
     the parent before handing runs to worker processes, so they load the cache rather than each compile."""
     if unavailable() is not None:
         return False
-    from . import learners
     from .engine import warm_up
+    from .episode import play_many
 
     started = time.perf_counter()
     warm_up()
-    if learners.play_many.stats.cache_misses:
+    if play_many.stats.cache_misses:
         print(f"compiling the engine: {time.perf_counter() - started:.0f} s (cached for the next runs)",
               file=sys.stderr, flush=True)
     return True

@@ -21,15 +21,17 @@ from ..gridmap import GridMap
 from ..settings import Settings
 from ..stats import ConflictTest, _sums
 from ..world import GridWorld, rewards_alone
-from . import learners as K
+from . import layout as L
 from .algorithms import KERNEL_ALGORITHMS
 from . import windows as W
 from ..learners.base import N_MOVES, Learner
 from ..learners.jsa import MAX_AGENTS
+from .episode import play_many
 from .mt import set_state, state_of
+from .table import index_table
 from .world import new_scratch
 
-# the learners whose states with peers live in the kernel's table (cq_ros.compiled.learners), by the attribute
+# the learners whose states with peers live in the kernel's table (cq_ros.compiled.table), by the attribute
 # holding them in the reference learner
 TABLES = {"near": "q_near", "loc": "q_coord", "js": "q_joint", "jsa": "q_joint"}
 CQS = ("cq", "cq_paper")  # the learners whose joint states live in the kernel's pool: ours and the paper's
@@ -37,7 +39,7 @@ _EVERYWHERE = np.iinfo(np.int64).max  # the range of JS and JSA: every peer is s
 
 
 def new_table(cap: int, algo: str, n: int):
-    """An empty table (cq_ros.compiled.learners says its layout) of `cap` slots for `algo` and `n` agents: a
+    """An empty table (cq_ros.compiled.table says its layout) of `cap` slots for `algo` and `n` agents: a
     row holds the moves, or JSA's 4^n joint actions."""
     width = N_MOVES ** n if algo == "jsa" else N_MOVES
     return (np.full((cap, n + 1), -1, np.int64), np.zeros((cap, width)), np.full(2 * cap, -1, np.int64),
@@ -45,7 +47,7 @@ def new_table(cap: int, algo: str, n: int):
 
 
 class Kernel:
-    """One run's world and learners as the kernel's arrays (cq_ros.compiled.learners says their layout)."""
+    """One run's world and learners as the kernel's arrays (cq_ros.compiled.layout says their layout)."""
 
     def __init__(self, algo: str, gridmap: GridMap, settings: Settings, seed: int, run_index: int):
         if algo not in KERNEL_ALGORITHMS:
@@ -66,7 +68,7 @@ class Kernel:
                             # the learners' state_count (JS's, JSA's: n_cells^n each), summed, as the episode's
                             # table holds it
                             float((1 if algo == "jsa" else n) * c ** n) if algo in ("js", "jsa") else 0.0])
-        self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, K.ALGO_CODES[algo],
+        self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, L.ALGO_CODES[algo],
                             algo == "cq",
                             st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE],
                            np.int64)
@@ -75,7 +77,7 @@ class Kernel:
                       state_of(GridWorld(gridmap, settings, seed=world_seed(seed, run_index))._rng)[None],
                       new_scratch(n, c))
         self.ag = np.zeros((n, 11), np.int64)
-        self.ag[:, K.NKEYS] = 1  # keys = [None]
+        self.ag[:, L.NKEYS] = 1  # keys = [None]
         self.eps = np.full(n, st.epsilon)
         self.q = np.zeros((n, c, 5 if algo == "loc" else 4))  # LoC's Q* has COORDINATE
         self.mt = np.array([state_of(random.Random(learner_seed(seed, run_index, k))) for k in range(n)])
@@ -87,8 +89,8 @@ class Kernel:
         ck = np.full((n, 2 * n), -1, np.int64)
         self.cq = (np.zeros((n, 8), np.int64), np.zeros(n), np.full((n, 4 * n), -1, np.int64), ck,
                    np.zeros(n, np.int64))
-        self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window, self.fp[[K.R_STEP, K.R_WALL, K.R_COLL,
-                                                                                  K.R_GOAL]])
+        self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window, self.fp[[L.R_STEP, L.R_WALL, L.R_COLL,
+                                                                                  L.R_GOAL]])
         self.tab = new_table(64 if tables else 1, algo, n)
         if algo == "cq":
             self._w1_alone()
@@ -118,9 +120,9 @@ class Kernel:
             size = min(batch, episodes - done)
             started = time.perf_counter()
             try:
-                jsi, jsf, free, pool, tk, tq, th = K.play_many(self.geo, self.fp, self.ip, self.world, self.ag,
-                                                               self.eps, self.q, self.mt, self.js, self.cq, self.win,
-                                                               self.tab, out[done:done + size])
+                jsi, jsf, free, pool, tk, tq, th = play_many(self.geo, self.fp, self.ip, self.world, self.ag,
+                                                             self.eps, self.q, self.mt, self.js, self.cq, self.win,
+                                                             self.tab, out[done:done + size])
             except SystemError as e:  # Ctrl-C (or SIGTERM, as the CLI raises it) while numba called back into
                 interrupt = _interrupt(e)  # Python: numba wraps it; it goes on as what it was
                 if interrupt is not None:
@@ -156,16 +158,16 @@ class Kernel:
         else:
             other = copy.deepcopy(self, {id(a): a for a in self.learnt()})
         other.eps[:] = 0.0
-        other.ip[K.LEARNING] = int(learning)
+        other.ip[L.LEARNING] = int(learning)
         return other
 
     def joint_states(self) -> list[tuple[int, int, int, int, float]]:
         """RunResult.joint_states: (agent, cell, peer, peer_cell, confidence), each agent's in marking order."""
         jsi, jsf = self.js[0], self.js[1]
-        alive = np.flatnonzero(jsi[:, K.JS_SEQ] >= 0)
-        alive = alive[np.lexsort((jsi[alive, K.JS_SEQ], jsi[alive, K.JS_AGENT]))]
-        return [(int(jsi[i, K.JS_AGENT]), int(jsi[i, K.JS_S]), int(jsi[i, K.JS_J]), int(jsi[i, K.JS_C]),
-                 float(jsf[i, K.CONF])) for i in alive]
+        alive = np.flatnonzero(jsi[:, L.JS_SEQ] >= 0)
+        alive = alive[np.lexsort((jsi[alive, L.JS_SEQ], jsi[alive, L.JS_AGENT]))]
+        return [(int(jsi[i, L.JS_AGENT]), int(jsi[i, L.JS_S]), int(jsi[i, L.JS_J]), int(jsi[i, L.JS_C]),
+                 float(jsf[i, L.CONF])) for i in alive]
 
 
 def _interrupt(error: BaseException | None) -> KeyboardInterrupt | None:
@@ -204,7 +206,7 @@ def warm_up() -> None:
 
 
 def _js_key(jsi, slot) -> tuple[int, int, int]:
-    return int(jsi[slot, K.JS_S]), int(jsi[slot, K.JS_J]), int(jsi[slot, K.JS_C])
+    return int(jsi[slot, L.JS_S]), int(jsi[slot, L.JS_J]), int(jsi[slot, L.JS_C])
 
 
 def _state_key(key: np.ndarray, k: int, joint: bool) -> tuple:
@@ -221,12 +223,12 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     set_state(learner.rng, kernel.mt[k])
     ag = kernel.ag[k]
     learner.epsilon = float(kernel.eps[k])
-    learner.learning = bool(kernel.ip[K.LEARNING])
-    learner.episodes_played, learner.joint_plays, learner.heard = (int(ag[K.PLAYED]), int(ag[K.PLAYS]),
-                                                                   int(ag[K.HEARD]))
-    learner.a = int(ag[K.A])
+    learner.learning = bool(kernel.ip[L.LEARNING])
+    learner.episodes_played, learner.joint_plays, learner.heard = (int(ag[L.PLAYED]), int(ag[L.PLAYS]),
+                                                                   int(ag[L.HEARD]))
+    learner.a = int(ag[L.A])
     if not learner.central:  # the central learner's state is the cells, observed afresh at each step
-        learner.s = int(ag[K.S])
+        learner.s = int(ag[L.S])
     if hasattr(learner, "q_local"):  # JS and JSA keep none
         learner.q_local = kernel.q[k].tolist()
     if kernel.algo in TABLES:
@@ -237,19 +239,19 @@ def _hand_over(kernel: Kernel, learner: Learner, k: int) -> None:
     if kernel.algo not in CQS:
         return
     jsi, jsf = kernel.js[0], kernel.js[1]
-    learner.dropped_updates = int(ag[K.DROPPED])
-    learner.looking = bool(ag[K.LOOKING])
-    mine = np.flatnonzero((jsi[:, K.JS_SEQ] >= 0) & (jsi[:, K.JS_AGENT] == k))
-    mine = mine[np.argsort(jsi[mine, K.JS_SEQ])]
+    learner.dropped_updates = int(ag[L.DROPPED])
+    learner.looking = bool(ag[L.LOOKING])
+    mine = np.flatnonzero((jsi[:, L.JS_SEQ] >= 0) & (jsi[:, L.JS_AGENT] == k))
+    mine = mine[np.argsort(jsi[mine, L.JS_SEQ])]
     learner.q_joint = {_js_key(jsi, i): jsf[i, 1:].tolist() for i in mine}
-    learner.confidence = {_js_key(jsi, i): float(jsf[i, K.CONF]) for i in mine}
+    learner.confidence = {_js_key(jsi, i): float(jsf[i, L.CONF]) for i in mine}
     learner.marked, learner.watch = {}, {}
     for i in mine:
-        learner.marked.setdefault(int(jsi[i, K.JS_S]), []).append(_js_key(jsi, i))
+        learner.marked.setdefault(int(jsi[i, L.JS_S]), []).append(_js_key(jsi, i))
     for s in learner.marked:
         learner._rewatch(s)
-    learner.keys = [None if key < 0 else _js_key(jsi, key) for key in kernel.cq[3][k, :ag[K.NKEYS]]]
-    assert not kernel.cq[0][k, K.W_ON], "between episodes no step waits"
+    learner.keys = [None if key < 0 else _js_key(jsi, key) for key in kernel.cq[3][k, :ag[L.NKEYS]]]
+    assert not kernel.cq[0][k, L.W_ON], "between episodes no step waits"
     learner.waiting = None
     wi, wf, pool, vals = kernel.win[0][k], kernel.win[1][k], kernel.win[2], kernel.win[5]
     size = pool.shape[1]
@@ -279,10 +281,10 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
     kernel.mt[k] = state_of(learner.rng)
     ag = kernel.ag[k]
     kernel.eps[k] = learner.epsilon
-    ag[K.PLAYED], ag[K.PLAYS], ag[K.HEARD] = learner.episodes_played, learner.joint_plays, learner.heard
-    ag[K.A] = getattr(learner, "a", 0)
+    ag[L.PLAYED], ag[L.PLAYS], ag[L.HEARD] = learner.episodes_played, learner.joint_plays, learner.heard
+    ag[L.A] = getattr(learner, "a", 0)
     if not learner.central:  # the central learner's state is the cells, observed afresh at each step
-        ag[K.S] = getattr(learner, "s", 0)
+        ag[L.S] = getattr(learner, "s", 0)
     if hasattr(learner, "q_local"):  # JS and JSA keep none: the kernel's stays zeros
         kernel.q[k] = learner.q_local
     if getattr(learner, "waiting", None) is not None:
@@ -303,20 +305,20 @@ def _take_over(kernel: Kernel, learner: Learner, k: int, slots: dict[tuple[int, 
         kernel.js[6][k] = len(table)
     if kernel.algo not in CQS:
         return
-    ag[K.DROPPED], ag[K.LOOKING] = learner.dropped_updates, learner.looking
+    ag[L.DROPPED], ag[L.LOOKING] = learner.dropped_updates, learner.looking
     jsi, jsf = kernel.js[0], kernel.js[1]
     head, tail, n_js = kernel.js[4], kernel.js[5], kernel.js[6]
     for key, row in learner.q_joint.items():
         slot = slots[k, key] = len(slots)
-        jsi[slot, [K.JS_S, K.JS_J, K.JS_C, K.JS_SEQ, K.JS_AGENT]] = (*key, slot, k)
+        jsi[slot, [L.JS_S, L.JS_J, L.JS_C, L.JS_SEQ, L.JS_AGENT]] = (*key, slot, k)
         jsf[slot] = (learner.confidence[key], *row)
     for s, keys in learner.marked.items():  # each cell's list in marking order
         chain = [slots[k, key] for key in keys]
         head[k, s], tail[k, s] = chain[0], chain[-1]
         for prev, slot, nxt in zip([-1, *chain], chain, [*chain[1:], -1]):
-            jsi[slot, K.JS_PREV], jsi[slot, K.JS_NEXT] = prev, nxt
+            jsi[slot, L.JS_PREV], jsi[slot, L.JS_NEXT] = prev, nxt
     n_js[k] = len(learner.q_joint)
-    ag[K.NKEYS] = len(learner.keys)
+    ag[L.NKEYS] = len(learner.keys)
     kernel.cq[3][k, :len(learner.keys)] = [-1 if key is None else slots[k, key] for key in learner.keys]
     wi, wf = kernel.win[0][k], kernel.win[1][k]
     rows = []
@@ -355,7 +357,7 @@ def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     learners = team.learners
     algo = learners[0].name
     kernel = Kernel(algo, team.world.map, learners[0].settings, seed, run_index)
-    kernel.ip[K.LEARNING] = int(learners[0].learning)
+    kernel.ip[L.LEARNING] = int(learners[0].learning)
     kernel.world[3][0] = state_of(team.world._rng)
     if algo in CQS:
         total = sum(len(learner.q_joint) for learner in learners)
@@ -373,5 +375,5 @@ def kernel_of(team: Team, seed: int = 0, run_index: int = 0) -> Kernel:
     for k, learner in enumerate(learners):
         _take_over(kernel, learner, k, slots)
     if algo in TABLES:
-        K.index_table(kernel.tab[0], kernel.tab[2], kernel.tab[3][0])
+        index_table(kernel.tab[0], kernel.tab[2], kernel.tab[3][0])
     return kernel
