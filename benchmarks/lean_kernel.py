@@ -259,13 +259,14 @@ def _lean(nbr, starts, goals, rows, cols, fp, ip, episodes, seed, out):
 
 def lean_run(algo: str, gridmap, settings, episodes: int, seed: int = 0) -> np.ndarray:
     """The lean kernel's run of indep or CQ: each episode's (joint steps, collisions)."""
+    from cq_ros.settings import CONF_DROP, CONF_INIT
     from cq_ros.stats import ConflictTest
 
     st = settings
     test = ConflictTest(st.window, st.significance)
     rows, cols = zip(*gridmap.cells)
     fp = np.array([st.alpha, st.gamma, st.epsilon, st.reward_step, st.reward_wall, st.reward_collision,
-                   st.reward_goal, st.conf_init, st.conf_up, st.conf_down, st.conf_max, st.conf_drop, test.t_two,
+                   st.reward_goal, CONF_INIT, st.conf_up, st.conf_down, st.conf_max, CONF_DROP, test.t_two,
                    test.t_one])
     ip = np.array([algo == "cq", st.step_cap, st.epsilon_decay_episodes, st.window, MARK_RANGE], np.int64)
     out = np.zeros((episodes, 2), np.int64)

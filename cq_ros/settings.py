@@ -19,6 +19,11 @@ if TYPE_CHECKING:
     from .gridmap import GridMap
 
 
+# CQ's confidence in a joint state starts at CONF_INIT when it is marked and the joint state is dropped once it
+# falls below CONF_DROP (the paper gives neither); conf_up, conf_down and conf_max move it in between.
+CONF_INIT, CONF_DROP = 1.0, 0.0
+
+
 class SettingsError(ValueError):
     """A setting that does not exist or a value of the wrong type or range."""
 
@@ -43,16 +48,10 @@ class Settings:
     reward_wall: float = setting(-1.0, "reward for bumping into a wall (the agent stays; not in the paper)")
     reward_collision: float = setting(-10.0, "reward for a collision (the agents stay; not in the paper)")
     reward_goal: float = setting(10.0, "reward for reaching the goal (not in the paper)")
-    conf_init: float = setting(1.0, "CQ's confidence in a newly marked joint state (not in the paper)")
     conf_up: float = setting(0.5, "CQ's confidence rise when a marked joint state is met (at most conf_max)")
     conf_down: float = setting(0.02, "CQ's confidence fall when its local state is met without the joint state")
     conf_max: float = setting(10.0, "CQ's highest confidence in a joint state")
-    conf_drop: float = setting(0.0, "a marked joint state whose confidence falls below this is dropped")
-    loc_range: int = setting(2, "LoC: active perception is TRUE when a peer is at most this many cells away "
-                                "(Manhattan), i.e. close enough to collide this step")
     loc_cost: float = setting(0.1, "LoC: what choosing COORDINATE costs of the learner's reward")
-    near_range: int = setting(2, "near (the baseline that watches every peer in range at every step): the range, "
-                                 "Manhattan cells")
     step_cap: int = setting(5000, "an episode ends when all agents are at their goals or after this many steps "
                                   "(recorded as truncated)")
     eval_episodes: int = setting(
@@ -78,10 +77,7 @@ class Settings:
         _check(0.0 < self.significance < 0.5, "significance", self.significance, "in (0, 0.5)")
         _check(self.conf_up >= 0 and self.conf_down >= 0, "conf_up/conf_down", (self.conf_up, self.conf_down),
                "not negative")
-        _check(self.conf_drop < self.conf_init <= self.conf_max, "conf_drop < conf_init <= conf_max",
-               (self.conf_drop, self.conf_init, self.conf_max), "ordered")
-        _check(self.loc_range >= 1, "loc_range", self.loc_range, "at least 1")
-        _check(self.near_range >= 1, "near_range", self.near_range, "at least 1")
+        _check(self.conf_max >= CONF_INIT, "conf_max", self.conf_max, f"at least CONF_INIT={CONF_INIT}")
         _check(self.step_cap >= 1, "step_cap", self.step_cap, "at least 1")
         _check(0.0 <= self.slip < 1.0, "slip", self.slip, "in [0, 1) (at 1 every move fails: no AGV ever moves)")
         _check(self.start_hold >= 0, "start_hold", self.start_hold, "at least 0")

@@ -37,6 +37,9 @@ from .gridmap import GridMap
 from .settings import Settings
 
 N_ACTIONS = 4
+# Two agents can collide at a step only if at most this many cells apart (Manhattan): each moves one cell. The
+# range LoC perceives in and near watches.
+COLLISION_REACH = 2
 
 
 @dataclass(frozen=True)

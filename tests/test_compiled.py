@@ -110,9 +110,8 @@ def drawn_settings(draw):
         alpha=draw(st.sampled_from([0.1, 0.3, 1.0])), epsilon=draw(st.sampled_from([0.0, 0.1, 0.5])),
         epsilon_decay_episodes=draw(st.sampled_from([0, 10])), window=draw(st.integers(2, 8)),
         gamma=draw(st.sampled_from([0.0, 0.9])), reward_step=draw(st.sampled_from([0.0, -1.0, -0.1])),
-        conf_init=draw(st.sampled_from([0.3, 1.0])), conf_down=draw(st.sampled_from([0.02, 0.3])),
-        conf_drop=draw(st.sampled_from([0.0, 0.2])), conf_up=draw(st.sampled_from([0.0, 0.5])),
-        near_range=draw(st.integers(1, 3)), loc_range=draw(st.integers(1, 3)),
+        conf_down=draw(st.sampled_from([0.02, 0.3, 0.6])), conf_up=draw(st.sampled_from([0.0, 0.5])),
+        conf_max=draw(st.sampled_from([1.0, 10.0])),
         loc_cost=draw(st.sampled_from([0.0, 0.1, 1.0])), step_cap=step_cap, eval_episodes=draw(st.integers(0, 4)),
         eval_learning=draw(flag), slip=draw(st.sampled_from([0.0, 0.0, 0.2, 0.9])), start_hold=hold)
 
@@ -150,7 +149,7 @@ def assert_same_tables(ours, theirs):
 
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
-    ("cq_paper", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5}),
+    ("cq_paper", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_down": 0.3}),
     ("cq_paper", "tunnel_to_goal", {"epsilon_decay_episodes": 150}),
     ("near", "tunnel_to_goal_3", {}), ("loc", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2}),
     ("js", "tunnel_to_goal_3", {"eval_learning": 1}), ("jsa", "tunnel_to_goal_3", {"slip": 0.1})])
@@ -179,7 +178,7 @@ def test_a_run_learnt_compiled_goes_on_as_reference_learners(algo, map_name, ove
 
 @pytest.mark.parametrize("algo,map_name,overrides", [
     ("indep", "tunnel_to_goal", {}), ("cq", "tunnel_to_goal_3", {}),
-    ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_drop": 0.5}),
+    ("cq", "tunnel_to_goal_3", {"slip": 0.1, "start_hold": 2, "conf_down": 0.3}),
     ("cq_paper", "tunnel_to_goal", {"epsilon_decay_episodes": 150}),
     ("near", "tunnel_to_goal_3", {"slip": 0.1}), ("loc", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150}),
     ("js", "tunnel_to_goal", {"start_hold": 2}), ("jsa", "tunnel_to_goal_3", {"epsilon_decay_episodes": 150})])

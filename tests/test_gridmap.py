@@ -225,7 +225,7 @@ def agents_with(old, new, drawing=OPEN):
         pytest.param(AGENTS + "set gamma\n" + OPEN, "3:1", "expected 'set KEY=VALUE'", id="set-syntax"),
         pytest.param(AGENTS + "set alpha=0.2 x\n" + OPEN, "3:1", "expected 'set KEY=VALUE'", id="set-trailing"),
         pytest.param(AGENTS + "set alpha=0.2\nset alpha=0.3\n" + OPEN, "4:5", "alpha is set twice", id="set-twice"),
-        pytest.param(AGENTS + "set conf_init=20\n" + OPEN, "3:15", "conf_drop < conf_init <= conf_max",
+        pytest.param(AGENTS + "set conf_max=0.5\n" + OPEN, "3:14", "conf_max must be at least CONF_INIT",
                      id="set-order"),
     ],
 )
@@ -251,9 +251,9 @@ def test_good_texts_parse():
 
 
 def test_set_lines_become_the_maps_defaults():
-    text = AGENTS + "set reward_step=-1\n# a comment\nset window = 30\nset conf_max=20\nset conf_init=15\n" + OPEN
+    text = AGENTS + "set reward_step=-1\n# a comment\nset window = 30\nset conf_max=20\nset conf_up=1.5\n" + OPEN
     grid = parse_map(text)
-    assert grid.defaults == {"reward_step": -1.0, "window": 30, "conf_max": 20.0, "conf_init": 15.0}
+    assert grid.defaults == {"reward_step": -1.0, "window": 30, "conf_max": 20.0, "conf_up": 1.5}
     assert type(grid.defaults["window"]) is int and type(grid.defaults["reward_step"]) is float
     assert parse_map(AGENTS + OPEN).defaults == {}
     assert dataclasses.replace(grid, defaults={}) != grid  # the defaults are part of the map

@@ -27,7 +27,7 @@ from cq_ros.learners.js import JointStateQ
 from cq_ros.learners.jsa import MAX_AGENTS, JointStateActionQ
 from cq_ros.learners.loc import COORDINATE, LearningOfCoordination
 from cq_ros.learners.near import NearQ
-from cq_ros.settings import Settings
+from cq_ros.settings import CONF_INIT, Settings
 from cq_ros.world import GridWorld
 from helpers import OUR_RULES, ours_without, run_as, with_rules
 
@@ -190,7 +190,7 @@ def test_cq_marking_an_existing_joint_state_keeps_its_table():
     learner.observe(3)
     learner.act({1: 1, 2: 3})
     assert learner.q_joint[js] == table
-    assert learner.confidence[js] >= Settings().conf_init
+    assert learner.confidence[js] >= CONF_INIT
     assert len(learner.marked[0]) == 2
 
 
@@ -488,11 +488,11 @@ def test_cq_confidence_rises_on_a_match_up_to_conf_max():
     for _ in range(30):
         step(learner, 0, {1: 1, 2: 4}, 0.0, 1)  # peer 1 where marked; peer 2 elsewhere
         seen.append(learner.confidence[js])
-    assert seen[1] == pytest.approx(s.conf_init + s.conf_up)
+    assert seen[1] == pytest.approx(CONF_INIT + s.conf_up)
     assert all(b >= a for a, b in zip(seen, seen[1:]))
     assert max(seen) == s.conf_max and seen[-1] == s.conf_max
     # peer 2's joint state lost confidence on each of those visits
-    assert learner.confidence[(0, 2, 3)] == pytest.approx(s.conf_init - 30 * s.conf_down)
+    assert learner.confidence[(0, 2, 3)] == pytest.approx(CONF_INIT - 30 * s.conf_down)
 
 
 def test_cq_confidence_falls_and_the_joint_state_is_dropped():
@@ -506,7 +506,7 @@ def test_cq_confidence_falls_and_the_joint_state_is_dropped():
     assert learner.confidence[(0, 1, 1)] == pytest.approx(0.6)
     for _ in range(2):
         step(learner, 0, {1: 2, 2: 3}, 0.0, 1)
-    # 1.0 - 3 * 0.4 < conf_drop = 0: peer 1's joint state is gone; peer 2 is still watched
+    # 1.0 - 3 * 0.4 < CONF_DROP = 0: peer 1's joint state is gone; peer 2 is still watched
     assert (0, 1, 1) not in learner.q_joint and (0, 1, 1) not in learner.confidence
     assert learner.marked == {0: [(0, 2, 3)]}
     assert learner.confidence[(0, 2, 3)] == pytest.approx(2.5)  # three matches
@@ -523,7 +523,7 @@ def test_cq_confidence_falls_and_the_joint_state_is_dropped():
 
 def test_cq_update_of_a_joint_state_forgotten_while_it_waits_is_dropped():
     """cq_bootstrap_acted: a step acted on Q^j waits for the next act, and that act forgets the joint state (its
-    peer is elsewhere, its confidence falls below conf_drop). The update has no row to land in: it is dropped
+    peer is elsewhere, its confidence falls below CONF_DROP). The update has no row to land in: it is dropped
     and counted, and neither Q_k nor the other Q^j learns it in its place."""
     learner = cq_with_conflict(cq_bootstrap_acted=1, conf_down=2.0)
     learner.observe(0)
@@ -854,7 +854,7 @@ def test_loc_coordinate_asks_for_all_peers_and_acts_on_q_c_when_a_peer_is_near()
     learner.q_local[1] = [0.0, 1.0, 0.0, -1.0, 5.0]  # COORDINATE best; Q*'s best move EAST
     learner.q_local[2] = [0.0, 0.0, 3.0, 0.0, 4.0]
     assert learner.observe(1) == (1, 2)
-    move = learner.act({1: 3, 2: 5})  # peer 1 two cells away (within loc_range 2); peer 2 four
+    move = learner.act({1: 3, 2: 5})  # peer 1 two cells away (within COLLISION_REACH, 2); peer 2 four
     assert move == EAST and learner.joint_plays == 1
     x = (1, ((1, 3),))
     assert learner.x == x
@@ -1038,7 +1038,7 @@ def test_make_learners_one_per_agent_or_one_central():
 
 
 def test_near_conditions_on_the_peers_in_range_only_and_hears_only_them():
-    learner = NearQ(0, ROW3, Settings(**GREEDY, near_range=2), seed=1)
+    learner = NearQ(0, ROW3, Settings(**GREEDY), seed=1)
     assert learner.observe(0) == (1, 2)  # it must know where everyone is to know who is near
     learner.act({1: 2, 2: 5})  # agent 1 is 2 cells away, agent 2 five
     assert learner.heard == 1 and learner.joint_plays == 1

@@ -8,7 +8,7 @@ import pytest
 
 from cq_ros.lab.results import manifest_for
 from cq_ros.gridmap import load_map, parse_map
-from cq_ros.settings import Settings, SettingsError, run_settings
+from cq_ros.settings import CONF_DROP, CONF_INIT, Settings, SettingsError, run_settings
 
 FIELDS = [f.name for f in dataclasses.fields(Settings)]
 INT_FIELDS = [f.name for f in dataclasses.fields(Settings) if f.type in ("int", int)]
@@ -18,13 +18,13 @@ def test_defaults_are_valid_and_the_papers():
     s = Settings()
     assert (s.alpha, s.epsilon, s.window) == (0.1, 0.1, 60)  # the paper's settings
     assert 0.0 <= s.gamma < 1.0 and 0.0 < s.significance < 0.5
-    assert s.conf_drop < s.conf_init <= s.conf_max
+    assert CONF_DROP < CONF_INIT <= s.conf_max
     assert s.slip == 0.0  # deterministic transitions, as in the paper
     d = s.as_dict()
     assert sorted(d) == sorted(FIELDS)
     assert all(math.isfinite(v) for v in d.values())
     assert Settings(**d) == s  # the manifest round-trips
-    assert {"window", "loc_range", "step_cap"} <= set(INT_FIELDS)
+    assert {"window", "start_hold", "step_cap"} <= set(INT_FIELDS)
     assert all(type(d[name]) is int for name in INT_FIELDS)
 
 
@@ -40,9 +40,9 @@ def test_overrides_parse_ints_and_floats():
 
 
 def test_overrides_from_a_dict():
-    s = Settings().with_overrides({"alpha": "0.3", "window": 9, "loc_range": 3.0})
-    assert (s.alpha, s.window, s.loc_range) == (0.3, 9, 3)
-    assert type(s.loc_range) is int
+    s = Settings().with_overrides({"alpha": "0.3", "window": 9, "start_hold": 3.0})
+    assert (s.alpha, s.window, s.start_hold) == (0.3, 9, 3)
+    assert type(s.start_hold) is int
     assert Settings().with_overrides({}) == Settings()
     assert Settings().with_overrides([]) == Settings()
 
@@ -96,9 +96,8 @@ def test_wrong_types_from_a_dict(value):
         "significance=0.5",
         "conf_up=-1",
         "conf_down=-0.1",
-        "conf_init=20",  # above conf_max
-        "conf_drop=1",  # not below conf_init
-        "loc_range=0",
+        "conf_max=0.5",  # below CONF_INIT
+        "start_hold=-1",
         "step_cap=0",
         "slip=1.5",
         "slip=1",
@@ -136,9 +135,9 @@ def test_a_bad_pair_loses_nothing_and_changes_nothing():
 
 def test_boundary_values_are_accepted():
     s = Settings().with_overrides(
-        ["alpha=1", "epsilon=0", "window=2", "gamma=0", "slip=0.999", "loc_range=1", "step_cap=1", "epsilon=1"]
+        ["alpha=1", "epsilon=0", "window=2", "gamma=0", "slip=0.999", "conf_max=1", "step_cap=1", "epsilon=1"]
     )
-    assert (s.alpha, s.epsilon, s.window, s.gamma, s.slip, s.loc_range, s.step_cap) == (1.0, 1.0, 2, 0.0, 0.999, 1, 1)
+    assert (s.alpha, s.epsilon, s.window, s.gamma, s.slip, s.conf_max, s.step_cap) == (1.0, 1.0, 2, 0.0, 0.999, 1, 1)
     assert Settings().with_overrides(["step_cap=10", "start_hold=9"]).start_hold == 9
 
 

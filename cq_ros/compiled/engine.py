@@ -18,9 +18,9 @@ from numpy.lib import recfunctions
 from .. import episode as record
 from ..engine import RunResult, Team, learner_seed, make_learners, world_seed
 from ..gridmap import GridMap
-from ..settings import Settings
+from ..settings import CONF_DROP, CONF_INIT, Settings
 from ..stats import ConflictTest, _sums
-from ..world import GridWorld, rewards_alone
+from ..world import COLLISION_REACH, GridWorld, rewards_alone
 from . import layout as L
 from .algorithms import KERNEL_ALGORITHMS
 from . import windows as W
@@ -63,14 +63,14 @@ class Kernel:
                     np.array(gridmap.goals, np.int64), np.array(rows, np.int64), np.array(cols, np.int64))
         test = ConflictTest(st.window, st.significance) if cq else None
         self.fp = np.array([st.alpha, st.gamma, st.epsilon, st.slip, st.reward_step, st.reward_wall,
-                            st.reward_collision, st.reward_goal, st.conf_init, st.conf_up, st.conf_down, st.conf_max,
-                            st.conf_drop, test.t_two if cq else 0.0, test.t_one if cq else 0.0, st.loc_cost,
+                            st.reward_collision, st.reward_goal, CONF_INIT, st.conf_up, st.conf_down, st.conf_max,
+                            CONF_DROP, test.t_two if cq else 0.0, test.t_one if cq else 0.0, st.loc_cost,
                             # the learners' state_count (JS's, JSA's: n_cells^n each), summed, as the episode's
                             # table holds it
                             float((1 if algo == "jsa" else n) * c ** n) if algo in ("js", "jsa") else 0.0])
         self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, L.ALGO_CODES[algo],
                             algo == "cq",
-                            st.loc_range if algo == "loc" else st.near_range if algo == "near" else _EVERYWHERE],
+                            COLLISION_REACH if algo in ("loc", "near") else _EVERYWHERE],
                            np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
                       # the world's generator as GridWorld's constructor leaves it

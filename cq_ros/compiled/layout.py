@@ -23,7 +23,8 @@ W_ON, W_CELL, W_ACTION, W_NEXT, W_DONE, W_CONFLICT, W_LEARNT, W_NKEYS = range(8)
 ALPHA, GAMMA, EPS0, SLIP, R_STEP, R_WALL, R_COLL, R_GOAL, CONF_INIT, CONF_UP, CONF_DOWN, CONF_MAX, CONF_DROP, \
     T_TWO, T_ONE, LOC_COST, JS_STATES = range(17)
 # ip: the int settings (ALGO: which learner, one of ALGO_CODES; OURS: CQ plays our rules, cq.CQLearner's, else
-# the paper's, cq_paper.CQPaperLearner's; RANGE: near_range, loc_range, or for JS beyond any distance)
+# the paper's, cq_paper.CQPaperLearner's; RANGE: cq_ros.world.COLLISION_REACH for near and LoC, or for JS
+# beyond any distance)
 N_CELLS, STEP_CAP, START_HOLD, DECAY, LEARNING, ALGO, OURS, RANGE = range(8)
 INDEP, CQ, NEAR, LOC, JS, JSA = range(6)
 ALGO_CODES = {"indep": INDEP, "cq": CQ, "cq_paper": CQ, "near": NEAR, "loc": LOC, "js": JS, "jsa": JSA}

@@ -36,6 +36,7 @@ of CQ": each is the paper's reading here, and ours in cq.CQLearner.
 
 from dataclasses import dataclass
 
+from ..settings import CONF_DROP, CONF_INIT
 from ..stats import ConflictTest, RewardWindows
 from .base import Learner, N_MOVES, epsilon_greedy, q_update
 
@@ -149,18 +150,17 @@ class CQPaperLearner(Learner):
     def _mark(self, s, peer_cells, step) -> list[tuple]:
         """Line 14: mark the joint states of cell s, the cell of `step` (the step of the conflict), with the
         peers `_marks` names; returns the joint states made new."""
-        st = self.settings
         made = []
         for j in self.peers:
             if not self._marks(step, peer_cells[j]):
                 continue
             js = (s, j, peer_cells[j])
             if js in self.confidence:
-                self.confidence[js] = max(self.confidence[js], st.conf_init)
+                self.confidence[js] = max(self.confidence[js], CONF_INIT)
                 continue
             self.q_joint[js] = self._new_row(s)
             made.append(js)
-            self.confidence[js] = st.conf_init
+            self.confidence[js] = CONF_INIT
             self.marked.setdefault(s, []).append(js)
         self._rewatch(s)
         return made
@@ -178,7 +178,7 @@ class CQPaperLearner(Learner):
                     self.confidence[js] = min(st.conf_max, self.confidence[js] + st.conf_up)
             elif self.learning:
                 self.confidence[js] -= st.conf_down
-                if self.confidence[js] < st.conf_drop:
+                if self.confidence[js] < CONF_DROP:
                     self._forget(js)
         if met:
             self.joint_plays += 1

@@ -1,7 +1,7 @@
 """Learning of Coordination (Melo & Veloso 2009; the paper's Algorithm 1, "LoC").
 
 Each agent has a fifth action, COORDINATE, which triggers active perception: the agent looks at its
-peers and, if one is close enough to collide this step (Manhattan distance <= loc_range), acts greedily
+peers and, if one is close enough to collide this step (Manhattan distance <= COLLISION_REACH, 2), acts greedily
 on Q^C over the joint state it perceives; otherwise it acts greedily on Q*'s moves. Q* learns the move
 executed (line 18 of Algorithm 1) and, when COORDINATE was chosen, also COORDINATE itself, at the price
 `loc_cost` of active perception: without that second update COORDINATE would keep its initial value
@@ -10,6 +10,7 @@ bootstraps from Q* of the next local state, as in Melo & Veloso (a joint table c
 local state). A new joint state's Q^C starts as a copy of Q*'s moves, as CQ's Q^j does.
 """
 
+from ..world import COLLISION_REACH
 from .base import Learner, N_MOVES, epsilon_greedy, greedy, q_update
 
 COORDINATE = N_MOVES
@@ -22,7 +23,7 @@ class LearningOfCoordination(Learner):
         super().__init__(*args, **kwargs)
         self.q_local = [[0.0] * (N_MOVES + 1) for _ in range(self.n_cells)]  # Q*, with COORDINATE
         self.q_coord: dict[tuple, list[float]] = {}  # Q^C over perceived joint states
-        self.range = self.settings.loc_range
+        self.range = COLLISION_REACH
         self.cost = self.settings.loc_cost
 
     def observe(self, cell):

@@ -1,7 +1,7 @@
 """The learner that watches every peer within reach at every step ("near"): the baseline for CQ's economy.
 
-Its state is its own cell and the cells of the peers at most `near_range` cells away (Manhattan; 2 is close
-enough to collide this step), looked at every step: what an AGV with a range-limited sensor, or a radio that
+Its state is its own cell and the cells of the peers at most COLLISION_REACH (2) cells away (Manhattan:
+close enough to collide this step), looked at every step: what an AGV with a range-limited sensor, or a radio that
 hears only its neighbours, would know. It is Q-learning on that state, so it can condition on a peer
 wherever CQ might, but it looks everywhere, all the time. What it hears is the positions of the peers in
 range, step by step (`heard`): the least that a learner watching every peer within that range must hear.
@@ -11,6 +11,7 @@ copy of its cell's row. As in JS, the next state includes the peers in range the
 `act`, where a step's update is finished (`next_state.NextStateLearner`).
 """
 
+from ..world import COLLISION_REACH
 from .base import N_MOVES
 from .next_state import NextStateLearner
 
@@ -20,7 +21,7 @@ class NearQ(NextStateLearner):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self.range = self.settings.near_range
+        self.range = COLLISION_REACH
         self.q_local = [[0.0] * N_MOVES for _ in range(self.n_cells)]
         self.q_near: dict[tuple, list[float]] = {}
 
