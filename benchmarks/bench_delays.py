@@ -19,7 +19,7 @@ per step.
         [--seeds 0,1,2] [--runs 10] [--episodes 2000] [--jobs 2] [--set KEY=VALUE ...]
 
 The protocol on generated maps (`--generate AGENTS:SEED,SEED ...`, repeatable), the tool of tuning (on the tuning
-generator seeds, cq_ros.lab.held_out.TUNING_SEEDS, with `--variant`s): instead of `--maps`, warehouses made by
+generator seeds, cq_ros.lab.held_out_protocol.TUNING_SEEDS, with `--variant`s): instead of `--maps`, warehouses made by
 `cq-ros generate warehouse --agents AGENTS --seed SEED --slip P` (P from `--gen-slip`, 0.1). The held-out figures
 come from `cq-ros study` (cq_ros.lab.held_out: frozen and learning greedy copies, the planner, ratios, a curve).
 `--variant NAME=ALGO:KEY=VALUE,...` (repeatable) adds a configuration: an algorithm with settings of its own over
@@ -51,7 +51,7 @@ from tqdm import tqdm
 from cq_ros.engine import Team, greedy_team, make_learners, world_seed
 from cq_ros.mapf.execute import execute
 from cq_ros.gridmap import GridMap, load_map
-from cq_ros.lab.held_out import parse_configs
+from cq_ros.lab.held_out_protocol import parse_configs
 from cq_ros.lab.study import mean_interval
 from cq_ros.mapgen.warehouse import warehouse_map
 from cq_ros.mapf.planner import plan

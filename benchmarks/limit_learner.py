@@ -11,7 +11,7 @@ world delays: world_seed(seed, run)), the same protocol (read from the kept stud
 DIR of --study: what `cq-ros study --agents 8,12 --algos cq,near ... --out DIR` wrote.
 
 OUT/AGENTS keeps units.csv (the columns of the study's units.csv, config `limit`), curve.csv, limit.json (the
-protocol and the command) and limit.md: the study's tables (cq_ros.lab.held_out.size_tables) over the units the
+protocol and the command) and limit.md: the study's tables (cq_ros.lab.held_out_report.size_tables) over the units the
 limit learner played, beside cq's and near's kept rows of the same units (paired differences from cq; and the
 limit learner's from near's). Units are written as they finish; the same command again plays only those missing.
 `--report` writes limit.md again from what OUT holds.
@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from cq_ros.gridmap import load_map
-from cq_ros.lab.held_out import (
-    FIGURES, HELD_OUT_SEEDS, KEY, Config, Unit, append_rows, config_settings, curve_table, generated,
-    play_unit, read_rows, size_tables)
+from cq_ros.lab.held_out import Unit, config_settings, generated, play_unit
+from cq_ros.lab.held_out_protocol import HELD_OUT_SEEDS, KEY, Config, append_rows, read_rows
+from cq_ros.lab.held_out_report import FIGURES, curve_table, size_tables
 from cq_ros.lab.runner import Progress
 from cq_ros.lab.study import paired_difference
 from cq_ros.lab.limit import LimitLearning
@@ -96,7 +96,7 @@ def report(kept: Path, out: Path, agents: int, commands: list[str]) -> str:
     mine = read_rows(out / "units.csv")
     units = {(r["generator_seed"], r["run"]) for r in mine}
     learners = [name for name in LEARNERS if any(r["config"] == name for r in mine)]
-    # one row per unit and configuration, the last written (as held_out.shown_rows keeps them)
+    # one row per unit and configuration, the last written (as held_out_report.shown_rows keeps them)
     rows = list({tuple(r[k] for k in KEY): r for r in read_rows(kept / "units.csv") + mine
                  if r["config"] in (*COMPARED, *learners) and (r["generator_seed"], r["run"]) in units}.values())
     compared = [c for c in COMPARED if any(r["config"] == c for r in rows)]  # the 32-AGV study played no near

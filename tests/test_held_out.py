@@ -11,7 +11,8 @@ from cq_ros import compiled
 from cq_ros.lab import held_out as held_out_module
 from cq_ros.cli.main import main
 from cq_ros.gridmap import load_map
-from cq_ros.lab.held_out import BOOTSTRAP_SEED, HELD_OUT_SEEDS, TUNING_SEEDS, show_ratio, shown_rows
+from cq_ros.lab.held_out_protocol import HELD_OUT_SEEDS, TUNING_SEEDS
+from cq_ros.lab.held_out_report import BOOTSTRAP_SEED, show_ratio, shown_rows
 from cq_ros.lab.study import mean_interval, paired_difference, ratio_interval
 from cq_ros.settings import run_settings
 
@@ -174,7 +175,8 @@ def test_paired_figures_pair_the_same_units_where_configurations_played_differen
     with near and stopped part way leaves them: the paired difference is over the two units both played, unit by
     unit (near - cq: 1.0 and 3.0), never the first three of each in sort order (which would pair (1001, 0) with
     (1001, 1))."""
-    from cq_ros.lab.held_out import Config, size_tables
+    from cq_ros.lab.held_out_protocol import Config
+    from cq_ros.lab.held_out_report import size_tables
 
     def unit(config, seed, run, collisions):
         figures = {f"{copy}_{name}": 1.0 for copy in ("frozen", "learning") for name in ("home", "heard", "makespan")}

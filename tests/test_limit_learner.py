@@ -6,7 +6,8 @@ import itertools
 import pytest
 
 from cq_ros.gridmap import load_map, parse_map
-from cq_ros.lab.held_out import Config, Unit, config_settings, play_unit
+from cq_ros.lab.held_out import Unit, config_settings, play_unit
+from cq_ros.lab.held_out_protocol import Config
 from cq_ros.lab.limit import LimitLearning
 from cq_ros.learners import limit
 from cq_ros.mapgen.warehouse import warehouse_text

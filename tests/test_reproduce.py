@@ -10,20 +10,18 @@ import numpy as np
 
 from cq_ros.lab.results import OBSERVE_COLUMNS
 from cq_ros.learners import ALGORITHMS
-from cq_ros.lab.reproduce import (
-    PAPER_MAPS,
-    claim_collision_free,
+from cq_ros.lab.reproduce import as_command
+from cq_ros.lab.reproduce_claims import (
     _claim_entrance,
     _claim_joint_learners_slow,
-    _regime_finding,
-    over_seeds,
+    claim_collision_free,
     entrance_share,
+    over_seeds,
     settled_at,
-    CQ,
     sooner_than_cq,
-    as_command,
-    states_in_parts,
 )
+from cq_ros.lab.reproduce_grid import CQ, PAPER_MAPS
+from cq_ros.lab.reproduce_report import _regime_finding, states_in_parts
 from cq_ros.cli.main import main
 from cq_ros.settings import Settings
 

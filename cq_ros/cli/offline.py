@@ -1,5 +1,5 @@
 """The offline commands of `cq-ros`: the maps, the settings, generated and imported maps, experiments, the
-paper's reproduction and episode animations; each reads its parsed arguments (main.py builds the parser).
+paper's reproduction and episode animations; each reads its parsed arguments (offline_parser.py builds the parsers).
 """
 
 from __future__ import annotations
@@ -238,7 +238,8 @@ def _note(line: str) -> None:
 
 
 def study(args) -> int:
-    from ..lab.held_out import parse_configs, study
+    from ..lab.held_out import study
+    from ..lab.held_out_protocol import parse_configs
 
     configs = parse_configs(args.algos, args.variant)
     for agents in args.agents:  # a bad setting fails before any work starts

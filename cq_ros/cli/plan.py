@@ -21,7 +21,7 @@ from ..settings import Settings, run_settings
 
 
 def run(args) -> int:
-    """The command, from its parsed arguments (cq_ros.cli.main builds the parser): 0, or 1 without a plan."""
+    """The command, from its parsed arguments (cq_ros.cli.offline_parser builds the parser): 0, or 1 without a plan."""
     gridmap = load_map(args.map)
     delays = [f"{key}={value}" for key, value in (("slip", args.slip), ("start_hold", args.start_hold))
               if value is not None]

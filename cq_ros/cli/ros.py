@@ -1,6 +1,6 @@
-"""The ROS commands of `cq-ros` (launch, collect, key, view, hosts, echo, topics,
-nodes, record): each imports rclpy
-(through ros_tools) only when it runs, so the rest of cq_ros works without it. The parser is cli.py's.
+"""The ROS commands of `cq-ros` (launch, collect, key, view, hosts, echo, topics, nodes, record): each imports
+rclpy (through ros_tools) only when it runs, so the rest of cq_ros works without it. The parsers are
+ros_parser.py's.
 """
 
 from __future__ import annotations
