@@ -24,6 +24,7 @@ from ..world import COLLISION_REACH, GridWorld, rewards_alone
 from . import layout as L
 from .algorithms import KERNEL_ALGORITHMS
 from . import windows as W
+from ..learners import CQ_LEARNERS as CQS  # their joint states live in the kernel's pool
 from ..learners.base import N_MOVES, Learner
 from ..learners.jsa import MAX_AGENTS
 from .episode import play_many
@@ -34,7 +35,6 @@ from .world import new_scratch
 # the learners whose states with peers live in the kernel's table (cq_ros.compiled.table), by the attribute
 # holding them in the reference learner
 TABLES = {"near": "q_near", "loc": "q_coord", "js": "q_joint", "jsa": "q_joint"}
-CQS = ("cq", "cq_paper")  # the learners whose joint states live in the kernel's pool: ours and the paper's
 _EVERYWHERE = np.iinfo(np.int64).max  # the range of JS and JSA: every peer is seen
 
 
@@ -56,7 +56,7 @@ class Kernel:
             raise ValueError(f"jsa supports at most {MAX_AGENTS} agents (4^n joint actions), "
                              f"the map has {gridmap.n_agents}")
         self.algo, self.map, self.settings, self.seed, self.run_index = algo, gridmap, settings, seed, run_index
-        st, cq, tables = settings, algo in CQS, algo in TABLES
+        st, cq, tables, ours = settings, algo in CQS, algo in TABLES, algo == "cq"  # ours: cq.CQLearner's rules
         n, c = gridmap.n_agents, gridmap.n_cells
         rows, cols = zip(*gridmap.cells)
         self.geo = (np.array(gridmap.neighbours, np.int64), np.array(gridmap.starts, np.int64),
@@ -69,7 +69,7 @@ class Kernel:
                             # table holds it
                             float((1 if algo == "jsa" else n) * c ** n) if algo in ("js", "jsa") else 0.0])
         self.ip = np.array([c, st.step_cap, st.start_hold, st.epsilon_decay_episodes, 1, L.ALGO_CODES[algo],
-                            algo == "cq",
+                            ours,
                             COLLISION_REACH if algo in ("loc", "near") else _EVERYWHERE],
                            np.int64)
         self.world = (np.zeros(n, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.int64),
@@ -92,7 +92,7 @@ class Kernel:
         self.win = W.new_windows((n, c * 4) if cq else (1, 1), st.window, self.fp[[L.R_STEP, L.R_WALL, L.R_COLL,
                                                                                   L.R_GOAL]])
         self.tab = new_table(64 if tables else 1, algo, n)
-        if algo == "cq":
+        if ours:
             self._w1_alone()
 
     def _w1_alone(self) -> None:

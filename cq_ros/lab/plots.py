@@ -29,13 +29,13 @@ from matplotlib.patheffects import withStroke
 from matplotlib.ticker import LogLocator, NullFormatter, StrMethodFormatter
 
 from ..gridmap import GridMap, load_map
-from ..learners import REGISTRY
+from ..learners import CQ_LEARNERS, REGISTRY
 from .results import EPISODES, OBSERVE, Episodes, Observation, Runs, load_episodes, load_manifest, load_observations
 from .summary import by_map, moving_average, observation_strength
 
 DPI = 150
-JOINT_PLAY_ALGOS = ("loc", "cq_paper", "cq")  # the learners that decide where to use global information
-STATE_SPACE_ALGOS = ("cq_paper", "cq")  # the learners whose state space grows and shrinks
+JOINT_PLAY_ALGOS = ("loc", *CQ_LEARNERS)  # the learners that decide where to use global information
+STATE_SPACE_ALGOS = CQ_LEARNERS  # the learners whose state space grows and shrinks
 
 _LABELS = {a.name: a.label for a in REGISTRY}
 _COLOURS = {a.name: a.colour for a in REGISTRY}

@@ -40,6 +40,8 @@ REGISTRY: tuple[Algorithm, ...] = (
 assert all(a.name == a.learner.name for a in REGISTRY), "an algorithm's name is its learner's"
 
 ALGORITHMS = tuple(a.name for a in REGISTRY if a.paper)
+# The CQ learners (the paper's and ours), whose joint states the plots, the checkpoints and the kernel keep alike
+CQ_LEARNERS = tuple(a.name for a in REGISTRY if issubclass(a.learner, CQPaperLearner))
 # `cq-ros experiment`'s default: the paper's five and our CQ
 DEFAULT_ALGORITHMS = (*ALGORITHMS, "cq")
 LEARNERS: dict[str, type[Learner]] = {a.name: a.learner for a in REGISTRY}
@@ -59,5 +61,5 @@ def algo_sort_key(name: str) -> tuple[int, str]:
     return (order.index(name) if name in order else len(order), name)
 
 
-__all__ = ["ALGORITHMS", "DEFAULT_ALGORITHMS", "Algorithm", "LEARNERS", "Learner", "REGISTRY", "algo_sort_key",
-           "algorithm", "decode_joint_action"]
+__all__ = ["ALGORITHMS", "CQ_LEARNERS", "DEFAULT_ALGORITHMS", "Algorithm", "LEARNERS", "Learner", "REGISTRY",
+           "algo_sort_key", "algorithm", "decode_joint_action"]

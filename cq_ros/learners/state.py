@@ -25,7 +25,7 @@ import numpy as np
 
 from ..gridmap import GridMap
 from ..settings import Settings
-from . import LEARNERS
+from . import CQ_LEARNERS, LEARNERS
 from .base import N_MOVES, Learner
 from .cq_paper import CQPaperLearner, Step
 from .next_state import NextStateLearner
@@ -58,8 +58,7 @@ def _tables(algo: str, n_agents: int) -> list[tuple[str, str, int]]:
         "near": [("q_local", "cells", N_MOVES), ("q_near", "slots", N_MOVES)],
         "js": [("q_joint", "joint", N_MOVES)],
         "jsa": [("q_joint", "joint", N_MOVES ** n_agents)],
-        "cq": [("q_local", "cells", N_MOVES), ("q_joint", "cq", N_MOVES)],
-        "cq_paper": [("q_local", "cells", N_MOVES), ("q_joint", "cq", N_MOVES)],
+        **dict.fromkeys(CQ_LEARNERS, [("q_local", "cells", N_MOVES), ("q_joint", "cq", N_MOVES)]),
     }[algo]
 
 
