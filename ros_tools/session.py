@@ -29,8 +29,11 @@ WORLD = "world"
 # Discovery has settled once the graph has not changed for QUIET_S, looked at for SETTLE_S at the most. A node
 # process shows up 0.05-2.8 s after it starts (docs/design.md, field notes), and the nodes of a launch started
 # together come one after another over seconds: `cq-ros topics` with a fixed 3 s listed 9 of a fresh launch's 16
-# topics. Ours shows up at once, and those already running within a few hundred milliseconds.
-QUIET_S, SETTLE_S = 1.5, 15.0
+# topics. Ours shows up at once, and those already running within a few hundred milliseconds, from their first
+# burst of announcements; on 2 cores beside two busy loops that burst can go unheard, and the next announcement
+# comes 3 s later (Fast DDS's period): with 1.5 s of quiet, `topics` ended before it had heard a node already
+# there, and a second launch found its namespace empty and started. So the quiet spans one such period.
+QUIET_S, SETTLE_S = 3.5, 15.0
 _AGENT_NODE = re.compile(r"agv[1-9][0-9]*|jsa")
 
 

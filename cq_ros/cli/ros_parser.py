@@ -119,7 +119,7 @@ def add_ros_parsers(sub) -> None:
         else:
             p.add_argument("-a", "--all", dest="all_nodes", action="store_true", help="show hidden nodes too")
         p.add_argument("--wait", type=seconds, default=None, metavar="S",
-                       help="list once the graph has not changed for 1.5 s, waiting S seconds at most (default 15)")
+                       help="list once the graph has not changed for 3.5 s, waiting S seconds at most (default 15)")
         add_domain_option(p)
 
     p = sub.add_parser("record", help="record topics to a rosbag2 file (default: every cq_ros topic)")
